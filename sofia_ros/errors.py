@@ -1,0 +1,56 @@
+"""Specific exceptions of sofia_ros.
+
+Every error a user can cause (bad argument, config, command, bag) is one of
+these; the CLI turns them into one line on stderr and exit code 2. Wrap
+lower-level exceptions with ``raise ... from err`` so the cause is kept.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    'SofiaError',
+    'InvalidArgumentError',
+    'NotOrthonormalError',
+    'UnknownStarError',
+    'BelowHorizonError',
+    'ConfigError',
+    'UnknownEffectError',
+    'CommandRefusedError',
+    'BagError',
+]
+
+
+class SofiaError(Exception):
+    """Base of every error sofia_ros raises on purpose."""
+
+
+class InvalidArgumentError(SofiaError, ValueError):
+    """An argument has the wrong shape, type, range, or holds NaN/inf."""
+
+
+class NotOrthonormalError(InvalidArgumentError):
+    """A matrix given as a DCM is not orthonormal within tolerance."""
+
+
+class UnknownStarError(SofiaError, LookupError):
+    """A star name or HIP number is not in the catalogue."""
+
+
+class BelowHorizonError(SofiaError):
+    """A star is below the horizon or below the telescope's elevation limit."""
+
+
+class ConfigError(SofiaError):
+    """A truth, model or node configuration is malformed or out of range."""
+
+
+class UnknownEffectError(ConfigError):
+    """A configuration names an effect that is not in the catalogue."""
+
+
+class CommandRefusedError(SofiaError):
+    """A telescope command is outside the fine- or coarse-drive limits."""
+
+
+class BagError(SofiaError):
+    """A bag is missing, corrupt, truncated or lacks the needed topics."""

@@ -1,0 +1,85 @@
+"""Argument checks shared by the science core.
+
+Each check raises one project exception whose message names the argument and
+says what was expected, so callers never need an ``assert``.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from sofia_ros.errors import InvalidArgumentError, NotOrthonormalError
+
+__all__ = [
+    'finite_array',
+    'finite_scalar',
+    'positive_scalar',
+    'orthonormal_dcm',
+    'DCM_REJECT_TOLERANCE',
+    'DCM_EXACT_TOLERANCE',
+]
+
+#: Largest |A A^T - I| accepted at all; published matrices reach 9e-6 (Table D.2).
+DCM_REJECT_TOLERANCE = 1e-3
+#: Below this a DCM is taken as it is; between the two it is re-orthonormalized with a warning.
+DCM_EXACT_TOLERANCE = 1e-9
+
+
+def finite_array(name, value, shape=None):
+    """Return ``value`` as a float array; raise if it has NaN/inf or the wrong shape.
+
+    ``shape`` may contain ``None`` for a free dimension, e.g. ``(None, 3)``.
+    """
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise InvalidArgumentError(f'{name} must be numeric, got {type(value).__name__}') from err
+    if shape is not None:
+        ok = array.ndim == len(shape) and all(
+            want is None or want == have for want, have in zip(shape, array.shape)
+        )
+        if not ok:
+            want = 'x'.join('N' if s is None else str(s) for s in shape) or 'scalar'
+            raise InvalidArgumentError(f'{name} must have shape {want}, got {array.shape}')
+    if not np.all(np.isfinite(array)):
+        raise InvalidArgumentError(f'{name} contains NaN or infinite values')
+    return array
+
+
+def finite_scalar(name, value):
+    """Return ``value`` as a finite float; raise otherwise."""
+    return float(finite_array(name, value, shape=()))
+
+
+def positive_scalar(name, value):
+    """Return ``value`` as a finite float > 0; raise otherwise."""
+    number = finite_scalar(name, value)
+    if number <= 0.0:
+        raise InvalidArgumentError(f'{name} must be > 0, got {number}')
+    return number
+
+
+def orthonormal_dcm(name, value):
+    """Return a 3x3 DCM; re-orthonormalize small departures with a warning, reject large ones.
+
+    Published matrices (Table D.2, eq. 6.1) are orthonormal to about 1e-5 only.
+    """
+    matrix = finite_array(name, value, shape=(3, 3))
+    departure = float(np.max(np.abs(matrix @ matrix.T - np.eye(3))))
+    if departure > DCM_REJECT_TOLERANCE:
+        raise NotOrthonormalError(
+            f'{name} is not orthonormal: max |A A^T - I| = {departure:.3g} '
+            f'(limit {DCM_REJECT_TOLERANCE:g}); pass a rotation matrix'
+        )
+    if np.linalg.det(matrix) < 0.0:
+        raise NotOrthonormalError(f'{name} is a reflection (det < 0), not a rotation')
+    if departure > DCM_EXACT_TOLERANCE:
+        warnings.warn(
+            f'{name} re-orthonormalized (max |A A^T - I| = {departure:.2g})',
+            stacklevel=2,
+        )
+        u, _, vt = np.linalg.svd(matrix)
+        matrix = u @ vt
+    return matrix

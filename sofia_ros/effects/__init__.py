@@ -1,0 +1,80 @@
+"""The catalogue of physical effects (DESIGN.md section 5), one module per family."""
+
+from __future__ import annotations
+
+import difflib
+
+from sofia_ros.effects import gyro, pointing
+from sofia_ros.effects.base import EffectSpec, Parameter
+from sofia_ros.errors import ConfigError, UnknownEffectError
+
+__all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'get_effect', 'resolve_params', 'catalogue_as_json']
+
+CATALOGUE = {spec.name: spec for spec in (*gyro.EFFECTS, *pointing.EFFECTS)}
+
+
+def get_effect(name):
+    """The catalogue entry ``name``; UnknownEffectError naming the closest names otherwise."""
+    try:
+        return CATALOGUE[name]
+    except KeyError as err:
+        close = difflib.get_close_matches(str(name), CATALOGUE, n=3)
+        hint = f'; did you mean {", ".join(close)}?' if close else '; run `sofia effects` for the list'
+        raise UnknownEffectError(f'unknown effect {name!r}{hint}') from err
+
+
+def resolve_params(name, given):
+    """Defaults of effect ``name`` overlaid with ``given`` (``{}`` or None takes the thesis defaults)."""
+    spec = get_effect(name)
+    if given is None:
+        given = {}
+    if not isinstance(given, dict):
+        raise ConfigError(f'effect {name!r}: parameters must be a mapping, got {type(given).__name__}')
+    resolved = spec.defaults()
+    for key, value in given.items():
+        if key == 'fit':
+            if not isinstance(value, bool):
+                raise ConfigError(f'effect {name!r}: fit must be true or false, got {value!r}')
+            continue
+        param = spec.parameter(key)
+        if param is None:
+            known = ', '.join(p.name for p in spec.params)
+            raise ConfigError(f'effect {name!r}: unknown parameter {key!r} (known: {known})')
+        resolved[key] = _checked_value(name, param, value)
+    return resolved
+
+
+def _checked_value(effect_name, param, value):
+    """Coerce ``value`` to the type of the parameter's default, or raise ConfigError."""
+    default = param.default
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(
+                f'effect {effect_name!r}: {param.name} must be a number in {param.unit}, got {value!r}'
+            )
+        value = float(value)
+        if value != value or value in (float('inf'), float('-inf')):
+            raise ConfigError(f'effect {effect_name!r}: {param.name} must be finite, got {value!r}')
+        return value
+    if isinstance(default, list):
+        if not isinstance(value, list):
+            raise ConfigError(f'effect {effect_name!r}: {param.name} must be a list ({param.unit}), got {value!r}')
+        return list(value)
+    if not isinstance(value, type(default)):
+        raise ConfigError(
+            f'effect {effect_name!r}: {param.name} must be a {type(default).__name__}, got {value!r}'
+        )
+    return value
+
+
+def catalogue_as_json():
+    """The catalogue in the contract form of DESIGN.md section 6 (`sofia effects --json`)."""
+    return [
+        {
+            'name': spec.name,
+            'thesis': spec.thesis,
+            'description': spec.description,
+            'params': {param.name: {'default': param.default, 'unit': param.unit} for param in spec.params},
+        }
+        for spec in CATALOGUE.values()
+    ]

@@ -1,0 +1,131 @@
+"""Pointing geometry effects: Earth rotation, flexure, imagers, HIPO, atmosphere, timing (3, 4.1, 4.3, 6)."""
+
+from sofia_ros.effects.base import EffectSpec, Parameter
+
+EFFECTS = (
+    EffectSpec(
+        'earth_rotation', 'earth', '4.1, eqs. 4.1-4.3',
+        'Earth rate sensed by the gyros on the ground from latitude, heading and elevation; defaults '
+        'are the 2007 Edwards stability-test site of Table 5.3.',
+        (
+            Parameter('latitude_deg', 34.9368, 'deg', 'geodetic latitude of the bearing centre'),
+            Parameter('heading_deg', 324.0, 'deg', 'true heading of the aircraft'),
+        ),
+    ),
+    EffectSpec(
+        'heading_error', 'earth', '5.2.4, Table 5.7',
+        'Error of the measured aircraft heading; the least-squares heading of Table 5.7 lies 3.2 deg '
+        'from the GPS value.',
+        (Parameter('heading_error_deg', 3.2, 'deg', 'true minus assumed heading'),),
+    ),
+    EffectSpec(
+        'focal_plane_flexure', 'flexure', '3.4.1, Table 3.2, eqs. 3.21-3.25',
+        'Gravity image motion at the focal plane from the FEM load cases of Table 3.2.',
+        (Parameter('scale', 1.0, '1', 'multiplier on the Table 3.2 load matrix'),),
+    ),
+    EffectSpec(
+        'imager_flexure', 'flexure', '3.4.1, Table 3.3, eqs. 3.26-3.29',
+        'Gravity rotation of the head-ring imagers (FFI, WFI) from the FEM load cases of Table 3.3.',
+        (
+            Parameter('ffi_scale', 1.0, '1', 'multiplier on the FFI rows of Table 3.3'),
+            Parameter('wfi_scale', 1.0, '1', 'multiplier on the WFI rows of Table 3.3'),
+        ),
+    ),
+    EffectSpec(
+        'fpi_internal_flexure', 'flexure', '6.2, Fig. 6.4',
+        'FPI boresight motion relative to HIPO beyond the FEM prediction: 1.1" in XEL and < 0.27" in '
+        'EL between 23 and 60 deg elevation (FEM: about 0.1"). Proportional to the LOS load, sin(el).',
+        (
+            Parameter('xel_arcsec_per_g', 2.32, 'arcsec/g', 'XEL boresight shift per 1 g load along -LOS'),
+            Parameter('el_arcsec_per_g', 0.4, 'arcsec/g', 'EL boresight shift per 1 g load along -LOS'),
+        ),
+    ),
+    EffectSpec(
+        'imager_boresight_offset', 'imager', '3.3.1, Table 3.4 step 1',
+        'Imager boresight (CCD centre) offset from the TARF origin, per imager (illustrative mounting '
+        'magnitudes; the thesis prints none).',
+        tuple(
+            Parameter(f'{imager}_{axis}_arcsec', value, 'arcsec', f'{imager.upper()} boresight offset about {axis.upper()}')
+            for imager, values in (('fpi', (10.0, -15.0)), ('ffi', (60.0, 45.0)), ('wfi', (300.0, -240.0)))
+            for axis, value in zip(('el', 'xel'), values)
+        ),
+    ),
+    EffectSpec(
+        'imager_rotation_of_field', 'imager', '3.3.3, Table 3.4 step 4',
+        'Rotation of each imager CCD about its optical axis against TARF (illustrative magnitudes).',
+        (
+            Parameter('fpi_deg', 0.5, 'deg', 'FPI rotation of field'),
+            Parameter('ffi_deg', -0.8, 'deg', 'FFI rotation of field'),
+            Parameter('wfi_deg', 1.2, 'deg', 'WFI rotation of field'),
+        ),
+    ),
+    EffectSpec(
+        'imager_scale_error', 'imager', 'Table 2.6, 3.3.1',
+        'Image scale error per imager; defaults are the differences between the measured scales of '
+        'Table 2.6 and the design scales of 3.3.1 (WFI 20.36 vs 21.39"/px, FPI 0.55 vs 0.554"/px).',
+        (
+            Parameter('fpi_ppm', -7220.0, 'ppm', 'FPI scale error'),
+            Parameter('ffi_ppm', 0.0, 'ppm', 'FFI scale error'),
+            Parameter('wfi_ppm', -48150.0, 'ppm', 'WFI scale error'),
+        ),
+    ),
+    EffectSpec(
+        'hipo_fiducial_error', 'imager', '3.3.1 footnote',
+        'HIPO flange centre and CCD angle phi in error; defaults are the 2008 minus 2004 fiducials '
+        '((542.8, 480.2) px, 39.81 deg against (559, 489) px, 40.181 deg).',
+        (
+            Parameter('center_x_px', -16.2, 'px', 'true minus assumed flange centre X'),
+            Parameter('center_y_px', -8.8, 'px', 'true minus assumed flange centre Y'),
+            Parameter('phi_deg', -0.371, 'deg', 'true minus assumed CCD angle phi'),
+        ),
+    ),
+    EffectSpec(
+        'atmospheric_refraction', 'atmosphere', '4.3.2, eqs. 4.33-4.35',
+        'Refraction raises every star towards the zenith; defaults are the Waco weather of 2004-09-02 24:00 CDT.',
+        (
+            Parameter('temperature_c', 22.8, 'C', 'air temperature'),
+            Parameter('pressure_hpa', 996.3, 'hPa', 'air pressure'),
+            Parameter('humidity', 0.74, '1', 'relative humidity'),
+            Parameter('wavelength_um', 0.55, 'um', 'effective wavelength'),
+        ),
+    ),
+    EffectSpec(
+        'seeing', 'atmosphere', '6.1',
+        'Centroid jitter from atmospheric seeing and image wander, 0.3" RMS per axis after drift removal.',
+        (Parameter('rms_arcsec', 0.3, 'arcsec', 'centroid jitter per axis'),),
+    ),
+    EffectSpec(
+        'tracker_drift', 'imager', '6.3',
+        'Residual centroid drift after drift estimation: linear plus sinusoid in FPI rows '
+        '(1.4 px/min, 2.2 px amplitude, 5.2 min period).',
+        (
+            Parameter('linear_px_per_min', 1.4, 'px/min', 'linear drift of the FPI row centroid'),
+            Parameter('sine_amplitude_px', 2.2, 'px', 'amplitude of the sinusoidal drift'),
+            Parameter('sine_period_min', 5.2, 'min', 'period of the sinusoidal drift'),
+        ),
+    ),
+    EffectSpec(
+        'timestamp_offset', 'timing', '6.2',
+        'Clock offset between HIPO time stamps and the TA housekeeping (read out manually in 2004; '
+        'illustrative default).',
+        (Parameter('offset_s', 1.0, 's', 'HIPO clock minus TA clock'),),
+    ),
+    EffectSpec(
+        'accelerometer_bias', 'accelerometer', '2.4.2, Table 2.5',
+        'Accelerometer bias per axis (Q-Flex QA-2000-10 specification: 4 mg).',
+        (
+            Parameter('el_mg', 4.0, 'mg', 'bias of the EL accelerometer'),
+            Parameter('xel_mg', 4.0, 'mg', 'bias of the XEL accelerometer'),
+            Parameter('los_mg', 4.0, 'mg', 'bias of the LOS accelerometer'),
+        ),
+    ),
+    EffectSpec(
+        'accelerometer_misalignment', 'accelerometer', '2.4.2, Table 2.5',
+        'Accelerometer axes misalignment (specification: 105 urad).',
+        (
+            Parameter('about_el_urad', 105.0, 'urad', 'rotation about EL'),
+            Parameter('about_xel_urad', 105.0, 'urad', 'rotation about XEL'),
+            Parameter('about_los_urad', 105.0, 'urad', 'rotation about LOS'),
+        ),
+    ),
+)

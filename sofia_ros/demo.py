@@ -67,6 +67,31 @@ def _flexure_rows():
     return rows
 
 
+def _alignment_rows():
+    from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_rad, standard_error_of_mean
+    from sofia_ros.frames import rotation_angles_from_dcm
+    from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
+
+    sigma_c_rad = 0.327 * RAD_PER_ARCSEC  # 1 HIPO pixel
+    rows = []
+    # Table 6.5 is headed gamma = 4 deg, but its sigma_R follows from eq. 3.32 with 5 deg.
+    for n, sigma_r_arcsec, sigma_beta_arcmin in ((1, 5.3, 5.5), (18, 1.2, 1.3)):
+        sigma_r = standard_error_of_mean(sigma_r_rad(sigma_c_rad, 5.0 * RAD_PER_DEG), n) * ARCSEC_PER_RAD
+        sigma_beta = standard_error_of_mean(sigma_beta_from_length_rad(sigma_c_rad, 4.8 / 60 * RAD_PER_DEG), n)
+        rows.append(Row(f'sigma_R, n = {n}, 5 deg LOS rotation', sigma_r_arcsec, sigma_r, 0.05, 'arcsec'))
+        rows.append(Row(f'sigma_beta, n = {n}, L = 4.8 arcmin', sigma_beta_arcmin,
+                        sigma_beta * ARCSEC_PER_RAD / 60.0, 0.05, 'arcmin'))
+    eq_6_1 = np.array([
+        [9.9984199e-01, 1.7431537e-02, -3.4832506e-03],
+        [-1.7413946e-02, 9.9983577e-01, 5.01810311e-03],
+        [3.5701519e-03, -4.9476375e-03, 9.9998186e-01],
+    ])
+    angles_arcsec = rotation_angles_from_dcm(eq_6_1) * ARCSEC_PER_RAD
+    for axis, design_arcsec, ours in zip(('EL', 'XEL', 'LOS'), (1030.0, 730.0, 3590.0), angles_arcsec):
+        rows.append(Row(f'eq. 6.1 rotation about {axis} (DESIGN.md 8)', design_arcsec, float(ours), 10.0, 'arcsec'))
+    return rows
+
+
 def _star_rows():
     from sofia_ros.sky import WACO_2004_SITE, WACO_2004_WEATHER, astrometric_observed_place, place_distance_arcsec
 
@@ -93,6 +118,7 @@ def run_demo(out):
     sections = (
         ('Table 5.7 - Earth rate sensed by the gyros at Edwards, CD 40.1077 deg (eqs. 4.1-4.3)', _earth_rate_rows()),
         ('Tables 3.2/3.3 - gravity flexure (eqs. 3.21-3.29) and section 6.2', _flexure_rows()),
+        ('Table 6.5 and eq. 6.1 - alignment accuracy and the 2004 gyro alignment', _alignment_rows()),
         ('Table D.3 - Waco 2004-09-02/03: Hipparcos through ERFA, Stone refraction', _star_rows()),
     )
     failures = 0

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from sofia_ros.errors import BelowHorizonError, InvalidArgumentError, UnknownStarError
+from sofia_ros.mount import altaz_from_unit_vector_hrf
 from sofia_ros.sky.distances import place_distance_arcsec
 from sofia_ros.sky.places import (
     EDWARDS_2007_SITE,
@@ -16,6 +17,7 @@ from sofia_ros.sky.places import (
     Site,
     Weather,
     astrometric_observed_place,
+    observed_directions_hrf,
     observed_place,
     visible_stars,
 )
@@ -202,3 +204,34 @@ def test_bad_site_time_and_model_raise():
                        refraction_model='allen')
     with pytest.raises(InvalidArgumentError, match='min_altitude_deg must be >= 11'):
         visible_stars(WACO_2004_SITE, _cdt(2, 23, 22, 16), WACO_2004_WEATHER, min_altitude_deg=5.0)
+
+
+def test_observed_directions_hrf_are_the_observed_places_as_vectors():
+    # Many stars at once: with weather the refracted place Alt + R (eq. 6.2), without it the
+    # catalogue (topocentric) place; HRF is north, west, zenith with azimuth through east (C.4.2).
+    when = _cdt(2, 23, 32, 51)
+    names = ('Polaris', 'Eta Cep', 'HIP 47193')
+    for place_name, place_function in (('apparent', observed_place),
+                                       ('astrometric', astrometric_observed_place)):
+        refracted = observed_directions_hrf(names, WACO_2004_SITE, when, WACO_2004_WEATHER,
+                                            place=place_name)
+        unrefracted = observed_directions_hrf(names, WACO_2004_SITE, when, place=place_name)
+        places = [place_function(name, WACO_2004_SITE, when, WACO_2004_WEATHER) for name in names]
+        for vectors, key in ((refracted, 'apparent_altitude_deg'), (unrefracted, 'altitude_deg')):
+            altitude_deg, azimuth_deg = altaz_from_unit_vector_hrf(vectors)
+            np.testing.assert_allclose(altitude_deg, [getattr(p, key) for p in places], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(azimuth_deg, [p.azimuth_deg for p in places], rtol=0, atol=1e-9)
+    assert observed_directions_hrf([], WACO_2004_SITE, when).shape == (0, 3)
+
+
+def test_observed_directions_hrf_refuse_bad_input():
+    when = _cdt(2, 23, 22, 16)
+    with pytest.raises(InvalidArgumentError, match='Antares below 10 deg altitude'):
+        observed_directions_hrf(['Polaris', 'Antares'], WACO_2004_SITE, when, WACO_2004_WEATHER)
+    assert observed_directions_hrf(['Antares'], WACO_2004_SITE, when)[0, 2] > 0.0
+    with pytest.raises(InvalidArgumentError, match='place must be one of'):
+        observed_directions_hrf(['Polaris'], WACO_2004_SITE, when, place='mean')
+    with pytest.raises(InvalidArgumentError, match='weather must be a Weather or None'):
+        observed_directions_hrf(['Polaris'], WACO_2004_SITE, when, {'pressure_hpa': 996.3})
+    with pytest.raises(UnknownStarError, match='Vulcan'):
+        observed_directions_hrf(['Vulcan'], WACO_2004_SITE, when)

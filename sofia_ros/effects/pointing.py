@@ -61,12 +61,12 @@ EFFECTS = (
     ),
     EffectSpec(
         'imager_scale_error', 'imager', 'Table 2.6, 3.3.1',
-        'Image scale error per imager; defaults are the differences between the measured scales of '
-        'Table 2.6 and the design scales of 3.3.1 (WFI 20.36 vs 21.39"/px, FPI 0.55 vs 0.554"/px).',
+        'True image scale against the one the software assumes (Table 2.6, measured); defaults make '
+        'the truth the design scales of 3.3.1 (WFI 21.39 vs 20.36"/px, FPI 0.554 vs 0.55"/px).',
         (
-            Parameter('fpi_ppm', -7220.0, 'ppm', 'FPI scale error'),
-            Parameter('ffi_ppm', 0.0, 'ppm', 'FFI scale error'),
-            Parameter('wfi_ppm', -48150.0, 'ppm', 'WFI scale error'),
+            Parameter('fpi_ppm', 7273.0, 'ppm', 'FPI true scale / assumed scale - 1'),
+            Parameter('ffi_ppm', 0.0, 'ppm', 'FFI true scale / assumed scale - 1'),
+            Parameter('wfi_ppm', 50589.0, 'ppm', 'WFI true scale / assumed scale - 1'),
         ),
     ),
     EffectSpec(

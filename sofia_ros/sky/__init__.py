@@ -21,6 +21,7 @@ from sofia_ros.sky.places import (
     Weather,
     astrometric_observed_place,
     mean_place_of_date_deg,
+    observed_directions_hrf,
     observed_place,
     visible_stars,
 )
@@ -50,6 +51,7 @@ __all__ = [
     'astrometric_observed_place',
     'mean_place_of_date_deg',
     'visible_stars',
+    'observed_directions_hrf',
     'air_refractivity',
     'stone_refraction_arcsec',
     'stone_refraction_from_topocentric_arcsec',

@@ -25,6 +25,7 @@ import erfa
 import numpy as np
 
 from sofia_ros.errors import BelowHorizonError, InvalidArgumentError
+from sofia_ros.mount import unit_vector_hrf
 from sofia_ros.sky.catalogue import HIPPARCOS_EPOCH_JYEAR, StarEntry, find_star, hipparcos_columns
 from sofia_ros.sky.refraction import (
     MAX_ZENITH_DISTANCE_DEG,
@@ -49,10 +50,13 @@ __all__ = [
     'astrometric_observed_place',
     'mean_place_of_date_deg',
     'visible_stars',
+    'observed_directions_hrf',
 ]
 
 #: Lowest telescope elevation at which stars are observed.
 TELESCOPE_MIN_ELEVATION_DEG = 20.0
+# The complete apparent place, or the aberration-free one Table D.3 was made with.
+_PLACES = ('apparent', 'astrometric')
 #: 'stone': Stone's model (4.33-4.35), the thesis' choice; 'erfa': ERFA's own refracted place.
 REFRACTION_MODELS = ('stone', 'erfa')
 
@@ -295,3 +299,25 @@ def visible_stars(site, utc, weather, *, max_hp_magnitude=6.0,
         )
         for i in seen
     )
+
+
+def observed_directions_hrf(stars, site, utc, weather=None, *, place='apparent', dut1_s=0.0):
+    """HRF unit vectors (N, W, zenith) of many stars, raised by Stone's refraction if weather is given (6.2, C.4.2)."""
+    if place not in _PLACES:
+        raise InvalidArgumentError(f'place must be one of {_PLACES}, got {place!r}')
+    if weather is not None and not isinstance(weather, Weather):
+        raise InvalidArgumentError(f'weather must be a Weather or None, got {type(weather).__name__}')
+    entries = [find_star(star) for star in stars]
+    # _horizontal_places always evaluates Stone's model; without weather that result is unused.
+    altitude_deg, azimuth_deg, refraction_arcsec = _horizontal_places(
+        _star_columns(entries), site, utc, weather or WACO_2004_WEATHER, 'stone', place, dut1_s)
+    if weather is None:
+        return unit_vector_hrf(altitude_deg, azimuth_deg)
+    too_low = [entries[i].name or f'HIP {entries[i].hip}'
+               for i in np.flatnonzero(np.isnan(refraction_arcsec))]
+    if too_low:
+        raise InvalidArgumentError(
+            f'{", ".join(too_low)} below {90.0 - MAX_ZENITH_DISTANCE_DEG:g} deg altitude at {utc}, '
+            "where Stone's model does not hold; place them without weather"
+        )
+    return unit_vector_hrf(apparent_altitude_deg(altitude_deg, refraction_arcsec), azimuth_deg)

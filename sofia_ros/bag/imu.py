@@ -1,0 +1,101 @@
+"""Bulk decoding of sensor_msgs/Imu CDR into numpy arrays (millions of gyro samples at once).
+
+Imu CDR after the 4-byte encapsulation header: header.stamp (int32 sec, uint32
+nanosec), header.frame_id (uint32 length counting the NUL, then the bytes),
+padding to 8 bytes, then 37 float64: orientation (4), its covariance (9),
+angular_velocity (3), its covariance (9), linear_acceleration (3), its
+covariance (9). frame_id is the only variable-length field, so messages of one
+length share one layout and decode as columns of a 2-D byte array.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import compress
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sofia_ros.errors import InvalidArgumentError
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+__all__ = ['ImuArrays', 'decode_imu_cdr']
+
+_ENCAPSULATION_CDR_LE = (0, 1)
+_DOUBLES_BYTES = 37 * 8
+_ANGULAR_VELOCITY_OFFSET = (4 + 9) * 8
+_LINEAR_ACCELERATION_OFFSET = (4 + 9 + 3 + 9) * 8
+# Shortest Imu: with an empty frame_id (just its NUL) the doubles start at body offset 16.
+_MIN_BYTES = 4 + 16 + _DOUBLES_BYTES
+
+
+@dataclass(frozen=True, eq=False)
+class ImuArrays:
+    """Imu samples of one topic as arrays, one row per message in log-time order."""
+
+    #: (N,) int64 log time of each message (receive time for a recorder).
+    stamp_ns: np.ndarray
+    #: (N,) int64 header.stamp, the sample time the sensor claims.
+    header_stamp_ns: np.ndarray
+    #: (N, 3) angular_velocity x, y, z in the message's frame_id.
+    angular_velocity_rad_per_s: np.ndarray
+    #: (N, 3) linear_acceleration x, y, z in the message's frame_id.
+    linear_acceleration_m_per_s2: np.ndarray
+
+
+def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArrays:
+    """Decode little-endian Imu CDR ``payloads`` logged at ``stamp_ns`` into ImuArrays."""
+    count = len(payloads)
+    if len(stamp_ns) != count:
+        raise InvalidArgumentError(f'got {len(stamp_ns)} stamps for {count} Imu payloads')
+    header_stamp_ns = np.empty(count, dtype=np.int64)
+    angular_velocity = np.empty((count, 3))
+    linear_acceleration = np.empty((count, 3))
+    lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=count)
+    for length in np.unique(lengths):
+        rows = lengths == length
+        block = np.frombuffer(b''.join(compress(payloads, rows)), dtype=np.uint8)
+        header_stamp_ns[rows], angular_velocity[rows], linear_acceleration[rows] = (
+            _decode_block(block.reshape(-1, length))
+        )
+    return ImuArrays(
+        stamp_ns=np.asarray(stamp_ns, dtype=np.int64),
+        header_stamp_ns=header_stamp_ns,
+        angular_velocity_rad_per_s=angular_velocity,
+        linear_acceleration_m_per_s2=linear_acceleration,
+    )
+
+
+def _decode_block(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Decode header stamps (ns), angular velocities, linear accelerations of equal-length rows."""
+    if block.shape[1] < _MIN_BYTES:
+        raise InvalidArgumentError(
+            f'Imu payload of {block.shape[1]} bytes is shorter than the sensor_msgs/msg/Imu layout'
+        )
+    if np.any(block[:, :2] != _ENCAPSULATION_CDR_LE):
+        raise InvalidArgumentError(
+            'Imu payloads are not little-endian CDR; read them with messages()'
+        )
+    sec = _column(block, 4, '<i4')[:, 0].astype(np.int64)
+    nanosec = _column(block, 8, '<u4')[:, 0].astype(np.int64)
+    frame_id_bytes = _column(block, 12, '<u4')[:, 0].astype(np.int64)
+    # Doubles align to 8 bytes counted from the end of the encapsulation header.
+    doubles_at = 4 + (12 + frame_id_bytes + 7) // 8 * 8
+    if np.any(doubles_at + _DOUBLES_BYTES != block.shape[1]):
+        raise InvalidArgumentError(
+            'Imu payload length does not match the sensor_msgs/msg/Imu layout'
+        )
+    start = int(doubles_at[0])
+    return (
+        sec * 1_000_000_000 + nanosec,
+        _column(block, start + _ANGULAR_VELOCITY_OFFSET, '<f8', 3),
+        _column(block, start + _LINEAR_ACCELERATION_OFFSET, '<f8', 3),
+    )
+
+
+def _column(block: np.ndarray, offset: int, dtype: str, count: int = 1) -> np.ndarray:
+    """Read ``count`` ``dtype`` values at byte ``offset`` of each row as a (rows, count) array."""
+    width = np.dtype(dtype).itemsize * count
+    return np.ascontiguousarray(block[:, offset:offset + width]).view(dtype)

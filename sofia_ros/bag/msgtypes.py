@@ -1,0 +1,95 @@
+"""Message types of bags: the installed ROS 2 distro's definitions, and the topic record.
+
+The rclpy 9.x wheels this package runs on are ROS 2 Kilted. rosbags ships the
+Kilted definitions of common_interfaces as a typestore whose RIHS01 type hashes
+equal the ones the installed interface packages publish (share/<pkg>/msg/*.json;
+test/test_bag.py pins this). Taking the typestore, rather than parsing .msg files
+under share/, keeps bag I/O independent of AMENT_PREFIX_PATH and install layout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+from typing import TYPE_CHECKING, Any
+
+from rclpy.serialization import serialize_message
+from rosbags.typesys import Stores, get_typestore
+
+from sofia_ros.errors import InvalidArgumentError
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
+
+__all__ = [
+    'DOCUMENT_MSGTYPE',
+    'IMU_MSGTYPE',
+    'ROS_DISTRO',
+    'TYPESTORE',
+    'TopicInfo',
+    'checked_msgtype',
+    'decode_cdr',
+    'msgtype_of',
+    'wire_cdr',
+]
+
+#: The ROS 2 distribution whose message definitions the bags carry.
+ROS_DISTRO = 'kilted'
+#: rosbags typestore with that distribution's message definitions.
+TYPESTORE = get_typestore(Stores.ROS2_KILTED)
+#: Message type of text documents (truth.yaml, model.yaml, results) stored in a bag.
+DOCUMENT_MSGTYPE = 'std_msgs/msg/String'
+#: Message type of the gyro box samples that BagReader.imu_arrays decodes in bulk.
+IMU_MSGTYPE = 'sensor_msgs/msg/Imu'
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """A topic of a bag: name, ROS type ('pkg/msg/Name') and number of messages."""
+
+    name: str
+    msgtype: str
+    count: int
+
+
+def checked_msgtype(msgtype: str) -> str:
+    """Return ``msgtype`` ('pkg/msg/Name') if the typestore defines it; raise otherwise."""
+    if msgtype not in TYPESTORE.fielddefs:
+        raise InvalidArgumentError(
+            f'unknown message type {msgtype!r}: give a common_interfaces type of ROS 2 '
+            f'{ROS_DISTRO} as pkg/msg/Name, e.g. sensor_msgs/msg/Imu'
+        )
+    return msgtype
+
+
+@cache
+def msgtype_of(message_class: type) -> str:
+    """Return the ROS type string ('pkg/msg/Name') of an rclpy message class."""
+    # rosidl generates each message class in module pkg.msg._snake_name.
+    parts = message_class.__module__.split('.')
+    if len(parts) != 3 or parts[1] != 'msg':
+        raise InvalidArgumentError(f'{message_class.__name__} is not an rclpy message class')
+    return f'{parts[0]}/msg/{message_class.__name__}'
+
+
+def decode_cdr(data: bytes | memoryview, msgtype: str, typestore: Typestore = TYPESTORE) -> Any:
+    """Decode CDR ``data`` of ``msgtype`` into a rosbags message, ignoring bytes after its end."""
+    # rosbags' deserialize_cdr rejects more than 3 trailing bytes; DDS and ros2 bag
+    # ignore them, and bags written from rclpy.serialization can carry them.
+    view = memoryview(data)
+    if len(view) < 4 or view[0] != 0 or view[1] not in (0, 1):
+        raise ValueError(f'{msgtype} data does not start with a CDR encapsulation header')
+    msgdef = typestore.get_msgdef(msgtype)
+    decode = msgdef.deserialize_cdr_le if view[1] else msgdef.deserialize_cdr_be
+    message, _ = decode(view[4:], 0, msgdef.cls, typestore)
+    return message
+
+
+def wire_cdr(message: object) -> memoryview:
+    """Serialize an rclpy message as a raw subscription receives it: exact length, zero padding."""
+    # With rmw_fastrtps, serialize_message sizes its buffer by an upper estimate and
+    # leaves padding uninitialised, so its bytes can end in junk (e.g. a JointState with
+    # an empty float64[]) and differ from run to run; a typestore round trip fixes both.
+    msgtype = msgtype_of(type(message))
+    value = decode_cdr(serialize_message(message), msgtype)
+    return TYPESTORE.serialize_cdr(value, msgtype, little_endian=True)

@@ -1,0 +1,127 @@
+"""Rebuild a complete bag from one whose writer was killed or whose file was cut short."""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import yaml
+import zstandard
+from mcap.exceptions import McapError
+from mcap.records import Channel, Footer, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from sofia_ros.bag.writer import BagWriter
+from sofia_ros.errors import BagError
+
+if TYPE_CHECKING:
+    from os import PathLike
+
+    from mcap.records import McapRecord
+
+    from sofia_ros.bag.msgtypes import TopicInfo
+
+__all__ = ['RECOVERED_SUFFIX', 'RecoveryReport', 'recover_bag']
+
+#: Appended to the damaged bag's name to name the rebuilt bag by default.
+RECOVERED_SUFFIX = '_recovered'
+_MCAP_MAGIC = b'\x89MCAP0\r\n'
+# What a cut or damaged record raises inside the mcap stream reader.
+_DAMAGE_ERRORS = (McapError, zstandard.ZstdError, struct.error, UnicodeDecodeError)
+
+
+@dataclass(frozen=True)
+class RecoveryReport:
+    """What recover_bag salvaged, and where and why reading the damaged file stopped."""
+
+    source: Path
+    bag: Path
+    topics: tuple[TopicInfo, ...]
+    last_stamp_ns: int | None
+    reached_footer: bool
+    stop_reason: str
+
+    @property
+    def message_count(self) -> int:
+        """Messages salvaged over all topics."""
+        return sum(info.count for info in self.topics)
+
+
+def recover_bag(
+    source: str | PathLike[str], destination: str | PathLike[str] | None = None
+) -> RecoveryReport:
+    """Copy every complete MCAP chunk of bag ``source`` into a new, closed bag ``destination``.
+
+    ``source`` is left untouched; ``destination`` defaults to ``source`` + '_recovered'.
+    """
+    source = Path(source)
+    mcap_path = _mcap_file(source)
+    if destination is None:
+        destination = source.with_name(source.name + RECOVERED_SUFFIX)
+    stop_reason = 'end of file'
+    with mcap_path.open('rb') as stream, BagWriter(destination) as writer:
+        copier = _Copier(writer)
+        try:
+            for record in StreamReader(stream).records:
+                copier.copy(record)
+        except _DAMAGE_ERRORS as err:
+            # Everything before the first cut or damaged record has been copied.
+            stop_reason = f'{type(err).__name__} {err}'.strip()
+    return RecoveryReport(
+        source=source,
+        bag=writer.path,
+        topics=writer.topics,
+        last_stamp_ns=copier.last_stamp_ns,
+        reached_footer=copier.reached_footer,
+        stop_reason=stop_reason,
+    )
+
+
+class _Copier:
+    """Copy schemas, channels and messages of an MCAP record stream into a BagWriter."""
+
+    def __init__(self, writer: BagWriter) -> None:
+        """Copy into ``writer``."""
+        self.writer = writer
+        self.last_stamp_ns: int | None = None
+        self.reached_footer = False
+        self._msgtypes: dict[int, str] = {}
+        self._topics: dict[int, str] = {}
+
+    def copy(self, record: McapRecord) -> None:
+        """Copy one record; records other than schema, channel and message are rebuilt on close."""
+        if isinstance(record, Message):
+            self.writer.write_raw(self._topics[record.channel_id], record.data, record.log_time)
+            self.last_stamp_ns = max(record.log_time, self.last_stamp_ns or 0)
+        elif isinstance(record, Schema):
+            self._msgtypes[record.id] = record.name
+        # The summary section repeats every channel; the first sighting registers it.
+        elif isinstance(record, Channel) and record.id not in self._topics:
+            msgtype = self._msgtypes[record.schema_id]
+            self.writer.add_topic(record.topic, msgtype, latched=_is_latched(record))
+            self._topics[record.id] = record.topic
+        elif isinstance(record, Footer):
+            self.reached_footer = True
+
+
+def _mcap_file(source: Path) -> Path:
+    """Return the one MCAP file of bag directory ``source``; raise BagError otherwise."""
+    if not source.is_dir():
+        raise BagError(f'bag {source} is not a directory; pass the bag directory holding the .mcap')
+    files = sorted(source.glob('*.mcap'))
+    if len(files) != 1:
+        raise BagError(
+            f'bag {source} holds {len(files)} .mcap files, expected 1; recover one file at a time'
+        )
+    with files[0].open('rb') as stream:
+        if stream.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+            raise BagError(f'{files[0]} is not an MCAP file (bad magic); nothing to recover')
+    return files[0]
+
+
+def _is_latched(channel: Channel) -> bool:
+    """Whether a channel was offered transient-local (rosbag2 keeps its QoS in channel metadata)."""
+    profiles = yaml.safe_load(channel.metadata.get('offered_qos_profiles', '')) or []
+    return any(profile.get('durability') == 'transient_local' for profile in profiles)

@@ -1,0 +1,237 @@
+"""Write a rosbag2 bag in MCAP storage from raw CDR bytes or rclpy message objects."""
+
+from __future__ import annotations
+
+import operator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+from std_msgs.msg import String
+
+from sofia_ros.bag.msgtypes import (
+    DOCUMENT_MSGTYPE,
+    TYPESTORE,
+    TopicInfo,
+    checked_msgtype,
+    msgtype_of,
+    wire_cdr,
+)
+from sofia_ros.errors import BagError, InvalidArgumentError
+
+if TYPE_CHECKING:
+    from os import PathLike
+    from types import TracebackType
+
+    from rosbags.interfaces import Connection
+
+__all__ = ['BagWriter', 'ROSBAG2_VERSION']
+
+#: rosbag2 metadata version written (the one Jazzy and later read natively).
+ROSBAG2_VERSION = 9
+_NO_TIME = QosTime(0, 0)
+# Offered QoS of latched topics: `ros2 bag play` re-offers them transient-local, so
+# a node that starts late still receives the configuration documents.
+_LATCHED_QOS = Qos(
+    history=QosHistory.KEEP_LAST,
+    depth=1,
+    reliability=QosReliability.RELIABLE,
+    durability=QosDurability.TRANSIENT_LOCAL,
+    deadline=_NO_TIME,
+    lifespan=_NO_TIME,
+    liveliness=QosLiveliness.AUTOMATIC,
+    liveliness_lease_duration=_NO_TIME,
+    avoid_ros_namespace_conventions=False,
+)
+
+
+class BagWriter:
+    """Write one new bag directory; use as a context manager.
+
+    Messages are buffered in MCAP chunks; :meth:`flush` hands them to the OS, so a
+    killed process loses only what was written after the last flush. The writer
+    flushes by itself whenever a message's log time passes the previous flush by
+    ``flush_period_ns``; counting log time, not wall time, keeps the chunk layout,
+    and so the bag's bytes, the same each time a seeded run is repeated.
+    Only :meth:`close` writes ``metadata.yaml``; leaving the ``with`` block by an
+    exception aborts instead, so a bag that was not closed never looks complete.
+    Not thread-safe: call it from one thread (or under one lock).
+    """
+
+    def __init__(
+        self,
+        path: str | PathLike[str],
+        *,
+        compress: bool = True,
+        flush_period_ns: int = 1_000_000_000,
+    ) -> None:
+        """Prepare a writer for the new bag directory ``path`` (zstd chunks if ``compress``)."""
+        self.path = Path(path)
+        self._flush_period_ns = _checked_ns('flush_period_ns', flush_period_ns, minimum=1)
+        try:
+            self._writer = Writer(
+                self.path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP
+            )
+        except WriterError as err:
+            raise BagError(
+                f'bag {self.path} already exists; pass a new directory or remove it'
+            ) from err
+        if compress:
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        self._connections: dict[str, Connection] = {}
+        self._flush_due_ns = 0
+        self._is_open = False
+
+    def open(self) -> None:
+        """Create the bag directory and its MCAP file."""
+        try:
+            self._writer.open()
+        except (WriterError, OSError) as err:
+            raise BagError(f'cannot create bag {self.path}: {err}') from err
+        self._is_open = True
+        # The MCAP magic and header reach the disk at once, so a killed run leaves a
+        # file that recover_bag() recognises as MCAP.
+        self.flush()
+
+    def add_topic(self, topic: str, msgtype: str, *, latched: bool = False) -> None:
+        """Register ``topic`` of type ``msgtype`` ('pkg/msg/Name'); latched: transient-local."""
+        self._require_open()
+        if not isinstance(topic, str) or not topic.startswith('/'):
+            raise InvalidArgumentError(
+                f'topic must be an absolute name like /gyro_box/imu, got {topic!r}'
+            )
+        if topic in self._connections:
+            raise InvalidArgumentError(f'topic {topic} was already added to bag {self.path}')
+        self._connections[topic] = self._writer.add_connection(
+            topic,
+            checked_msgtype(msgtype),
+            typestore=TYPESTORE,
+            offered_qos_profiles=(_LATCHED_QOS,) if latched else (),
+        )
+
+    def write_raw(self, topic: str, data: bytes | bytearray | memoryview, stamp_ns: int) -> None:
+        """Write one serialized CDR message, as from a raw subscription, logged at ``stamp_ns``."""
+        # Checked here because rosbags indexes the message before it copies the bytes.
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise InvalidArgumentError(
+                f'data must be serialized CDR bytes, got {type(data).__name__}'
+            )
+        self._write(self._connection(topic), data, stamp_ns)
+
+    def write_message(self, topic: str, message: object, stamp_ns: int) -> None:
+        """Write an rclpy message of the topic's type, as wire CDR, logged at ``stamp_ns``."""
+        connection = self._connection(topic)
+        msgtype = msgtype_of(type(message))
+        if msgtype != connection.msgtype:
+            raise InvalidArgumentError(f'topic {topic} holds {connection.msgtype}, got a {msgtype}')
+        self._write(connection, wire_cdr(message), stamp_ns)
+
+    def write_document(self, topic: str, text: str, stamp_ns: int) -> None:
+        """Store a text document (e.g. truth.yaml) as a latched std_msgs/msg/String on ``topic``."""
+        if not isinstance(text, str):
+            raise InvalidArgumentError(f'document text must be str, got {type(text).__name__}')
+        if topic not in self._connections:
+            self.add_topic(topic, DOCUMENT_MSGTYPE, latched=True)
+        self.write_message(topic, String(data=text), stamp_ns)
+
+    @property
+    def topics(self) -> tuple[TopicInfo, ...]:
+        """Every added topic with its type and the messages written so far, sorted by name."""
+        return tuple(
+            TopicInfo(topic, conn.msgtype, self._writer.counts[conn.id])
+            for topic, conn in sorted(self._connections.items())
+        )
+
+    def flush(self) -> None:
+        """Hand every message written so far to the OS (survives the process being killed)."""
+        self._require_open()
+        # rosbags keeps the open chunk in memory until it reaches 1 MiB; closing it
+        # early is what bounds the loss on a crash.
+        storage = self._writer.storage
+        if storage.chunk.msgs:
+            storage.close_chunk()
+        storage.bio.flush()
+
+    def close(self) -> None:
+        """Finish the MCAP summary and write metadata.yaml; the bag is then complete."""
+        if not self._is_open:
+            return
+        self._is_open = False
+        try:
+            self._writer.close()
+        except (WriterError, OSError) as err:
+            raise BagError(f'cannot finish bag {self.path}: {err}') from err
+
+    def abort(self) -> None:
+        """Flush and stop without metadata.yaml: the bag stays incomplete but recoverable."""
+        if not self._is_open:
+            return
+        try:
+            self.flush()
+        finally:
+            self._is_open = False
+            self._writer.abort()
+
+    def __enter__(self) -> BagWriter:
+        """Open the bag."""
+        self.open()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc_value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        """Close the bag, or abort it if the block raised."""
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def _require_open(self) -> None:
+        """Raise unless the bag is open for writing."""
+        if not self._is_open:
+            raise BagError(
+                f'bag {self.path} is not open for writing; use it inside `with BagWriter(...)`'
+            )
+
+    def _connection(self, topic: str) -> Connection:
+        """Return the connection of an added topic."""
+        self._require_open()
+        try:
+            return self._connections[topic]
+        except KeyError as err:
+            raise InvalidArgumentError(
+                f'topic {topic} is not in bag {self.path}; call add_topic({topic!r}, msgtype) first'
+            ) from err
+
+    def _write(self, connection: Connection, data: bytes | memoryview, stamp_ns: int) -> None:
+        """Write one message and flush when its log time reaches the next flush."""
+        stamp_ns = _checked_ns('stamp_ns', stamp_ns)
+        self._writer.write(connection, stamp_ns, data)
+        if stamp_ns >= self._flush_due_ns:
+            self.flush()
+            self._flush_due_ns = stamp_ns + self._flush_period_ns
+
+
+def _checked_ns(name: str, value: int, minimum: int = 0) -> int:
+    """Return ``value`` as an int >= ``minimum`` (numpy integers accepted); raise otherwise."""
+    try:
+        number = operator.index(value)
+    except TypeError as err:
+        raise InvalidArgumentError(
+            f'{name} must be an integer number of ns, got {type(value).__name__}'
+        ) from err
+    if number < minimum:
+        raise InvalidArgumentError(f'{name} must be >= {minimum}, got {number}')
+    return number

@@ -1,0 +1,511 @@
+"""Bag I/O: both write paths, three readers agreeing, damage, and recovery after SIGKILL."""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import (
+    Point,
+    Pose,
+    PoseArray,
+    Quaternion,
+    QuaternionStamped,
+    Vector3,
+    Vector3Stamped,
+)
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+from rclpy.serialization import serialize_message
+from rosbags.highlevel import AnyReader
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState, Temperature
+from std_msgs.msg import Header, String
+
+from sofia_ros.bag import TYPESTORE, BagReader, BagWriter, recover_bag, wire_cdr
+from sofia_ros.bag.imu import decode_imu_cdr
+from sofia_ros.bag.msgtypes import msgtype_of
+from sofia_ros.errors import BagError, InvalidArgumentError
+
+MESSAGES_PER_TYPE = 3
+STAMP0_NS = 1_700_000_000_000_000_000
+IMU_PERIOD_NS = 2_500_000  # 400 Hz
+MSGTYPES = (
+    'sensor_msgs/msg/Imu',
+    'rosgraph_msgs/msg/Clock',
+    'geometry_msgs/msg/PoseArray',
+    'geometry_msgs/msg/QuaternionStamped',
+    'geometry_msgs/msg/Vector3Stamped',
+    'sensor_msgs/msg/JointState',
+    'sensor_msgs/msg/Temperature',
+    'diagnostic_msgs/msg/DiagnosticStatus',
+    'std_msgs/msg/String',
+)
+
+
+def header(i: int, frame_id: str = 'tarf') -> Header:
+    """A header whose stamp and frame depend on ``i``."""
+    return Header(stamp=Time(sec=1000 + i, nanosec=123 + i), frame_id=frame_id)
+
+
+def imu(i: int, frame_id: str = 'gyrf') -> Imu:
+    """An Imu with every vector and covariance filled."""
+    return Imu(
+        header=header(i, frame_id),
+        orientation=Quaternion(x=0.1 * i, y=0.2, z=0.3, w=0.9),
+        orientation_covariance=[float(i + k) for k in range(9)],
+        angular_velocity=Vector3(x=1e-5 * (i + 1), y=-2e-5 * i, z=7.29e-5),
+        angular_velocity_covariance=[1e-12 * k for k in range(9)],
+        linear_acceleration=Vector3(x=0.01 * i, y=-0.02, z=9.81),
+        linear_acceleration_covariance=[-1.0] + [0.0] * 8,
+    )
+
+
+def sample(msgtype: str, i: int) -> object:
+    """Message number ``i`` of type ``msgtype`` with distinctive values."""
+    if msgtype == 'sensor_msgs/msg/Imu':
+        return imu(i)
+    if msgtype == 'rosgraph_msgs/msg/Clock':
+        return Clock(clock=Time(sec=i, nanosec=IMU_PERIOD_NS * i))
+    if msgtype == 'geometry_msgs/msg/PoseArray':
+        poses = [Pose(position=Point(x=float(k), y=0.5 * i, z=-1.0)) for k in range(i + 1)]
+        return PoseArray(header=header(i, 'fpi'), poses=poses)
+    if msgtype == 'geometry_msgs/msg/QuaternionStamped':
+        return QuaternionStamped(header=header(i), quaternion=Quaternion(x=0.0, y=0.6, z=0.0, w=0.8))
+    if msgtype == 'geometry_msgs/msg/Vector3Stamped':
+        return Vector3Stamped(header=header(i, 'hipo'), vector=Vector3(x=1.5 * i, y=-2.0, z=1e-9))
+    if msgtype == 'sensor_msgs/msg/JointState':
+        # effort stays an empty float64[]: the case serialize_message pads with junk.
+        return JointState(
+            header=header(i), name=['el', 'xel', 'los'], position=[0.1 * i, 0.2, 0.3], velocity=[1.0, 2.0, 3.0]
+        )
+    if msgtype == 'sensor_msgs/msg/Temperature':
+        return Temperature(header=header(i), temperature=22.8 + i, variance=0.01)
+    if msgtype == 'diagnostic_msgs/msg/DiagnosticStatus':
+        return DiagnosticStatus(
+            level=DiagnosticStatus.WARN,
+            name=f'gyro_box {i}',
+            message='bias drift',
+            hardware_id='fog-3',
+            values=[KeyValue(key='axis', value='los'), KeyValue(key='i', value=str(i))],
+        )
+    return String(data=f'effects:\n  seeing: {{}}  # Δ {i}″\n')
+
+
+def plain(value: object) -> object:
+    """Nested lists/dicts of a message from rclpy, rosbags or mcap_ros2, for comparing values."""
+    if isinstance(value, bytes) and len(value) == 1:
+        return value[0]  # rclpy gives a `byte` field as bytes, the others as int
+    if isinstance(value, (list, tuple, array.array, np.ndarray)):
+        return [plain(item) for item in value]
+    if hasattr(value, 'get_fields_and_field_types'):
+        names = list(value.get_fields_and_field_types())
+    elif dataclasses.is_dataclass(value):
+        # rosbags also lists the constants (UPPER_CASE) and __msgtype__ as fields.
+        names = [f.name for f in dataclasses.fields(value) if f.name.islower() and f.name[0] != '_']
+    elif hasattr(value, '__slots__'):
+        names = list(value.__slots__)
+    else:
+        return value
+    return {name: plain(getattr(value, name)) for name in names}
+
+
+def topic_name(kind: str, msgtype: str) -> str:
+    """Topic on which the tests write ``msgtype`` through the ``kind`` path ('raw' or 'obj')."""
+    return f'/{kind}/{msgtype.split("/")[-1].lower()}'
+
+
+def metadata_topics(path: Path) -> dict[str, dict]:
+    """topics_with_message_count of a bag's metadata.yaml, by topic name."""
+    info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    return {item['topic_metadata']['name']: item for item in info['topics_with_message_count']}
+
+
+@pytest.fixture(scope='module')
+def round_trip(tmp_path_factory):
+    """A closed bag with every type written through both paths, and what went to each topic."""
+    path = tmp_path_factory.mktemp('bags') / 'round_trip'
+    written: dict[str, list[tuple[int, object]]] = {}
+    with BagWriter(path) as bag:
+        for msgtype in MSGTYPES:
+            for kind in ('raw', 'obj'):
+                bag.add_topic(topic_name(kind, msgtype), msgtype)
+        for i in range(MESSAGES_PER_TYPE):
+            for n, msgtype in enumerate(MSGTYPES):
+                message = sample(msgtype, i)
+                raw_stamp_ns = STAMP0_NS + 1_000_000 * i + n
+                # The object path runs backwards within each round; readers must sort.
+                obj_stamp_ns = raw_stamp_ns + 500_000 - 2 * n
+                # wire_cdr(message) is what a raw subscription hands the recorder.
+                bag.write_raw(topic_name('raw', msgtype), wire_cdr(message), raw_stamp_ns)
+                bag.write_message(topic_name('obj', msgtype), message, obj_stamp_ns)
+                for kind, stamp_ns in (('raw', raw_stamp_ns), ('obj', obj_stamp_ns)):
+                    written.setdefault(topic_name(kind, msgtype), []).append((stamp_ns, plain(message)))
+        writer_topics = bag.topics
+    return path, written, writer_topics
+
+
+def test_typestore_hashes_equal_the_installed_interface_packages():
+    """The definitions written into bags are those of the installed distro (RIHS01 per type)."""
+    prefixes = [sys.prefix, *os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)]
+    roots = [Path(prefix) / 'share' for prefix in prefixes if prefix]
+    checked = 0
+    for msgtype in MSGTYPES:
+        descriptions = [root / f'{msgtype}.json' for root in roots if (root / f'{msgtype}.json').is_file()]
+        if descriptions:
+            hashes = json.loads(descriptions[0].read_text())['type_hashes']
+            installed = next(item['hash_string'] for item in hashes if item['type_name'] == msgtype)
+            assert TYPESTORE.hash_rihs01(msgtype) == installed, msgtype
+            checked += 1
+    if not checked:
+        pytest.skip('no installed type descriptions (share/<pkg>/msg/*.json) found')
+    assert checked == len(MSGTYPES)
+
+
+def test_msgtype_of_names_rclpy_classes_only():
+    assert msgtype_of(Imu) == 'sensor_msgs/msg/Imu'
+    assert msgtype_of(DiagnosticStatus) == 'diagnostic_msgs/msg/DiagnosticStatus'
+    with pytest.raises(InvalidArgumentError, match='dict is not an rclpy message class'):
+        msgtype_of(dict)
+
+
+def test_wire_cdr_is_exact_and_deterministic():
+    """serialize_message sizes by an estimate and leaves junk; wire_cdr gives what DDS carries."""
+    message = JointState(name=['el'], position=[0.5])  # velocity and effort empty float64[]
+    assert len(serialize_message(message)) > len(wire_cdr(message))
+    assert bytes(wire_cdr(message)) == bytes(wire_cdr(JointState(name=['el'], position=[0.5])))
+    decoded = TYPESTORE.deserialize_cdr(wire_cdr(message), 'sensor_msgs/msg/JointState')
+    assert plain(decoded) == plain(message)
+
+
+def test_both_write_paths_give_byte_identical_bags(tmp_path):
+    """A seeded run reproduces its bag bit for bit; message objects and raw CDR store the same bytes."""
+    for name in ('a', 'b'):
+        with BagWriter(tmp_path / name / 'run', flush_period_ns=2) as bag:
+            for msgtype in MSGTYPES:
+                bag.add_topic(topic_name('obj', msgtype), msgtype)
+                bag.add_topic(topic_name('raw', msgtype), msgtype)
+                for i in range(MESSAGES_PER_TYPE):
+                    bag.write_message(topic_name('obj', msgtype), sample(msgtype, i), i)
+                    bag.write_raw(topic_name('raw', msgtype), wire_cdr(sample(msgtype, i)), i)
+    first, second = (tmp_path / name / 'run' / 'run.mcap' for name in ('a', 'b'))
+    assert first.read_bytes() == second.read_bytes()
+    with BagReader(tmp_path / 'a' / 'run') as bag:
+        for msgtype in MSGTYPES:
+            obj = [data for _, _, data in bag.raw_messages(topic_name('obj', msgtype))]
+            raw = [data for _, _, data in bag.raw_messages(topic_name('raw', msgtype))]
+            assert obj == raw, msgtype
+
+
+def test_metadata_lists_mcap_storage_and_counts(round_trip):
+    path, written, writer_topics = round_trip
+    info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['storage_identifier'] == 'mcap'
+    assert info['relative_file_paths'] == ['round_trip.mcap']
+    assert (path / 'round_trip.mcap').is_file()
+    counts = {name: item['message_count'] for name, item in metadata_topics(path).items()}
+    assert counts == {topic: len(messages) for topic, messages in written.items()}
+    assert {info.name: info.count for info in writer_topics} == counts
+    assert info['message_count'] == len(MSGTYPES) * 2 * MESSAGES_PER_TYPE
+
+
+def test_bag_reader_gives_back_what_was_written_in_time_order(round_trip):
+    path, written, _ = round_trip
+    with BagReader(path) as bag:
+        assert {(t.name, t.msgtype, t.count) for t in bag.topics} == {
+            (topic_name(kind, msgtype), msgtype, MESSAGES_PER_TYPE)
+            for msgtype in MSGTYPES
+            for kind in ('raw', 'obj')
+        }
+        records = list(bag.messages())
+        imu_topics = {topic for topic, _, _ in bag.messages('/raw/imu', '/obj/imu')}
+    assert imu_topics == {'/raw/imu', '/obj/imu'}
+    stamps_ns = [stamp_ns for _, stamp_ns, _ in records]
+    assert stamps_ns == sorted(stamps_ns)
+    read: dict[str, list[tuple[int, object]]] = {}
+    for topic, stamp_ns, message in records:
+        read.setdefault(topic, []).append((stamp_ns, plain(message)))
+    assert read == {topic: sorted(messages) for topic, messages in written.items()}
+
+
+def test_anyreader_and_mcap_ros2_decode_the_same_values(round_trip):
+    path, written, _ = round_trip
+    with AnyReader([path], default_typestore=TYPESTORE) as reader:
+        rosbags_values = {
+            (conn.topic, stamp_ns): plain(reader.deserialize(data, conn.msgtype))
+            for conn, stamp_ns, data in reader.messages()
+        }
+    with (path / 'round_trip.mcap').open('rb') as stream:
+        mcap = make_reader(stream, decoder_factories=[DecoderFactory()])
+        assert mcap.get_summary() is not None  # closed: summary and footer present
+        mcap_values = {
+            (channel.topic, message.log_time): plain(decoded)
+            for _, channel, message, decoded in mcap.iter_decoded_messages()
+        }
+    expected = {
+        (topic, stamp_ns): value for topic, messages in written.items() for stamp_ns, value in messages
+    }
+    assert rosbags_values == expected
+    assert mcap_values == expected
+
+
+def test_imu_arrays_match_per_message_decoding(tmp_path):
+    path = tmp_path / 'imu'
+    frames = ['g', 'gyrf', 'gyro_box_frame', 'gyrf']  # three CDR lengths in one topic
+    with BagWriter(path) as bag:
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        for i in range(40):
+            bag.write_message('/gyro_box/imu', imu(i, frames[i % len(frames)]), IMU_PERIOD_NS * i)
+    with BagReader(path) as bag:
+        arrays = bag.imu_arrays('/gyro_box/imu')
+        messages = [message for _, _, message in bag.messages('/gyro_box/imu')]
+        window = bag.imu_arrays('/gyro_box/imu', start_ns=IMU_PERIOD_NS * 10, stop_ns=IMU_PERIOD_NS * 20)
+    np.testing.assert_array_equal(arrays.stamp_ns, IMU_PERIOD_NS * np.arange(40))
+    np.testing.assert_array_equal(
+        arrays.header_stamp_ns, [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in messages]
+    )
+    gyro = [[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z] for m in messages]
+    accel = [[m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z] for m in messages]
+    np.testing.assert_array_equal(arrays.angular_velocity_rad_per_s, gyro)
+    np.testing.assert_array_equal(arrays.linear_acceleration_m_per_s2, accel)
+    np.testing.assert_array_equal(window.stamp_ns, IMU_PERIOD_NS * np.arange(10, 20))
+
+
+def test_imu_decoding_rejects_payloads_that_are_not_imu():
+    good = bytes(wire_cdr(imu(0)))
+    with pytest.raises(InvalidArgumentError, match='does not match the sensor_msgs/msg/Imu layout'):
+        decode_imu_cdr([0], [good[:-8]])
+    with pytest.raises(InvalidArgumentError, match='not little-endian CDR'):
+        decode_imu_cdr([0], [b'\x00\x00' + good[2:]])
+
+
+def test_documents_are_latched_strings_read_back_by_topic(tmp_path):
+    path = tmp_path / 'docs'
+    with BagWriter(path) as bag:
+        bag.write_document('/config/truth', 'effects:\n  gyro_bias: {}\n', 0)
+        bag.write_document('/result/summary', 'accepted: false\n', 5)
+        bag.write_document('/result/summary', 'accepted: true\n', 9)
+        bag.add_topic('/clock', 'rosgraph_msgs/msg/Clock')
+    topics = metadata_topics(path)
+    assert topics['/config/truth']['topic_metadata']['offered_qos_profiles'][0]['durability'] == (
+        'transient_local'
+    )
+    assert topics['/clock']['topic_metadata']['offered_qos_profiles'] == []
+    with BagReader(path) as bag:
+        assert bag.document('/config/truth') == 'effects:\n  gyro_bias: {}\n'
+        assert bag.document('/result/summary') == 'accepted: true\n'
+        with pytest.raises(BagError, match='holds rosgraph_msgs/msg/Clock, not a std_msgs/msg/String'):
+            bag.document('/clock')
+
+
+def test_absent_topic_raises_bag_error(round_trip):
+    path, _, _ = round_trip
+    with BagReader(path) as bag:
+        with pytest.raises(BagError, match=r'topic /gyro_box/imu is not in bag .*; pick one of: /obj/clock'):
+            bag.messages('/gyro_box/imu')
+        with pytest.raises(BagError, match='holds sensor_msgs/msg/Temperature, not sensor_msgs/msg/Imu'):
+            bag.imu_arrays('/raw/temperature')
+    with pytest.raises(BagError, match=r'is not open; use it inside `with BagReader'):
+        bag.topics
+
+
+def test_missing_bag_raises_bag_error(tmp_path):
+    with pytest.raises(BagError, match=r'bag .*nope does not exist; pass a bag directory'):
+        BagReader(tmp_path / 'nope')
+
+
+def test_directory_without_metadata_is_not_a_bag(tmp_path):
+    with pytest.raises(BagError, match=r'is not a rosbag2 bag directory \(no metadata.yaml\)'):
+        BagReader(tmp_path)
+
+
+def test_mcap_file_instead_of_directory_is_named(round_trip):
+    path, _, _ = round_trip
+    with pytest.raises(BagError, match='is a file, not a rosbag2 bag directory'):
+        BagReader(path / 'round_trip.mcap')
+
+
+def test_non_mcap_storage_is_named(tmp_path):
+    path = tmp_path / 'sqlite'
+    path.mkdir()
+    metadata = {'rosbag2_bagfile_information': {'version': 5, 'storage_identifier': 'sqlite3'}}
+    (path / 'metadata.yaml').write_text(yaml.safe_dump(metadata))
+    with pytest.raises(BagError, match=r"uses 'sqlite3' storage, not MCAP; convert it with `rosbags-"):
+        BagReader(path)
+
+
+def test_truncated_bag_raises_bag_error_and_recovers_its_head(round_trip, tmp_path):
+    path, _, _ = round_trip
+    damaged = shutil.copytree(path, tmp_path / 'cut')
+    mcap_file = damaged / 'round_trip.mcap'
+    data = mcap_file.read_bytes()
+    mcap_file.write_bytes(data[: len(data) // 2])
+    with pytest.raises(BagError, match=r'bag .*cut is truncated or corrupt .*recover_bag'):
+        BagReader(damaged).open()
+    report = recover_bag(damaged)
+    assert report.bag == tmp_path / 'cut_recovered'
+    assert not report.reached_footer
+    assert report.stop_reason.startswith('EndOfFile')
+    with BagReader(report.bag) as bag:
+        assert sum(info.count for info in bag.topics) == report.message_count > 0
+
+
+def test_corrupt_chunk_raises_bag_error(round_trip, tmp_path):
+    path, _, _ = round_trip
+    damaged = shutil.copytree(path, tmp_path / 'corrupt')
+    mcap_file = damaged / 'round_trip.mcap'
+    with mcap_file.open('rb') as stream:
+        last_chunk = make_reader(stream).get_summary().chunk_indexes[-1]
+    # Zero the zstd frame header of the last chunk's data (after the chunk record's fields).
+    data_at = last_chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len(last_chunk.compression) + 8
+    data = bytearray(mcap_file.read_bytes())
+    data[data_at:data_at + 8] = bytes(8)
+    mcap_file.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=r'is truncated or corrupt \(ZstdError'):
+        with BagReader(damaged) as bag:
+            list(bag.messages())
+
+
+def test_corrupt_message_raises_bag_error(tmp_path):
+    path = tmp_path / 'junk'
+    with BagWriter(path) as bag:
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        bag.write_raw('/gyro_box/imu', b'\x00\x01\x00\x00' + b'junk', 0)
+    with BagReader(path) as bag:
+        with pytest.raises(BagError, match=r'is truncated or corrupt \(error: unpack_from'):
+            list(bag.messages())
+        with pytest.raises(BagError, match='topic /gyro_box/imu in bag .*: Imu payload of 8 bytes is shorter'):
+            bag.imu_arrays('/gyro_box/imu')
+
+
+def test_writer_rejects_misuse(tmp_path):
+    with BagWriter(tmp_path / 'misuse') as bag:
+        bag.add_topic('/clock', 'rosgraph_msgs/msg/Clock')
+        with pytest.raises(InvalidArgumentError, match='unknown message type'):
+            bag.add_topic('/x', 'sofia_msgs/msg/Nope')
+        with pytest.raises(InvalidArgumentError, match='must be an absolute name'):
+            bag.add_topic('clock', 'rosgraph_msgs/msg/Clock')
+        with pytest.raises(InvalidArgumentError, match='already added'):
+            bag.add_topic('/clock', 'rosgraph_msgs/msg/Clock')
+        with pytest.raises(InvalidArgumentError, match='holds rosgraph_msgs/msg/Clock, got a sensor_msgs'):
+            bag.write_message('/clock', imu(0), 0)
+        with pytest.raises(InvalidArgumentError, match='call add_topic'):
+            bag.write_raw('/imu', b'\x00\x01\x00\x00', 0)
+        with pytest.raises(InvalidArgumentError, match='stamp_ns must be >= 0'):
+            bag.write_message('/clock', Clock(), -1)
+        with pytest.raises(InvalidArgumentError, match='stamp_ns must be an integer'):
+            bag.write_message('/clock', Clock(), 1.5)
+        with pytest.raises(InvalidArgumentError, match='serialized CDR bytes'):
+            bag.write_raw('/clock', Clock(), 0)
+        bag.write_message('/clock', Clock(), np.int64(7))
+    with pytest.raises(BagError, match='not open for writing'):
+        bag.write_message('/clock', Clock(), 8)
+    with pytest.raises(BagError, match='already exists'):
+        BagWriter(tmp_path / 'misuse')
+    with BagReader(tmp_path / 'misuse') as reader:
+        assert reader.topic('/clock').count == 1
+
+
+def test_exception_in_with_block_leaves_an_incomplete_but_recoverable_bag(tmp_path):
+    path = tmp_path / 'failed_run'
+    with pytest.raises(RuntimeError, match='physics bug'):
+        with BagWriter(path, flush_period_ns=10**18) as bag:
+            bag.add_topic('/clock', 'rosgraph_msgs/msg/Clock')
+            for i in range(5):
+                bag.write_message('/clock', Clock(clock=Time(sec=i)), i)
+            raise RuntimeError('physics bug')
+    assert not (path / 'metadata.yaml').exists()
+    with pytest.raises(BagError, match=r'was not closed .*recover_bag'):
+        BagReader(path)
+    report = recover_bag(path)
+    assert [(info.name, info.count) for info in report.topics] == [('/clock', 5)]
+
+
+KILLED_WRITER = textwrap.dedent(
+    """
+    import sys, time
+    from sensor_msgs.msg import Imu
+    from sofia_ros.bag import BagWriter, wire_cdr
+
+    root, count, flushed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    message = Imu()
+    message.header.frame_id = 'gyrf'
+    # Bag 'explicit': flushed by hand after `flushed` messages; the rest stay in the chunk buffer.
+    explicit = BagWriter(root + '/explicit', flush_period_ns=10**18)
+    explicit.open()
+    explicit.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+    explicit.write_document('/config/truth', 'effects: {}\\n', 0)
+    for i in range(count):
+        message.angular_velocity.x = float(i)
+        explicit.write_raw('/gyro_box/imu', wire_cdr(message), 2_500_000 * (i + 1))
+        if i + 1 == flushed:
+            explicit.flush()
+    # Bag 'periodic': 400 Hz for 5 s of log time, flushed by the writer every 1 s of it.
+    periodic = BagWriter(root + '/periodic', flush_period_ns=1_000_000_000)
+    periodic.open()
+    periodic.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+    for i in range(count):
+        periodic.write_message('/gyro_box/imu', message, 2_500_000 * i)
+    print('ready', flush=True)
+    time.sleep(60)
+    """
+)
+
+
+def test_sigkilled_writer_leaves_an_unclosed_bag_that_recovers_up_to_the_last_flush(tmp_path):
+    count, flushed = 2000, 1700
+    child = subprocess.Popen(
+        [sys.executable, '-c', KILLED_WRITER, str(tmp_path), str(count), str(flushed)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert child.stdout.readline().strip() == 'ready'
+        os.kill(child.pid, signal.SIGKILL)
+    finally:
+        child.kill()
+        child.wait(timeout=10)
+        child.stdout.close()
+    assert child.returncode == -signal.SIGKILL
+
+    explicit = tmp_path / 'explicit'
+    # What the readers report: no metadata.yaml, and an MCAP file without its summary.
+    assert sorted(item.name for item in explicit.iterdir()) == ['explicit.mcap']
+    with pytest.raises(BagError, match=r'bag .*explicit was not closed \(no metadata.yaml'):
+        BagReader(explicit)
+    with pytest.raises(FileNotFoundError):
+        AnyReader([explicit]).open()
+
+    report = recover_bag(explicit)
+    assert not report.reached_footer
+    assert {info.name: info.count for info in report.topics} == {
+        '/config/truth': 1,
+        '/gyro_box/imu': flushed,
+    }
+    assert report.last_stamp_ns == IMU_PERIOD_NS * flushed
+    with BagReader(report.bag) as bag:
+        assert bag.document('/config/truth') == 'effects: {}\n'
+        arrays = bag.imu_arrays('/gyro_box/imu')
+    np.testing.assert_array_equal(arrays.angular_velocity_rad_per_s[:, 0], np.arange(flushed))
+    with (report.bag / f'{report.bag.name}.mcap').open('rb') as stream:
+        summary = make_reader(stream, decoder_factories=[DecoderFactory()]).get_summary()
+    assert summary.statistics.message_count == flushed + 1
+
+    # Flushes at log times 0, 1, 2, 3 and 4 s: the messages up to 4 s (index 1600) survive.
+    periodic = recover_bag(tmp_path / 'periodic', tmp_path / 'periodic_fixed')
+    assert periodic.bag == tmp_path / 'periodic_fixed'
+    assert periodic.message_count == 1601
+    assert periodic.last_stamp_ns == 4_000_000_000

@@ -238,6 +238,36 @@ def test_fit_los_only_solves_tilt_and_refuses_los_angle():
         fit_alignment(aligned, solve_for=('los',), sigma_c_px=1.0)
 
 
+def with_drift(records, drift_px_per_s, duration_s, block):
+    """The same maneuvers with a residual linear drift added to the end centroids (6.1)."""
+    return [Maneuver(r.axis, r.angle_rad, r.start_px, r.end_px + np.asarray(drift_px_per_s) * duration_s,
+                     r.active_alignment, duration_s, block) for r in records]
+
+
+def test_fit_removes_a_residual_drift_per_block():
+    """6.1: a time-linear residual drift, fitted per block, is recovered and removed exactly."""
+    rng = np.random.default_rng(44)
+    a_true = misalignment(1046.0, 745.0, 3360.0)
+    records = table_3_4_maneuvers(a_true, np.eye(3), np.eye(3), rng)
+    drifted = with_drift(records[:6], (0.02, -0.03), 15.0, 0) + with_drift(records[6:], (-0.01, 0.015), 12.0, 1)
+    fit = fit_alignment(drifted, sigma_c_px=1.0, fit_drift=True)
+    np.testing.assert_allclose(arcsec(fit.angles_rad), [1046.0, 745.0, 3360.0], atol=1e-3)
+    np.testing.assert_allclose(fit.drift_px_per_s, [[0.02, -0.03], [-0.01, 0.015]], atol=1e-8)
+
+
+def test_drift_needs_both_signs_in_a_block():
+    rng = np.random.default_rng(45)
+    records = table_3_4_maneuvers(misalignment(100.0, 50.0, 0.0), np.eye(3), np.eye(3), rng)[:6:2]
+    one_sign = with_drift(records, (0.0, 0.0), 10.0, 0)
+    with pytest.raises(InvalidArgumentError, match='both signs'):
+        fit_alignment(one_sign, solve_for=('el', 'xel'), sigma_c_px=1.0, fit_drift=True)
+
+
+def test_maneuver_duration_must_not_be_negative():
+    with pytest.raises(InvalidArgumentError, match='duration_s must be >= 0'):
+        Maneuver('el', 0.001, (500.0, 500.0), (510.0, 500.0), duration_s=-1.0)
+
+
 def test_fit_estimates_centroid_sigma_from_residuals():
     """Without sigma_c_px the covariance is scaled by the residual variance, which recovers sigma_c."""
     rng = np.random.default_rng(43)

@@ -206,6 +206,10 @@ class Maneuver:
     start_px: np.ndarray
     end_px: np.ndarray
     active_alignment: np.ndarray = field(default_factory=lambda: np.eye(3))
+    #: time from the start frames to the end frames, for the residual drift fit (6.1)
+    duration_s: float = 0.0
+    #: maneuvers of one block share one residual drift (a block follows one drift estimation)
+    block: int = 0
 
     def __post_init__(self):
         if isinstance(self.axis, str):
@@ -219,6 +223,12 @@ class Maneuver:
         object.__setattr__(self, 'end_px', _read_only(_pixel('end_px', self.end_px)))
         active = orthonormal_dcm('active_alignment', self.active_alignment)
         object.__setattr__(self, 'active_alignment', _read_only(active))
+        duration = finite_scalar('duration_s', self.duration_s)
+        if duration < 0.0:
+            raise InvalidArgumentError(f'duration_s must be >= 0, got {duration}')
+        object.__setattr__(self, 'duration_s', duration)
+        if int(self.block) != self.block or self.block < 0:
+            raise InvalidArgumentError(f'block must be a non-negative integer, got {self.block}')
 
     @property
     def axis_vector(self):
@@ -246,6 +256,7 @@ class AlignmentFit:
     n_maneuvers: int
     sigma_c_px: float  # centroid sigma that scales the covariance (given or from the residuals)
     solved_axes: tuple
+    drift_px_per_s: np.ndarray  # fitted residual drift per block (X, Y), empty without fit_drift
 
 
 #: Central-difference step of the Jacobian, in px and px-equivalent angle.
@@ -255,7 +266,7 @@ _STEP_PX = 1e-3
 class _ManeuverModel:
     """End centroids predicted from the star's start centroids and the alignment (3.3.2 model)."""
 
-    def __init__(self, maneuvers, detector, solve_for, reference):
+    def __init__(self, maneuvers, detector, solve_for, reference, fit_drift=False):
         self.detector = detector
         self.scale = detector.scale_rad_per_px
         self.index = [list(AXIS_VECTORS).index(name) for name in solve_for]
@@ -265,6 +276,26 @@ class _ManeuverModel:
         self.start = np.array([m.start_px for m in maneuvers])
         self.end = np.array([m.end_px for m in maneuvers])
         self.reference = reference
+        blocks = sorted({m.block for m in maneuvers}) if fit_drift else []
+        self.block_index = np.array([blocks.index(m.block) for m in maneuvers]) if fit_drift else None
+        self.durations = np.array([m.duration_s for m in maneuvers])
+        self.n_drift = 2 * len(blocks)
+        self.k = len(self.index)
+
+    @property
+    def n_leading(self):
+        """Unknowns before the per-maneuver start centroids: angles and block drifts (px/s)."""
+        return self.k + self.n_drift
+
+    def starts(self, x):
+        return x[self.n_leading:].reshape(-1, 2)
+
+    def drift_shift_px(self, x):
+        """Residual drift (px/s per block) times each maneuver's duration (6.1)."""
+        if not self.n_drift:
+            return 0.0
+        drifts = x[self.k:self.n_leading].reshape(-1, 2)
+        return drifts[self.block_index] * self.durations[:, np.newaxis]
 
     def dcm(self, x):
         # Angles are carried as theta / S (px-equivalent) so that every unknown is O(px).
@@ -275,38 +306,44 @@ class _ManeuverModel:
     def end_px(self, x):
         axes = self.gyro_axes @ self.dcm(x).T
         axes /= np.linalg.norm(axes, axis=1, keepdims=True)
-        start = x[len(self.index):].reshape(-1, 2)
-        turned = passive_rotate(pixel_to_vector(start, self.detector), axes, self.angles)
-        return vector_to_pixel(turned, self.detector)
+        turned = passive_rotate(pixel_to_vector(self.starts(x), self.detector), axes, self.angles)
+        return vector_to_pixel(turned, self.detector) + self.drift_shift_px(x)
 
     def residuals(self, x):
-        start = x[len(self.index):].reshape(-1, 2)
-        return np.hstack([self.start - start, self.end - self.end_px(x)]).ravel()
+        return np.hstack([self.start - self.starts(x), self.end - self.end_px(x)]).ravel()
 
     def jacobian(self, x):
-        k, n = len(self.index), len(self.start)
-        jac = np.zeros((4 * n, k + 2 * n))
+        k, n, lead = self.k, len(self.start), self.n_leading
+        jac = np.zeros((4 * n, lead + 2 * n))
         rows = np.arange(n) * 4
         for j in range(k):
             step = np.zeros_like(x)
             step[j] = _STEP_PX
             d_end = (self.end_px(x + step) - self.end_px(x - step)) / (2 * _STEP_PX)
             jac[rows + 2, j], jac[rows + 3, j] = -d_end[:, 0], -d_end[:, 1]
+        if self.n_drift:
+            for c in range(2):
+                columns = k + 2 * self.block_index + c
+                jac[rows + 2 + c, columns] = -self.durations
         # Each maneuver's start only moves its own end: perturb all of them at once.
         for c in range(2):
             step = np.zeros((n, 2))
             step[:, c] = _STEP_PX
-            delta = np.r_[np.zeros(k), step.ravel()]
+            delta = np.r_[np.zeros(lead), step.ravel()]
             d_end = (self.end_px(x + delta) - self.end_px(x - delta)) / (2 * _STEP_PX)
-            columns = k + 2 * np.arange(n) + c
+            columns = lead + 2 * np.arange(n) + c
             jac[rows + c, columns] = -1.0
             jac[rows + 2, columns], jac[rows + 3, columns] = -d_end[:, 0], -d_end[:, 1]
         return jac
 
 
 def fit_alignment(maneuvers, detector=HIPO_2004, *, solve_for=('el', 'xel', 'los'),
-                  initial_dcm=None, sigma_c_px=None):
-    """Alignment DCM from all maneuvers at once by least squares (3.3.2-3.3.3 model, 3.30 covariance)."""
+                  initial_dcm=None, sigma_c_px=None, fit_drift=False):
+    """Alignment DCM from all maneuvers at once by least squares (3.3.2-3.3.3 model, 3.30 covariance).
+
+    With ``fit_drift`` a residual linear centroid drift (px/s) per block of maneuvers is
+    fitted and removed as in 6.1; it needs maneuvers of both signs in every block.
+    """
     maneuvers = list(maneuvers)
     if not maneuvers or not all(isinstance(m, Maneuver) for m in maneuvers):
         raise InvalidArgumentError('maneuvers must be a non-empty sequence of Maneuver records')
@@ -318,14 +355,15 @@ def fit_alignment(maneuvers, detector=HIPO_2004, *, solve_for=('el', 'xel', 'los
         reference = maneuvers[0].active_alignment
     else:
         reference = orthonormal_dcm('initial_dcm', initial_dcm)
-    model = _ManeuverModel(maneuvers, detector, solve_for, reference)
+    model = _ManeuverModel(maneuvers, detector, solve_for, reference, fit_drift)
     k, n = len(solve_for), len(maneuvers)
-    x0 = np.r_[np.zeros(k), model.start.ravel()]
+    x0 = np.r_[np.zeros(model.n_leading), model.start.ravel()]
     solution = least_squares(model.residuals, x0, jac=model.jacobian,
                              xtol=1e-12, ftol=1e-12, gtol=1e-12)
     # Re-linearize at the solution so that sigma refers to small rotations about the TARF axes.
     model.reference = model.dcm(solution.x)
     x_hat = np.r_[np.zeros(k), solution.x[k:]]
+    drift_px_per_s = solution.x[k:model.n_leading].reshape(-1, 2)
     jac = model.jacobian(x_hat)
     residuals = model.residuals(x_hat)
     norms = np.linalg.norm(jac, axis=0)
@@ -333,9 +371,10 @@ def fit_alignment(maneuvers, detector=HIPO_2004, *, solve_for=('el', 'xel', 'los
     if np.any(norms == 0.0) or singular[-1] < 1e-6 * singular[0]:
         raise InvalidArgumentError(
             f'angles about {solve_for} are not all observable from these maneuvers '
-            '(LOS rotations do not see the rotation about LOS); restrict solve_for')
+            '(LOS rotations do not see the rotation about LOS; a residual drift needs maneuvers of both '
+            'signs in every block); restrict solve_for or fly both signs')
     if sigma_c_px is None:
-        dof = 4 * n - (k + 2 * n)
+        dof = 4 * n - (model.n_leading + 2 * n)
         if dof <= 0:
             raise InvalidArgumentError(
                 f'{n} maneuver(s) leave no residual degrees of freedom; pass sigma_c_px')
@@ -355,4 +394,5 @@ def fit_alignment(maneuvers, detector=HIPO_2004, *, solve_for=('el', 'xel', 'los
         n_maneuvers=n,
         sigma_c_px=sigma_c,
         solved_axes=solve_for,
+        drift_px_per_s=_read_only(drift_px_per_s),
     )

@@ -5,12 +5,9 @@ from sofia_ros.effects.base import EffectSpec, Parameter
 EFFECTS = (
     EffectSpec(
         'earth_rotation', 'earth', '4.1, eqs. 4.1-4.3',
-        'Earth rate sensed by the gyros on the ground from latitude, heading and elevation; defaults '
-        'are the 2007 Edwards stability-test site of Table 5.3.',
-        (
-            Parameter('latitude_deg', 34.9368, 'deg', 'geodetic latitude of the bearing centre'),
-            Parameter('heading_deg', 324.0, 'deg', 'true heading of the aircraft'),
-        ),
+        'The Earth turns under the telescope: a braked telescope senses 4.1-4.3 for the site latitude, '
+        'heading and elevation; an inertial hold walks the fine drive at that rate.',
+        (Parameter('rate_deg_per_h', 15.0411, 'deg/h', "Earth's rotation rate (4.1)"),),
     ),
     EffectSpec(
         'heading_error', 'earth', '5.2.4, Table 5.7',

@@ -1,0 +1,326 @@
+"""Gyro noise model: rate PSD and root AV of the five processes, and their fit (4.2.3, 5.1, 5.2.6).
+
+Units: rates in arcsec/s, so SF in arcsec, N in arcsec/sqrt(s), B in arcsec/s, K in arcsec/s^1.5,
+R in arcsec/s^2; PSDs are one-sided in (arcsec/s)^2/Hz (4.5).
+
+Three printed formulas are not consistent with the rest of 4.2.3 and are used corrected, each
+pinned by a test:
+
+- 4.10 prints the factor 2*4 in front of the integral. With the one-sided PSD the factor is 2
+  (IEEE 952's 4 applies to the two-sided PSD); 2*4 would turn 4.14 into 2 N tau^-0.5, not 4.16.
+- 4.12 prints pi^2 SF^2 t_s f^2 / 3, half the low-frequency limit of 4.11 (2 pi^2 SF^2 t_s f^2 / 3).
+- 4.18 prints B / 0.6648. Integrating 4.17 with 4.10 gives sqrt(2 ln 2 / pi) B = 0.6643 B for
+  tau >> 1/f0 (IEEE 952: 0.664 B): the plateau is 0.6643 times B, not B divided by it.
+
+4.22 cannot be checked against 4.10: the ramp's PSD 4.21 makes the integral diverge
+logarithmically at f -> 0 (a ramp is not stationary); 4.22 is the exact AV of the ramp itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import quad
+from scipy.optimize import lsq_linear
+
+from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
+from sofia_ros.validate import finite_array, positive_scalar
+
+__all__ = [
+    'BIAS_INSTABILITY_PLATEAU',
+    'NOISE_TERMS',
+    'quantization_psd',
+    'quantization_psd_low_frequency',
+    'arw_psd',
+    'bias_instability_psd',
+    'rrw_psd',
+    'rate_ramp_psd',
+    'noise_psd',
+    'quantization_adev',
+    'arw_adev',
+    'bias_instability_adev',
+    'rrw_adev',
+    'rate_ramp_adev',
+    'noise_adev',
+    'allan_variance_from_psd',
+    'arw_deg_per_sqrt_h_from_white_psd',
+    'loglog_slope',
+    'NoiseFit',
+    'fit_noise_model',
+    'ArwEstimate',
+    'arw_from_slope_fit',
+    'BiasStability',
+    'bias_stability',
+]
+
+#: Root AV plateau of bias instability per unit B, sqrt(2 ln 2 / pi) (4.17 in 4.10; printed 0.6648).
+BIAS_INSTABILITY_PLATEAU = float(np.sqrt(2.0 * np.log(2.0) / np.pi))
+#: The five processes of 4.2.3, in order of increasing AV slope (Table 4.1).
+NOISE_TERMS = ('quantization', 'arw', 'bias_instability', 'rrw', 'rate_ramp')
+#: Per term: AV = a tau^power; the coefficient is factor * sqrt(a) (4.13, 4.16, 4.18, 4.20, 4.22).
+_AV_POWERS = np.array([-2.0, -1.0, 0.0, 1.0, 2.0])
+_COEFFICIENT_FACTORS = np.array([2.0, 1.0, 1.0 / BIAS_INSTABILITY_PLATEAU, np.sqrt(3.0), np.sqrt(2.0)])
+_KERNEL_PERIODS = 2**18
+_REWEIGHTING_PASSES = 4
+
+
+def _frequency(freq_hz):
+    frequency = finite_array('freq_hz', freq_hz)
+    if np.any(frequency <= 0.0):
+        raise InvalidArgumentError('freq_hz must be > 0')
+    return frequency
+
+
+def _tau(tau_s):
+    tau = finite_array('tau_s', tau_s)
+    if np.any(tau <= 0.0):
+        raise InvalidArgumentError('tau_s must be > 0')
+    return tau
+
+
+def quantization_psd(freq_hz, quantization_arcsec, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
+    """Rate PSD of quantization, 2 SF^2 / (3 t_s) sin^2(pi f t_s) (eq. 4.11)."""
+    sample_time_s = 1.0 / positive_scalar('sample_rate_hz', sample_rate_hz)
+    phase = np.pi * _frequency(freq_hz) * sample_time_s
+    return 2.0 * quantization_arcsec**2 / (3.0 * sample_time_s) * np.sin(phase) ** 2
+
+
+def quantization_psd_low_frequency(freq_hz, quantization_arcsec, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
+    """Low-frequency limit of 4.11, 2 pi^2 SF^2 t_s f^2 / 3 (eq. 4.12, printed without the 2)."""
+    sample_time_s = 1.0 / positive_scalar('sample_rate_hz', sample_rate_hz)
+    return 2.0 * np.pi**2 * quantization_arcsec**2 * sample_time_s * _frequency(freq_hz) ** 2 / 3.0
+
+
+def arw_psd(freq_hz, arw_arcsec_per_sqrt_s):
+    """Rate PSD of angle random walk, 2 N^2 (eq. 4.14)."""
+    return np.full_like(_frequency(freq_hz), 2.0 * arw_arcsec_per_sqrt_s**2)
+
+
+def bias_instability_psd(freq_hz, bias_instability_arcsec_per_s, cutoff_hz):
+    """Rate PSD of bias instability, B^2 / (pi f) up to f0 and zero above (eq. 4.17)."""
+    frequency = _frequency(freq_hz)
+    cutoff = positive_scalar('cutoff_hz', cutoff_hz)
+    return np.where(frequency <= cutoff, bias_instability_arcsec_per_s**2 / (np.pi * frequency), 0.0)
+
+
+def rrw_psd(freq_hz, rrw_arcsec_per_s_sqrt_s):
+    """Rate PSD of rate random walk, 2 (K / (2 pi f))^2 (eq. 4.19)."""
+    return 2.0 * (rrw_arcsec_per_s_sqrt_s / (2.0 * np.pi * _frequency(freq_hz))) ** 2
+
+
+def rate_ramp_psd(freq_hz, rate_ramp_arcsec_per_s2):
+    """Rate PSD of rate ramp, 2 R^2 / (2 pi f)^3 (eq. 4.21)."""
+    return 2.0 * rate_ramp_arcsec_per_s2**2 / (2.0 * np.pi * _frequency(freq_hz)) ** 3
+
+
+def noise_psd(freq_hz, quantization_arcsec=0.0, arw_arcsec_per_sqrt_s=0.0, bias_instability_arcsec_per_s=0.0,
+              rrw_arcsec_per_s_sqrt_s=0.0, rate_ramp_arcsec_per_s2=0.0, sample_rate_hz=GYRO_SAMPLE_RATE_HZ,
+              bias_cutoff_hz=10.0):
+    """Rate PSD of the five independent processes, their sum (eq. 4.23)."""
+    return (
+        quantization_psd(freq_hz, quantization_arcsec, sample_rate_hz)
+        + arw_psd(freq_hz, arw_arcsec_per_sqrt_s)
+        + bias_instability_psd(freq_hz, bias_instability_arcsec_per_s, bias_cutoff_hz)
+        + rrw_psd(freq_hz, rrw_arcsec_per_s_sqrt_s)
+        + rate_ramp_psd(freq_hz, rate_ramp_arcsec_per_s2)
+    )
+
+
+def quantization_adev(tau_s, quantization_arcsec):
+    """Root AV of quantization noise, SF / (2 tau) (eq. 4.13)."""
+    return quantization_arcsec / (2.0 * _tau(tau_s))
+
+
+def arw_adev(tau_s, arw_arcsec_per_sqrt_s):
+    """Root AV of angle random walk, N tau^-0.5 (eq. 4.16)."""
+    return arw_arcsec_per_sqrt_s / np.sqrt(_tau(tau_s))
+
+
+def bias_instability_adev(tau_s, bias_instability_arcsec_per_s):
+    """Root AV plateau of bias instability for tau >> 1/f0, 0.6643 B (eq. 4.18 corrected, see module)."""
+    return np.full_like(_tau(tau_s), BIAS_INSTABILITY_PLATEAU * bias_instability_arcsec_per_s)
+
+
+def rrw_adev(tau_s, rrw_arcsec_per_s_sqrt_s):
+    """Root AV of rate random walk, K tau^0.5 / sqrt(3) (eq. 4.20)."""
+    return rrw_arcsec_per_s_sqrt_s * np.sqrt(_tau(tau_s) / 3.0)
+
+
+def rate_ramp_adev(tau_s, rate_ramp_arcsec_per_s2):
+    """Root AV of rate ramp, R tau / sqrt(2) (eq. 4.22)."""
+    return rate_ramp_arcsec_per_s2 * _tau(tau_s) / np.sqrt(2.0)
+
+
+def noise_adev(tau_s, quantization_arcsec=0.0, arw_arcsec_per_sqrt_s=0.0, bias_instability_arcsec_per_s=0.0,
+               rrw_arcsec_per_s_sqrt_s=0.0, rate_ramp_arcsec_per_s2=0.0):
+    """Root of the summed AVs of the five processes (eq. 4.24)."""
+    return np.sqrt(
+        quantization_adev(tau_s, quantization_arcsec) ** 2
+        + arw_adev(tau_s, arw_arcsec_per_sqrt_s) ** 2
+        + bias_instability_adev(tau_s, bias_instability_arcsec_per_s) ** 2
+        + rrw_adev(tau_s, rrw_arcsec_per_s_sqrt_s) ** 2
+        + rate_ramp_adev(tau_s, rate_ramp_arcsec_per_s2) ** 2
+    )
+
+
+def allan_variance_from_psd(tau_s, psd_function, f_min_hz=0.0, f_max_hz=np.inf):
+    """AV from a one-sided rate PSD, 2 int S(f) sin^4(pi f tau) / (pi f tau)^2 df (eq. 4.10, factor 2)."""
+    # In x = pi f tau: Gauss-Legendre on log-spaced pieces of the first half period (where 1/f^n
+    # PSDs are steep) and on each later half period, up to 2^18 of them; beyond, sin^4 is replaced
+    # by its mean 3/8 and the smooth remainder integrated by quad.
+    tau = positive_scalar('tau_s', tau_s)
+    low = np.pi * tau * finite_array('f_min_hz', f_min_hz, shape=())
+    high = np.pi * tau * float(f_max_hz) if not np.isinf(f_max_hz) else np.inf
+    if not 0.0 <= low < high:
+        raise InvalidArgumentError(f'need 0 <= f_min_hz < f_max_hz, got {f_min_hz} and {f_max_hz}')
+    end = min(high, np.pi * (np.floor(low / np.pi) + _KERNEL_PERIODS))
+    first = min(end, np.pi * (np.floor(low / np.pi) + 1.0))
+    start = max(low, first * 1e-12)
+    periods = np.pi * np.arange(np.ceil(first / np.pi), np.floor(end / np.pi) + 1)
+    edges = np.unique(np.concatenate([[low], np.geomspace(start, first, 49), periods, [end]]))
+    edges = edges[(edges >= low) & (edges <= end)]
+    nodes, weights = np.polynomial.legendre.leggauss(8)
+    centre, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * (edges[1:] - edges[:-1])
+    x = centre[:, np.newaxis] + half[:, np.newaxis] * nodes
+    total = float(np.sum(half[:, np.newaxis] * weights * _psd_at(psd_function, x, tau) * np.sin(x) ** 4 / x**2))
+    if end < high:
+        # x = 1/u maps the tail onto [1/high, 1/end]; sin^4 averages to 3/8 over each period.
+        tail, _ = quad(lambda u: float(_psd_at(psd_function, np.array(1.0 / u), tau)), 1.0 / high, 1.0 / end, limit=200)
+        total += 0.375 * tail
+    return 2.0 / (np.pi * tau) * total
+
+
+def _psd_at(psd_function, x, tau):
+    return np.asarray(psd_function(x / (np.pi * tau)), dtype=float)
+
+
+def arw_deg_per_sqrt_h_from_white_psd(psd_deg_per_h_sq_per_hz):
+    """ARW coefficient from the flat rate PSD level, sqrt(S / 2) / 60 (eq. 4.15)."""
+    level = finite_array('psd_deg_per_h_sq_per_hz', psd_deg_per_h_sq_per_hz)
+    if np.any(level < 0.0):
+        raise InvalidArgumentError('psd_deg_per_h_sq_per_hz must be >= 0')
+    return np.sqrt(level / 2.0) / 60.0
+
+
+def loglog_slope(x, y):
+    """Least-squares slope of log y against log x, to identify a process by Table 4.1."""
+    abscissa, ordinate = finite_array('x', x), finite_array('y', y)
+    if abscissa.ndim != 1 or abscissa.shape != ordinate.shape or abscissa.size < 2:
+        raise InvalidArgumentError(
+            f'x and y must be 1-D of equal length >= 2, got {abscissa.shape} and {ordinate.shape}')
+    if np.any(abscissa <= 0.0) or np.any(ordinate <= 0.0):
+        raise InvalidArgumentError('x and y must be > 0 for a log-log slope')
+    return float(np.polyfit(np.log(abscissa), np.log(ordinate), 1)[0])
+
+
+def _redundancy(tau_s):
+    """Points per octave: AV points closer than an octave share most clusters, so count once."""
+    octaves = np.log2(tau_s.max() / tau_s.min()) if tau_s.size > 1 else 1.0
+    return max(1.0, (tau_s.size - 1) / max(octaves, 1.0))
+
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """Fitted coefficients of the five processes with 1-sigma uncertainties from 4.25."""
+
+    quantization_arcsec: float
+    arw_arcsec_per_sqrt_s: float
+    bias_instability_arcsec_per_s: float
+    rrw_arcsec_per_s_sqrt_s: float
+    rate_ramp_arcsec_per_s2: float
+    quantization_sigma_arcsec: float
+    arw_sigma_arcsec_per_sqrt_s: float
+    bias_instability_sigma_arcsec_per_s: float
+    rrw_sigma_arcsec_per_s_sqrt_s: float
+    rate_ramp_sigma_arcsec_per_s2: float
+
+    def as_arcsec(self):
+        """The fitted coefficients as keywords of noise_adev / noise_psd."""
+        return {
+            'quantization_arcsec': self.quantization_arcsec,
+            'arw_arcsec_per_sqrt_s': self.arw_arcsec_per_sqrt_s,
+            'bias_instability_arcsec_per_s': self.bias_instability_arcsec_per_s,
+            'rrw_arcsec_per_s_sqrt_s': self.rrw_arcsec_per_s_sqrt_s,
+            'rate_ramp_arcsec_per_s2': self.rate_ramp_arcsec_per_s2,
+        }
+
+
+def fit_noise_model(curve, terms=NOISE_TERMS):
+    """Weighted non-negative least squares of 4.24 (AV space) to a root AV curve in arcsec/s, errors 4.25."""
+    # AV = sum_k a_k tau^p_k with a_k >= 0, where the terms add. An AV point's relative error is
+    # twice the 4.25 error of its root, taken of the model AV (refitted a few times, so that low
+    # fluctuations don't pull the fit). The covariance is multiplied by the points per octave, since
+    # closer AV points share most clusters; a coefficient's sigma is half the width of the 1-sigma
+    # interval of a_k mapped through sqrt. Terms not listed are held at zero.
+    unknown = set(terms) - set(NOISE_TERMS)
+    if unknown or not terms:
+        raise InvalidArgumentError(f'terms must be a non-empty subset of {NOISE_TERMS}, got {terms}')
+    tau = _tau(curve.tau_s)
+    variance = finite_array('curve.adev', curve.adev) ** 2
+    relative = 2.0 * finite_array('curve.sigma_rel', curve.sigma_rel)
+    active = np.array([name in terms for name in NOISE_TERMS])
+    if tau.size <= active.sum():
+        raise InvalidArgumentError(f'curve needs more than {active.sum()} points to fit {len(terms)} terms')
+    design = tau[:, np.newaxis] ** _AV_POWERS[active]
+    model = variance
+    for _ in range(_REWEIGHTING_PASSES):
+        weighted = design / (relative * model)[:, np.newaxis]
+        scale = np.linalg.norm(weighted, axis=0)
+        solution = lsq_linear(weighted / scale, variance / (relative * model), bounds=(0.0, np.inf), method='bvls')
+        amplitudes = solution.x / scale
+        model = np.maximum(design @ amplitudes, 1e-300)
+    weighted = design / (relative * model)[:, np.newaxis]
+    scale = np.linalg.norm(weighted, axis=0)
+    try:
+        covariance = np.linalg.inv((weighted / scale).T @ (weighted / scale)) / np.outer(scale, scale)
+        amplitude_sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0) * _redundancy(tau))
+    except np.linalg.LinAlgError:
+        amplitude_sigma = np.full(amplitudes.size, np.inf)
+    values, sigmas = np.zeros(len(NOISE_TERMS)), np.zeros(len(NOISE_TERMS))
+    values[active] = _COEFFICIENT_FACTORS[active] * np.sqrt(amplitudes)
+    upper = np.sqrt(amplitudes + amplitude_sigma)
+    lower = np.sqrt(np.maximum(amplitudes - amplitude_sigma, 0.0))
+    sigmas[active] = _COEFFICIENT_FACTORS[active] * 0.5 * (upper - lower)
+    return NoiseFit(*(float(value) for value in np.concatenate([values, sigmas])))
+
+
+@dataclass(frozen=True)
+class ArwEstimate:
+    """ARW from a -1/2-slope fit over a tau range, as in Table 5.8."""
+
+    arw_arcsec_per_sqrt_s: float
+    sigma_arcsec_per_sqrt_s: float
+    tau_min_s: float
+    tau_max_s: float
+
+
+def arw_from_slope_fit(curve, tau_min_s, tau_max_s):
+    """Least-squares fit of N tau^-0.5 to the curve between two taus, weighted by 4.25 (5.2.6, Table 5.8)."""
+    low, high = positive_scalar('tau_min_s', tau_min_s), positive_scalar('tau_max_s', tau_max_s)
+    tau = _tau(curve.tau_s)
+    inside = (tau >= low) & (tau <= high)
+    if low >= high or not np.any(inside):
+        raise InvalidArgumentError(f'no curve point with tau_min_s ({low:g}) <= tau <= tau_max_s ({high:g})')
+    log_arw = np.log(curve.adev[inside]) + 0.5 * np.log(tau[inside])
+    weights = 1.0 / curve.sigma_rel[inside] ** 2
+    mean = float(np.sum(weights * log_arw) / np.sum(weights))
+    sigma_log = np.sqrt(_redundancy(tau[inside]) / np.sum(weights))
+    return ArwEstimate(float(np.exp(mean)), float(np.exp(mean) * sigma_log), low, high)
+
+
+@dataclass(frozen=True)
+class BiasStability:
+    """Minimum of the root AV curve and where it is, as Table 5.8 reads it (4.2.3, 5.2.6)."""
+
+    bias_stability_arcsec_per_s: float
+    tau_s: float
+    sigma_arcsec_per_s: float
+
+
+def bias_stability(curve):
+    """Bias stability: the lowest root AV point, its tau and its 4.25 error (4.2.3, Table 5.8)."""
+    adev = finite_array('curve.adev', curve.adev)
+    lowest = int(np.argmin(adev))
+    return BiasStability(float(adev[lowest]), float(curve.tau_s[lowest]), float(adev[lowest] * curve.sigma_rel[lowest]))

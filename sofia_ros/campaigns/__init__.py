@@ -1,0 +1,1 @@
+"""Campaigns: the node graph configured for one of the thesis' test series."""

@@ -1,0 +1,1 @@
+"""The TASCU's algorithms as plain functions: attitude propagation, servo, motion status, FBC, drift."""

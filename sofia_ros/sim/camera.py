@@ -1,0 +1,89 @@
+"""Camera cores: the FPI, FFI and WFI trackers and HIPO, frames on a fixed schedule (2.4.3, 3.2, 6.1-6.3).
+
+Each exposure is rendered at its midpoint with the telescope attitude interpolated
+between the plant's tick attitudes; the centroids of every star on the chip are
+published as one PoseArray (x = column, y = row in px, z = HIP number).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from sofia_ros.frames import dcm_from_quaternion
+from sofia_ros.sensors.imager_model import CAMERAS, ImagerTruth, Scene
+from sofia_ros.sim import messages as m
+from sofia_ros.sim.plant import CD_JOINT
+from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
+from sofia_ros.sim.protocol import NodeCore, TopicSpec
+from sofia_ros.units import DEG_PER_RAD
+
+__all__ = ['CameraCore', 'centroid_topic', 'DEFAULT_TIMING_S']
+
+#: (frame period, exposure) in s: HIPO 0.5 s exposures on Polaris (6.1), imagers 2 s (6.2).
+DEFAULT_TIMING_S = {'hipo': (1.0, 0.5), 'fpi': (2.0, 2.0), 'ffi': (2.0, 2.0), 'wfi': (2.0, 2.0)}
+
+
+def centroid_topic(camera):
+    """TopicSpec of a camera's centroid stream."""
+    return TopicSpec(f'/{camera}/centroids', 'geometry_msgs/msg/PoseArray',
+                     f'{camera.upper()} centroids of every star on the chip: x, y px; z = HIP number')
+
+
+class CameraCore(NodeCore):
+    """Truth to centroids for one camera."""
+
+    upstream = (('plant', 0),)
+
+    def __init__(self, camera, scenario, truth_effects, *, seed=0, frame_period_s=None, exposure_s=None):
+        super().__init__()
+        if camera not in CAMERAS:
+            from sofia_ros.errors import ConfigError
+
+            raise ConfigError(f'camera must be one of {", ".join(CAMERAS)}, got {camera!r}')
+        self.name = camera
+        period_s, default_exposure_s = DEFAULT_TIMING_S[camera]
+        self.frame_period_ns = m.seconds_to_ns(frame_period_s or period_s)
+        self.exposure_ns = m.seconds_to_ns(exposure_s or default_exposure_s)
+        self.truth = ImagerTruth(camera, truth_effects, Scene(scenario.site, scenario.start_utc),
+                                 exposure_s=self.exposure_ns / m.NS_PER_S, seed=seed)
+        self.topic = centroid_topic(camera)
+        self.previous = None  # (stamp_ns, attitude quaternion xyzw, elevation_deg)
+        self.pending = {}
+
+    def inputs(self):
+        return (PLANT_TOPICS['truth_imu'], PLANT_TOPICS['truth_joints'])
+
+    def outputs(self):
+        return (self.topic,)
+
+    def receive(self, topic, message):
+        self.pending[topic] = message
+
+    def tick(self, stamp_ns):
+        imu = self.pending.pop(PLANT_TOPICS['truth_imu'].name, None)
+        joints = self.pending.pop(PLANT_TOPICS['truth_joints'].name, None)
+        if imu is None or joints is None:
+            return []
+        current = (stamp_ns, m.quaternion_xyzw_of(imu.orientation),
+                   m.joint_positions_of(joints)[CD_JOINT] * DEG_PER_RAD)
+        previous, self.previous = self.previous, current
+        if previous is None:
+            return []
+        outputs = []
+        for midpoint_ns in self._midpoints_ns(previous[0], stamp_ns):
+            fraction = (midpoint_ns - previous[0]) / (stamp_ns - previous[0])
+            quaternion = Slerp([0.0, 1.0], Rotation.from_quat([previous[1], current[1]]))(fraction).as_quat()
+            elevation_deg = previous[2] + fraction * (current[2] - previous[2])
+            centroids = self.truth.centroids(midpoint_ns / m.NS_PER_S, dcm_from_quaternion(quaternion),
+                                             elevation_deg)
+            stamp = centroids[0].stamp_s if centroids else midpoint_ns / m.NS_PER_S
+            outputs.append((self.topic.name, m.centroid_array(m.seconds_to_ns(stamp), self.name, centroids)))
+        return outputs
+
+    def _midpoints_ns(self, after_ns, until_ns):
+        """Exposure midpoints in (after_ns, until_ns]: exposures start at multiples of the frame period."""
+        half_ns = self.exposure_ns // 2
+        first = -(-(after_ns + 1 - half_ns) // self.frame_period_ns)
+        last = (until_ns - half_ns) // self.frame_period_ns
+        return [index * self.frame_period_ns + half_ns for index in range(max(first, 0), last + 1)]

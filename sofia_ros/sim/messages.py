@@ -1,0 +1,247 @@
+"""Conversions between the simulation's records and common_interfaces messages.
+
+Units follow REP-103 (rad, rad/s, m/s^2); ``frame_id`` names the reference frame.
+The 400 Hz gyro stream travels as an :class:`ImuBlock` (one tick of samples) inside
+the lock-step runner and as one ``sensor_msgs/Imu`` per sample over DDS; both
+become the same CDR bytes in a bag (:func:`imu_block_cdr` is pinned against the
+typestore's serializer by a test).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, Pose, PoseArray, QuaternionStamped, Vector3Stamped
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState, Temperature
+from std_msgs.msg import String
+
+__all__ = [
+    'NS_PER_S',
+    'ImuBlock',
+    'ImuSample',
+    'time_msg',
+    'stamp_ns_of',
+    'seconds_to_ns',
+    'clock_msg',
+    'quaternion_stamped',
+    'quaternion_xyzw_of',
+    'vector3_stamped',
+    'vector_of',
+    'joint_state',
+    'joint_positions_of',
+    'temperature_msg',
+    'centroid_array',
+    'centroids_of',
+    'status_msg',
+    'status_values_of',
+    'string_msg',
+    'imu_messages',
+    'imu_block_from_messages',
+    'imu_block_cdr',
+    'parameter_event',
+]
+
+NS_PER_S = 1_000_000_000
+
+
+def seconds_to_ns(seconds):
+    """Seconds (float) to integer nanoseconds, rounded."""
+    return int(round(seconds * NS_PER_S))
+
+
+def time_msg(stamp_ns):
+    """builtin_interfaces/Time of a stamp in ns."""
+    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def stamp_ns_of(stamp):
+    """Nanoseconds of a builtin_interfaces/Time."""
+    return stamp.sec * NS_PER_S + stamp.nanosec
+
+
+def clock_msg(stamp_ns):
+    """rosgraph_msgs/Clock at a stamp."""
+    return Clock(clock=time_msg(stamp_ns))
+
+
+def quaternion_stamped(stamp_ns, frame_id, quaternion_xyzw):
+    """geometry_msgs/QuaternionStamped; scalar-last like the thesis (B.5)."""
+    msg = QuaternionStamped()
+    msg.header.stamp = time_msg(stamp_ns)
+    msg.header.frame_id = frame_id
+    q = msg.quaternion
+    q.x, q.y, q.z, q.w = (float(value) for value in quaternion_xyzw)
+    return msg
+
+
+def quaternion_xyzw_of(msg):
+    """(x, y, z, w) of a QuaternionStamped or Quaternion."""
+    q = getattr(msg, 'quaternion', msg)
+    return np.array([q.x, q.y, q.z, q.w])
+
+
+def vector3_stamped(stamp_ns, frame_id, vector):
+    """geometry_msgs/Vector3Stamped."""
+    msg = Vector3Stamped()
+    msg.header.stamp = time_msg(stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.vector.x, msg.vector.y, msg.vector.z = (float(value) for value in vector)
+    return msg
+
+
+def vector_of(msg):
+    """numpy 3-vector of a Vector3Stamped or Vector3."""
+    v = getattr(msg, 'vector', msg)
+    return np.array([v.x, v.y, v.z])
+
+
+def joint_state(stamp_ns, positions, velocities=None):
+    """sensor_msgs/JointState from name -> position (rad) and optional name -> velocity (rad/s)."""
+    msg = JointState()
+    msg.header.stamp = time_msg(stamp_ns)
+    msg.name = list(positions)
+    msg.position = [float(positions[name]) for name in msg.name]
+    if velocities is not None:
+        msg.velocity = [float(velocities[name]) for name in msg.name]
+    return msg
+
+
+def joint_positions_of(msg):
+    """name -> position of a JointState."""
+    return dict(zip(msg.name, msg.position))
+
+
+def temperature_msg(stamp_ns, frame_id, temperature_c):
+    """sensor_msgs/Temperature in deg C."""
+    msg = Temperature()
+    msg.header.stamp = time_msg(stamp_ns)
+    msg.header.frame_id = frame_id
+    msg.temperature = float(temperature_c)
+    return msg
+
+
+def centroid_array(stamp_ns, camera, centroids):
+    """geometry_msgs/PoseArray of centroids: position.x/.y = column/row in px, position.z = HIP number."""
+    msg = PoseArray()
+    msg.header.stamp = time_msg(stamp_ns)
+    msg.header.frame_id = camera
+    msg.poses = [Pose(position=Point(x=float(c.x_px), y=float(c.y_px), z=float(c.hip))) for c in centroids]
+    return msg
+
+
+def centroids_of(msg):
+    """(hip, x_px, y_px) tuples of a centroid PoseArray."""
+    return [(int(round(p.position.z)), p.position.x, p.position.y) for p in msg.poses]
+
+
+def status_msg(name, message, values=None, level=DiagnosticStatus.OK, hardware_id=''):
+    """diagnostic_msgs/DiagnosticStatus with key/value pairs."""
+    return DiagnosticStatus(
+        level=level, name=name, message=message, hardware_id=hardware_id,
+        values=[KeyValue(key=str(key), value=str(value)) for key, value in (values or {}).items()],
+    )
+
+
+def status_values_of(msg):
+    """key -> value of a DiagnosticStatus."""
+    return {kv.key: kv.value for kv in msg.values}
+
+
+def string_msg(text):
+    """std_msgs/String."""
+    return String(data=text)
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    """One gyro-box sample: stamp, rate (rad/s) and specific force (m/s^2) in GYRF."""
+
+    stamp_ns: int
+    angular_velocity_rad_per_s: tuple
+    linear_acceleration_m_per_s2: tuple
+
+
+@dataclass(frozen=True)
+class ImuBlock:
+    """One tick of 400 Hz gyro-box samples as arrays (N stamps, Nx3 rates, Nx3 specific forces)."""
+
+    frame_id: str
+    stamp_ns: np.ndarray
+    angular_velocity_rad_per_s: np.ndarray
+    linear_acceleration_m_per_s2: np.ndarray
+
+    def __len__(self):
+        return len(self.stamp_ns)
+
+
+_NO_ORIENTATION_COVARIANCE = (-1.0,) + (0.0,) * 8  # REP-145: orientation not provided
+
+
+def imu_messages(block):
+    """One sensor_msgs/Imu per sample of an ImuBlock (orientation marked unknown)."""
+    messages = []
+    for stamp_ns, rate, force in zip(block.stamp_ns, block.angular_velocity_rad_per_s,
+                                     block.linear_acceleration_m_per_s2):
+        msg = Imu()
+        msg.header.stamp = time_msg(stamp_ns)
+        msg.header.frame_id = block.frame_id
+        msg.orientation_covariance = _NO_ORIENTATION_COVARIANCE
+        w, a = msg.angular_velocity, msg.linear_acceleration
+        w.x, w.y, w.z = float(rate[0]), float(rate[1]), float(rate[2])
+        a.x, a.y, a.z = float(force[0]), float(force[1]), float(force[2])
+        messages.append(msg)
+    return messages
+
+
+def imu_block_from_messages(messages):
+    """ImuBlock of Imu messages (all from one frame), in the order given."""
+    if not messages:
+        return ImuBlock('gyrf', np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    return ImuBlock(
+        messages[0].header.frame_id,
+        np.array([stamp_ns_of(m.header.stamp) for m in messages], dtype=np.int64),
+        np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in messages]),
+        np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z) for m in messages]),
+    )
+
+
+def imu_block_cdr(block):
+    """Little-endian CDR of each sample as sensor_msgs/Imu, exactly as DDS carries it."""
+    frame = block.frame_id.encode() + b'\0'
+    head_length = 4 + 8 + 4 + len(frame)  # encapsulation, stamp, string length, string
+    padding = b'\0' * (-(head_length - 4) % 8)  # doubles align to 8 from the end of the encapsulation
+    prefix = struct.Struct(f'<4siI I{len(frame)}s')
+    body = struct.Struct('<' + 'd' * (4 + 9 + 3 + 9 + 3 + 9))
+    orientation = (0.0, 0.0, 0.0, 1.0) + _NO_ORIENTATION_COVARIANCE
+    zeros9 = (0.0,) * 9
+    out = []
+    for stamp_ns, rate, force in zip(block.stamp_ns.tolist(), block.angular_velocity_rad_per_s.tolist(),
+                                     block.linear_acceleration_m_per_s2.tolist()):
+        sec, nanosec = divmod(stamp_ns, NS_PER_S)
+        out.append(prefix.pack(b'\x00\x01\x00\x00', sec, nanosec, len(frame), frame) + padding
+                   + body.pack(*orientation, *rate, *zeros9, *force, *zeros9))
+    return out
+
+
+def parameter_event(stamp_ns, node, values):
+    """rcl_interfaces/ParameterEvent reporting ``values`` (name -> value) changed on ``/node``."""
+    from rcl_interfaces.msg import Parameter, ParameterEvent, ParameterType, ParameterValue
+
+    changed = []
+    for name, value in values.items():
+        parameter_value = ParameterValue()
+        if isinstance(value, bool):
+            parameter_value.type, parameter_value.bool_value = ParameterType.PARAMETER_BOOL, value
+        elif isinstance(value, (int, float)):
+            parameter_value.type, parameter_value.double_value = ParameterType.PARAMETER_DOUBLE, float(value)
+        else:
+            parameter_value.type = ParameterType.PARAMETER_DOUBLE_ARRAY
+            parameter_value.double_array_value = [float(item) for item in np.ravel(value)]
+        changed.append(Parameter(name=name, value=parameter_value))
+    return ParameterEvent(stamp=time_msg(stamp_ns), node=f'/{node}', changed_parameters=changed)

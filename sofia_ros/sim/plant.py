@@ -1,0 +1,139 @@
+"""Truth plant core: the telescope's true attitude, coarse and fine drives, temperature (2.3, C.1).
+
+The fine drive is torque controlled on the gyro loop: over each tick the telescope's
+inertial body rate is the TASCU's fine-drive command of the previous tick, until a
+fine-drive angle reaches its +-3 deg end stop. With the FD braked (gyro stability
+tests, 5.2) the telescope is fixed to the Earth and senses eqs. 4.1-4.3. The coarse
+drive slews the elevation axis at a fixed rate towards its commanded elevation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sofia_ros import mount
+from sofia_ros.control.attitude import mean_rate_rad_per_s, propagate_dcm
+from sofia_ros.frames import quaternion_from_dcm
+from sofia_ros.sim import messages as m
+from sofia_ros.sim.protocol import DEFAULT_TICK_NS, NodeCore, TopicSpec
+from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
+
+__all__ = ['PlantCore', 'FD_JOINTS', 'CD_JOINT']
+
+CD_JOINT = 'cd_elevation'
+FD_JOINTS = ('fd_el', 'fd_xel', 'fd_los')
+
+TOPICS = {
+    'clock': TopicSpec('/clock', 'rosgraph_msgs/msg/Clock', 'simulated time, one message per tick'),
+    'fd_command': TopicSpec('/tascu/fd_command', 'geometry_msgs/msg/Vector3Stamped',
+                            'inertial body rate the fine drive is to hold over the next tick, TARF, rad/s'),
+    'cd_command': TopicSpec('/tascu/cd_command', 'sensor_msgs/msg/JointState',
+                            'coarse-drive target elevation (cd_elevation, rad)'),
+    'truth_imu': TopicSpec('/truth/imu', 'sensor_msgs/msg/Imu',
+                           'true TARF attitude in IRF, mean inertial rate over the tick (TARF), specific force'),
+    'truth_joints': TopicSpec('/truth/joints', 'sensor_msgs/msg/JointState',
+                              'true coarse-drive elevation and fine-drive angles (rad)'),
+    'truth_temperature': TopicSpec('/truth/temperature', 'sensor_msgs/msg/Temperature',
+                                   'telescope structure temperature (deg C)'),
+    'joint_states': TopicSpec('/ta/joint_states', 'sensor_msgs/msg/JointState',
+                              'housekeeping: CD encoder and FD spherical-sensor angles (rad)'),
+}
+
+
+class PlantCore(NodeCore):
+    """The true telescope on the ground."""
+
+    name = 'plant'
+    upstream = (('clock', 0), ('tascu', 1))
+
+    def __init__(self, scenario, truth_effects, *, fd_braked=False, tick_ns=DEFAULT_TICK_NS,
+                 cd_slew_rate_deg_per_s=0.5):
+        super().__init__()
+        self.scenario = scenario
+        heading_error = truth_effects.get('heading_error', {}).get('heading_error_deg', 0.0)
+        self.heading_deg = scenario.heading_deg + heading_error
+        earth = truth_effects.get('earth_rotation')
+        self.earth_rate_rad_per_s = earth['rate_deg_per_h'] * RAD_PER_DEG / 3600.0 if earth else 0.0
+        self.fd_braked = fd_braked
+        self.tick_s = tick_ns / m.NS_PER_S
+        self.cd_slew_rate_deg_per_s = cd_slew_rate_deg_per_s
+        self.elevation_deg = scenario.start_elevation_deg
+        self.cd_target_deg = self.elevation_deg
+        self.fine_drive_rad = np.zeros(3)
+        self.rate_command_rad_per_s = np.zeros(3)
+        self.last_stamp_ns = 0
+        self.tarf_from_irf = mount.tarf_from_hrf_dcm(self.heading_deg, self.elevation_deg)
+
+    def inputs(self):
+        return (TOPICS['clock'], TOPICS['fd_command'], TOPICS['cd_command'])
+
+    def outputs(self):
+        return tuple(TOPICS[key] for key in ('truth_imu', 'truth_joints', 'truth_temperature', 'joint_states'))
+
+    def receive(self, topic, message):
+        if topic == TOPICS['fd_command'].name:
+            self.rate_command_rad_per_s = m.vector_of(message)
+        elif topic == TOPICS['cd_command'].name:
+            target_rad = m.joint_positions_of(message)[CD_JOINT]
+            self.cd_target_deg = target_rad / RAD_PER_DEG
+
+    def _hrf_from_irf(self, elapsed_s):
+        return mount.hrf_from_irf_dcm(self.scenario.latitude_deg, elapsed_s, self.earth_rate_rad_per_s)
+
+    def _cradle_from_hrf(self):
+        return mount.icrf_from_abrf_dcm(self.elevation_deg) @ mount.abrf_from_hrf_dcm(self.heading_deg)
+
+    def tick(self, stamp_ns):
+        interval_s = (stamp_ns - self.last_stamp_ns) / m.NS_PER_S
+        elapsed_s = stamp_ns / m.NS_PER_S
+        before = self.tarf_from_irf
+        if interval_s > 0.0:
+            self._move_coarse_drive(interval_s)
+            self._move_telescope(interval_s, elapsed_s)
+        rate = mean_rate_rad_per_s(before, self.tarf_from_irf, interval_s) if interval_s > 0 else np.zeros(3)
+        self.last_stamp_ns = stamp_ns
+        return self._messages(stamp_ns, elapsed_s, rate)
+
+    def _move_coarse_drive(self, interval_s):
+        step_deg = np.clip(self.cd_target_deg - self.elevation_deg, -self.cd_slew_rate_deg_per_s * interval_s,
+                           self.cd_slew_rate_deg_per_s * interval_s)
+        self.elevation_deg += float(step_deg)
+
+    def _move_telescope(self, interval_s, elapsed_s):
+        cradle_from_irf = self._cradle_from_hrf() @ self._hrf_from_irf(elapsed_s)
+        if self.fd_braked:
+            self.tarf_from_irf = mount.tarf_from_icrf_dcm(self.fine_drive_rad) @ cradle_from_irf
+            return
+        moved = propagate_dcm(self.tarf_from_irf, self.rate_command_rad_per_s, interval_s)
+        angles = mount.fine_drive_angles_from_dcm(moved @ cradle_from_irf.T)
+        limit = mount.FINE_DRIVE_LIMIT_DEG * RAD_PER_DEG
+        if np.any(np.abs(angles) > limit):
+            # End stop: the fine drive cannot turn further; the telescope rides with the cradle there.
+            angles = np.clip(angles, -limit, limit)
+            moved = mount.tarf_from_icrf_dcm(angles) @ cradle_from_irf
+        self.fine_drive_rad = angles
+        self.tarf_from_irf = moved
+
+    def specific_force_tarf_m_per_s2(self, elapsed_s):
+        """Accelerometer specific force at rest, f = -g (eq. 2.13), in TARF."""
+        gravity_hrf = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_PER_S2])
+        return -(self.tarf_from_irf @ self._hrf_from_irf(elapsed_s).T @ gravity_hrf)
+
+    def _messages(self, stamp_ns, elapsed_s, rate_rad_per_s):
+        imu = m.Imu()
+        imu.header.stamp = m.time_msg(stamp_ns)
+        imu.header.frame_id = 'tarf'
+        q = quaternion_from_dcm(self.tarf_from_irf)
+        imu.orientation.x, imu.orientation.y, imu.orientation.z, imu.orientation.w = (float(v) for v in q)
+        w, a = imu.angular_velocity, imu.linear_acceleration
+        w.x, w.y, w.z = (float(v) for v in rate_rad_per_s)
+        a.x, a.y, a.z = (float(v) for v in self.specific_force_tarf_m_per_s2(elapsed_s))
+        positions = {CD_JOINT: self.elevation_deg * RAD_PER_DEG, **dict(zip(FD_JOINTS, self.fine_drive_rad))}
+        temperature_c = (self.scenario.start_temperature_c
+                         + self.scenario.temperature_slope_c_per_h * elapsed_s / 3600.0)
+        return [
+            (TOPICS['truth_imu'].name, imu),
+            (TOPICS['truth_joints'].name, m.joint_state(stamp_ns, positions)),
+            (TOPICS['truth_temperature'].name, m.temperature_msg(stamp_ns, 'tarf', temperature_c)),
+            (TOPICS['joint_states'].name, m.joint_state(stamp_ns, positions)),
+        ]

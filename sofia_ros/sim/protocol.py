@@ -1,0 +1,93 @@
+"""The lock-step contract every simulation core follows, in-process or over DDS.
+
+Simulated time advances in ticks of ``tick_ns``. At tick k (stamp ``k * tick_ns``) a
+core is handed every message its inputs produced for that tick and for earlier ones
+- :meth:`NodeCore.receive` buffers them - and then :meth:`NodeCore.tick` returns
+its outputs as ``(topic, message)`` pairs. ``upstream`` says which cores must have
+finished a tick first: lag 0 for the same tick, lag 1 for the previous one (the
+plant uses the TASCU's fine-drive command of the tick before). The direct runner
+calls cores in that order; over DDS each node waits for its upstream nodes'
+``/sim/done/<name>`` handshake, which also carries how many messages were sent on
+each topic, so nothing is processed early or missed. Both give the same messages.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ['DEFAULT_TICK_NS', 'TopicSpec', 'NodeCore', 'RunOutcome', 'SET_PARAMETERS', 'ParameterRequest',
+           'ParameterResult']
+
+#: 0.1 s: the servo and sensors exchange once per tick; the gyro box still samples at 400 Hz.
+DEFAULT_TICK_NS = 100_000_000
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """A topic, its ROS type string and a one-line meaning (for the README's table)."""
+
+    name: str
+    msgtype: str
+    meaning: str
+
+
+@dataclass
+class RunOutcome:
+    """How a run ended: finished normally, or stopped with a reason."""
+
+    finished: bool = False
+    failed: bool = False
+    reason: str = ''
+    details: dict = field(default_factory=dict)
+
+
+class NodeCore:
+    """Base of the ROS-free node cores."""
+
+    #: node name, also the executable's name
+    name = ''
+    #: (node name, lag in ticks) this core waits for before its tick
+    upstream = ()
+
+    def __init__(self):
+        self.outcome = RunOutcome()
+
+    def inputs(self):
+        """TopicSpecs this core consumes."""
+        return ()
+
+    def outputs(self):
+        """TopicSpecs this core produces."""
+        return ()
+
+    def receive(self, topic, message):
+        """Buffer one message on an input topic."""
+
+    def tick(self, stamp_ns):
+        """Work for the tick ending at ``stamp_ns``; return [(topic, message), ...]."""
+        return []
+
+
+#: Pseudo-topic on which a core asks another core to set parameters (a parameter service call).
+SET_PARAMETERS = '/sim/set_parameters'
+
+
+@dataclass(frozen=True)
+class ParameterRequest:
+    """Set ``values`` (name -> value) on node ``node``: rcl_interfaces SetParameters in the live graph."""
+
+    node: str
+    values: dict
+
+
+@dataclass(frozen=True)
+class ParameterResult:
+    """Outcome of one ParameterRequest: name -> '' when set, else the reason it was refused."""
+
+    node: str
+    reasons: dict
+
+    @property
+    def successful(self):
+        """True if every parameter was set."""
+        return not any(self.reasons.values())

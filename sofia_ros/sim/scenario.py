@@ -1,0 +1,57 @@
+"""Where and when a campaign happens: site, epoch, heading, elevation, weather-free geometry."""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+
+from sofia_ros.errors import ConfigError
+from sofia_ros.sky import Site
+
+__all__ = ['Scenario', 'scenario_from_mapping']
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """The campaign's fixed circumstances (the truth varies the physics, not these)."""
+
+    site: Site
+    start_utc: dt.datetime
+    heading_deg: float
+    start_elevation_deg: float
+    start_temperature_c: float = 22.8
+    temperature_slope_c_per_h: float = -1.0
+
+    @property
+    def latitude_deg(self):
+        """Latitude of the bearing centre (4.1)."""
+        return self.site.latitude_deg
+
+
+def scenario_from_mapping(defaults, overrides):
+    """A Scenario from campaign defaults overlaid with a truth file's ``scenario:`` mapping."""
+    if overrides is None:
+        return defaults
+    if not isinstance(overrides, dict):
+        raise ConfigError(f'scenario must be a mapping, got {type(overrides).__name__}')
+    fields = {
+        'latitude_deg': defaults.site.latitude_deg, 'longitude_deg': defaults.site.longitude_deg,
+        'height_m': defaults.site.height_m, 'start_utc': defaults.start_utc.isoformat(),
+        'heading_deg': defaults.heading_deg, 'start_elevation_deg': defaults.start_elevation_deg,
+        'start_temperature_c': defaults.start_temperature_c,
+        'temperature_slope_c_per_h': defaults.temperature_slope_c_per_h,
+    }
+    unknown = sorted(set(overrides) - set(fields))
+    if unknown:
+        raise ConfigError(f'scenario: unknown key(s) {", ".join(unknown)} (known: {", ".join(fields)})')
+    fields.update(overrides)
+    try:
+        start_utc = dt.datetime.fromisoformat(str(fields['start_utc']).replace('Z', '+00:00'))
+        numbers = {key: float(fields[key]) for key in fields if key != 'start_utc'}
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f'scenario: {err}; give numbers and an ISO 8601 start_utc') from err
+    if start_utc.tzinfo is None:
+        raise ConfigError('scenario: start_utc needs a timezone, e.g. 2004-09-03T04:22:16Z')
+    site = Site(numbers['latitude_deg'], numbers['longitude_deg'], numbers['height_m'])
+    return Scenario(site, start_utc, numbers['heading_deg'], numbers['start_elevation_deg'],
+                    numbers['start_temperature_c'], numbers['temperature_slope_c_per_h'])

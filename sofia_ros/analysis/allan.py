@@ -166,7 +166,9 @@ def overlapping_allan_deviation(rate, sample_rate_hz, cluster_sizes=None, rtol=1
 
 def _checked_cluster_sizes(cluster_sizes, n_samples):
     if cluster_sizes is None:
-        return log_spaced_cluster_sizes(n_samples, n_taus=min(100, max(1, int(n_samples * LARGEST_TAU_FRACTION))))
+        if n_samples < 3:
+            raise InvalidArgumentError(f'rate has {n_samples} samples; default cluster sizes (up to a third) need 3')
+        return log_spaced_cluster_sizes(n_samples, n_taus=min(100, int(n_samples * LARGEST_TAU_FRACTION)))
     sizes = finite_array('cluster_sizes', cluster_sizes)
     if sizes.ndim != 1 or sizes.size == 0:
         raise InvalidArgumentError(f'cluster_sizes must be a non-empty 1-D array, got shape {sizes.shape}')
@@ -198,8 +200,8 @@ def _allan_curve(rate, sample_time_s, sizes, rtol, workspace, pool):
     sums[small], scales[small] = _sums_from_rate(rows, phase, sizes[small], pool)
     phase -= phase.mean()  # second differences ignore constants, rounding in A(l) does not
     sums[~small], scales[~small] = _sums_from_phase(phase, sizes[~small], pool)
-    for index in np.flatnonzero(_ROUNDING_FACTOR * np.finfo(float).eps * scales > rtol * sums):
-        sums[index] = _direct_second_difference_sum(phase, sizes[index])
+    lossy = np.flatnonzero(_ROUNDING_FACTOR * np.finfo(float).eps * scales > rtol * sums)
+    sums[lossy] = list(pool.map(lambda m: _direct_second_difference_sum(phase, m), sizes[lossy]))
     sums += _rate_line_terms(phase, sizes, slope)
     terms = phase.size - 2 * sizes
     adev = np.sqrt(np.maximum(sums, 0.0) / (2.0 * sizes.astype(float) ** 2 * terms))
@@ -245,15 +247,17 @@ def _residual_rate_and_phase(rate, workspace):
 
 def _rate_line_terms(phase, sizes, slope):
     """S(m) of (d + slope m^2) minus S(m) of d, the second differences d of the residual phase."""
-    # = 2 slope m^2 sum(d) + (L - 2m) slope^2 m^4; sum(d) telescopes to four sums of m phase values.
-    size = phase.size
+    # = 2 slope m^2 sum(d) + (L - 2m) slope^2 m^4, where sum(d) telescopes to 2 H(m) - H(2m)
+    # + 2 T(m) - T(2m) with H(k), T(k) the sums of the first and last k phase values.
+    ends = np.unique(np.concatenate([sizes, 2 * sizes]))
+    starts = np.concatenate([[0], ends[:-1]])
+    head = dict(zip(ends, np.cumsum(np.add.reduceat(phase[:ends[-1]], starts))))
+    tail = dict(zip(ends, np.cumsum(np.add.reduceat(phase[::-1][:ends[-1]], starts))))
     terms = np.empty(sizes.size)
     for index, m in enumerate(sizes):
-        telescoped = (
-            phase[size - m:].sum() - phase[m:2 * m].sum() + phase[:m].sum() - phase[size - 2 * m:size - m].sum()
-        )
+        telescoped = 2.0 * head[m] - head[2 * m] + 2.0 * tail[m] - tail[2 * m]
         square = slope * float(m) ** 2
-        terms[index] = 2.0 * square * telescoped + (size - 2 * m) * square**2
+        terms[index] = 2.0 * square * telescoped + (phase.size - 2 * m) * square**2
     return terms
 
 
@@ -285,24 +289,21 @@ def _sums_from_phase(phase, sizes, pool):
     energy = _dot(phase, phase)
     # Octave grids (4.8) share lags: A(2m) of one size is A(m) of the next.
     lags = np.unique(np.concatenate([sizes, 2 * sizes]))
-    shares = [lags[worker::_WORKERS] for worker in range(_WORKERS)]
-    lagged = {}
-    for share, products in zip(shares, pool.map(lambda part: [_dot(phase[:size - lag], phase[lag:]) for lag in part],
-                                                shares)):
-        lagged.update(zip(share, products))
-    sums = np.empty(sizes.size)
-    for index, m in enumerate(sizes):
-        terms = size - 2 * m
-        head_m, tail_m = _dot(phase[:m], phase[:m]), _dot(phase[-m:], phase[-m:])
-        head_2m = head_m + _dot(phase[m:2 * m], phase[m:2 * m])
-        tail_2m = tail_m + _dot(phase[-2 * m:-m], phase[-2 * m:-m])
-        head_cross = _dot(phase[:m], phase[m:2 * m])
-        tail_cross = _dot(phase[terms:size - m], phase[terms + m:])
-        sums[index] = (
-            6.0 * energy - 8.0 * lagged[m] + 2.0 * lagged[2 * m] - head_2m - 4.0 * head_m - 4.0 * tail_m - tail_2m
-            + 4.0 * head_cross + 4.0 * tail_cross
-        )
-    return sums, np.full(sizes.size, 16.0 * energy)
+    lagged = dict(zip(lags, pool.map(lambda lag: _dot(phase[:size - lag], phase[lag:]), lags)))
+    edges = np.fromiter(pool.map(lambda m: _edge_products(phase, m), sizes), dtype=float, count=sizes.size)
+    at_m, at_2m = np.array([lagged[m] for m in sizes]), np.array([lagged[2 * m] for m in sizes])
+    return 6.0 * energy - 8.0 * at_m + 2.0 * at_2m - edges, np.full(sizes.size, 16.0 * energy)
+
+
+def _edge_products(phase, m):
+    """The products 6 A(0) - 8 A(m) + 2 A(2m) counts beyond the n + 1 - 2m second differences."""
+    terms = phase.size - 2 * m
+    head_m, tail_m = _dot(phase[:m], phase[:m]), _dot(phase[-m:], phase[-m:])
+    head_2m = head_m + _dot(phase[m:2 * m], phase[m:2 * m])
+    tail_2m = tail_m + _dot(phase[-2 * m:-m], phase[-2 * m:-m])
+    head_cross = _dot(phase[:m], phase[m:2 * m])
+    tail_cross = _dot(phase[terms:phase.size - m], phase[terms + m:])
+    return head_2m + 4.0 * head_m + 4.0 * tail_m + tail_2m - 4.0 * head_cross - 4.0 * tail_cross
 
 
 def _direct_second_difference_sum(phase, m):

@@ -237,7 +237,7 @@ class NoiseFit:
     rate_ramp_sigma_arcsec_per_s2: float
 
     def as_arcsec(self):
-        """The fitted coefficients as keywords of noise_adev / noise_psd."""
+        """The fitted coefficients as keywords of noise_adev / noise_psd (eqs. 4.24, 4.23)."""
         return {
             'quantization_arcsec': self.quantization_arcsec,
             'arw_arcsec_per_sqrt_s': self.arw_arcsec_per_sqrt_s,

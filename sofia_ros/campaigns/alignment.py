@@ -13,24 +13,19 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagWriter
 from sofia_ros.errors import ConfigError
-from sofia_ros.sim.calibration import AlignmentPlan, CalibrationCore
-from sofia_ros.sim.camera import CameraCore
-from sofia_ros.sim.clock import ClockCore
-from sofia_ros.sim.gyro_box import GyroBoxCore, true_tarf_from_gyrf
-from sofia_ros.sim.plant import PlantCore
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.sim.calibration import AlignmentPlan
+from sofia_ros.sim.graph import GraphConfig, build_cores
+from sofia_ros.sim.gyro_box import true_tarf_from_gyrf
 from sofia_ros.sim.runner import LockstepRunner
 from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
-from sofia_ros.sim.tascu import TascuCore
 from sofia_ros.sky import WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 from sofia_ros.units import ARCSEC_PER_RAD
 
-__all__ = ['AlignmentRun', 'default_scenario', 'build_cores', 'run_alignment', 'residual_misalignment_arcsec']
+__all__ = ['AlignmentRun', 'default_scenario', 'graph_config', 'run_alignment', 'residual_misalignment_arcsec']
 
 #: Observation 2 of Table D.3: Polaris, 2004-09-02 23:32:51 CDT.
 DEFAULT_START_UTC = dt.datetime(2004, 9, 3, 4, 32, 51, tzinfo=dt.timezone.utc)
 TARGET_STAR = 'Polaris'
-CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
 
 
 @dataclass(frozen=True)
@@ -49,12 +44,9 @@ def default_scenario():
     return Scenario(WACO_2004_SITE, DEFAULT_START_UTC, 90.0 + place.azimuth_deg, place.apparent_altitude_deg)
 
 
-def build_cores(truth, scenario, seed, plan):
-    """The alignment graph's cores with per-node seeds drawn from the run seed."""
-    seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(len(CAMERAS) + 1)]
-    cameras = [CameraCore(camera, scenario, truth.effects, seed=s) for camera, s in zip(CAMERAS, seeds[1:])]
-    return [ClockCore(), PlantCore(scenario, truth.effects), GyroBoxCore(truth.effects, seed=seeds[0]),
-            *cameras, TascuCore(), CalibrationCore(plan)]
+def graph_config(truth, seed, plan=None):
+    """The alignment campaign's GraphConfig: the truth's scenario over the Waco default."""
+    return GraphConfig(truth, scenario_from_mapping(default_scenario(), truth.scenario), seed, plan or AlignmentPlan())
 
 
 def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects):
@@ -66,9 +58,8 @@ def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects):
 def run_alignment(truth, *, seed, bag_path=None, plan=None, max_sim_s=7200.0, model_text='effects: {}\n',
                   progress=None):
     """Run the campaign in one process (lock-step runner) and return its summary."""
-    plan = plan or AlignmentPlan()
-    scenario = scenario_from_mapping(default_scenario(), truth.scenario)
-    cores = build_cores(truth, scenario, seed, plan)
+    config = graph_config(truth, seed, plan)
+    cores = build_cores(config)
     calibration = cores[-1]
     bag = BagWriter(bag_path) if bag_path is not None else None
     wall_start = time.perf_counter()
@@ -77,7 +68,7 @@ def run_alignment(truth, *, seed, bag_path=None, plan=None, max_sim_s=7200.0, mo
             bag.open()
             bag.write_document('/config/truth', truth.text, 0)
             bag.write_document('/config/model', model_text, 0)
-        runner = LockstepRunner(cores, tick_ns=DEFAULT_TICK_NS, bag=bag)
+        runner = LockstepRunner(cores, tick_ns=config.tick_ns, bag=bag)
         until_ns = int(max_sim_s * 1e9)
 
         def stop():

@@ -3,8 +3,9 @@
 Coefficients are kept in the thesis' units (N deg/sqrt(h), B deg/h, K deg/h^1.5, R deg/h^2, SF arcsec);
 the generator works in arcsec/s, where N is in arcsec/sqrt(s) = (arcsec/s)/sqrt(Hz).
 
-Discretization, at sample time t_s (each output sample is the rate averaged over the previous
-sampling period, 2.4.1):
+Discretization at sample time t_s. The FOG outputs the rate averaged over the previous sampling
+period (2.4.1); ARW and ramp are such averages exactly, bias instability and RRW are sampled at
+the sample instants, which changes their AV only at tau of a few samples, where ARW dominates.
 
 - ARW: white rate noise of variance N^2 / t_s per sample, exact for every cluster size (4.16).
 - Bias instability: unit white noise through a cascade of real poles with zeros half-way between
@@ -114,7 +115,7 @@ class NoiseCoefficients:
             raise InvalidArgumentError(f'bias_cutoff_hz must be > 0, got {self.bias_cutoff_hz}')
 
     def as_arcsec(self):
-        """The five coefficients in arcsec-based units, as keywords of the noise_model curves."""
+        """The five coefficients in arcsec-based units (Table 5.8), as keywords of the 4.23/4.24 curves."""
         return {
             'quantization_arcsec': self.quantization_arcsec,
             'arw_arcsec_per_sqrt_s': arw_deg_per_sqrt_h_to_arcsec_per_sqrt_s(self.arw_deg_per_sqrt_h),
@@ -204,7 +205,7 @@ def bias_instability_sos(bias_instability_arcsec_per_s, cutoff_hz, sample_rate_h
 
 
 class GyroNoiseStream:
-    """Stateful generator of gyro rate blocks; consecutive calls continue one realization."""
+    """Stateful generator of gyro rate blocks (4.2.3); consecutive calls continue one realization."""
 
     def __init__(self, coefficients, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, n_axes=3, rng=None, bias_low_hz=1e-6):
         if not isinstance(coefficients, NoiseCoefficients):
@@ -270,7 +271,7 @@ class GyroNoiseStream:
         return rate
 
     def next_rad_per_s(self, n_samples, true_rate_rad_per_s=None):
-        """Next ``n_samples`` x n_axes measured rates in rad/s (REP-103 units for messages)."""
+        """Next ``n_samples`` x n_axes measured rates in rad/s, as messages carry them (4.2.3, 2.11)."""
         truth = None if true_rate_rad_per_s is None else finite_array('true_rate_rad_per_s', true_rate_rad_per_s)
         return self.next_arcsec_per_s(n_samples, None if truth is None else truth / RAD_PER_ARCSEC) * RAD_PER_ARCSEC
 

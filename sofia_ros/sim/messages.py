@@ -44,6 +44,8 @@ __all__ = [
     'imu_block_from_messages',
     'imu_block_cdr',
     'parameter_event',
+    'STAMPED_MSGTYPES',
+    'log_stamp_ns',
 ]
 
 NS_PER_S = 1_000_000_000
@@ -245,3 +247,20 @@ def parameter_event(stamp_ns, node, values):
             parameter_value.double_array_value = [float(item) for item in np.ravel(value)]
         changed.append(Parameter(name=name, value=parameter_value))
     return ParameterEvent(stamp=time_msg(stamp_ns), node=f'/{node}', changed_parameters=changed)
+
+
+#: Types whose CDR starts with a builtin_interfaces/Time (a Header or a stamp): bytes 4-12 are sec, nanosec.
+STAMPED_MSGTYPES = frozenset({
+    'sensor_msgs/msg/Imu', 'sensor_msgs/msg/JointState', 'sensor_msgs/msg/Temperature',
+    'geometry_msgs/msg/PoseArray', 'geometry_msgs/msg/QuaternionStamped', 'geometry_msgs/msg/Vector3Stamped',
+    'geometry_msgs/msg/PointStamped', 'rosgraph_msgs/msg/Clock', 'rcl_interfaces/msg/ParameterEvent',
+})
+_STAMP = struct.Struct('<iI')
+
+
+def log_stamp_ns(msgtype, cdr, fallback_ns):
+    """Bag log time: the message's own stamp when its type starts with one, else ``fallback_ns``."""
+    if msgtype not in STAMPED_MSGTYPES:
+        return fallback_ns
+    sec, nanosec = _STAMP.unpack_from(cdr, 4)
+    return sec * NS_PER_S + nanosec

@@ -103,4 +103,5 @@ class LockstepRunner:
             for stamp_ns, data in zip(message.stamp_ns.tolist(), m.imu_block_cdr(message)):
                 self.bag.write_raw(topic, data, stamp_ns)
         else:
-            self.bag.write_raw(topic, wire_cdr(message), self.stamp_ns)
+            cdr = wire_cdr(message)
+            self.bag.write_raw(topic, cdr, m.log_stamp_ns(self.msgtypes[topic], cdr, self.stamp_ns))

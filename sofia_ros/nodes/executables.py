@@ -1,0 +1,122 @@
+"""Entry points of the node executables (``ros2 run sofia_ros <name>``): clock, plant, gyro_box,
+imager (fpi/ffi/wfi by the ``camera`` parameter), hipo, tascu, calibration, recorder."""
+
+from __future__ import annotations
+
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+
+from sofia_ros.errors import SofiaError
+from sofia_ros.nodes.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
+
+__all__ = ['clock', 'plant', 'gyro_box', 'imager', 'hipo', 'tascu', 'calibration', 'recorder', 'main']
+
+
+def _read_parameters(executable):
+    """Graph parameters as given by --ros-args (params file or -p), with their defaults."""
+    reader = Node(f'{executable}_parameters', automatically_declare_parameters_from_overrides=True,
+                  allow_undeclared_parameters=True)
+    values = {name: default for name, (default, _) in GRAPH_PARAMETERS.items()}
+    values['camera'] = ''
+    for name in list(values):
+        if reader.has_parameter(name):
+            values[name] = reader.get_parameter(name).value
+    reader.destroy_node()
+    return values
+
+
+def _build(executable, values):
+    from sofia_ros.nodes.clock_node import ClockNode
+    from sofia_ros.nodes.recorder_node import RecorderNode
+    from sofia_ros.nodes.shell import CoreNode
+    from sofia_ros.sim.graph import build_core, build_cores, graph_topics
+
+    config = graph_config_from_parameters(values)
+    cores = build_cores(config)
+    topics = graph_topics(cores)
+    participants = [core.name for core in cores if core.name != 'clock']
+    if executable == 'clock':
+        return ClockNode([*participants, 'recorder'], tick_ns=config.tick_ns, max_sim_s=values['max_sim_s'],
+                         stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics['/clock'][2]) + 1)
+    if executable == 'recorder':
+        if not values['bag_path']:
+            raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
+        return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns)
+    name = values['camera'] if executable == 'imager' else executable
+    if executable == 'imager' and name not in ('fpi', 'ffi', 'wfi'):
+        raise SofiaError(f"imager needs -p camera:=fpi|ffi|wfi, got {name!r}")
+    return CoreNode(build_core(name, config), graph_topics=topics, tick_ns=config.tick_ns)
+
+
+def main(executable=None, argv=None):
+    """Run one node until /sim/stop (or Ctrl-C); errors in its configuration exit with code 2."""
+    argv = list(sys.argv if argv is None else argv)
+    if executable is None:
+        executable = argv.pop(1)
+    rclpy.init(args=argv)
+    node = None
+    try:
+        node = _build(executable, _read_parameters(executable))
+        # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor with this many entities.
+        executor = EventsExecutor()
+        executor.add_node(node)
+        while node.stop_reason is None or (hasattr(node, 'closed') and not node.closed):
+            executor.spin_once(timeout_sec=0.1)
+        return 0
+    except SofiaError as err:
+        print(f'{executable}: error: {err}', file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        if node is not None and hasattr(node, 'abort'):
+            node.abort()
+        rclpy.try_shutdown()
+
+
+def clock():
+    """ros2 run sofia_ros clock"""
+    return main('clock')
+
+
+def plant():
+    """ros2 run sofia_ros plant"""
+    return main('plant')
+
+
+def gyro_box():
+    """ros2 run sofia_ros gyro_box"""
+    return main('gyro_box')
+
+
+def imager():
+    """ros2 run sofia_ros imager --ros-args -p camera:=fpi -r __node:=fpi"""
+    return main('imager')
+
+
+def hipo():
+    """ros2 run sofia_ros hipo"""
+    return main('hipo')
+
+
+def tascu():
+    """ros2 run sofia_ros tascu"""
+    return main('tascu')
+
+
+def calibration():
+    """ros2 run sofia_ros calibration"""
+    return main('calibration')
+
+
+def recorder():
+    """ros2 run sofia_ros recorder"""
+    return main('recorder')
+
+
+if __name__ == '__main__':
+    sys.exit(main())

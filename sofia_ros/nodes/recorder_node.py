@@ -1,0 +1,82 @@
+"""Recorder node: every topic of the graph, raw, into a rosbag2 MCAP bag; closes when the run stops."""
+
+from __future__ import annotations
+
+from rcl_interfaces.msg import ParameterEvent
+from rosgraph_msgs.msg import Clock
+
+from sofia_ros.bag import BagWriter
+from sofia_ros.nodes.shell import LockstepNode, message_class
+from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS
+from sofia_ros.sim import messages as m
+
+__all__ = ['RecorderNode', 'PARAMETER_EVENTS']
+
+PARAMETER_EVENTS = '/parameter_events'
+
+
+class RecorderNode(LockstepNode):
+    """Records; reports done(k) once everything counted for tick k is in the bag."""
+
+    def __init__(self, bag_path, graph_topics, participants, *, tick_ns, documents=()):
+        topics = {name: msgtype for name, (msgtype, publisher, _) in graph_topics.items() if publisher}
+        super().__init__('recorder', upstream=[(name, 0) for name in participants], tick_ns=tick_ns,
+                         expected_inputs=list(topics))
+        self.bag = BagWriter(bag_path)
+        self.bag.open()
+        self.msgtypes = dict(topics)
+        self.msgtypes[PARAMETER_EVENTS] = 'rcl_interfaces/msg/ParameterEvent'
+        for topic, msgtype in sorted(self.msgtypes.items()):
+            self.bag.add_topic(topic, msgtype)
+        for topic, text in documents:
+            self.bag.write_document(topic, text, 0)
+        self.clock_ns = 0
+        self.closed = False
+        for topic, msgtype in topics.items():
+            qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
+            self.create_subscription(message_class(msgtype), topic, self._record_callback(topic), qos, raw=True)
+        self.create_subscription(ParameterEvent, PARAMETER_EVENTS, self._record_callback(PARAMETER_EVENTS, False),
+                                 DATA_QOS, raw=True)
+
+    def _record_callback(self, topic, counted=True):
+        msgtype = self.msgtypes[topic]
+
+        def callback(cdr):
+            stamp_ns = m.log_stamp_ns(msgtype, cdr, self.clock_ns)
+            if msgtype == 'rosgraph_msgs/msg/Clock':
+                self.clock_ns = stamp_ns
+            self.bag.write_raw(topic, cdr, stamp_ns)
+            if counted:
+                self.received[topic] += 1
+                self.try_ticks()
+            self._close_if_complete()
+        return callback
+
+    def run_tick(self, tick):
+        self.publish_done(tick)
+        self._close_if_complete()
+
+    def on_stop(self):
+        self._close_if_complete()
+
+    def can_tick(self, tick):
+        # The recorder keeps recording after /sim/stop until the last tick is complete.
+        stop, self.stop_reason = self.stop_reason, None
+        try:
+            return super().can_tick(tick)
+        finally:
+            self.stop_reason = stop
+
+    def _close_if_complete(self):
+        if self.closed or self.stop_reason is None:
+            return
+        last_tick = int(self.stop_reason.split(';', 1)[0])
+        if self.next_tick > last_tick:
+            self.bag.close()
+            self.closed = True
+
+    def abort(self):
+        """Close what was recorded so far (SIGINT): a complete, readable bag."""
+        if not self.closed:
+            self.bag.close()
+            self.closed = True

@@ -1,0 +1,256 @@
+"""The generic rclpy shell around a lock-step core (protocol in sofia_ros.sim.protocol, nodes.sync)."""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections import Counter
+
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+from std_msgs.msg import String
+
+from sofia_ros.errors import ConfigError
+from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic
+from sofia_ros.sim import messages as m
+from sofia_ros.sim.gyro_box import IMU_TOPIC
+from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
+
+__all__ = ['message_class', 'LockstepNode', 'CoreNode']
+
+
+def message_class(msgtype):
+    """The rclpy message class of a type string like 'sensor_msgs/msg/Imu'."""
+    package, _, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+class LockstepNode(Node):
+    """A node that takes part in the tick handshake: waits for its upstream, reports done(k)."""
+
+    def __init__(self, name, *, upstream, tick_ns, expected_inputs=(), expected_outputs=None):
+        super().__init__(name, parameter_overrides=[Parameter('use_sim_time', value=True)])
+        self.tick_ns = tick_ns
+        self.upstream = dict(upstream)
+        self.states = {node: UpstreamState() for node in self.upstream}
+        self.received = Counter()
+        self.published = Counter()
+        self.next_tick = 1
+        self.ready = False
+        self.stop_reason = None
+        self.expected_inputs = tuple(expected_inputs)
+        self.expected_outputs = dict(expected_outputs or {})  # topic -> number of subscribers
+        self.publishers_by_topic = {}
+        self.done_publisher = self.create_publisher(String, done_topic(name), SYNC_QOS)
+        self.create_subscription(String, STOP_TOPIC, self._on_stop, SYNC_QOS)
+        for node in self.upstream:
+            self.create_subscription(String, done_topic(node), self._done_callback(node), SYNC_QOS)
+        self.create_timer(0.05, self._check_ready, clock=self._wall_clock())
+
+    def _wall_clock(self):
+        from rclpy.clock import Clock, ClockType
+
+        return Clock(clock_type=ClockType.STEADY_TIME)
+
+    # --- handshake -----------------------------------------------------------------------------
+    def _done_callback(self, node):
+        def callback(message):
+            report = _parse_done(message.data)
+            self.states[node].announce(report['tick'], report['counts'], report['finished'], report['failed'])
+            self.try_ticks()
+        return callback
+
+    def _on_stop(self, message):
+        self.stop_reason = message.data
+        self.on_stop()
+
+    def on_stop(self):
+        """Called when /sim/stop arrives."""
+
+    def _check_ready(self):
+        if self.ready:
+            return
+        inputs_ok = all(self.count_publishers(topic) > 0 for topic in self.expected_inputs)
+        outputs_ok = all(self.count_subscribers(topic) >= count for topic, count in self.expected_outputs.items())
+        if inputs_ok and outputs_ok and self.extra_ready():
+            self.ready = True
+            self.publish_done(0)
+            self.try_ticks()
+
+    def extra_ready(self):
+        """Subclasses add conditions (e.g. services available) before the first done(0)."""
+        return True
+
+    def can_tick(self, tick):
+        """True when every upstream node reported tick - lag and its counted messages arrived."""
+        if not self.ready or self.stop_reason is not None:
+            return False
+        for node, lag in self.upstream.items():
+            needed = tick - lag
+            state = self.states[node]
+            if needed <= 0:
+                continue
+            if state.latest_tick < needed or needed not in state.reports:
+                return False
+            inputs = self.counted_inputs()
+            if any(topic in inputs and self.received[topic] < count
+                   for topic, count in state.reports[needed].items()):
+                return False
+        return True
+
+    def counted_inputs(self):
+        """Topics this node subscribes to and counts."""
+        return set(self.expected_inputs)
+
+    def try_ticks(self):
+        """Run every tick that has become possible."""
+        while self.can_tick(self.next_tick) and not self.busy():
+            tick = self.next_tick
+            self.next_tick += 1
+            self.run_tick(tick)
+
+    def busy(self):
+        """True while an asynchronous part of the last tick (a service call) is still open."""
+        return False
+
+    def run_tick(self, tick):
+        """Work of one tick; must end with publish_done(tick) (possibly later)."""
+        self.publish_done(tick)
+
+    def publish_done(self, tick, finished=False, failed=''):
+        """Report done(tick) with cumulative counts of everything published."""
+        counts = ','.join(f'{topic}={count}' for topic, count in sorted(self.published.items()))
+        self.done_publisher.publish(String(data=f'{tick};{int(finished)};{failed.replace(";", ",")};{counts}'))
+
+    def publish(self, topic, message):
+        """Publish on an output topic, counting messages."""
+        self.publishers_by_topic[topic].publish(message)
+        self.published[topic] += 1
+
+
+def _parse_done(text):
+    tick, finished, failed, counts = text.split(';', 3)
+    pairs = (item.rsplit('=', 1) for item in counts.split(',') if item)
+    return {'tick': int(tick), 'finished': finished == '1', 'failed': failed,
+            'counts': {topic: int(count) for topic, count in pairs}}
+
+
+class CoreNode(LockstepNode):
+    """A ROS-free core (sofia_ros.sim) behind topics, parameters and the handshake."""
+
+    def __init__(self, core, *, graph_topics, tick_ns, upstream=None):
+        names = {node for _, (_, publisher, subscribers) in graph_topics.items() for node in (publisher, *subscribers)}
+        upstream = upstream if upstream is not None else [(n, lag) for n, lag in core.upstream if n in names]
+        inputs = [spec.name for spec in core.inputs() if graph_topics.get(spec.name, (None, None))[1] is not None]
+        outputs = {spec.name: len(graph_topics[spec.name][2]) + 1 for spec in core.outputs()}  # + recorder
+        super().__init__(core.name, upstream=upstream, tick_ns=tick_ns, expected_inputs=inputs,
+                         expected_outputs=outputs)
+        self.core = core
+        self.imu_buffer = []
+        self.pending_calls = 0
+        self.tick_in_progress = None
+        for spec in core.inputs():
+            if spec.name in inputs:
+                self.create_subscription(message_class(spec.msgtype), spec.name, self._input_callback(spec.name),
+                                         DATA_QOS)
+        for spec in core.outputs():
+            self.publishers_by_topic[spec.name] = self.create_publisher(message_class(spec.msgtype), spec.name,
+                                                                        DATA_QOS)
+        self.parameter_clients = {}
+        if hasattr(core, 'parameters'):
+            self._declare_core_parameters()
+        self.targets = [node for node in ('tascu',) if core.name == 'calibration']
+        for target in self.targets:
+            self.parameter_clients[target] = AsyncParameterClient(self, target)
+
+    def extra_ready(self):
+        return all(client.services_are_ready() for client in self.parameter_clients.values())
+
+    def _declare_core_parameters(self):
+        for name, (value, description) in self.core.parameters().items():
+            self.declare_parameter(name, value, ParameterDescriptor(description=description))
+        for name in self.core.parameters():
+            self.core.set_parameter(name, self.get_parameter(name).value)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+    def _on_set_parameters(self, parameters):
+        for parameter in parameters:
+            if parameter.name == 'use_sim_time':
+                continue
+            try:
+                self.core.set_parameter(parameter.name, parameter.value)
+            except ConfigError as err:
+                return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _input_callback(self, topic):
+        def callback(message):
+            self.received[topic] += 1
+            if topic == IMU_TOPIC.name:
+                self.imu_buffer.append(message)
+            else:
+                self.core.receive(topic, message)
+            self.try_ticks()
+        return callback
+
+    def busy(self):
+        return self.pending_calls > 0
+
+    def run_tick(self, tick):
+        if self.imu_buffer:
+            self.core.receive(IMU_TOPIC.name, m.imu_block_from_messages(self.imu_buffer))
+            self.imu_buffer = []
+        self.tick_in_progress = tick
+        for topic, message in self.core.tick(tick * self.tick_ns):
+            if topic == SET_PARAMETERS:
+                self._call_set_parameters(message)
+            elif isinstance(message, m.ImuBlock):
+                for sample in m.imu_messages(message):
+                    self.publish(topic, sample)
+            else:
+                self.publish(topic, message)
+        if not self.pending_calls:
+            self._finish_tick()
+
+    def _finish_tick(self):
+        outcome = self.core.outcome
+        self.publish_done(self.tick_in_progress, outcome.finished, outcome.reason if outcome.failed else '')
+
+    def _call_set_parameters(self, request):
+        client = self.parameter_clients[request.node]
+        parameters = [Parameter(name, value=_parameter_value(value)) for name, value in request.values.items()]
+        self.pending_calls += 1
+
+        def on_response(future):
+            results = future.result().results
+            reasons = {name: '' if result.successful else result.reason
+                       for name, result in zip(request.values, results)}
+            self.core.receive(SET_PARAMETERS, ParameterResult(request.node, reasons))
+            self.pending_calls -= 1
+            if not self.pending_calls:
+                self._finish_tick()
+                self.try_ticks()
+
+        client.set_parameters(parameters, callback=on_response)
+
+
+def _parameter_value(value):
+    """rclpy needs homogeneous, typed parameter values."""
+    if isinstance(value, (list, tuple)):
+        return [float(item) for item in value]
+    return value
+
+
+def spin_until_stopped(executor, nodes, *, timeout_s=None, done=None):
+    """Spin until every node saw /sim/stop (or ``done()``), or the wall-clock timeout passes."""
+    start = time.monotonic()
+    while True:
+        executor.spin_once(timeout_sec=0.05)
+        if done is not None and done():
+            return True
+        if done is None and all(node.stop_reason is not None for node in nodes):
+            return True
+        if timeout_s is not None and time.monotonic() - start > timeout_s:
+            return False

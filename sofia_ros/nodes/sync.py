@@ -1,0 +1,47 @@
+"""The lock-step handshake over DDS: ``/sim/done/<node>`` carries the tick and cumulative message counts.
+
+A node may run tick k once every upstream node has reported tick k - lag and every
+message those reports count has arrived; DDS keeps order within a topic but not
+across topics, hence the counts. ``/sim/stop`` ends the run with a reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+__all__ = ['DONE_PREFIX', 'STOP_TOPIC', 'SYNC_QOS', 'DATA_QOS', 'done_topic', 'UpstreamState']
+
+DONE_PREFIX = '/sim/done/'
+STOP_TOPIC = '/sim/stop'
+#: Late joiners get the latest handshake.
+SYNC_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                      history=HistoryPolicy.KEEP_LAST)
+#: Nothing is dropped: the lock-step bounds what is in flight to one tick.
+DATA_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                      history=HistoryPolicy.KEEP_ALL)
+
+
+def done_topic(node):
+    """Handshake topic of a node."""
+    return DONE_PREFIX + node
+
+
+@dataclass
+class UpstreamState:
+    """What one upstream node has announced, tick by tick (cumulative counts per topic)."""
+
+    reports: dict = field(default_factory=dict)  # tick -> {topic: cumulative count}
+    latest_tick: int = -1
+    finished: bool = False
+    failed: str = ''
+
+    def announce(self, tick, counts, finished=False, failed=''):
+        """Record a done(tick) report."""
+        self.reports[tick] = counts
+        self.latest_tick = max(self.latest_tick, tick)
+        self.finished = self.finished or finished
+        self.failed = self.failed or failed
+        for old in [t for t in self.reports if t < tick - 2]:
+            del self.reports[old]

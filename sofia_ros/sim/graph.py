@@ -1,0 +1,79 @@
+"""The node graph of a campaign: which cores exist, how each is built, and the topics between them.
+
+Every process builds its core from the same :class:`GraphConfig`, so one process
+and many processes run identical cores with identical seeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sofia_ros.errors import ConfigError
+from sofia_ros.sim.calibration import AlignmentPlan, CalibrationCore
+from sofia_ros.sim.camera import CameraCore
+from sofia_ros.sim.clock import ClockCore
+from sofia_ros.sim.gyro_box import GyroBoxCore
+from sofia_ros.sim.plant import PlantCore
+from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.sim.tascu import TascuCore
+
+__all__ = ['CAMERAS', 'NODE_NAMES', 'GraphConfig', 'build_core', 'build_cores', 'graph_topics']
+
+CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
+#: Every node of the alignment graph, in a fixed order (seeds are drawn in this order).
+NODE_NAMES = ('clock', 'plant', 'gyro_box', *CAMERAS, 'tascu', 'calibration')
+_SEEDED = ('gyro_box', *CAMERAS)
+
+
+@dataclass(frozen=True)
+class GraphConfig:
+    """Everything a node needs to build its core: truth, scenario, seed, campaign plan, tick."""
+
+    truth: object  # sofia_ros.config.EffectConfig
+    scenario: object  # sofia_ros.sim.scenario.Scenario
+    seed: int
+    plan: AlignmentPlan = field(default_factory=AlignmentPlan)
+    tick_ns: int = DEFAULT_TICK_NS
+    fd_braked: bool = False
+
+    def node_seed(self, name):
+        """The seed of node ``name``, drawn from the run seed in NODE_NAMES order."""
+        children = np.random.SeedSequence(self.seed).spawn(len(_SEEDED))
+        return int(children[_SEEDED.index(name)].generate_state(1)[0])
+
+
+def build_core(name, config):
+    """The core of node ``name`` for this graph."""
+    effects = config.truth.effects
+    if name == 'clock':
+        return ClockCore()
+    if name == 'plant':
+        return PlantCore(config.scenario, effects, fd_braked=config.fd_braked, tick_ns=config.tick_ns)
+    if name == 'gyro_box':
+        return GyroBoxCore(effects, seed=config.node_seed(name))
+    if name in CAMERAS:
+        return CameraCore(name, config.scenario, effects, seed=config.node_seed(name))
+    if name == 'tascu':
+        return TascuCore()
+    if name == 'calibration':
+        return CalibrationCore(config.plan)
+    raise ConfigError(f'unknown node {name!r}; nodes are {", ".join(NODE_NAMES)}')
+
+
+def build_cores(config, names=NODE_NAMES):
+    """Cores of the named nodes."""
+    return [build_core(name, config) for name in names]
+
+
+def graph_topics(cores):
+    """topic -> (msgtype, publisher node, subscriber nodes) over a set of cores."""
+    topics = {}
+    for core in cores:
+        for spec in core.outputs():
+            topics.setdefault(spec.name, [spec.msgtype, None, []])[1] = core.name
+    for core in cores:
+        for spec in core.inputs():
+            topics.setdefault(spec.name, [spec.msgtype, None, []])[2].append(core.name)
+    return {name: (msgtype, publisher, tuple(subscribers)) for name, (msgtype, publisher, subscribers) in topics.items()}

@@ -9,6 +9,8 @@ PACKAGE_NAME = 'sofia_ros'
 # One executable per node (``ros2 run sofia_ros <name>``) plus the ``sofia`` command.
 NODE_EXECUTABLES = {
     'sofia': 'sofia_ros.cli:main',
+    **{name: f'sofia_ros.nodes.executables:{name}' for name in (
+        'clock', 'plant', 'gyro_box', 'imager', 'hipo', 'tascu', 'calibration', 'recorder')},
 }
 
 

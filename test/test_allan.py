@@ -76,7 +76,7 @@ def test_columns_are_analysed_independently():
     rate = _table_record(20_000, seed=3)
     curves = overlapping_allan_deviation(rate, SAMPLE_RATE_HZ)
     single = overlapping_allan_deviation(rate[:, 1].copy(), SAMPLE_RATE_HZ)
-    np.testing.assert_array_equal(curves[1].adev, single.adev)
+    np.testing.assert_allclose(curves[1].adev, single.adev, rtol=1e-13)  # strided vs contiguous summation
     assert len(curves) == 3
 
 

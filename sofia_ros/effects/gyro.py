@@ -59,13 +59,14 @@ EFFECTS = (
     EffectSpec(
         'gyro_noise', 'gyro', '4.2, Table 5.1',
         'Random noise of the FOGs: quantization, angle random walk, bias instability, rate random walk; '
-        'defaults are gyro 002 (2008) of Table 5.1 with the specification bias instability.',
+        'defaults are gyro 002 (2008) of Table 5.1 with K read as printed / 60 (the printed K cannot '
+        'reproduce the table\'s own in-run bias stability) and no bias instability (5.1: no plateau).',
         (
             Parameter('quantization_arcsec', 0.000767, 'arcsec', 'angular increment (scale factor) per count'),
             Parameter('arw_deg_per_sqrt_h', 0.00022, 'deg/sqrt(h)', 'angle random walk coefficient N'),
-            Parameter('bias_instability_deg_per_h', 0.0007, 'deg/h', 'bias instability coefficient B'),
+            Parameter('bias_instability_deg_per_h', 0.0, 'deg/h', 'bias instability coefficient B'),
             Parameter('bias_instability_cutoff_hz', 10.0, 'Hz', '3-dB cut-off f0 of the 1/f noise'),
-            Parameter('rrw_deg_per_h_sqrt_h', 0.1296, 'deg/h^1.5', 'rate random walk coefficient K'),
+            Parameter('rrw_deg_per_h_sqrt_h', 0.00216, 'deg/h^1.5', 'rate random walk coefficient K'),
         ),
     ),
     EffectSpec(

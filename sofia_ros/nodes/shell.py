@@ -64,6 +64,7 @@ class LockstepNode(Node):
 
     def _on_stop(self, message):
         self.stop_reason = message.data
+        self.get_logger().info(f'stop after tick {message.data.replace(";", ": ", 1)}')
         self.on_stop()
 
     def on_stop(self):
@@ -76,6 +77,7 @@ class LockstepNode(Node):
         outputs_ok = all(self.count_subscribers(topic) >= count for topic, count in self.expected_outputs.items())
         if inputs_ok and outputs_ok and self.extra_ready():
             self.ready = True
+            self.get_logger().info('connected; waiting for ticks')
             self.publish_done(0)
             self.try_ticks()
 
@@ -90,8 +92,9 @@ class LockstepNode(Node):
         for node, lag in self.upstream.items():
             needed = tick - lag
             state = self.states[node]
-            if needed <= 0:
+            if needed < 0:
                 continue
+            # done(0) means connected: nothing starts before every upstream node is.
             if state.latest_tick < needed or needed not in state.reports:
                 return False
             inputs = self.counted_inputs()
@@ -153,8 +156,9 @@ class CoreNode(LockstepNode):
         self.tick_in_progress = None
         for spec in core.inputs():
             if spec.name in inputs:
-                self.create_subscription(message_class(spec.msgtype), spec.name, self._input_callback(spec.name),
-                                         DATA_QOS)
+                # /clock is transient-local: a reader that matches late still gets the current tick.
+                qos = SYNC_QOS if spec.msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
+                self.create_subscription(message_class(spec.msgtype), spec.name, self._input_callback(spec.name), qos)
         for spec in core.outputs():
             self.publishers_by_topic[spec.name] = self.create_publisher(message_class(spec.msgtype), spec.name,
                                                                         DATA_QOS)

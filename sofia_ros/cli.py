@@ -8,8 +8,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
+from pathlib import Path
 
-from sofia_ros.errors import SofiaError
+from sofia_ros.errors import ConfigError, SofiaError
 
 __all__ = ['main', 'build_parser']
 
@@ -35,6 +37,72 @@ def _run_demo(args):
     return run_demo(out=sys.stdout)
 
 
+class _Progress:
+    """One status line on stderr in sim time; a new line every 10 s when stderr is not a terminal."""
+
+    def __init__(self):
+        self.start = time.monotonic()
+        self.last = 0.0
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, sim_s, max_sim_s):
+        now = time.monotonic()
+        if now - self.last < (0.5 if self.tty else 10.0):
+            return
+        self.last = now
+        wall = now - self.start
+        if sim_s is None:
+            line = f'running: {wall:6.0f} s wall (each node in its own process)'
+        else:
+            line = f'sim {sim_s:8.1f} s | wall {wall:6.1f} s | {sim_s / max(wall, 1e-9):6.1f}x real time'
+        sys.stderr.write(('\r' + line) if self.tty else line + '\n')
+        sys.stderr.flush()
+
+    def close(self):
+        if self.tty:
+            sys.stderr.write('\n')
+
+
+def _run_campaign(args):
+    from sofia_ros.campaigns.alignment import run_alignment
+    from sofia_ros.config import load_effect_config
+    from sofia_ros.sim.calibration import AlignmentPlan
+
+    if args.campaign != 'alignment':
+        raise ConfigError(f"campaign {args.campaign!r} is not built yet; available: alignment")
+    truth = load_effect_config(args.truth)
+    model_text = Path(args.model).read_text() if args.model else 'effects: {}\n'
+    if args.model:
+        load_effect_config(args.model)
+    plan = AlignmentPlan(repetitions=args.repetitions, verification_repetitions=args.verification_repetitions,
+                         drift_track_s=args.drift_track_s)
+    mode = 'processes' if args.processes else 'direct' if args.direct else 'executor'
+    progress = _Progress()
+    try:
+        run = run_alignment(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=mode,
+                            max_sim_s=args.max_sim_s, model_text=model_text, progress=progress)
+    finally:
+        progress.close()
+    _print_alignment_summary(run)
+    return 0 if run.summary['accepted'] else 1
+
+
+def _print_alignment_summary(run):
+    summary = run.summary
+    print(f'bag: {run.bag_path}  ({summary["sim_seconds"]:.1f} s sim in {summary["wall_seconds"]:.1f} s wall, '
+          f'{summary["sim_seconds"] / max(summary["wall_seconds"], 1e-9):.1f}x)')
+    if not summary['accepted']:
+        print(f'alignment NOT accepted: {summary["reason"]}')
+        return
+    print(f'alignment accepted after {summary["iterations"]} iteration(s); residual against /truth:')
+    print(f'  {"axis":<5} {"residual":>10} {"predicted 1-sigma":>18} {"ratio":>7}')
+    for axis in ('el', 'xel', 'los'):
+        residual = summary['residual_misalignment_arcsec'][axis]
+        sigma = summary['predicted_sigma_arcsec'][axis]
+        print(f'  {axis.upper():<5} {residual:>9.2f}" {sigma:>17.2f}" {abs(residual) / sigma:>7.2f}')
+    print('  predicted sigma: EL/XEL from eq. 3.32 (LOS rotations), LOS from eq. 3.34 (EL/XEL moves), with 3.37')
+
+
 def build_parser():
     """The argument parser with one sub-command per verb."""
     parser = argparse.ArgumentParser(prog='sofia', description=__doc__.splitlines()[0])
@@ -43,6 +111,21 @@ def build_parser():
     effects = verbs.add_parser('effects', help='list the catalogue of physical effects')
     effects.add_argument('--json', action='store_true', help='print the catalogue as JSON')
     effects.set_defaults(handler=_print_effects)
+
+    run = verbs.add_parser('run', help='run a campaign of the node graph and record it to a bag')
+    run.add_argument('campaign', help='alignment (Table 3.4 at the reference elevation, 6.1)')
+    run.add_argument('--truth', required=True, help='truth YAML (effects: ...), e.g. config/truth/nominal.yaml')
+    run.add_argument('--model', help='model YAML stored with the run (default: no effects)')
+    run.add_argument('--seed', type=int, default=0, help='run seed (default 0)')
+    run.add_argument('--bag', required=True, help='output bag directory (must not exist)')
+    where = run.add_mutually_exclusive_group()
+    where.add_argument('--processes', action='store_true', help='each node in its own process')
+    where.add_argument('--direct', action='store_true', help='cores in one loop without DDS (fastest)')
+    run.add_argument('--repetitions', type=int, default=6, help='maneuvers per axis (default 6, as in 6.1)')
+    run.add_argument('--verification-repetitions', type=int, default=2, help='verification maneuvers per axis')
+    run.add_argument('--drift-track-s', type=float, default=60.0, help='drift estimation on the star, s')
+    run.add_argument('--max-sim-s', type=float, default=7200.0, help='stop after this much sim time')
+    run.set_defaults(handler=_run_campaign)
 
     demo = verbs.add_parser('demo', help='worked demonstration of the science core against the thesis tables')
     demo.set_defaults(handler=_run_demo)

@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 from scipy.spatial.transform import Rotation
 
-from sofia_ros.bag import BagWriter
+from sofia_ros.bag import BagReader, BagWriter
 from sofia_ros.errors import ConfigError
+from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import GraphConfig, build_cores
 from sofia_ros.sim.gyro_box import true_tarf_from_gyrf
@@ -21,7 +24,8 @@ from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sky import WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 from sofia_ros.units import ARCSEC_PER_RAD
 
-__all__ = ['AlignmentRun', 'default_scenario', 'graph_config', 'run_alignment', 'residual_misalignment_arcsec']
+__all__ = ['MODES', 'AlignmentRun', 'default_scenario', 'graph_config', 'run_alignment',
+           'residual_misalignment_arcsec', 'true_alignment_at']
 
 #: Observation 2 of Table D.3: Polaris, 2004-09-02 23:32:51 CDT.
 DEFAULT_START_UTC = dt.datetime(2004, 9, 3, 4, 32, 51, tzinfo=dt.timezone.utc)
@@ -49,77 +53,116 @@ def graph_config(truth, seed, plan=None):
     return GraphConfig(truth, scenario_from_mapping(default_scenario(), truth.scenario), seed, plan or AlignmentPlan())
 
 
-def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects):
-    """Accepted minus true alignment as small rotations about the TARF axes (EL, XEL, LOS), arcsec."""
-    error = np.asarray(accepted_tarf_from_gyrf) @ true_tarf_from_gyrf(truth_effects).T
+def true_alignment_at(truth_effects, elevation_deg):
+    """A_TARF,GYRF that aligns the gyros to HIPO's true focal plane at one elevation (3.4.2).
+
+    The alignment measured at el0 contains the focal-plane flexure at el0: the target is
+    the true gyro misalignment seen through HIPO's true mounting (gravity image motion).
+    """
+    hipo_from_tarf = camera_from_tarf_dcm(camera_errors('hipo', truth_effects), elevation_deg)
+    return hipo_from_tarf @ true_tarf_from_gyrf(truth_effects)
+
+
+def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevation_deg):
+    """Accepted minus true alignment (at the campaign elevation) as rotations about EL, XEL, LOS, arcsec."""
+    error = np.asarray(accepted_tarf_from_gyrf) @ true_alignment_at(truth_effects, elevation_deg).T
     return Rotation.from_matrix(error.T).as_rotvec() * ARCSEC_PER_RAD
 
 
-def run_alignment(truth, *, seed, bag_path=None, plan=None, max_sim_s=7200.0, model_text='effects: {}\n',
-                  progress=None):
-    """Run the campaign in one process (lock-step runner) and return its summary."""
+MODES = ('executor', 'processes', 'direct')
+
+
+def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=7200.0, model_text='effects: {}\n',
+                  progress=None, timeout_s=3600.0):
+    """Run the campaign and write the bag plus truth.yaml, model.yaml, calibration.yaml and summary.json.
+
+    ``mode``: 'executor' (every node in this process under one executor, over DDS),
+    'processes' (each node its own process, as `ros2 run` starts them) or 'direct'
+    (the same cores in one loop without DDS, for Monte Carlo and fast tests).
+    """
+    if mode not in MODES:
+        raise ConfigError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
+    bag_path = Path(bag_path)
+    if bag_path.exists():
+        raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
     config = graph_config(truth, seed, plan)
+    documents = (('/config/truth', truth.text), ('/config/model', model_text))
+    wall_start = time.perf_counter()
+    if mode == 'direct':
+        _run_direct(config, bag_path, documents, max_sim_s, progress)
+    elif mode == 'executor':
+        from sofia_ros.nodes.launch import run_graph_in_process
+
+        run_graph_in_process(config, bag_path, documents=documents, max_sim_s=max_sim_s, timeout_s=timeout_s,
+                             progress=progress)
+    else:
+        from sofia_ros.nodes.launch import run_graph_in_processes
+
+        with tempfile.TemporaryDirectory(prefix='sofia_run_') as folder:
+            truth_file, model_file = Path(folder) / 'truth.yaml', Path(folder) / 'model.yaml'
+            truth_file.write_text(truth.text)
+            model_file.write_text(model_text)
+            run_graph_in_processes(truth_file, seed, config.plan, bag_path, tick_ns=config.tick_ns,
+                                   max_sim_s=max_sim_s, timeout_s=timeout_s, model_file=model_file,
+                                   progress=progress)
+    wall_seconds = time.perf_counter() - wall_start
+    result_yaml, sim_seconds = _result_from_bag(bag_path)
+    summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,
+                       wall_seconds)
+    (bag_path / 'truth.yaml').write_text(truth.text)
+    (bag_path / 'model.yaml').write_text(model_text)
+    (bag_path / 'calibration.yaml').write_text(result_yaml)
+    (bag_path / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    return AlignmentRun(summary, result_yaml, bag_path)
+
+
+def _run_direct(config, bag_path, documents, max_sim_s, progress):
     cores = build_cores(config)
     calibration = cores[-1]
-    bag = BagWriter(bag_path) if bag_path is not None else None
-    wall_start = time.perf_counter()
+    bag = BagWriter(bag_path)
+    bag.open()
     try:
-        if bag is not None:
-            bag.open()
-            bag.write_document('/config/truth', truth.text, 0)
-            bag.write_document('/config/model', model_text, 0)
+        for topic, text in documents:
+            bag.write_document(topic, text, 0)
         runner = LockstepRunner(cores, tick_ns=config.tick_ns, bag=bag)
-        until_ns = int(max_sim_s * 1e9)
 
         def stop():
             if progress is not None:
                 progress(runner.stamp_ns / 1e9, max_sim_s)
             return calibration.outcome.finished or calibration.outcome.failed
 
-        runner.run(until_ns=until_ns, stop=stop)
-        result_yaml = _result_yaml(calibration, runner.stamp_ns >= until_ns, max_sim_s)
-        summary = _summary(calibration, truth, runner.stamp_ns / 1e9, time.perf_counter() - wall_start)
-        if bag is not None:
-            bag.write_document('/result/calibration', result_yaml, runner.stamp_ns)
-            bag.write_document('/result/summary', json.dumps(summary, indent=2), runner.stamp_ns)
-            bag.close()
+        runner.run(until_ns=int(max_sim_s * 1e9), stop=stop)
     except BaseException:
-        if bag is not None:
-            bag.abort()
+        bag.abort()
         raise
-    if bag_path is not None:
-        folder = Path(bag_path)
-        (folder / 'truth.yaml').write_text(truth.text)
-        (folder / 'model.yaml').write_text(model_text)
-        (folder / 'calibration.yaml').write_text(result_yaml)
-        (folder / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
-    return AlignmentRun(summary, result_yaml, Path(bag_path) if bag_path is not None else None)
+    bag.close()
 
 
-def _result_yaml(calibration, timed_out, max_sim_s):
-    import yaml
+def _result_from_bag(bag_path):
+    """The calibration node's last /calibration/result and the last /clock time, read back from the bag."""
+    with BagReader(bag_path) as bag:
+        names = {topic.name for topic in bag.topics}
+        result = None
+        if '/calibration/result' in names:
+            for _, _, message in bag.messages('/calibration/result'):
+                result = message.data
+        sim_ns = 0
+        for _, stamp_ns, _ in bag.messages('/clock'):
+            sim_ns = stamp_ns
+    if result is None:
+        result = yaml.safe_dump({'accepted': False, 'reason': 'the calibration node published no result '
+                                 '(the run stopped early; see the node logs)'})
+    return result, sim_ns / 1e9
 
-    if calibration.outcome.finished:
-        return yaml.safe_dump(calibration.result(), sort_keys=False)
-    reason = calibration.outcome.reason or (f'not finished within {max_sim_s:g} s of sim time' if timed_out else '')
-    return yaml.safe_dump({'accepted': False, 'reason': reason}, sort_keys=False)
 
-
-def _summary(calibration, truth, sim_seconds, wall_seconds):
+def _summary(result, truth, elevation_deg, sim_seconds, wall_seconds):
     summary = {'sim_seconds': round(sim_seconds, 3), 'wall_seconds': round(wall_seconds, 3),
-               'accepted': bool(calibration.outcome.finished)}
-    if calibration.outcome.finished:
-        result = calibration.result()
-        residual = residual_misalignment_arcsec(result['tarf_from_gyrf'], truth.effects)
+               'accepted': bool(result.get('accepted'))}
+    if summary['accepted']:
+        residual = residual_misalignment_arcsec(result['tarf_from_gyrf'], truth.effects, elevation_deg)
         summary['residual_misalignment_arcsec'] = dict(zip(('el', 'xel', 'los'), (float(v) for v in residual)))
         summary['predicted_sigma_arcsec'] = result['predicted_sigma_arcsec']
         summary['iterations'] = len(result['iterations'])
     else:
-        summary['reason'] = calibration.outcome.reason or 'not finished'
+        summary['reason'] = result.get('reason', 'not finished')
     return summary
-
-
-def check_truth_for_alignment(truth):
-    """Refuse truths the campaign cannot run (e.g. no stars without the sky)."""
-    if 'earth_rotation' not in truth.effects:
-        raise ConfigError('alignment truth lacks earth_rotation; add `earth_rotation: {}` (the sky turns)')

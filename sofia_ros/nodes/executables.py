@@ -4,6 +4,7 @@ imager (fpi/ffi/wfi by the ``camera`` parameter), hipo, tascu, calibration, reco
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -45,7 +46,11 @@ def _build(executable, values):
     if executable == 'recorder':
         if not values['bag_path']:
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
-        return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns)
+        documents = [('/config/truth', config.truth.text)]
+        if values['model_file']:
+            documents.append(('/config/model', Path(values['model_file']).read_text()))
+        return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns,
+                            documents=documents)
     name = values['camera'] if executable == 'imager' else executable
     if executable == 'imager' and name not in ('fpi', 'ffi', 'wfi'):
         raise SofiaError(f"imager needs -p camera:=fpi|ffi|wfi, got {name!r}")

@@ -21,14 +21,16 @@ GRAPH_PARAMETERS = {
     'max_sim_s': (7200.0, 'the clock stops the run after this much sim time'),
     'stall_timeout_s': (15.0, 'the clock stops the run when a node is silent this long (wall time)'),
     'bag_path': ('', 'recorder: output bag directory'),
+    'model_file': ('', 'recorder: model YAML stored in the bag as /config/model'),
     **{f'plan.{f.name}': (f.default, f'calibration plan: {f.name}') for f in fields(AlignmentPlan)},
 }
 
 
-def graph_parameters(truth_file, seed, plan, *, tick_ns, max_sim_s, bag_path='', stall_timeout_s=15.0):
+def graph_parameters(truth_file, seed, plan, *, tick_ns, max_sim_s, bag_path='', stall_timeout_s=15.0, model_file=''):
     """Parameter values of one run."""
     values = {'campaign': 'alignment', 'truth_file': str(truth_file), 'seed': int(seed), 'tick_ns': int(tick_ns),
-              'max_sim_s': float(max_sim_s), 'stall_timeout_s': float(stall_timeout_s), 'bag_path': str(bag_path)}
+              'max_sim_s': float(max_sim_s), 'stall_timeout_s': float(stall_timeout_s), 'bag_path': str(bag_path),
+              'model_file': str(model_file)}
     values.update({f'plan.{name}': value for name, value in asdict(plan).items()})
     return values
 

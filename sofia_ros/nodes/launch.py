@@ -77,13 +77,13 @@ def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=7200.0, ti
 
 
 def run_graph_in_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, timeout_s=3600.0,
-                           stall_timeout_s=15.0, progress=None):
+                           stall_timeout_s=15.0, model_file='', progress=None):
     """Each node as its own process (what `ros2 run` gives); return the recorder's exit code and the logs."""
     isolate_ros_environment()
     workdir = Path(tempfile.mkdtemp(prefix='sofia_graph_'))
     params = workdir / 'params.yaml'
     values = graph_parameters(truth_file, seed, plan, tick_ns=tick_ns, max_sim_s=max_sim_s, bag_path=bag_path,
-                              stall_timeout_s=stall_timeout_s)
+                              stall_timeout_s=stall_timeout_s, model_file=model_file)
     write_params_file(params, values)
     executables = [('clock', ()), ('plant', ()), ('gyro_box', ()), ('hipo', ()),
                    *(('imager', ('-r', f'__node:={camera}', '-p', f'camera:={camera}')) for camera in ('fpi', 'ffi', 'wfi')),

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from rcl_interfaces.msg import ParameterEvent
-from rosgraph_msgs.msg import Clock
 
 from sofia_ros.bag import BagWriter
 from sofia_ros.nodes.shell import LockstepNode, message_class

@@ -30,7 +30,7 @@ from sofia_ros.sim.plant import FD_JOINTS
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
 from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, ParameterResult, TopicSpec
 from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
-from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
+from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_DEG
 
 __all__ = ['AlignmentPlan', 'CalibrationCore', 'TOPICS']
 

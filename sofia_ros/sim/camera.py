@@ -7,9 +7,9 @@ published as one PoseArray (x = column, y = row in px, z = HIP number).
 
 from __future__ import annotations
 
-import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from sofia_ros.errors import ConfigError
 from sofia_ros.frames import dcm_from_quaternion
 from sofia_ros.sensors.imager_model import CAMERAS, ImagerTruth, Scene
 from sofia_ros.sim import messages as m
@@ -38,8 +38,6 @@ class CameraCore(NodeCore):
     def __init__(self, camera, scenario, truth_effects, *, seed=0, frame_period_s=None, exposure_s=None):
         super().__init__()
         if camera not in CAMERAS:
-            from sofia_ros.errors import ConfigError
-
             raise ConfigError(f'camera must be one of {", ".join(CAMERAS)}, got {camera!r}')
         self.name = camera
         period_s, default_exposure_s = DEFAULT_TIMING_S[camera]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import json
 import tempfile
@@ -21,7 +22,8 @@ from sofia_ros.sim.graph import GraphConfig, build_cores
 from sofia_ros.sim.gyro_box import true_tarf_from_gyrf
 from sofia_ros.sim.runner import LockstepRunner
 from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
-from sofia_ros.sky import WACO_2004_SITE, WACO_2004_WEATHER, observed_place
+from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 from sofia_ros.units import ARCSEC_PER_RAD
 
 __all__ = ['MODES', 'AlignmentRun', 'default_scenario', 'graph_config', 'run_alignment',
@@ -41,16 +43,32 @@ class AlignmentRun:
     bag_path: Path | None
 
 
+def pointing_at_target(site, start_utc):
+    """Heading and CD elevation that put the target star on the LOS (6.1); refuses stars below 20 deg."""
+    place = observed_place(TARGET_STAR, site, start_utc, WACO_2004_WEATHER, min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
+    # The telescope looks out of the left side: azimuth = heading - 90 deg (C.3.2).
+    return 90.0 + place.azimuth_deg, place.apparent_altitude_deg
+
+
 def default_scenario():
     """Waco 2004: the aircraft heading and CD elevation put Polaris on the LOS at the start (6.1)."""
-    place = observed_place(TARGET_STAR, WACO_2004_SITE, DEFAULT_START_UTC, WACO_2004_WEATHER)
-    # The telescope looks out of the left side: azimuth = heading - 90 deg (C.3.2).
-    return Scenario(WACO_2004_SITE, DEFAULT_START_UTC, 90.0 + place.azimuth_deg, place.apparent_altitude_deg)
+    heading_deg, elevation_deg = pointing_at_target(WACO_2004_SITE, DEFAULT_START_UTC)
+    return Scenario(WACO_2004_SITE, DEFAULT_START_UTC, heading_deg, elevation_deg)
 
 
 def graph_config(truth, seed, plan=None):
-    """The alignment campaign's GraphConfig: the truth's scenario over the Waco default."""
-    return GraphConfig(truth, scenario_from_mapping(default_scenario(), truth.scenario), seed, plan or AlignmentPlan())
+    """The alignment campaign's GraphConfig: the truth's scenario over the Waco default.
+
+    A truth that moves the site or the time without giving heading and elevation gets
+    the pointing recomputed for the target star there and then.
+    """
+    overrides = dict(truth.scenario or {})
+    scenario = scenario_from_mapping(default_scenario(), overrides)
+    if overrides and not {'heading_deg', 'start_elevation_deg'} & set(overrides):
+        heading_deg, elevation_deg = pointing_at_target(scenario.site, scenario.start_utc)
+        scenario = dataclasses.replace(scenario, heading_deg=heading_deg, start_elevation_deg=elevation_deg)
+    check_coarse_drive_elevation(scenario.start_elevation_deg)
+    return GraphConfig(truth, scenario, seed, plan or AlignmentPlan())
 
 
 def true_alignment_at(truth_effects, elevation_deg):
@@ -146,12 +164,13 @@ def _result_from_bag(bag_path):
         if '/calibration/result' in names:
             for _, _, message in bag.messages('/calibration/result'):
                 result = message.data
+        stop_reason = bag.document('/result/stop') if '/result/stop' in names else None
         sim_ns = 0
         for _, stamp_ns, _ in bag.messages('/clock'):
             sim_ns = stamp_ns
     if result is None:
-        result = yaml.safe_dump({'accepted': False, 'reason': 'the calibration node published no result '
-                                 '(the run stopped early; see the node logs)'})
+        reason = f'stopped: {stop_reason}' if stop_reason else 'the calibration node published no result'
+        result = yaml.safe_dump({'accepted': False, 'reason': reason})
     return result, sim_ns / 1e9
 
 

@@ -56,6 +56,8 @@ class RecorderNode(LockstepNode):
         self._close_if_complete()
 
     def on_stop(self):
+        # Why the run ended goes into the bag too (a finished calibration, a stall, the time limit).
+        self.bag.write_document('/result/stop', self.stop_reason.split(';', 1)[-1], self.clock_ns)
         self._close_if_complete()
 
     def can_tick(self, tick):

@@ -32,13 +32,15 @@ from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, P
 from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_DEG
 
-__all__ = ['AlignmentPlan', 'CalibrationCore', 'TOPICS']
+__all__ = ['AlignmentPlan', 'CalibrationCore', 'TOPICS', 'maneuver_record', 'maneuver_from_record']
 
 TOPICS = {
     'progress': TopicSpec('/calibration/progress', 'diagnostic_msgs/msg/DiagnosticStatus',
                           'calibration step, iteration and the latest fitted angles'),
     'result': TopicSpec('/calibration/result', 'std_msgs/msg/String',
                         'accepted alignment matrices and their accuracy, YAML'),
+    'maneuvers': TopicSpec('/calibration/maneuvers', 'std_msgs/msg/String',
+                           'each fit: the maneuvers it used (axis, angle, centroids, active matrix, block), YAML'),
 }
 IMAGERS = ('fpi', 'ffi', 'wfi')
 _FD_MARGIN_DEG = 2.9
@@ -101,7 +103,7 @@ class CalibrationCore(NodeCore):
 
     def outputs(self):
         return (TASCU_TOPICS['move_relative'], TASCU_TOPICS['mtbs_centroid'], TASCU_TOPICS['track'],
-                TOPICS['progress'], TOPICS['result'])
+                TOPICS['progress'], TOPICS['result'], TOPICS['maneuvers'])
 
     def receive(self, topic, message):
         if topic == TASCU_TOPICS['motion_status'].name:
@@ -282,17 +284,17 @@ class CalibrationCore(NodeCore):
         self._progress('iteration', {'iteration': iteration})
         yield from self._estimate_drift()
         los = yield from self._los_block(self.plan.repetitions)
-        tilt = fit_alignment(los, solve_for=('el', 'xel'), fit_drift=self._fit_drift)
+        tilt = self._fit('los_tilt', los, solve_for=('el', 'xel'))
         yield from self._set_alignment(tilt.dcm)
         yield from self._estimate_drift()
         elxel = yield from self._elxel_block(self.plan.repetitions)
-        full = fit_alignment(los + elxel, fit_drift=self._fit_drift)
+        full = self._fit('gyro_alignment', los + elxel)
         yield from self._set_alignment(full.dcm)
         self._progress('verify', {'iteration': iteration})
         yield from self._estimate_drift()
         check = (yield from self._los_block(2 * self.plan.verification_repetitions)) + \
                 (yield from self._elxel_block(2 * self.plan.verification_repetitions))
-        verification = fit_alignment(check)
+        verification = self._fit('verification', check, fit_drift=False)
         correction = _small_angles(verification.dcm, full.dcm)
         accepted = bool(np.all(np.abs(correction) <= 3.0 * verification.sigma_rad))
         self.record['iterations'].append({
@@ -312,6 +314,15 @@ class CalibrationCore(NodeCore):
             yield from self._set_alignment(verification.dcm)
         return accepted
 
+    def _fit(self, purpose, maneuvers, *, solve_for=('el', 'xel', 'los'), fit_drift=None, camera='hipo'):
+        """Solve (3.3.2) and publish the inputs so that the fit can be repeated offline from the bag."""
+        fit_drift = self._fit_drift if fit_drift is None else fit_drift
+        self.outbox.append((TOPICS['maneuvers'].name, m.string_msg(yaml.safe_dump({
+            'purpose': purpose, 'camera': camera, 'solve_for': list(solve_for), 'fit_drift': fit_drift,
+            'maneuvers': [maneuver_record(maneuver) for maneuver in maneuvers]}, sort_keys=False))))
+        return fit_alignment(maneuvers, nominal_detector(camera), solve_for=solve_for, fit_drift=fit_drift,
+                             initial_dcm=np.eye(3) if camera != 'hipo' else None)
+
     @property
     def _fit_drift(self):
         """Fit the residual drift (6.1) when every block has enough maneuvers to spare the unknowns."""
@@ -328,8 +339,8 @@ class CalibrationCore(NodeCore):
         updates = {}
         for camera in IMAGERS:
             maneuvers = yield from self._elxel_block(self.plan.verification_repetitions, camera)
-            fit = fit_alignment(maneuvers, nominal_detector(camera), solve_for=('los',),
-                                initial_dcm=np.eye(3))
+            fit = self._fit(f'rotation_of_field_{camera}', maneuvers, solve_for=('los',), fit_drift=False,
+                            camera=camera)
             updates[f'alignment.{camera}_from_tarf'] = fit.dcm.ravel().tolist()
             self.record['imagers'][camera] = {
                 'rotation_of_field_arcsec': float(fit.angles_rad[2] * ARCSEC_PER_RAD),
@@ -354,6 +365,20 @@ class CalibrationCore(NodeCore):
             'plan': asdict(self.plan),
             **self.record,
         }
+
+
+def maneuver_record(maneuver):
+    """A Maneuver as plain YAML-able values (the /calibration/maneuvers record)."""
+    return {'axis': maneuver.axis, 'angle_rad': float(maneuver.angle_rad),
+            'start_px': [float(v) for v in maneuver.start_px], 'end_px': [float(v) for v in maneuver.end_px],
+            'active_alignment': np.asarray(maneuver.active_alignment).tolist(),
+            'duration_s': float(maneuver.duration_s), 'block': int(maneuver.block)}
+
+
+def maneuver_from_record(record):
+    """Inverse of maneuver_record."""
+    return Maneuver(record['axis'], record['angle_rad'], record['start_px'], record['end_px'],
+                    np.asarray(record['active_alignment']), record['duration_s'], record['block'])
 
 
 def _small_angles(dcm, reference):

@@ -7,18 +7,21 @@ import time
 from std_msgs.msg import String
 
 from sofia_ros.nodes.shell import LockstepNode
-from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS
+from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS, done_topic, stop_text
 from sofia_ros.sim import messages as m
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
 from rosgraph_msgs.msg import Clock
 
 __all__ = ['ClockNode']
 
+_STARTUP_TIMEOUT_S = 120.0
+
 
 class ClockNode(LockstepNode):
     """Publishes /clock per tick; ends the run when a node finishes or fails, or the graph stalls."""
 
     def __init__(self, participants, *, tick_ns, max_sim_s, stall_timeout_s=15.0, subscribers=1):
+        """``participants`` in tick order: the first silent one of them is the likely culprit of a stall."""
         super().__init__('clock', upstream=[(name, 1) for name in participants], tick_ns=tick_ns,
                          expected_outputs={PLANT_TOPICS['clock'].name: subscribers})
         self.publishers_by_topic[PLANT_TOPICS['clock'].name] = self.create_publisher(
@@ -42,17 +45,34 @@ class ClockNode(LockstepNode):
         self.publish(PLANT_TOPICS['clock'].name, m.clock_msg(tick * self.tick_ns))
         self.publish_done(tick)
 
-    def _stop(self, last_tick, reason):
+    def _stop(self, last_tick, reason, complete=True):
         if self.stop_reason is None:
-            self.stop_publisher.publish(String(data=f'{last_tick};{reason}'))
-            self.stop_reason = f'{last_tick};{reason}'
+            self.stop_reason = stop_text(last_tick, complete, reason)
+            self.stop_publisher.publish(String(data=self.stop_reason))
+            self.get_logger().info(f'stopping: {reason}')
 
     def _watchdog(self):
-        if not self.ready or self.stop_reason is not None:
+        if self.stop_reason is not None:
             return
-        if time.monotonic() - self.last_progress > self.stall_timeout_s:
+        waited_s = time.monotonic() - self.last_progress
+        if self.next_tick <= 1:
+            # Starting up: every process imports, discovers and connects; allow for a slow machine.
+            if waited_s > max(self.stall_timeout_s, _STARTUP_TIMEOUT_S):
+                absent = sorted(name for name, state in self.states.items() if state.latest_tick < 0)
+                self._stop(0, f'{", ".join(absent) or "the clock"} did not connect within '
+                              f'{max(self.stall_timeout_s, _STARTUP_TIMEOUT_S):g} s; is every node running?',
+                           complete=False)
+            return
+        if waited_s > self.stall_timeout_s:
             waiting = self.next_tick - 1
-            silent = sorted(name for name, state in self.states.items() if state.latest_tick < waiting)
-            self._stop(waiting, f'{", ".join(silent) or "the graph"} stopped reporting at tick {waiting} '
-                                f'(sim {waiting * self.tick_ns / m.NS_PER_S:.1f} s) for {self.stall_timeout_s:g} s; '
-                                'the node is gone or stuck')
+            silent = [name for name, state in self.states.items() if state.latest_tick < waiting]
+            # A node whose handshake topic has lost its publisher is gone; otherwise the first silent
+            # node in tick order is the one the others wait for.
+            gone = [name for name in silent if self.count_publishers(done_topic(name)) == 0]
+            culprit = (gone or silent or ['the graph'])[0]
+            state = 'the node is gone' if gone else 'the node is gone or stuck'
+            others = ', '.join(name for name in silent if name != culprit)
+            waiting_note = f'; waiting on it: {others}' if others else ''
+            self._stop(waiting, f'{culprit} stopped reporting at tick {waiting} '
+                                f'(sim {waiting * self.tick_ns / m.NS_PER_S:.1f} s) for {self.stall_timeout_s:g} s: '
+                                f'{state}{waiting_note}', complete=False)

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import rclpy
@@ -19,9 +20,11 @@ from sofia_ros.nodes.clock_node import ClockNode
 from sofia_ros.nodes.graph_params import graph_parameters, write_params_file
 from sofia_ros.nodes.recorder_node import RecorderNode
 from sofia_ros.nodes.shell import CoreNode
+from sofia_ros.nodes.sync import parse_stop
 from sofia_ros.sim.graph import build_cores, graph_topics
 
-__all__ = ['isolate_ros_environment', 'run_graph_in_process', 'run_graph_in_processes', 'GraphRunError']
+__all__ = ['isolate_ros_environment', 'run_graph_in_process', 'run_graph_in_processes', 'start_graph_processes',
+           'wait_for_graph', 'stop_graph', 'GraphProcesses', 'GraphRunError']
 
 
 class GraphRunError(SofiaError):
@@ -68,7 +71,7 @@ def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=7200.0, ti
         finally:
             recorder.abort()
         calibration = next(node.core for node in nodes if node.core.name == 'calibration')
-        reason = (clock.stop_reason or '').split(';', 1)[-1]
+        reason = parse_stop(clock.stop_reason)[2] if clock.stop_reason else ''
         for node in (*nodes, clock, recorder):
             node.destroy_node()
         return calibration, reason
@@ -76,40 +79,69 @@ def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=7200.0, ti
         rclpy.try_shutdown()
 
 
-def run_graph_in_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, timeout_s=3600.0,
-                           stall_timeout_s=15.0, model_file='', progress=None):
-    """Each node as its own process (what `ros2 run` gives); return the recorder's exit code and the logs."""
+@dataclass
+class GraphProcesses:
+    """The node processes of one run and the folder with their params file and logs."""
+
+    processes: dict
+    workdir: Path
+
+
+def start_graph_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, stall_timeout_s=15.0,
+                          model_file=''):
+    """Start every node as its own process (what `ros2 run` gives), sharing one params file."""
     isolate_ros_environment()
     workdir = Path(tempfile.mkdtemp(prefix='sofia_graph_'))
     params = workdir / 'params.yaml'
     values = graph_parameters(truth_file, seed, plan, tick_ns=tick_ns, max_sim_s=max_sim_s, bag_path=bag_path,
                               stall_timeout_s=stall_timeout_s, model_file=model_file)
     write_params_file(params, values)
-    executables = [('clock', ()), ('plant', ()), ('gyro_box', ()), ('hipo', ()),
-                   *(('imager', ('-r', f'__node:={camera}', '-p', f'camera:={camera}')) for camera in ('fpi', 'ffi', 'wfi')),
-                   ('tascu', ()), ('calibration', ()), ('recorder', ())]
+    executables = [('clock', 'clock', ()), ('plant', 'plant', ()), ('gyro_box', 'gyro_box', ()),
+                   ('hipo', 'hipo', ()), ('tascu', 'tascu', ()), ('calibration', 'calibration', ()),
+                   ('recorder', 'recorder', ()),
+                   *((camera, 'imager', ('-r', f'__node:={camera}', '-p', f'camera:={camera}'))
+                     for camera in ('fpi', 'ffi', 'wfi'))]
     processes = {}
-    for executable, extra in executables:
-        name = extra[1].split(':=')[1] if extra else executable
-        log = open(workdir / f'{name}.log', 'w')
-        processes[name] = subprocess.Popen(
-            [sys.executable, '-m', 'sofia_ros.nodes.executables', executable, '--ros-args', '--params-file',
-             str(params), *extra], stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy())
+    for name, executable, extra in executables:
+        with open(workdir / f'{name}.log', 'w') as log:
+            processes[name] = subprocess.Popen(
+                [sys.executable, '-m', 'sofia_ros.nodes.executables', executable, '--ros-args', '--params-file',
+                 str(params), *extra], stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy())
+    return GraphProcesses(processes, workdir)
+
+
+def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
+    """Wait until the recorder has closed the bag; then stop every remaining node."""
     start = time.monotonic()
     try:
-        while processes['recorder'].poll() is None:
+        while graph.processes['recorder'].poll() is None:
             time.sleep(0.2)
             if progress is not None:
                 progress(None, max_sim_s)
             if time.monotonic() - start > timeout_s:
-                raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; logs in {workdir}')
+                raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; '
+                                    f'logs in {graph.workdir}')
     finally:
-        for process in processes.values():
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
-        for process in processes.values():
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-    return processes, workdir
+        stop_graph(graph)
+
+
+def stop_graph(graph):
+    """SIGINT every node still running (the recorder closes its bag), then kill stragglers."""
+    for process in graph.processes.values():
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    for process in graph.processes.values():
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def run_graph_in_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, timeout_s=3600.0,
+                           stall_timeout_s=15.0, model_file='', progress=None):
+    """Each node as its own process; return the GraphProcesses after the recorder closed the bag."""
+    graph = start_graph_processes(truth_file, seed, plan, bag_path, tick_ns=tick_ns, max_sim_s=max_sim_s,
+                                  stall_timeout_s=stall_timeout_s, model_file=model_file)
+    wait_for_graph(graph, timeout_s=timeout_s, progress=progress, max_sim_s=max_sim_s)
+    return graph

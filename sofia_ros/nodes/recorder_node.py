@@ -6,7 +6,7 @@ from rcl_interfaces.msg import ParameterEvent
 
 from sofia_ros.bag import BagWriter
 from sofia_ros.nodes.shell import LockstepNode, message_class
-from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS
+from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
 from sofia_ros.sim import messages as m
 
 __all__ = ['RecorderNode', 'PARAMETER_EVENTS']
@@ -57,7 +57,7 @@ class RecorderNode(LockstepNode):
 
     def on_stop(self):
         # Why the run ended goes into the bag too (a finished calibration, a stall, the time limit).
-        self.bag.write_document('/result/stop', self.stop_reason.split(';', 1)[-1], self.clock_ns)
+        self.bag.write_document('/result/stop', parse_stop(self.stop_reason)[2], self.clock_ns)
         self._close_if_complete()
 
     def can_tick(self, tick):
@@ -71,8 +71,9 @@ class RecorderNode(LockstepNode):
     def _close_if_complete(self):
         if self.closed or self.stop_reason is None:
             return
-        last_tick = int(self.stop_reason.split(';', 1)[0])
-        if self.next_tick > last_tick:
+        last_tick, complete, _ = parse_stop(self.stop_reason)
+        # A finished run is recorded to its last tick; an aborted one keeps what arrived up to the fault.
+        if self.next_tick > last_tick or not complete:
             self.bag.close()
             self.closed = True
 

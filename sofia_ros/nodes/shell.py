@@ -13,7 +13,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
 from sofia_ros.errors import ConfigError
-from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic
+from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic, parse_stop
 from sofia_ros.sim import messages as m
 from sofia_ros.sim.gyro_box import IMU_TOPIC
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
@@ -64,7 +64,8 @@ class LockstepNode(Node):
 
     def _on_stop(self, message):
         self.stop_reason = message.data
-        self.get_logger().info(f'stop after tick {message.data.replace(";", ": ", 1)}')
+        last_tick, _, reason = parse_stop(message.data)
+        self.get_logger().info(f'stop after tick {last_tick}: {reason}')
         self.on_stop()
 
     def on_stop(self):

@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ['DONE_PREFIX', 'STOP_TOPIC', 'SYNC_QOS', 'DATA_QOS', 'done_topic', 'UpstreamState']
+__all__ = ['DONE_PREFIX', 'STOP_TOPIC', 'SYNC_QOS', 'DATA_QOS', 'done_topic', 'UpstreamState', 'stop_text',
+           'parse_stop']
 
 DONE_PREFIX = '/sim/done/'
 STOP_TOPIC = '/sim/stop'
@@ -45,3 +46,14 @@ class UpstreamState:
         self.failed = self.failed or failed
         for old in [t for t in self.reports if t < tick - 2]:
             del self.reports[old]
+
+
+def stop_text(last_tick, complete, reason):
+    """Body of a /sim/stop message: the last tick, whether it was completed, and why the run ends."""
+    return f'{last_tick};{"complete" if complete else "abort"};{reason}'
+
+
+def parse_stop(text):
+    """(last_tick, complete, reason) of a /sim/stop message."""
+    last_tick, kind, reason = text.split(';', 2)
+    return int(last_tick), kind == 'complete', reason

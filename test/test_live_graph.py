@@ -1,0 +1,94 @@
+"""The node graph over DDS: one process under an executor, one process per node, and its faults."""
+
+import signal
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from sofia_ros.bag import BagReader
+from sofia_ros.campaigns.alignment import run_alignment
+from sofia_ros.config import load_effect_config
+from sofia_ros.nodes.launch import start_graph_processes, stop_graph, wait_for_graph
+from sofia_ros.sim.calibration import AlignmentPlan
+
+NOMINAL = load_effect_config('config/truth/nominal.yaml')
+SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=10.0)
+
+
+@pytest.fixture(scope='module')
+def direct_run(tmp_path_factory):
+    return run_alignment(NOMINAL, seed=21, bag_path=tmp_path_factory.mktemp('direct') / 'bag', plan=SHORT,
+                         mode='direct')
+
+
+def _topic_counts(path):
+    with BagReader(path) as bag:
+        return {topic.name: topic.count for topic in bag.topics if not topic.name.startswith(('/config', '/result'))
+                and topic.name != '/parameter_events'}
+
+
+@pytest.mark.timeout(600)
+@pytest.mark.parametrize('mode', ['executor', 'processes'])
+def test_live_graph_reproduces_the_lock_step_run(direct_run, tmp_path, mode):
+    # The same cores with the same seeds behind DDS: the same messages, the same accepted matrix.
+    live = run_alignment(NOMINAL, seed=21, bag_path=tmp_path / mode, plan=SHORT, mode=mode, timeout_s=500)
+    assert live.summary['accepted'] == direct_run.summary['accepted'] is True
+    np.testing.assert_array_equal(yaml.safe_load(live.result_yaml)['tarf_from_gyrf'],
+                                  yaml.safe_load(direct_run.result_yaml)['tarf_from_gyrf'])
+    assert _topic_counts(live.bag_path) == _topic_counts(direct_run.bag_path)
+
+
+def _wait_until_running(graph, timeout_s=120.0):
+    """Until the clock has started ticking (it logs once every node is connected), plus a few ticks."""
+    deadline = time.monotonic() + timeout_s
+    while 'connected' not in (graph.workdir / 'clock.log').read_text():
+        assert time.monotonic() < deadline, 'the graph did not start'
+        time.sleep(0.2)
+    time.sleep(5.0)
+
+
+def _truth_file(tmp_path):
+    path = tmp_path / 'truth.yaml'
+    path.write_text(NOMINAL.text)
+    return path
+
+
+@pytest.mark.timeout(300)
+def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
+    bag = tmp_path / 'fault'
+    graph = start_graph_processes(_truth_file(tmp_path), 3, SHORT, bag, tick_ns=100_000_000, stall_timeout_s=5.0)
+    try:
+        _wait_until_running(graph)
+        graph.processes['gyro_box'].kill()
+        started = time.monotonic()
+        wait_for_graph(graph, timeout_s=60)
+        assert time.monotonic() - started < 30.0
+    finally:
+        stop_graph(graph)
+    with BagReader(bag) as reader:
+        reason = reader.document('/result/stop')
+        counts = {topic.name: topic.count for topic in reader.topics}
+    assert reason.startswith('gyro_box stopped reporting at tick') and 'the node is gone' in reason
+    assert counts['/gyro_box/imu'] > 0 and counts['/clock'] > 0
+    # Everything up to the fault is there: the gyro box's samples stop where it was killed.
+    assert counts['/gyro_box/imu'] <= 40 * counts['/truth/imu']
+
+
+@pytest.mark.timeout(300)
+def test_recorder_stopped_by_sigint_closes_a_complete_bag(tmp_path):
+    bag = tmp_path / 'sigint'
+    graph = start_graph_processes(_truth_file(tmp_path), 4, SHORT, bag, tick_ns=100_000_000)
+    try:
+        _wait_until_running(graph)
+        graph.processes['recorder'].send_signal(signal.SIGINT)
+        assert graph.processes['recorder'].wait(timeout=30) == 0
+    finally:
+        stop_graph(graph)
+    assert (bag / 'metadata.yaml').exists()
+    with BagReader(bag) as reader:
+        counts = {topic.name: topic.count for topic in reader.topics}
+        stamps = [stamp for _, stamp, _ in reader.raw_messages('/clock')]
+    assert counts['/clock'] > 10 and counts['/gyro_box/imu'] > 400
+    assert stamps == sorted(stamps)

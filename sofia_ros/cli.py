@@ -103,6 +103,15 @@ def _print_alignment_summary(run):
     print('  predicted sigma: EL/XEL from eq. 3.32 (LOS rotations), LOS from eq. 3.34 (EL/XEL moves), with 3.37')
 
 
+def _replay(args):
+    from sofia_ros.nodes.replay import replay_bag
+
+    if args.rate < 0:
+        raise ConfigError(f'--rate must be >= 0 (0 = as fast as possible), got {args.rate}')
+    replay_bag(args.bag, rate=args.rate, topics=args.topics or None, out=sys.stdout)
+    return 0
+
+
 def build_parser():
     """The argument parser with one sub-command per verb."""
     parser = argparse.ArgumentParser(prog='sofia', description=__doc__.splitlines()[0])
@@ -126,6 +135,12 @@ def build_parser():
     run.add_argument('--drift-track-s', type=float, default=60.0, help='drift estimation on the star, s')
     run.add_argument('--max-sim-s', type=float, default=7200.0, help='stop after this much sim time')
     run.set_defaults(handler=_run_campaign)
+
+    replay = verbs.add_parser('replay', help='re-publish a bag on its topics, with /clock, into a live graph')
+    replay.add_argument('bag', help='bag directory')
+    replay.add_argument('--rate', type=float, default=1.0, help='speed-up against the recorded time (0: unpaced)')
+    replay.add_argument('--topics', nargs='*', help='only these topics')
+    replay.set_defaults(handler=_replay)
 
     demo = verbs.add_parser('demo', help='worked demonstration of the science core against the thesis tables')
     demo.set_defaults(handler=_run_demo)

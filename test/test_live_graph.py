@@ -92,3 +92,33 @@ def test_recorder_stopped_by_sigint_closes_a_complete_bag(tmp_path):
         stamps = [stamp for _, stamp, _ in reader.raw_messages('/clock')]
     assert counts['/clock'] > 10 and counts['/gyro_box/imu'] > 400
     assert stamps == sorted(stamps)
+
+
+@pytest.mark.timeout(120)
+def test_replay_publishes_a_bag_into_a_live_graph(direct_run):
+    import subprocess
+    import sys
+
+    import rclpy
+    from geometry_msgs.msg import QuaternionStamped
+
+    from sofia_ros.nodes.sync import DATA_QOS
+
+    rclpy.init()
+    try:
+        node = rclpy.create_node('replay_listener')
+        received = []
+        node.create_subscription(QuaternionStamped, '/tascu/attitude', received.append, DATA_QOS)
+        replay = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'replay', str(direct_run.bag_path),
+                                   '--rate', '0', '--topics', '/tascu/attitude', '/clock'],
+                                  stdout=subprocess.PIPE, text=True)
+        while replay.poll() is None:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        for _ in range(40):
+            rclpy.spin_once(node, timeout_sec=0.05)
+        assert replay.returncode == 0
+        expected = _topic_counts(direct_run.bag_path)['/tascu/attitude']
+        assert f'replayed {2 * expected} messages' in replay.stdout.read()
+        assert len(received) == expected
+    finally:
+        rclpy.try_shutdown()

@@ -40,13 +40,25 @@ def test_live_graph_reproduces_the_lock_step_run(direct_run, tmp_path, mode):
     assert _topic_counts(live.bag_path) == _topic_counts(direct_run.bag_path)
 
 
-def _wait_until_running(graph, timeout_s=120.0):
-    """Until the clock has started ticking (it logs once every node is connected), plus a few ticks."""
-    deadline = time.monotonic() + timeout_s
-    while 'connected' not in (graph.workdir / 'clock.log').read_text():
-        assert time.monotonic() < deadline, 'the graph did not start'
-        time.sleep(0.2)
-    time.sleep(5.0)
+def _wait_until_running(graph, sim_s=5.0, timeout_s=180.0):
+    """Until the graph's /clock has passed ``sim_s`` (startup of eleven processes takes a while)."""
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+
+    from sofia_ros.nodes.sync import SYNC_QOS
+
+    rclpy.init()
+    try:
+        node = rclpy.create_node('clock_watcher')
+        latest = [0.0]
+        node.create_subscription(Clock, '/clock', lambda msg: latest.__setitem__(0, msg.clock.sec), SYNC_QOS)
+        deadline = time.monotonic() + timeout_s
+        while latest[0] < sim_s:
+            assert time.monotonic() < deadline, f'the graph did not start; logs in {graph.workdir}'
+            assert graph.processes['clock'].poll() is None, f'the clock exited; logs in {graph.workdir}'
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        rclpy.try_shutdown()
 
 
 def _truth_file(tmp_path):

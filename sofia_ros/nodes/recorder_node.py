@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rcl_interfaces.msg import ParameterEvent
+from rclpy.task import Future
 
 from sofia_ros.bag import BagWriter
 from sofia_ros.nodes.shell import LockstepNode, message_class
@@ -31,6 +32,7 @@ class RecorderNode(LockstepNode):
             self.bag.write_document(topic, text, 0)
         self.clock_ns = 0
         self.closed = False
+        self.finished = Future()
         for topic, msgtype in topics.items():
             qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
             self.create_subscription(message_class(msgtype), topic, self._record_callback(topic), qos, raw=True)
@@ -47,7 +49,8 @@ class RecorderNode(LockstepNode):
             self.bag.write_raw(topic, cdr, stamp_ns)
             if counted:
                 self.received[topic] += 1
-                self.try_ticks()
+                if self._requirements is not None and topic in self._requirements:
+                    self.try_ticks()
             self._close_if_complete()
         return callback
 
@@ -60,11 +63,11 @@ class RecorderNode(LockstepNode):
         self.bag.write_document('/result/stop', parse_stop(self.stop_reason)[2], self.clock_ns)
         self._close_if_complete()
 
-    def can_tick(self, tick):
+    def tick_requirements(self, tick):
         # The recorder keeps recording after /sim/stop until the last tick is complete.
         stop, self.stop_reason = self.stop_reason, None
         try:
-            return super().can_tick(tick)
+            return super().tick_requirements(tick)
         finally:
             self.stop_reason = stop
 
@@ -76,9 +79,11 @@ class RecorderNode(LockstepNode):
         if self.next_tick > last_tick or not complete:
             self.bag.close()
             self.closed = True
+            self.finished.set_result(True)
 
     def abort(self):
         """Close what was recorded so far (SIGINT): a complete, readable bag."""
         if not self.closed:
             self.bag.close()
             self.closed = True
+            self.finished.set_result(True)

@@ -41,6 +41,8 @@ class LockstepNode(Node):
         self.ready = False
         self.stop_reason = None
         self.expected_inputs = tuple(expected_inputs)
+        self._counted_inputs = frozenset(self.expected_inputs)
+        self._requirements = None  # what the next tick still waits for, once every report is in
         self.expected_outputs = dict(expected_outputs or {})  # topic -> number of subscribers
         self.publishers_by_topic = {}
         self.done_publisher = self.create_publisher(String, done_topic(name), SYNC_QOS)
@@ -59,11 +61,13 @@ class LockstepNode(Node):
         def callback(message):
             report = _parse_done(message.data)
             self.states[node].announce(report['tick'], report['counts'], report['finished'], report['failed'])
+            self._requirements = None
             self.try_ticks()
         return callback
 
     def _on_stop(self, message):
         self.stop_reason = message.data
+        self._requirements = None
         last_tick, _, reason = parse_stop(message.data)
         self.get_logger().info(f'stop after tick {last_tick}: {reason}')
         self.on_stop()
@@ -86,31 +90,37 @@ class LockstepNode(Node):
         """Subclasses add conditions (e.g. services available) before the first done(0)."""
         return True
 
-    def can_tick(self, tick):
-        """True when every upstream node reported tick - lag and its counted messages arrived."""
+    def tick_requirements(self, tick):
+        """{topic: count} to receive before tick ``tick``, or None while an upstream report is missing."""
         if not self.ready or self.stop_reason is not None:
-            return False
+            return None
+        inputs = self.counted_inputs()
+        needed_counts = {}
         for node, lag in self.upstream.items():
             needed = tick - lag
-            state = self.states[node]
             if needed < 0:
                 continue
             # done(0) means connected: nothing starts before every upstream node is.
-            if state.latest_tick < needed or needed not in state.reports:
-                return False
-            inputs = self.counted_inputs()
-            if any(topic in inputs and self.received[topic] < count
-                   for topic, count in state.reports[needed].items()):
-                return False
-        return True
+            report = self.states[node].reports.get(needed)
+            if report is None:
+                return None
+            needed_counts.update((topic, count) for topic, count in report.items() if topic in inputs)
+        return needed_counts
 
     def counted_inputs(self):
         """Topics this node subscribes to and counts."""
-        return set(self.expected_inputs)
+        return self._counted_inputs
 
     def try_ticks(self):
         """Run every tick that has become possible."""
-        while self.can_tick(self.next_tick) and not self.busy():
+        while not self.busy():
+            if self._requirements is None:
+                self._requirements = self.tick_requirements(self.next_tick)
+                if self._requirements is None:
+                    return
+            if any(self.received[topic] < count for topic, count in self._requirements.items()):
+                return
+            self._requirements = None
             tick = self.next_tick
             self.next_tick += 1
             self.run_tick(tick)
@@ -159,7 +169,10 @@ class CoreNode(LockstepNode):
             if spec.name in inputs:
                 # /clock is transient-local: a reader that matches late still gets the current tick.
                 qos = SYNC_QOS if spec.msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
-                self.create_subscription(message_class(spec.msgtype), spec.name, self._input_callback(spec.name), qos)
+                # The 400 Hz samples stay raw CDR until the tick decodes them in one go.
+                raw = spec.name == IMU_TOPIC.name
+                self.create_subscription(message_class(spec.msgtype), spec.name, self._input_callback(spec.name), qos,
+                                         raw=raw)
         for spec in core.outputs():
             self.publishers_by_topic[spec.name] = self.create_publisher(message_class(spec.msgtype), spec.name,
                                                                         DATA_QOS)
@@ -197,7 +210,8 @@ class CoreNode(LockstepNode):
                 self.imu_buffer.append(message)
             else:
                 self.core.receive(topic, message)
-            self.try_ticks()
+            if self._requirements is not None and topic in self._requirements:
+                self.try_ticks()
         return callback
 
     def busy(self):
@@ -205,14 +219,15 @@ class CoreNode(LockstepNode):
 
     def run_tick(self, tick):
         if self.imu_buffer:
-            self.core.receive(IMU_TOPIC.name, m.imu_block_from_messages(self.imu_buffer))
+            self.core.receive(IMU_TOPIC.name, m.imu_block_from_cdr('gyrf', self.imu_buffer))
             self.imu_buffer = []
         self.tick_in_progress = tick
         for topic, message in self.core.tick(tick * self.tick_ns):
             if topic == SET_PARAMETERS:
                 self._call_set_parameters(message)
             elif isinstance(message, m.ImuBlock):
-                for sample in m.imu_messages(message):
+                # Serialized once by struct: the same bytes DDS would make, at a tenth of the cost.
+                for sample in m.imu_block_cdr(message):
                     self.publish(topic, sample)
             else:
                 self.publish(topic, message)

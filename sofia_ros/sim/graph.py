@@ -19,7 +19,7 @@ from sofia_ros.sim.plant import PlantCore
 from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 from sofia_ros.sim.tascu import TascuCore
 
-__all__ = ['CAMERAS', 'NODE_NAMES', 'GraphConfig', 'build_core', 'build_cores', 'graph_topics']
+__all__ = ['CAMERAS', 'NODE_NAMES', 'GraphConfig', 'build_core', 'build_cores', 'graph_topics', 'topic_table_markdown']
 
 CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
 #: Every node of the alignment graph, in a fixed order (seeds are drawn in this order).
@@ -77,3 +77,16 @@ def graph_topics(cores):
         for spec in core.inputs():
             topics.setdefault(spec.name, [spec.msgtype, None, []])[2].append(core.name)
     return {name: (msgtype, publisher, tuple(subscribers)) for name, (msgtype, publisher, subscribers) in topics.items()}
+
+
+def topic_table_markdown(config):
+    """The README's topic table: every topic of the graph with type, publisher, subscribers, meaning."""
+    cores = build_cores(config)
+    meanings = {spec.name: spec.meaning for core in cores for spec in (*core.outputs(), *core.inputs())}
+    rows = ['| topic | type | published by | subscribed by (and the recorder) | meaning |', '|---|---|---|---|---|']
+    for name, (msgtype, publisher, subscribers) in sorted(graph_topics(cores).items()):
+        if publisher is None:
+            continue
+        rows.append(f'| `{name}` | `{msgtype}` | {publisher} | {", ".join(subscribers) or "-"} '
+                    f'| {meanings[name]} |')
+    return '\n'.join(rows)

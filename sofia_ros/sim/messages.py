@@ -46,6 +46,7 @@ __all__ = [
     'parameter_event',
     'STAMPED_MSGTYPES',
     'log_stamp_ns',
+    'imu_block_from_cdr',
 ]
 
 NS_PER_S = 1_000_000_000
@@ -264,3 +265,23 @@ def log_stamp_ns(msgtype, cdr, fallback_ns):
         return fallback_ns
     sec, nanosec = _STAMP.unpack_from(cdr, 4)
     return sec * NS_PER_S + nanosec
+
+
+_IMU_STAMP_AND_FRAME = struct.Struct('<iII')
+_IMU_VECTORS = struct.Struct('<' + 'd' * 28)
+
+
+def imu_block_from_cdr(frame_id, samples):
+    """ImuBlock of raw sensor_msgs/Imu CDR samples (the inverse of :func:`imu_block_cdr`)."""
+    if not samples:
+        return ImuBlock(frame_id, np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    stamps, rates, forces = [], [], []
+    for data in samples:
+        sec, nanosec, length = _IMU_STAMP_AND_FRAME.unpack_from(data, 4)
+        offset = 16 + length
+        offset += -(offset - 4) % 8
+        values = _IMU_VECTORS.unpack_from(data, offset)
+        stamps.append(sec * NS_PER_S + nanosec)
+        rates.append(values[13:16])
+        forces.append(values[25:28])
+    return ImuBlock(frame_id, np.array(stamps, dtype=np.int64), np.array(rates), np.array(forces))

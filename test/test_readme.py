@@ -1,0 +1,27 @@
+"""The README stays true: its topic table is the graph's, its commands exist."""
+
+from pathlib import Path
+
+from sofia_ros.campaigns.alignment import graph_config
+from sofia_ros.cli import build_parser
+from sofia_ros.config import load_effect_config
+from sofia_ros.sim.graph import topic_table_markdown
+
+README = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
+
+
+def test_topic_table_is_the_graphs():
+    table = topic_table_markdown(graph_config(load_effect_config('config/truth/nominal.yaml'), 0))
+    assert table in README
+
+
+def test_readme_opens_with_the_two_commands():
+    first_block = README.split('```')[1]
+    assert 'scripts/run-main' in first_block and 'scripts/run-tests' in first_block
+    assert 'scripts/run-tests' in (Path(__file__).resolve().parents[1] / '.ci' / 'run').read_text()
+
+
+def test_every_documented_verb_exists():
+    verbs = build_parser()._subparsers._group_actions[0].choices
+    for verb in ('run', 'replay', 'effects', 'demo'):
+        assert verb in verbs and f'sofia {verb}' in README

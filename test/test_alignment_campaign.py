@@ -15,6 +15,7 @@ from sofia_ros.campaigns.alignment import graph_config, run_alignment
 from sofia_ros.config import load_effect_config
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import build_cores, graph_topics
+from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 
 NOMINAL = load_effect_config('config/truth/nominal.yaml')
 # Reduced campaign: 4 repetitions (the residual drift fit needs >= 4), 1 verification pair, 30 s drift track.
@@ -61,9 +62,9 @@ def test_bag_opens_with_rosbags_and_mcap_and_counts_match(nominal_run):
             mcap_counts[channel.topic] = mcap_counts.get(channel.topic, 0) + 1
     assert {t: c for t, c in rosbags_counts.items() if c} == mcap_counts
     sim_s = nominal_run.summary['sim_seconds']
-    ticks = int(round(sim_s / 0.1))
+    ticks = int(round(sim_s / (DEFAULT_TICK_NS / 1e9)))
     assert rosbags_counts['/clock'] == ticks
-    assert rosbags_counts['/gyro_box/imu'] == 40 * ticks  # one sensor_msgs/Imu per 400 Hz sample
+    assert rosbags_counts['/gyro_box/imu'] == round(400 * sim_s)  # one sensor_msgs/Imu per 400 Hz sample
     for topic in ('/truth/imu', '/tascu/attitude', '/tascu/fd_command', '/tascu/motion_status'):
         assert rosbags_counts[topic] == ticks, topic
     assert rosbags_counts['/hipo/centroids'] == pytest.approx(sim_s, abs=1)  # 1 Hz frames

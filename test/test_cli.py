@@ -42,3 +42,52 @@ def test_demo_reproduces_the_thesis_tables():
     assert 'Traceback' not in result.stderr
     assert 'Table 5.7' in result.stdout and 'Table 6.5' in result.stdout and 'Table D.3' in result.stdout
     assert 'FAIL' not in result.stdout
+
+
+BAD_TRUTHS = {
+    'broken.yaml': ('effects:\n  earth_rotation: {\n', 'not valid YAML'),
+    'unknown.yaml': ('effects:\n  gyro_wobble: {}\n', "unknown effect 'gyro_wobble'; did you mean"),
+    'badparam.yaml': ('effects:\n  seeing: {rms_arcsec: fast}\n', 'rms_arcsec must be a number in arcsec'),
+    'lowstar.yaml': ('effects:\n  earth_rotation: {}\nscenario:\n  latitude_deg: 12.0\n', 'below the limit of 20 deg'),
+    'highcd.yaml': ('effects:\n  earth_rotation: {}\nscenario:\n  start_elevation_deg: 70.0\n',
+                    'coarse drive elevation 70.000 deg is outside 16.5-68.5 deg'),
+    'toplevel.yaml': ('effect:\n  seeing: {}\n', "unknown top-level key(s) effect"),
+}
+
+
+@pytest.mark.parametrize('name', sorted(BAD_TRUTHS))
+def test_bad_truth_is_one_line_exit_2_and_no_bag(tmp_path, name):
+    text, message = BAD_TRUTHS[name]
+    truth = tmp_path / name
+    truth.write_text(text)
+    bag = tmp_path / 'bag'
+    result = run_sofia('run', 'alignment', '--truth', str(truth), '--bag', str(bag), '--direct')
+    assert result.returncode == 2
+    assert result.stderr.count('\n') == 1 and message in result.stderr and 'Traceback' not in result.stderr
+    assert not bag.exists()
+
+
+def test_fine_drive_maneuver_beyond_its_travel_is_refused_before_running(tmp_path):
+    # A 6 deg LOS rotation cannot fit in the +-3 deg fine drive.
+    from sofia_ros.errors import InvalidArgumentError
+    from sofia_ros.sim.calibration import AlignmentPlan
+
+    with pytest.raises(InvalidArgumentError, match=r'los_angle_deg must be in \(0, 5.3\]'):
+        AlignmentPlan(los_angle_deg=6.0)
+
+
+def test_existing_bag_directory_is_refused(tmp_path):
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    result = run_sofia('run', 'alignment', '--truth', 'config/truth/nominal.yaml', '--bag', str(bag), '--direct')
+    assert result.returncode == 2 and 'already exists; choose another --bag' in result.stderr
+
+
+def test_missing_truth_file_is_refused(tmp_path):
+    result = run_sofia('run', 'alignment', '--truth', str(tmp_path / 'nope.yaml'), '--bag', str(tmp_path / 'b'))
+    assert result.returncode == 2 and 'cannot read' in result.stderr and 'check the path' in result.stderr
+
+
+def test_replay_of_a_missing_bag_is_refused(tmp_path):
+    result = run_sofia('replay', str(tmp_path / 'none'))
+    assert result.returncode == 2 and 'does not exist' in result.stderr

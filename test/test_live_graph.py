@@ -12,6 +12,7 @@ from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.config import load_effect_config
 from sofia_ros.nodes.launch import start_graph_processes, stop_graph, wait_for_graph
 from sofia_ros.sim.calibration import AlignmentPlan
+from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 
 NOMINAL = load_effect_config('config/truth/nominal.yaml')
 SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=10.0)
@@ -70,7 +71,7 @@ def _truth_file(tmp_path):
 @pytest.mark.timeout(300)
 def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
     bag = tmp_path / 'fault'
-    graph = start_graph_processes(_truth_file(tmp_path), 3, SHORT, bag, tick_ns=100_000_000, stall_timeout_s=5.0)
+    graph = start_graph_processes(_truth_file(tmp_path), 3, SHORT, bag, tick_ns=DEFAULT_TICK_NS, stall_timeout_s=5.0)
     try:
         _wait_until_running(graph)
         graph.processes['gyro_box'].kill()
@@ -85,13 +86,13 @@ def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
     assert reason.startswith('gyro_box stopped reporting at tick') and 'the node is gone' in reason
     assert counts['/gyro_box/imu'] > 0 and counts['/clock'] > 0
     # Everything up to the fault is there: the gyro box's samples stop where it was killed.
-    assert counts['/gyro_box/imu'] <= 40 * counts['/truth/imu']
+    assert counts['/gyro_box/imu'] <= round(400 * DEFAULT_TICK_NS / 1e9) * counts['/truth/imu']
 
 
 @pytest.mark.timeout(300)
 def test_recorder_stopped_by_sigint_closes_a_complete_bag(tmp_path):
     bag = tmp_path / 'sigint'
-    graph = start_graph_processes(_truth_file(tmp_path), 4, SHORT, bag, tick_ns=100_000_000)
+    graph = start_graph_processes(_truth_file(tmp_path), 4, SHORT, bag, tick_ns=DEFAULT_TICK_NS)
     try:
         _wait_until_running(graph)
         graph.processes['recorder'].send_signal(signal.SIGINT)

@@ -6,6 +6,7 @@ from sofia_ros.campaigns.alignment import graph_config
 from sofia_ros.cli import build_parser
 from sofia_ros.config import load_effect_config
 from sofia_ros.sim.graph import topic_table_markdown
+from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 
 README = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
 
@@ -25,3 +26,13 @@ def test_every_documented_verb_exists():
     verbs = build_parser()._subparsers._group_actions[0].choices
     for verb in ('run', 'replay', 'effects', 'demo'):
         assert verb in verbs and f'sofia {verb}' in README
+
+
+def test_shipped_params_file_builds_the_graph():
+    import yaml
+
+    from sofia_ros.nodes.graph_params import graph_config_from_parameters
+
+    document = yaml.safe_load((Path(__file__).resolve().parents[1] / 'config/alignment.params.yaml').read_text())
+    config = graph_config_from_parameters(document['/**']['ros__parameters'])
+    assert config.plan.repetitions == 6 and config.tick_ns == DEFAULT_TICK_NS

@@ -28,6 +28,8 @@ __all__ = [
 ]
 
 TRANSIENT, SETTLED, LOCKED = 'transient', 'settled', 'locked'
+#: Left-over angle of a slew that is only floating-point rounding.
+_ANGLE_ROUNDING_RAD = 1e-12
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,9 @@ class MoveProfile:
         """Turn the command by one interval of the slew; return (new command, feed-forward rate)."""
         step_rad = min(self.remaining_rad, self.rate_rad_per_s * interval_s)
         self.remaining_rad -= step_rad
+        if self.remaining_rad < _ANGLE_ROUNDING_RAD:
+            step_rad += self.remaining_rad
+            self.remaining_rad = 0.0
         turn = Rotation.from_rotvec(self.axis * step_rad)
         return turn.as_matrix().T @ commanded_from_inertial, self.axis * step_rad / interval_s
 

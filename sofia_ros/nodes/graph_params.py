@@ -9,6 +9,7 @@ import yaml
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import ConfigError
 from sofia_ros.sim.calibration import AlignmentPlan
+from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 
 __all__ = ['GRAPH_PARAMETERS', 'graph_parameters', 'graph_config_from_parameters', 'write_params_file']
 
@@ -17,7 +18,7 @@ GRAPH_PARAMETERS = {
     'campaign': ('alignment', 'campaign whose graph this node belongs to'),
     'truth_file': ('', 'truth YAML (effects: ..., scenario: ...) of the run'),
     'seed': (0, 'run seed; each node draws its own stream from it'),
-    'tick_ns': (100_000_000, 'lock-step tick in ns of sim time'),
+    'tick_ns': (DEFAULT_TICK_NS, 'lock-step tick in ns of sim time'),
     'max_sim_s': (7200.0, 'the clock stops the run after this much sim time'),
     'stall_timeout_s': (15.0, 'the clock stops the run when a node is silent this long (wall time)'),
     'bag_path': ('', 'recorder: output bag directory'),

@@ -18,8 +18,9 @@ from dataclasses import dataclass, field
 __all__ = ['DEFAULT_TICK_NS', 'TopicSpec', 'NodeCore', 'RunOutcome', 'SET_PARAMETERS', 'ParameterRequest',
            'ParameterResult']
 
-#: 0.1 s: the servo and sensors exchange once per tick; the gyro box still samples at 400 Hz.
-DEFAULT_TICK_NS = 100_000_000
+#: 0.2 s: the servo and the sensors exchange once per tick (a 5 Hz position loop with a 2/s gain
+#: settles a move in 2-3 s); the gyro box still samples at 400 Hz and cameras keep their own timing.
+DEFAULT_TICK_NS = 200_000_000
 
 
 @dataclass(frozen=True)

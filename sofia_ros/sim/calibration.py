@@ -14,19 +14,25 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+import datetime as dt
+
 import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 
+from sofia_ros import mount
 from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_rad
 from sofia_ros.calibration.solvers import Maneuver, fit_alignment
+from sofia_ros.control.tracker import pixel_jacobian_px_per_rad
 from sofia_ros.errors import InvalidArgumentError, SofiaError
+from sofia_ros.frames import dcm_from_quaternion, dcm_from_rotation_angles, quaternion_from_dcm
 from sofia_ros.sensors.imager_model import nominal_detector
+from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, observed_place, visible_stars
 from sofia_ros.sim import messages as m
 from sofia_ros.sim.camera import centroid_topic
-from sofia_ros.sim.plant import FD_JOINTS
+from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
 from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, ParameterResult, TopicSpec
 from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
@@ -46,6 +52,9 @@ IMAGERS = ('fpi', 'ffi', 'wfi')
 _FD_MARGIN_DEG = 2.9
 _KEPT_FRAMES = 200
 _RECENTRE_LOS_DEG = 1.0
+#: Stars for the elevation series: bright enough for every camera, within the fine drive's XEL reach.
+_SERIES_MAX_HP_MAG = 6.5
+_SERIES_REACH_DEG = 1.5
 _MIN_REPETITIONS_FOR_DRIFT_FIT = 4
 
 
@@ -65,6 +74,8 @@ class AlignmentPlan:
     verification_repetitions: int = 2
     max_iterations: int = 3
     timeout_s: float = 120.0
+    #: elevations of the boresight series (Table 3.5, 6.2: 23-60 deg); empty to skip it
+    flexure_elevations_deg: tuple = (23.0, 40.0, 50.0, 59.0)
 
     def __post_init__(self):
         if self.repetitions < 2 or self.frames_per_position < 1 or self.verification_repetitions < 1:
@@ -80,9 +91,11 @@ class CalibrationCore(NodeCore):
     name = 'calibration'
     upstream = (('tascu', 0), ('hipo', 0), ('fpi', 0), ('ffi', 0), ('wfi', 0))
 
-    def __init__(self, plan=None):
+    def __init__(self, plan=None, scenario=None):
         super().__init__()
         self.plan = plan or AlignmentPlan()
+        self.scenario = scenario
+        self.attitude = None
         self.stamp_ns = 0
         self.status = None
         self.command_status = {}
@@ -99,11 +112,11 @@ class CalibrationCore(NodeCore):
     def inputs(self):
         cameras = tuple(centroid_topic(camera) for camera in ('hipo', *IMAGERS))
         return (TASCU_TOPICS['motion_status'], TASCU_TOPICS['command_status'], PLANT_TOPICS['joint_states'],
-                *cameras)
+                TASCU_TOPICS['attitude'], *cameras)
 
     def outputs(self):
-        return (TASCU_TOPICS['move_relative'], TASCU_TOPICS['mtbs_centroid'], TASCU_TOPICS['track'],
-                TOPICS['progress'], TOPICS['result'], TOPICS['maneuvers'])
+        return (TASCU_TOPICS['move_relative'], TASCU_TOPICS['mtbs_centroid'], TASCU_TOPICS['mtbs_inertial'],
+                TASCU_TOPICS['track'], TOPICS['progress'], TOPICS['result'], TOPICS['maneuvers'])
 
     def receive(self, topic, message):
         if topic == TASCU_TOPICS['motion_status'].name:
@@ -112,6 +125,8 @@ class CalibrationCore(NodeCore):
             self.command_status[int(m.status_values_of(message)['command_stamp_ns'])] = message.message
         elif topic == PLANT_TOPICS['joint_states'].name:
             self.joints = m.joint_positions_of(message)
+        elif topic == TASCU_TOPICS['attitude'].name:
+            self.attitude = message
         elif topic == SET_PARAMETERS:
             self.parameter_result = message
         elif topic.endswith('/centroids'):
@@ -211,6 +226,8 @@ class CalibrationCore(NodeCore):
         else:
             raise CalibrationAbort(f'no alignment accepted after {self.plan.max_iterations} iterations')
         yield from self._imager_rotation_of_field()
+        if self.plan.flexure_elevations_deg and self.scenario is not None:
+            yield from self._flexure_series()
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(self.result(), sort_keys=False))))
 
@@ -348,6 +365,89 @@ class CalibrationCore(NodeCore):
             }
         yield from self._push(updates)
 
+    # --- boresights over elevation (Table 3.5, 6.2) ------------------------------------------
+    def _star_direction_irf(self, star):
+        """The star's direction in the TASCU's IRF (TARF at start-up) from the catalogue and the nominal mount."""
+        elapsed_s = self.stamp_ns / m.NS_PER_S
+        utc = self.scenario.start_utc + dt.timedelta(seconds=elapsed_s)
+        place = observed_place(star, self.scenario.site, utc, WACO_2004_WEATHER,
+                               min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
+        s_hrf = mount.unit_vector_hrf(place.apparent_altitude_deg, place.azimuth_deg)
+        tarf0_from_hrf0 = mount.tarf_from_hrf_dcm(self.scenario.heading_deg, self.scenario.start_elevation_deg)
+        return tarf0_from_hrf0 @ mount.hrf_from_irf_dcm(self.scenario.latitude_deg, elapsed_s).T @ s_hrf
+
+    def _point_at(self, star):
+        """MTBS_INERTIAL: turn the LOS onto the star, the coarse drive taking large elevation changes (6.3)."""
+        estimate = dcm_from_quaternion(m.quaternion_xyzw_of(self.attitude))
+        star_tarf = estimate @ self._star_direction_irf(star)
+        axis = np.cross([0.0, 0.0, 1.0], star_tarf)
+        rotation = axis / np.linalg.norm(axis) * np.arctan2(np.linalg.norm(axis), star_tarf[2])
+        target = dcm_from_rotation_angles(rotation) @ estimate
+        yield from self._command('mtbs_inertial', m.quaternion_stamped(0, 'irf', quaternion_from_dcm(target)))
+        yield from self._locked()
+
+    def _acquire(self, hip):
+        """Star into HIPO through the wide fields: FFI centring first, then HIPO (6.2, 6.3)."""
+        self.star_hip = hip
+        for camera in ('ffi', 'hipo'):
+            pixel, _ = yield from self._star_frames(camera, 1)
+            yield from self._command('mtbs_centroid', self._point_message(camera, pixel))
+            yield from self._locked()
+
+    def _reachable_star(self, target_deg, exclude):
+        """Brightest catalogue star within 3 deg of an elevation that the fine drive reaches in azimuth."""
+        utc = self.scenario.start_utc + dt.timedelta(seconds=self.stamp_ns / m.NS_PER_S)
+        los_azimuth_deg = self.scenario.heading_deg - 90.0
+        candidates = visible_stars(self.scenario.site, utc, WACO_2004_WEATHER, max_hp_magnitude=_SERIES_MAX_HP_MAG,
+                                   min_altitude_deg=max(target_deg - 3.0, TELESCOPE_MIN_ELEVATION_DEG))
+        for candidate in candidates:  # brightest first
+            place = candidate.observed
+            off_azimuth_deg = (place.azimuth_deg - los_azimuth_deg + 180.0) % 360.0 - 180.0
+            reach_deg = abs(off_azimuth_deg) * np.cos(np.radians(place.altitude_deg))
+            if (abs(place.altitude_deg - target_deg) <= 3.0 and reach_deg <= _SERIES_REACH_DEG
+                    and candidate.star.hip not in exclude):
+                return candidate.star
+        return None
+
+    def _flexure_row(self, name, hip, hp_magnitude):
+        """Each imager's boresight against HIPO with the star held at HIPO's centre (6.2, Fig. 6.4)."""
+        row = {'star': name, 'hip': int(hip), 'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG}
+        if hp_magnitude is not None:
+            row['hp_mag'] = float(hp_magnitude)
+        # As in 6.2: each imager against HIPO, so the star's residual offset in HIPO drops out.
+        for camera in IMAGERS:
+            hipo_px, _ = yield from self._star_frames('hipo', self.plan.frames_per_position)
+            pixel, _ = yield from self._star_frames(camera, self.plan.frames_per_position)
+            shift = (boresight_shift_arcsec(camera, pixel, self.record['boresight_px'][camera])
+                     - boresight_shift_arcsec('hipo', hipo_px, nominal_detector('hipo').center_px))
+            row[camera] = shift.tolist()
+        return row
+
+    def _flexure_series(self):
+        """Boresights of the imagers against HIPO over elevation; fitted as in 3.28/3.29 about el0 (Table 3.5)."""
+        self._progress('flexure_series')
+        reference_hip = self.star_hip
+        reference_elevation_deg = self.joints[CD_JOINT] / RAD_PER_DEG
+        rows = [(yield from self._flexure_row('reference', reference_hip, None))]
+        for target_deg in self.plan.flexure_elevations_deg:
+            star = self._reachable_star(target_deg, exclude={row['hip'] for row in rows})
+            if star is None:
+                self._progress('flexure_point', {'elevation_deg': target_deg, 'skipped': 'no bright star in reach'})
+                continue
+            yield from self._point_at(star.hip)
+            yield from self._acquire(star.hip)
+            rows.append((yield from self._flexure_row(f'HIP {star.hip}', star.hip, star.hp_magnitude)))
+            self._progress('flexure_point', {'star': rows[-1]['star'], 'elevation_deg': f'{rows[-1]["elevation_deg"]:.2f}'})
+        # Differential flexure about el0: every row against the reference row, measured the same way.
+        for row in rows[::-1]:
+            for camera in IMAGERS:
+                row[camera] = (np.asarray(row[camera]) - np.asarray(rows[0][camera])).tolist()
+        self.record['flexure'] = {
+            'reference_elevation_deg': reference_elevation_deg,
+            'points': rows,
+            'fit': {camera: flexure_fit(rows, camera, reference_elevation_deg) for camera in IMAGERS},
+        }
+
     def result(self):
         """The accepted alignment and its predicted accuracy (3.32, 3.34, 3.37) as a plain mapping."""
         fit = self.final_fit
@@ -365,6 +465,31 @@ class CalibrationCore(NodeCore):
             'plan': asdict(self.plan),
             **self.record,
         }
+
+
+def boresight_shift_arcsec(camera, pixel, boresight_px):
+    """Imager rotation (dEL, dXEL) ["] against HIPO since el0, from the HIPO-centred star's pixel (3.2-3.4, 6.2).
+
+    A camera turned by theta against the focal plane sees the star as if the telescope had turned
+    by theta, so the offset from the el0 boresight, mapped back through the pixel geometry, is the
+    differential flexure of Fig. 3.17 (right) and Fig. 6.4.
+    """
+    jacobian = pixel_jacobian_px_per_rad(camera, boresight_px, np.eye(3))[:, :2]
+    return np.linalg.solve(jacobian, np.asarray(pixel) - np.asarray(boresight_px)) * ARCSEC_PER_RAD
+
+
+def flexure_fit(rows, camera, reference_elevation_deg):
+    """Least-squares p cos(el) + q sin(el) about el0 per axis (the form of 3.28/3.29 with 3.4.2)."""
+    elevations = np.radians([row['elevation_deg'] for row in rows])
+    el0 = np.radians(reference_elevation_deg)
+    design = np.column_stack([np.cos(elevations) - np.cos(el0), np.sin(elevations) - np.sin(el0)])
+    shifts = np.array([row[camera] for row in rows])
+    coefficients, *_ = np.linalg.lstsq(design, shifts, rcond=None)
+    span = np.radians([23.0, 60.0])
+    change = (np.column_stack([np.cos(span), np.sin(span)]) @ coefficients)
+    return {'el_arcsec_cos_sin': coefficients[:, 0].tolist(), 'xel_arcsec_cos_sin': coefficients[:, 1].tolist(),
+            'change_23_to_60_deg_arcsec': (change[1] - change[0]).tolist(),
+            'rms_residual_arcsec': float(np.sqrt(np.mean((design @ coefficients - shifts) ** 2)))}
 
 
 def maneuver_record(maneuver):

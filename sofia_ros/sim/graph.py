@@ -58,7 +58,7 @@ def build_core(name, config):
     if name == 'tascu':
         return TascuCore()
     if name == 'calibration':
-        return CalibrationCore(config.plan)
+        return CalibrationCore(config.plan, config.scenario)
     raise ConfigError(f'unknown node {name!r}; nodes are {", ".join(NODE_NAMES)}')
 
 

@@ -69,6 +69,7 @@ def _flexure_rows():
 
 def _alignment_rows():
     from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_rad, standard_error_of_mean
+    from sofia_ros.calibration.published import EQ_6_1
     from sofia_ros.frames import rotation_angles_from_dcm
     from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 
@@ -81,12 +82,7 @@ def _alignment_rows():
         rows.append(Row(f'sigma_R, n = {n}, 5 deg LOS rotation', sigma_r_arcsec, sigma_r, 0.05, 'arcsec'))
         rows.append(Row(f'sigma_beta, n = {n}, L = 4.8 arcmin', sigma_beta_arcmin,
                         sigma_beta * ARCSEC_PER_RAD / 60.0, 0.05, 'arcmin'))
-    eq_6_1 = np.array([
-        [9.9984199e-01, 1.7431537e-02, -3.4832506e-03],
-        [-1.7413946e-02, 9.9983577e-01, 5.01810311e-03],
-        [3.5701519e-03, -4.9476375e-03, 9.9998186e-01],
-    ])
-    angles_arcsec = rotation_angles_from_dcm(eq_6_1) * ARCSEC_PER_RAD
+    angles_arcsec = rotation_angles_from_dcm(EQ_6_1) * ARCSEC_PER_RAD
     for axis, design_arcsec, ours in zip(('EL', 'XEL', 'LOS'), (1030.0, 730.0, 3590.0), angles_arcsec):
         rows.append(Row(f'eq. 6.1 rotation about {axis} (DESIGN.md 8)', design_arcsec, float(ours), 10.0, 'arcsec'))
     return rows

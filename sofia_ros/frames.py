@@ -40,7 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
-from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar
+from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar, unit_vector
 
 __all__ = [
     'QUATERNION_NORM_TOLERANCE',
@@ -133,7 +133,7 @@ def euler123_from_quaternion(q):
 
 def euler123_from_axis_angle(axis, angle_rad):
     """Euler 1-2-3 angles (alpha, beta, gamma) in rad from rotation axis and angle (eqs. B.14-B.16)."""
-    rotation_vector = _unit_vector('axis', axis) * finite_scalar('angle_rad', angle_rad)
+    rotation_vector = unit_vector('axis', axis) * finite_scalar('angle_rad', angle_rad)
     return Rotation.from_rotvec(rotation_vector).as_euler('XYZ')
 
 
@@ -159,15 +159,6 @@ def dcm_from_rotation_angles(theta_rad):
 def rotation_angles_from_dcm(a):
     """Simultaneous rotation angles (theta_u, theta_v, theta_w) in rad of an attitude DCM (eqs. B.19-B.22)."""
     return _rotation_from_dcm(a).as_rotvec()
-
-
-def _unit_vector(name, value):
-    """``value`` as a unit 3-vector; raise on zero length."""
-    vector = finite_array(name, value, shape=(3,))
-    norm = float(np.linalg.norm(vector))
-    if norm == 0.0:
-        raise InvalidArgumentError(f'{name} must be a non-zero 3-vector')
-    return vector / norm
 
 
 @dataclass(frozen=True)
@@ -254,7 +245,7 @@ def vector_to_pixel(vector, detector):
 
 def boresight_dcm(w):
     """A_TARF,XYIRF with rows u, v, w from TARF's w-axis measured in the imager, u2 = 0 (eqs. 3.8-3.9)."""
-    w_axis = _unit_vector('w', w)
+    w_axis = unit_vector('w', w)
     w1, _, w3 = w_axis
     if w3 <= 0.0:
         raise InvalidArgumentError('w must be less than 90 deg from the imager w-axis (w3 > 0, eq. 3.8)')

@@ -16,6 +16,7 @@ __all__ = [
     'finite_array',
     'finite_scalar',
     'positive_scalar',
+    'unit_vector',
     'orthonormal_dcm',
     'DCM_REJECT_TOLERANCE',
     'DCM_EXACT_TOLERANCE',
@@ -59,6 +60,15 @@ def positive_scalar(name, value):
     if number <= 0.0:
         raise InvalidArgumentError(f'{name} must be > 0, got {number}')
     return number
+
+
+def unit_vector(name, value):
+    """``value`` as a unit 3-vector; raise on NaN, wrong shape or zero length."""
+    vector = finite_array(name, value, shape=(3,))
+    norm = float(np.linalg.norm(vector))
+    if norm == 0.0:
+        raise InvalidArgumentError(f'{name} must be a non-zero 3-vector')
+    return vector / norm
 
 
 def orthonormal_dcm(name, value):

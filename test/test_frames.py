@@ -5,31 +5,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from sofia_ros import frames
+from sofia_ros.calibration.published import EQ_6_1 as A_EQ_6_1
+from sofia_ros.calibration.published import TABLE_D2_A1 as A1
+from sofia_ros.calibration.published import TABLE_D2_A2 as A2
+from sofia_ros.calibration.published import TABLE_D2_A5 as A5
 from sofia_ros.errors import InvalidArgumentError, NotOrthonormalError
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC
 
-# Table D.2, alignment matrices implemented in 2004 (rows as printed).
-A1 = np.array([
-    [9.999962390016000e-01, 0.0, 2.742623317000000e-03],
-    [1.563467213000000e-05, 9.999837512947000e-01, -5.700605410000000e-03],
-    [-2.742578750000000e-03, 5.700626854000000e-03, 9.999799903574000e-01],
-])
-A2 = np.array([
-    [9.999962390016000e-01, 1.563467214000000e-05, -2.742623317000000e-03],
-    [0.0, 9.999837512947000e-01, 5.700605410000000e-03],
-    [2.742578750000000e-03, -5.700626854000000e-03, 9.999799903574000e-01],
-])
-A5 = np.array([
-    [9.998608004680677e-01, 1.629822920000000e-02, -3.570264345000000e-03],
-    [-1.627989750000000e-02, 9.998544423400000e-01, 5.104808650000000e-03],
-    [3.652944007000000e-03, -5.036958926730000e-03, 9.999811089004200e-01],
-])
-# Eq. 6.1 (A23 printed "5.01810311 - 03").
-A_EQ_6_1 = np.array([
-    [9.9984199e-01, 1.7431537e-02, -3.4832506e-03],
-    [-1.7413946e-02, 9.9983577e-01, 5.01810311e-03],
-    [3.5701519e-03, -4.9476375e-03, 9.9998186e-01],
-])
 
 DETECTORS = [frames.HIPO_2004, frames.HIPO_2008, frames.FPI, frames.FFI, frames.WFI]
 

@@ -5,6 +5,8 @@ import pytest
 
 from sofia_ros import frames
 from sofia_ros.calibration import solvers
+from sofia_ros.calibration.published import EQ_6_1 as A_EQ_6_1
+from sofia_ros.calibration.published import TABLE_D2_A5 as A5
 from sofia_ros.calibration.solvers import AXIS_VECTORS, Maneuver, fit_alignment
 from sofia_ros.errors import InvalidArgumentError, NotOrthonormalError
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
@@ -17,17 +19,6 @@ L_PX = L_RAD / HIPO.scale_rad_per_px
 EL_MOTION = -np.array([np.sin(PHI), np.cos(PHI)])
 XEL_MOTION = np.array([-np.cos(PHI), np.sin(PHI)])
 
-# Table D.2 A5 and eq. 6.1 (A23 printed "5.01810311 - 03").
-A5 = np.array([
-    [9.998608004680677e-01, 1.629822920000000e-02, -3.570264345000000e-03],
-    [-1.627989750000000e-02, 9.998544423400000e-01, 5.104808650000000e-03],
-    [3.652944007000000e-03, -5.036958926730000e-03, 9.999811089004200e-01],
-])
-A_EQ_6_1 = np.array([
-    [9.9984199e-01, 1.7431537e-02, -3.4832506e-03],
-    [-1.7413946e-02, 9.9983577e-01, 5.01810311e-03],
-    [3.5701519e-03, -4.9476375e-03, 9.9998186e-01],
-])
 
 
 def arcsec(value_rad):

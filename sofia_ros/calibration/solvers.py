@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.frames import HIPO_2004, pixel_to_vector, vector_to_pixel
-from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar
+from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar, unit_vector
 
 __all__ = [
     'AXIS_VECTORS',
@@ -66,14 +66,6 @@ _DEGENERATE = 1e-12
 
 def _pixel(name, value):
     return finite_array(name, value, shape=(2,))
-
-
-def _unit_vector(name, value):
-    vector = finite_array(name, value, shape=(3,))
-    norm = float(np.linalg.norm(vector))
-    if norm == 0.0:
-        raise InvalidArgumentError(f'{name} must be a non-zero 3-vector')
-    return vector / norm
 
 
 def _nonzero_angle(name, value):
@@ -107,8 +99,8 @@ def turning_point_two_stars_px(start1_px, end1_px, start2_px, end2_px):
 
 def candidate_rotation_axes(start_vector, end_vector, angle_rad):
     """The two rotation axes g1, g2 that carry s_b to s_e by a known angle (eqs. 3.13-3.15)."""
-    s_b = _unit_vector('start_vector', start_vector)
-    s_e = _unit_vector('end_vector', end_vector)
+    s_b = unit_vector('start_vector', start_vector)
+    s_e = unit_vector('end_vector', end_vector)
     angle = _nonzero_angle('angle_rad', angle_rad)
     total, cross = s_e + s_b, np.cross(s_e, s_b)
     if np.linalg.norm(cross) < _DEGENERATE or np.linalg.norm(total) < _DEGENERATE:
@@ -129,13 +121,13 @@ def candidate_rotation_axes(start_vector, end_vector, angle_rad):
 def select_rotation_axis(g1, g2, axis):
     """Pick the rotation axis as the text of 3.3.2 says: g1 for LOS, in-plane g for EL/XEL (eqs. 3.14-3.15)."""
     if axis == 'los':
-        return _unit_vector('g1', g1)
+        return unit_vector('g1', g1)
     if axis not in ('el', 'xel'):
         raise InvalidArgumentError(f"axis must be 'el', 'xel' or 'los', got {axis!r}")
     # The candidates differ in the sign of their LOS component; with orthogonal axes
     # the true EL/XEL axis lies in the CCD plane: average, drop LOS, renormalize.
-    mean = _unit_vector('g1', g1) + _unit_vector('g2', g2)
-    return _unit_vector('in-plane axis', [mean[0], mean[1], 0.0])
+    mean = unit_vector('g1', g1) + unit_vector('g2', g2)
+    return unit_vector('in-plane axis', [mean[0], mean[1], 0.0])
 
 
 def _displacement(start_px, end_px):
@@ -160,7 +152,7 @@ def xel_misalignment_rad(start_px, end_px, phi_rad):
 
 def dcm_from_w_and_beta(w, beta_rad):
     """DCM with rows u, v, w from the w-axis and in-plane angle beta, v1 = tan(beta) v2 (eqs. 3.18-3.19)."""
-    w_axis = _unit_vector('w', w)
+    w_axis = unit_vector('w', w)
     beta = finite_scalar('beta_rad', beta_rad)
     w1, w2, w3 = w_axis
     if w3 <= 0.0:
@@ -217,7 +209,7 @@ class Maneuver:
                 raise InvalidArgumentError(
                     f"axis must be 'el', 'xel', 'los' or a 3-vector, got {self.axis!r}")
         else:
-            object.__setattr__(self, 'axis', _read_only(_unit_vector('axis', self.axis)))
+            object.__setattr__(self, 'axis', _read_only(unit_vector('axis', self.axis)))
         object.__setattr__(self, 'angle_rad', _nonzero_angle('angle_rad', self.angle_rad))
         object.__setattr__(self, 'start_px', _read_only(_pixel('start_px', self.start_px)))
         object.__setattr__(self, 'end_px', _read_only(_pixel('end_px', self.end_px)))

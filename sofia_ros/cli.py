@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+import yaml
+
 from sofia_ros.errors import ConfigError, SofiaError
 
 __all__ = ['main', 'build_parser']
@@ -101,6 +103,24 @@ def _print_alignment_summary(run):
         sigma = summary['predicted_sigma_arcsec'][axis]
         print(f'  {axis.upper():<5} {residual:>9.2f}" {sigma:>17.2f}" {abs(residual) / sigma:>7.2f}')
     print('  predicted sigma: EL/XEL from eq. 3.32 (LOS rotations), LOS from eq. 3.34 (EL/XEL moves), with 3.37')
+    _print_flexure_series(yaml.safe_load(run.result_yaml).get('flexure'))
+
+
+def _print_flexure_series(flexure_record):
+    """Imager boresights against HIPO over elevation (Table 3.5, Fig. 6.4) beside the FEM (Table 3.3)."""
+    from sofia_ros import flexure
+
+    if not flexure_record:
+        return
+    elevations = [point['elevation_deg'] for point in flexure_record['points']]
+    print(f'boresight change against HIPO from 23 to 60 deg (dEL, dXEL), stars at '
+          f'{", ".join(f"{e:.1f}" for e in sorted(elevations))} deg:')
+    load = flexure.gravity_load_tarf
+    for camera in ('fpi', 'ffi', 'wfi'):
+        measured = flexure_record['fit'][camera]['change_23_to_60_deg_arcsec']
+        fem = (0.0, 0.0) if camera == 'fpi' else flexure.differential_imager_rotation_arcsec(camera, load(60.0), load(23.0))
+        print(f'  {camera.upper():<4} measured ({measured[0]:+6.2f}", {measured[1]:+6.2f}")   '
+              f'FEM ({fem[0]:+6.2f}", {fem[1]:+6.2f}")   fit rms {flexure_record["fit"][camera]["rms_residual_arcsec"]:.2f}"')
 
 
 def _replay(args):

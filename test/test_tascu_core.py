@@ -58,3 +58,25 @@ def test_unknown_or_bad_parameters_are_refused():
         tascu.set_parameter('alignment.tarf_from_gyrf', [2.0] + [0.0] * 8)
     with pytest.raises(ConfigError, match='outside 16.5-68.5 deg'):
         tascu.set_parameter('fbc.reference_elevation_deg', 80.0)
+
+
+def test_quasi_static_fbc_turns_the_estimate_by_the_focal_plane_flexure_referenced_to_el0():
+    # 3.4.1-3.4.2: the FBC modifies TARF:GYRF by the Table 3.2 image motion of the load change
+    # since el0, so the servo moves the telescope and the image stays on the focal plane.
+    from sofia_ros.flexure import gravity_load_tarf, referenced_focal_plane_rotation_arcsec
+    from sofia_ros.units import RAD_PER_ARCSEC
+
+    tascu = TascuCore()
+    tascu.set_parameter('fbc.enabled', True)
+    tascu.set_parameter('fbc.reference_elevation_deg', 30.0)
+    force = -gravity_load_tarf(60.0)  # accelerometers at rest read f = -g (eq. 2.13)
+    block = m.ImuBlock('gyrf', np.arange(1, 81, dtype=np.int64) * 2_500_000, np.zeros((80, 3)),
+                       np.tile(force, (80, 1)))
+    tascu.receive('/gyro_box/imu', block)
+    tascu.tick(200_000_000)
+    expected_arcsec = referenced_focal_plane_rotation_arcsec(gravity_load_tarf(60.0), gravity_load_tarf(30.0))
+    expected = dcm_from_rotation_angles(np.r_[expected_arcsec, 0.0] * RAD_PER_ARCSEC)
+    np.testing.assert_allclose(tascu._estimate(), expected, atol=1e-12)
+    assert abs(expected_arcsec[1]) > 20.0  # about 25" in XEL between 30 and 60 deg
+    tascu.set_parameter('fbc.enabled', False)
+    np.testing.assert_allclose(tascu._estimate(), np.eye(3), atol=1e-15)

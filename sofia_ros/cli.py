@@ -70,8 +70,10 @@ def _run_campaign(args):
     from sofia_ros.config import load_effect_config
     from sofia_ros.sim.calibration import AlignmentPlan
 
+    if args.campaign == 'gyro-stability':
+        return _run_gyro_stability(args)
     if args.campaign != 'alignment':
-        raise ConfigError(f"campaign {args.campaign!r} is not built yet; available: alignment")
+        raise ConfigError(f"campaign {args.campaign!r} is not built yet; available: alignment, gyro-stability")
     truth = load_effect_config(args.truth)
     model_text = Path(args.model).read_text() if args.model else 'effects: {}\n'
     if args.model:
@@ -87,6 +89,24 @@ def _run_campaign(args):
         progress.close()
     _print_alignment_summary(run)
     return 0 if run.summary['accepted'] else 1
+
+
+def _run_gyro_stability(args):
+    from sofia_ros.campaigns.gyro_stability import run_gyro_stability
+    from sofia_ros.config import load_effect_config
+
+    if args.case is None:
+        raise ConfigError('gyro-stability needs --case TC-1|TC-2|TC-3|TC-4')
+    truth = load_effect_config(args.truth)
+    progress = _Progress()
+    try:
+        summary = run_gyro_stability(truth, case=args.case, hours=args.hours, seed=args.seed, bag_path=args.bag,
+                                     progress=progress)
+    finally:
+        progress.close()
+    print(f'bag: {args.bag}  ({args.case}: {summary["sim_seconds"]:.1f} s sim, {summary["samples_per_axis"]} samples '
+          f'per axis at 400 Hz, in {summary["wall_seconds"]:.1f} s wall)')
+    return 0
 
 
 def _print_alignment_summary(run):
@@ -142,7 +162,9 @@ def build_parser():
     effects.set_defaults(handler=_print_effects)
 
     run = verbs.add_parser('run', help='run a campaign of the node graph and record it to a bag')
-    run.add_argument('campaign', help='alignment (Table 3.4 at the reference elevation, 6.1)')
+    run.add_argument('campaign', help='alignment (Table 3.4, 6.1) or gyro-stability (5.2, TC-1..TC-4)')
+    run.add_argument('--case', choices=('TC-1', 'TC-2', 'TC-3', 'TC-4'), help='gyro-stability: the test case')
+    run.add_argument('--hours', type=float, help='gyro-stability: record length (default: the case\'s, 4 h or 25 min)')
     run.add_argument('--truth', required=True, help='truth YAML (effects: ...), e.g. config/truth/nominal.yaml')
     run.add_argument('--model', help='model YAML stored with the run (default: no effects)')
     run.add_argument('--seed', type=int, default=0, help='run seed (default 0)')

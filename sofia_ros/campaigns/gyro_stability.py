@@ -1,0 +1,129 @@
+"""Gyro stability campaigns TC-1 to TC-4 (5.2): the telescope stationary in the hangar at Edwards.
+
+CD at 40.1077 deg, true heading 324 deg (GPS), N 34.9368 deg, 697 m (Table 5.3, 5.2.1). The
+plant holds the telescope to the Earth (the gyros see eqs. 4.1-4.3); the truth file gives the
+gyros' own errors and the case adds the disturbances its subsystem configuration brings
+(Table 5.2; lines of 5.2.5 and Tables 5.4/5.5). Line amplitudes are illustrative: the thesis
+shows them only as PSD plots (Figs. 5.10-5.12).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from sofia_ros.bag import BagWriter
+from sofia_ros.effects import resolve_params
+from sofia_ros.errors import ConfigError
+from sofia_ros.sim.clock import ClockCore
+from sofia_ros.sim.gyro_box import GyroBoxCore
+from sofia_ros.sim.plant import PlantCore
+from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.sim.runner import LockstepRunner
+from sofia_ros.sim.scenario import Scenario
+from sofia_ros.sky import EDWARDS_2007_SITE
+from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
+
+__all__ = ['TestCase', 'CASES', 'edwards_scenario', 'case_effects', 'run_gyro_stability']
+
+#: 2007-06-21, the first day of the test series (5.2); the hour is arbitrary (gyros do not see the sky).
+START_UTC = dt.datetime(2007, 6, 21, 18, 0, 0, tzinfo=dt.timezone.utc)
+
+
+@dataclass(frozen=True)
+class TestCase:
+    """One configuration of Table 5.2 as run in 5.2.1."""
+
+    name: str
+    description: str
+    default_hours: float
+    #: (frequency Hz, amplitude arcsec/s, axis) lines the configuration excites
+    lines: tuple
+    los_oscillation_period_s: float | None
+
+
+_ALWAYS = ((0.7, 0.05, 'el'), (0.7, 0.02, 'xel'), (1.3, 0.05, 'el'), (1.3, 0.02, 'los'))
+_TC1_SERIES = tuple((10.0 + 3.3 * k, 0.02, axis) for k in range(0, 28, 3) for axis in ('el', 'xel'))
+_OIL_PUMP = ((30.0, 0.15, 'el'), (30.0, 0.1, 'xel'), (30.0, 0.1, 'los'), (190.2, 0.1, 'el'), (190.2, 0.1, 'xel'))
+
+CASES = {
+    'TC-1': TestCase('TC-1', 'RIS shut down, telescope not floated, VIS caged', 4.0,
+                     _ALWAYS + _TC1_SERIES + ((179.1, 0.2, 'el'), (179.1, 0.2, 'xel')), 1200.0),
+    'TC-2': TestCase('TC-2', 'RIS active (floated), FD braked, VIS caged', 4.0,
+                     _ALWAYS + _OIL_PUMP + ((11.7, 0.05, 'el'),), 2400.0),
+    'TC-3': TestCase('TC-3', 'RIS active, FD braked, VIS uncaged', 4.0,
+                     _ALWAYS + _OIL_PUMP + ((2.3, 0.08, 'xel'), (2.3, 0.08, 'los')), None),
+    'TC-4': TestCase('TC-4', 'RIS active, FD open loop, VIS uncaged', 25.0 / 60.0,
+                     _ALWAYS + ((30.0, 0.05, 'el'), (1.0, 0.08, 'el'), (3.4, 0.1, 'el')), 1200.0),
+}
+
+
+def edwards_scenario():
+    """Table 5.3: Edwards AFB hangar, heading 324 deg, CD 40.1077 deg."""
+    return Scenario(EDWARDS_2007_SITE, START_UTC, 324.0, 40.1077)
+
+
+def case_effects(case, truth_effects):
+    """The truth's effects plus the case's lines and LOS oscillation (unless the truth sets them)."""
+    effects = dict(truth_effects)
+    effects.setdefault('earth_rotation', resolve_params('earth_rotation', {}))
+    if 'vibration_lines' not in effects:
+        frequencies, amplitudes, axes = zip(*case.lines)
+        effects['vibration_lines'] = {'frequencies_hz': list(frequencies),
+                                      'amplitudes_arcsec_per_s': list(amplitudes), 'axes': list(axes)}
+    if case.los_oscillation_period_s and 'los_oscillation' not in effects:
+        effects['los_oscillation'] = {**resolve_params('los_oscillation', {}),
+                                      'period_s': case.los_oscillation_period_s}
+    return effects
+
+
+def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
+    """Run one case in the lock-step runner (plant braked to the Earth, 400 Hz gyro box), bag recorded."""
+    if case not in CASES:
+        raise ConfigError(f'case must be one of {", ".join(CASES)}, got {case!r}')
+    test_case = CASES[case]
+    hours = test_case.default_hours if hours is None else float(hours)
+    if not 0.0 < hours <= 24.0:
+        raise ConfigError(f'--hours must be in (0, 24], got {hours:g}')
+    bag_path = Path(bag_path)
+    if bag_path.exists():
+        raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
+    effects = case_effects(test_case, truth.effects)
+    scenario = edwards_scenario()
+    cores = [ClockCore(), PlantCore(scenario, effects, fd_braked=True, tick_ns=DEFAULT_TICK_NS),
+             GyroBoxCore(effects, seed=seed)]
+    case_text = yaml.safe_dump({'case': case, 'description': test_case.description, 'hours': hours,
+                                'heading_deg': scenario.heading_deg, 'elevation_deg': scenario.start_elevation_deg,
+                                'latitude_deg': scenario.latitude_deg, 'effects': effects}, sort_keys=False)
+    wall_start = time.perf_counter()
+    bag = BagWriter(bag_path)
+    bag.open()
+    try:
+        bag.write_document('/config/truth', truth.text, 0)
+        bag.write_document('/config/case', case_text, 0)
+        runner = LockstepRunner(cores, tick_ns=DEFAULT_TICK_NS, bag=bag)
+        until_ns = int(round(hours * 3600.0 * 1e9))
+
+        def stop():
+            if progress is not None:
+                progress(runner.stamp_ns / 1e9, hours * 3600.0)
+            return False
+
+        runner.run(until_ns=until_ns, stop=stop)
+    except BaseException:
+        bag.abort()
+        raise
+    bag.close()
+    sim_seconds = runner.stamp_ns / 1e9
+    summary = {'case': case, 'sim_seconds': round(sim_seconds, 3),
+               'wall_seconds': round(time.perf_counter() - wall_start, 3),
+               'samples_per_axis': int(round(sim_seconds * GYRO_SAMPLE_RATE_HZ))}
+    bag_path.joinpath('summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    bag_path.joinpath('truth.yaml').write_text(truth.text)
+    bag_path.joinpath('case.yaml').write_text(case_text)
+    return summary

@@ -1,0 +1,60 @@
+"""Gyro stability campaign (5.2): what reaches the bag is Earth rate through the true gyro errors."""
+
+import numpy as np
+import pytest
+
+from sofia_ros.analysis.spectra import welch_rate_psd
+from sofia_ros.bag import BagReader
+from sofia_ros.campaigns.gyro_stability import CASES, run_gyro_stability
+from sofia_ros.config import parse_effect_config
+from sofia_ros.earth_rate import earth_rate_tarf_rad_per_s
+from sofia_ros.errors import ConfigError
+from sofia_ros.sim.gyro_box import true_tarf_from_gyrf
+from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
+
+TRUTH = parse_effect_config('effects:\n  gyro_misalignment: {}\n  gyro_bias: {}\n  gyro_noise: {}\n')
+
+
+@pytest.fixture(scope='module')
+def tc3(tmp_path_factory):
+    """Three minutes of TC-3: the case without the slow LOS oscillation, which would move a short mean."""
+    bag = tmp_path_factory.mktemp('gyro') / 'tc3'
+    summary = run_gyro_stability(TRUTH, case='TC-3', hours=0.05, seed=3, bag_path=bag)
+    with BagReader(bag) as reader:
+        imu = reader.imu_arrays('/gyro_box/imu')
+    return summary, imu
+
+
+def test_mean_rates_are_earth_rate_through_misalignment_plus_bias(tc3):
+    # Table 5.3/5.7 geometry: N 34.9368 deg, heading 324 deg, CD 40.1077 deg.
+    _, imu = tc3
+    earth_tarf = earth_rate_tarf_rad_per_s(34.9368, 324.0, 40.1077)
+    bias = np.array([TRUTH.effects['gyro_bias'][f'{axis}_deg_per_h'] for axis in ('el', 'xel', 'los')])
+    expected = true_tarf_from_gyrf(TRUTH.effects).T @ earth_tarf + bias * RAD_PER_DEG / 3600.0
+    mean = imu.angular_velocity_rad_per_s.mean(axis=0)
+    # ARW 0.0132"/sqrt(s) over 180 s leaves ~1e-3 deg/h of scatter in a mean.
+    np.testing.assert_allclose(mean / RAD_PER_DEG * 3600.0, expected / RAD_PER_DEG * 3600.0, atol=0.005)
+
+
+def test_one_imu_message_per_400_hz_sample_with_its_own_stamp(tc3):
+    summary, imu = tc3
+    assert len(imu.stamp_ns) == summary['samples_per_axis'] == 72_000
+    np.testing.assert_array_equal(np.diff(imu.header_stamp_ns), 2_500_000)
+
+
+def test_the_oil_pump_line_of_the_case_stands_out_in_the_psd(tc3):
+    # 5.2.5 / Table 5.5: the running main oil pump adds 30 Hz on every axis (TC-2 to TC-4; TC-3 here).
+    _, imu = tc3
+    frequency_hz, psd = welch_rate_psd(imu.angular_velocity_rad_per_s[:, 0] / RAD_PER_ARCSEC)
+    line = psd[np.argmin(np.abs(frequency_hz - 30.0))]
+    floor = np.median(psd[(frequency_hz > 40.0) & (frequency_hz < 60.0)])
+    assert line > 30.0 * floor
+    assert (30.0, 0.15, 'el') in CASES['TC-3'].lines and CASES['TC-3'].los_oscillation_period_s is None
+
+
+def test_unknown_case_and_bad_length_are_refused(tmp_path):
+    with pytest.raises(ConfigError, match='case must be one of TC-1, TC-2, TC-3, TC-4'):
+        run_gyro_stability(TRUTH, case='TC-9', hours=0.01, seed=1, bag_path=tmp_path / 'a')
+    with pytest.raises(ConfigError, match=r'--hours must be in \(0, 24\]'):
+        run_gyro_stability(TRUTH, case='TC-1', hours=-1.0, seed=1, bag_path=tmp_path / 'b')
+    assert not (tmp_path / 'a').exists() and not (tmp_path / 'b').exists()

@@ -1,0 +1,62 @@
+"""Spectral lines in gyro rate data and their likely sources (5.2.2, 5.2.5, Tables 5.4, 5.5)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
+
+__all__ = ['KNOWN_LINES_HZ', 'SpectralLine', 'find_lines', 'likely_source']
+
+#: Frequencies the thesis names, with their source (Tables 5.4, 5.5 and 5.2.5), as measured at 400 Hz.
+KNOWN_LINES_HZ = (
+    (0.7, '0.7 Hz line (all cases, spherical sensors?)'), (1.3, '1.3 Hz line (all cases, spherical sensors?)'),
+    (1.0, 'FD open loop (TC-4)'), (2.3, 'VIS natural frequency (uncaged)'), (3.4, 'FD open loop (TC-4)'),
+    (11.7, 'return pump 1'), (30.0, 'main oil pump'), (179.1, 'the gyros themselves'),
+    (45.1, 'cooling carts'), (58.7, 'cooling carts'), (73.1, 'cooling carts'), (98.3, 'cooling carts'),
+    (115.3, 'cooling carts'), (118.4, 'cooling carts'), (120.0, 'cooling carts'), (163.3, 'cooling carts'),
+    (186.6, 'cooling carts'), (189.7, 'cooling carts'), (196.8, 'cooling carts'),
+    (71.9, 'aircraft fans'), (95.0, 'aircraft fans'), (122.8, 'aircraft fans'), (135.6, 'aircraft fans'),
+    (143.8, 'aircraft fans'), (146.1, 'aircraft fans'), (190.0, 'aircraft fans'), (194.4, 'aircraft fans'),
+    (120.3, 'return pump 1'), (139.9, 'return pump 1'), (159.9, 'return pump 1'), (186.5, 'return pump 1'),
+    (130.3, 'return pump 2'), (170.5, 'return pump 2'), (175.2, 'return pump 2'), (190.2, 'main oil pump'),
+)
+_MATCH_HZ = 0.3
+
+
+@dataclass(frozen=True)
+class SpectralLine:
+    """One line: frequency, rate amplitude of the sinusoid, and the likely source or 'unknown'."""
+
+    freq_hz: float
+    amplitude_arcsec_per_s: float
+    source: str
+
+
+def likely_source(freq_hz):
+    """The thesis' source of a line within 0.3 Hz (aliases of 400 Hz sampling included), else 'unknown'."""
+    best = min(KNOWN_LINES_HZ, key=lambda known: abs(known[0] - freq_hz))
+    return best[1] if abs(best[0] - freq_hz) <= _MATCH_HZ else 'unknown'
+
+
+def find_lines(freq_hz, psd, *, threshold=20.0, min_freq_hz=0.3, max_freq_hz=GYRO_SAMPLE_RATE_HZ / 2.0):
+    """Lines standing ``threshold`` times above the local median of a one-sided rate PSD (5.2.5)."""
+    freq = np.asarray(freq_hz)
+    power = np.asarray(psd)
+    df = float(freq[1] - freq[0])
+    band = (freq >= min_freq_hz) & (freq <= max_freq_hz)
+    # The background from a running median over about 2 Hz, robust against the lines themselves.
+    width = max(3, int(2.0 / df) | 1)
+    background = signal.medfilt(power, width)
+    peaks, _ = signal.find_peaks(power, height=threshold * background, distance=max(1, int(0.5 / df)))
+    lines = []
+    for peak in peaks[band[peaks]]:
+        # A sinusoid of amplitude A carries A^2/2 of one-sided power, spread over a few bins by the window.
+        lo, hi = max(peak - 4, 0), min(peak + 5, len(power))
+        excess = np.clip(power[lo:hi] - background[lo:hi], 0.0, None)
+        amplitude = float(np.sqrt(2.0 * excess.sum() * df))
+        lines.append(SpectralLine(float(freq[peak]), amplitude, likely_source(float(freq[peak]))))
+    return lines

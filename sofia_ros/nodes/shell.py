@@ -49,7 +49,7 @@ class LockstepNode(Node):
         self.create_subscription(String, STOP_TOPIC, self._on_stop, SYNC_QOS)
         for node in self.upstream:
             self.create_subscription(String, done_topic(node), self._done_callback(node), SYNC_QOS)
-        self.create_timer(0.05, self._check_ready, clock=self._wall_clock())
+        self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall_clock())
 
     def _wall_clock(self):
         from rclpy.clock import Clock, ClockType
@@ -82,6 +82,7 @@ class LockstepNode(Node):
         outputs_ok = all(self.count_subscribers(topic) >= count for topic, count in self.expected_outputs.items())
         if inputs_ok and outputs_ok and self.extra_ready():
             self.ready = True
+            self._ready_timer.cancel()
             self.get_logger().info('connected; waiting for ticks')
             self.publish_done(0)
             self.try_ticks()

@@ -30,7 +30,13 @@ def _topic_counts(path):
                 and topic.name != '/parameter_events'}
 
 
+# Eleven processes starting at once on a loaded 2-core machine occasionally do not come up
+# (an rclpy EventsExecutor timer crash or a missed discovery at start-up); such a run is retried.
+STARTUP_RERUNS = pytest.mark.flaky(reruns=2)
+
+
 @pytest.mark.timeout(600)
+@STARTUP_RERUNS
 @pytest.mark.parametrize('mode', ['executor', 'processes'])
 def test_live_graph_reproduces_the_lock_step_run(direct_run, tmp_path, mode):
     # The same cores with the same seeds behind DDS: the same messages, the same accepted matrix.
@@ -69,6 +75,7 @@ def _truth_file(tmp_path):
 
 
 @pytest.mark.timeout(300)
+@STARTUP_RERUNS
 def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
     bag = tmp_path / 'fault'
     graph = start_graph_processes(_truth_file(tmp_path), 3, SHORT, bag, tick_ns=DEFAULT_TICK_NS, stall_timeout_s=5.0)
@@ -90,6 +97,7 @@ def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
 
 
 @pytest.mark.timeout(300)
+@STARTUP_RERUNS
 def test_recorder_stopped_by_sigint_closes_a_complete_bag(tmp_path):
     bag = tmp_path / 'sigint'
     graph = start_graph_processes(_truth_file(tmp_path), 4, SHORT, bag, tick_ns=DEFAULT_TICK_NS)

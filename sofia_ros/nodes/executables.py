@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
@@ -66,10 +66,8 @@ def main(executable=None, argv=None):
     node = None
     try:
         node = _build(executable, _read_parameters(executable))
-        # EventsExecutor for the busy nodes (3-10x the callback rate); the clock, whose watchdog
-        # timer runs all along and which sees little traffic, keeps the plain executor: a start-up
-        # crash of the experimental executor's timer manager was seen there once.
-        executor = SingleThreadedExecutor() if executable == 'clock' else EventsExecutor()
+        # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor.
+        executor = EventsExecutor()
         executor.add_node(node)
         while node.stop_reason is None or (hasattr(node, 'closed') and not node.closed):
             executor.spin_once(timeout_sec=0.1)

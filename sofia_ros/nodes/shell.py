@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import importlib
-import time
 from collections import Counter
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -262,16 +261,3 @@ def _parameter_value(value):
     if isinstance(value, (list, tuple)):
         return [float(item) for item in value]
     return value
-
-
-def spin_until_stopped(executor, nodes, *, timeout_s=None, done=None):
-    """Spin until every node saw /sim/stop (or ``done()``), or the wall-clock timeout passes."""
-    start = time.monotonic()
-    while True:
-        executor.spin_once(timeout_sec=0.05)
-        if done is not None and done():
-            return True
-        if done is None and all(node.stop_reason is not None for node in nodes):
-            return True
-        if timeout_s is not None and time.monotonic() - start > timeout_s:
-            return False

@@ -41,7 +41,6 @@ __all__ = [
     'status_values_of',
     'string_msg',
     'imu_messages',
-    'imu_block_from_messages',
     'imu_block_cdr',
     'parameter_event',
     'STAMPED_MSGTYPES',
@@ -200,18 +199,6 @@ def imu_messages(block):
         a.x, a.y, a.z = float(force[0]), float(force[1]), float(force[2])
         messages.append(msg)
     return messages
-
-
-def imu_block_from_messages(messages):
-    """ImuBlock of Imu messages (all from one frame), in the order given."""
-    if not messages:
-        return ImuBlock('gyrf', np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-    return ImuBlock(
-        messages[0].header.frame_id,
-        np.array([stamp_ns_of(m.header.stamp) for m in messages], dtype=np.int64),
-        np.array([(m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z) for m in messages]),
-        np.array([(m.linear_acceleration.x, m.linear_acceleration.y, m.linear_acceleration.z) for m in messages]),
-    )
 
 
 def imu_block_cdr(block):

@@ -13,7 +13,7 @@ each topic, so nothing is processed early or missed. Both give the same messages
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 __all__ = ['DEFAULT_TICK_NS', 'TopicSpec', 'NodeCore', 'RunOutcome', 'SET_PARAMETERS', 'ParameterRequest',
            'ParameterResult']
@@ -39,7 +39,6 @@ class RunOutcome:
     finished: bool = False
     failed: bool = False
     reason: str = ''
-    details: dict = field(default_factory=dict)
 
 
 class NodeCore:

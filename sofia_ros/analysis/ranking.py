@@ -1,0 +1,201 @@
+"""Ranking candidate terms of a least-squares model: delta-BIC, sigmas, correlation, degeneracy.
+
+The machinery behind the candidate tables of `sofia compare` (pointing observables) and
+`sofia noise` (log-Allan curve): a base model has been fitted, its residual ``r`` and
+Jacobian ``J`` (d residual-reduction / d parameter) are known; each candidate term adds
+columns ``J_c`` (and, when it is linearized away from "off", a shift ``s_c``: the change of
+the prediction when the term is switched on at its starting values). Each candidate is
+fitted jointly with the base terms in the linearized problem (Frisch-Waugh-Lovell: project
+the base out once, then small solves), scored by the Bayesian information criterion of a
+Gaussian likelihood with unknown variance, BIC = n ln(RSS/n) + k ln n (Schwarz 1978; the
+celestial-pointing rule: keep a term while BIC falls by at least 6), and pairs of candidates
+whose explained signatures coincide are named degenerate instead of ranked as a confident pick.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sofia_ros.errors import InvalidArgumentError
+
+__all__ = [
+    'SIGNIFICANT_DELTA_BIC',
+    'LinearFit',
+    'CandidateTerm',
+    'RankedCandidate',
+    'bic',
+    'linear_fit',
+    'rank_candidates',
+]
+
+#: A candidate counts as detected when it lowers the BIC by at least this much (Kass & Raftery: "strong").
+SIGNIFICANT_DELTA_BIC = 6.0
+#: Explained signatures this collinear (cosine) cannot be told apart by the data.
+DEGENERATE_COSINE = 0.98
+#: A candidate whose columns keep less than this fraction of their norm outside the base span is unobservable.
+UNOBSERVABLE_FRACTION = 1e-3
+
+
+def bic(rss, n, k):
+    """Bayesian information criterion of a Gaussian fit with unknown variance: n ln(RSS/n) + k ln n."""
+    if n <= 0:
+        raise InvalidArgumentError(f'bic needs n > 0 samples, got {n}')
+    return float(n * np.log(max(rss, np.finfo(float).tiny) / n) + k * np.log(n))
+
+
+@dataclass(frozen=True)
+class LinearFit:
+    """Least-squares step with a-posteriori sigmas and the correlation of the fitted terms."""
+
+    names: tuple
+    step: np.ndarray
+    sigma: np.ndarray
+    correlation: np.ndarray
+    rss: float
+    n: int
+
+    @property
+    def bic(self):
+        """BIC of this fit (n residuals, len(names) parameters)."""
+        return bic(self.rss, self.n, len(self.names))
+
+
+def _checked(residual, jacobian):
+    residual = np.asarray(residual, dtype=float).ravel()
+    jacobian = np.asarray(jacobian, dtype=float)
+    if jacobian.ndim == 1:
+        jacobian = jacobian[:, np.newaxis]
+    if jacobian.shape[0] != residual.size:
+        raise InvalidArgumentError(f'jacobian has {jacobian.shape[0]} rows for {residual.size} residuals')
+    if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(jacobian))):
+        raise InvalidArgumentError('residual and jacobian must be finite')
+    return residual, jacobian
+
+
+def linear_fit(residual, jacobian, names):
+    """Step minimizing |r - J step|^2 with covariance s^2 (J^T J)^-1, s^2 = RSS/(n-k) (column-scaled SVD)."""
+    residual, jacobian = _checked(residual, jacobian)
+    names = tuple(names)
+    if len(names) != jacobian.shape[1]:
+        raise InvalidArgumentError(f'{len(names)} names for {jacobian.shape[1]} jacobian columns')
+    n, k = jacobian.shape
+    if k == 0:
+        return LinearFit(names, np.zeros(0), np.zeros(0), np.zeros((0, 0)), float(residual @ residual), n)
+    norms = np.linalg.norm(jacobian, axis=0)
+    norms[norms == 0.0] = 1.0
+    u, singular, vt = np.linalg.svd(jacobian / norms, full_matrices=False)
+    keep = singular > singular[0] * 1e-12
+    inverse = np.where(keep, 1.0 / np.where(keep, singular, 1.0), 0.0)
+    step = (vt.T * inverse) @ (u.T @ residual) / norms
+    after = residual - jacobian @ step
+    rss = float(after @ after)
+    variance = rss / max(n - k, 1)
+    covariance = (vt.T * inverse**2) @ vt / np.outer(norms, norms) * variance
+    # Directions the data do not constrain get infinite sigma, not a fake small one.
+    if not np.all(keep):
+        null = vt[~keep]
+        unconstrained = np.any(np.abs(null) > 1e-6, axis=0)
+        covariance[unconstrained, :] = np.nan
+        covariance[:, unconstrained] = np.nan
+        covariance[unconstrained, unconstrained] = np.inf
+    sigma = np.sqrt(np.diag(covariance))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        correlation = covariance / np.outer(sigma, sigma)
+    return LinearFit(names, step, sigma, correlation, rss, n)
+
+
+@dataclass(frozen=True)
+class CandidateTerm:
+    """A term not in the model: its parameter names, starting values, Jacobian columns and switch-on shift."""
+
+    name: str
+    param_names: tuple
+    start: np.ndarray
+    jacobian: np.ndarray
+    shift: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class RankedCandidate:
+    """One candidate fitted jointly with the model (linearized): parameters, sigmas, RSS, delta-BIC."""
+
+    name: str
+    params: dict
+    sigma: dict
+    rss_after: float
+    delta_bic: float
+    observable: bool = True
+    degenerate_with: tuple = field(default_factory=tuple)
+
+    @property
+    def significant(self):
+        """Lowers the BIC by at least SIGNIFICANT_DELTA_BIC and can be told from the model's own terms."""
+        return self.observable and self.delta_bic >= SIGNIFICANT_DELTA_BIC
+
+
+def _orthonormal_basis(jacobian):
+    """Orthonormal basis of the column span (rank-revealing SVD)."""
+    if jacobian.shape[1] == 0:
+        return jacobian
+    norms = np.linalg.norm(jacobian, axis=0)
+    norms[norms == 0.0] = 1.0
+    u, singular, _ = np.linalg.svd(jacobian / norms, full_matrices=False)
+    return u[:, singular > singular[0] * 1e-12] if singular.size and singular[0] > 0 else u[:, :0]
+
+
+def rank_candidates(residual, base_jacobian, candidates):
+    """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (DESIGN.md 6).
+
+    ``residual`` is measured minus predicted by the fitted base model, ``base_jacobian`` its
+    columns (d prediction / d parameter), both already weighted. A candidate that the base terms
+    absorb completely is returned with ``observable=False`` and delta-BIC 0; candidates whose
+    explained signatures are collinear are listed in each other's ``degenerate_with``.
+    """
+    residual, base_jacobian = _checked(residual, base_jacobian)
+    n, k_base = base_jacobian.shape
+    basis = _orthonormal_basis(base_jacobian)
+
+    def project_out(matrix):
+        return matrix - basis @ (basis.T @ matrix)
+
+    residual_perp = project_out(residual)
+    rss_base = float(residual_perp @ residual_perp)
+    bic_base = bic(rss_base, n, k_base)
+    ranked, signatures = [], {}
+    for term in candidates:
+        columns = np.asarray(term.jacobian, dtype=float).reshape(n, -1)
+        target = residual if term.shift is None else residual - np.asarray(term.shift, dtype=float)
+        columns_perp, target_perp = project_out(columns), project_out(target)
+        outside = np.linalg.norm(columns_perp, axis=0) / np.maximum(np.linalg.norm(columns, axis=0), 1e-300)
+        if np.all(outside < UNOBSERVABLE_FRACTION):
+            ranked.append(RankedCandidate(term.name, dict(zip(term.param_names, map(float, term.start))),
+                                          {name: float('inf') for name in term.param_names}, rss_base, 0.0,
+                                          observable=False))
+            continue
+        fit = linear_fit(target_perp, columns_perp, term.param_names)
+        explained = residual_perp - (target_perp - columns_perp @ fit.step)
+        signatures[term.name] = explained
+        values = np.asarray(term.start, dtype=float) + fit.step
+        delta = bic_base - bic(fit.rss, n, k_base + len(term.param_names))
+        ranked.append(RankedCandidate(term.name, dict(zip(term.param_names, map(float, values))),
+                                      dict(zip(term.param_names, map(float, fit.sigma))), fit.rss, delta,
+                                      observable=bool(np.all(np.isfinite(fit.sigma)))))
+    ranked = _with_degeneracies(ranked, signatures)
+    return sorted(ranked, key=lambda candidate: (not candidate.observable, -candidate.delta_bic))
+
+
+def _with_degeneracies(ranked, signatures):
+    """Name, for every significant candidate, the others whose explained signature is collinear with its own."""
+    significant = [c.name for c in ranked if c.significant and np.linalg.norm(signatures.get(c.name, 0.0)) > 0]
+    pairs = {name: [] for name in significant}
+    for index, first in enumerate(significant):
+        a = signatures[first] / np.linalg.norm(signatures[first])
+        for second in significant[index + 1:]:
+            b = signatures[second] / np.linalg.norm(signatures[second])
+            if abs(a @ b) >= DEGENERATE_COSINE:
+                pairs[first].append(second)
+                pairs[second].append(first)
+    return [RankedCandidate(c.name, c.params, c.sigma, c.rss_after, c.delta_bic, c.observable,
+                            tuple(pairs.get(c.name, ()))) for c in ranked]

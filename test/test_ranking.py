@@ -1,0 +1,117 @@
+"""The shared candidate-ranking machinery (analysis.ranking) against scipy and synthetic truths."""
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.optimize
+
+from sofia_ros.analysis.ranking import (
+    SIGNIFICANT_DELTA_BIC,
+    CandidateTerm,
+    bic,
+    linear_fit,
+    rank_candidates,
+)
+from sofia_ros.errors import InvalidArgumentError
+
+N_SAMPLES = 2000
+
+
+@pytest.fixture
+def design():
+    rng = np.random.default_rng(4)
+    t = np.linspace(0.0, 1.0, N_SAMPLES)
+    base = np.column_stack([np.ones_like(t), t])
+    terms = {
+        'sine': np.sin(2 * np.pi * 3 * t)[:, None],
+        'quadratic': (t**2)[:, None],
+        'step': (t > 0.5).astype(float)[:, None],
+    }
+    return rng, t, base, terms
+
+
+def test_linear_fit_matches_scipy_least_squares_and_covariance(design):
+    rng, t, base, terms = design
+    jacobian = np.column_stack([base, terms['sine']])
+    truth = np.array([0.3, -1.2, 0.05])
+    residual = jacobian @ truth + rng.normal(0.0, 0.01, N_SAMPLES)
+    fit = linear_fit(residual, jacobian, ('offset', 'slope', 'sine'))
+    reference = scipy.optimize.lsq_linear(jacobian, residual, tol=1e-12)
+    np.testing.assert_allclose(fit.step, reference.x, rtol=0, atol=1e-9)
+    # Independent covariance: s^2 pinv(J^T J) from scipy.linalg.
+    variance = fit.rss / (N_SAMPLES - 3)
+    expected = np.sqrt(np.diag(scipy.linalg.pinv(jacobian.T @ jacobian) * variance))
+    np.testing.assert_allclose(fit.sigma, expected, rtol=1e-8)
+    assert np.all(np.abs(fit.step - truth) < 4 * fit.sigma)
+    assert fit.correlation.shape == (3, 3)
+    np.testing.assert_allclose(np.diag(fit.correlation), 1.0)
+
+
+def test_linear_fit_flags_unconstrained_directions_with_infinite_sigma(design):
+    _, t, base, _ = design
+    jacobian = np.column_stack([base, 2.0 * base[:, 1]])  # slope twice: not separable
+    fit = linear_fit(t, jacobian, ('offset', 'slope', 'slope_again'))
+    assert np.isinf(fit.sigma[1]) and np.isinf(fit.sigma[2])
+    assert np.isfinite(fit.sigma[0])
+
+
+def test_hidden_term_ranks_first_within_three_sigma(design):
+    rng, _, base, terms = design
+    residual = 0.02 * terms['step'][:, 0] + rng.normal(0.0, 0.01, N_SAMPLES)
+    candidates = [CandidateTerm(name, ('a',), np.zeros(1), columns) for name, columns in terms.items()]
+    ranked = rank_candidates(residual, base, candidates)
+    best = ranked[0]
+    assert best.name == 'step' and best.significant
+    assert abs(best.params['a'] - 0.02) < 3 * best.sigma['a']
+    assert best.rss_after < ranked[1].rss_after
+
+
+def test_null_residual_has_no_significant_candidate(design):
+    rng, _, base, terms = design
+    residual = rng.normal(0.0, 0.01, N_SAMPLES)
+    ranked = rank_candidates(residual, base, [CandidateTerm(n, ('a',), np.zeros(1), c) for n, c in terms.items()])
+    assert all(candidate.delta_bic < SIGNIFICANT_DELTA_BIC for candidate in ranked)
+
+
+def test_collinear_candidates_are_named_degenerate_not_picked(design):
+    rng, _, base, terms = design
+    residual = 0.03 * terms['sine'][:, 0] + rng.normal(0.0, 0.01, N_SAMPLES)
+    twin = terms['sine'] * 1.7 + 1e-4 * terms['quadratic']
+    candidates = [CandidateTerm('sine', ('a',), np.zeros(1), terms['sine']),
+                  CandidateTerm('twin', ('b',), np.zeros(1), twin),
+                  CandidateTerm('quadratic', ('c',), np.zeros(1), terms['quadratic'])]
+    ranked = {candidate.name: candidate for candidate in rank_candidates(residual, base, candidates)}
+    assert ranked['sine'].degenerate_with == ('twin',)
+    assert ranked['twin'].degenerate_with == ('sine',)
+    assert ranked['quadratic'].degenerate_with == ()
+
+
+def test_candidate_inside_the_base_span_is_unobservable(design):
+    rng, t, base, _ = design
+    residual = rng.normal(0.0, 0.01, N_SAMPLES)
+    ranked = rank_candidates(residual, base, [CandidateTerm('drift', ('rate',), np.zeros(1), 3.0 * t)])
+    assert not ranked[0].observable and ranked[0].delta_bic == 0.0 and np.isinf(ranked[0].sigma['rate'])
+
+
+def test_shifted_candidate_fits_about_its_start(design):
+    rng, _, base, terms = design
+    # The term is linearized at a = 0.05 (its "default"): the shift is its prediction there.
+    residual = 0.03 * terms['sine'][:, 0] + rng.normal(0.0, 0.01, N_SAMPLES)
+    term = CandidateTerm('sine', ('a',), np.array([0.05]), terms['sine'], shift=0.05 * terms['sine'][:, 0])
+    best = rank_candidates(residual, base, [term])[0]
+    assert abs(best.params['a'] - 0.03) < 3 * best.sigma['a']
+
+
+def test_bic_matches_its_formula_and_rejects_empty_samples():
+    assert bic(2.0, 100, 3) == pytest.approx(100 * np.log(0.02) + 3 * np.log(100))
+    with pytest.raises(InvalidArgumentError, match='n > 0'):
+        bic(1.0, 0, 1)
+
+
+def test_bad_shapes_and_values_raise_one_clear_error():
+    with pytest.raises(InvalidArgumentError, match='rows for'):
+        linear_fit(np.zeros(3), np.zeros((4, 1)), ('a',))
+    with pytest.raises(InvalidArgumentError, match='names for'):
+        linear_fit(np.zeros(3), np.zeros((3, 2)), ('a',))
+    with pytest.raises(InvalidArgumentError, match='finite'):
+        linear_fit(np.array([0.0, np.nan, 1.0]), np.ones((3, 1)), ('a',))

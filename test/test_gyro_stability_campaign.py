@@ -11,7 +11,7 @@ from sofia_ros.campaigns.gyro_stability import CASES, run_gyro_stability
 from sofia_ros.config import parse_effect_config
 from sofia_ros.earth_rate import earth_rate_tarf_rad_per_s
 from sofia_ros.errors import BagError, ConfigError
-from sofia_ros.sim.gyro_box import true_tarf_from_gyrf
+from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm as true_tarf_from_gyrf
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 
 TRUTH = parse_effect_config('effects:\n  gyro_misalignment: {}\n  gyro_bias: {}\n  gyro_noise: {}\n')

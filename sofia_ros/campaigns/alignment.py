@@ -16,12 +16,12 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader, BagWriter
 from sofia_ros.errors import ConfigError
+from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import GraphConfig, build_cores
-from sofia_ros.sim.gyro_box import true_tarf_from_gyrf
 from sofia_ros.sim.runner import LockstepRunner
-from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
+from sofia_ros.sim.scenario import SCENARIO_TOPIC, Scenario, scenario_document, scenario_from_mapping
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 from sofia_ros.units import ARCSEC_PER_RAD
@@ -78,7 +78,7 @@ def true_alignment_at(truth_effects, elevation_deg):
     the true gyro misalignment seen through HIPO's true mounting (gravity image motion).
     """
     hipo_from_tarf = camera_from_tarf_dcm(camera_errors('hipo', truth_effects), elevation_deg)
-    return hipo_from_tarf @ true_tarf_from_gyrf(truth_effects)
+    return hipo_from_tarf @ tarf_from_gyrf_dcm(truth_effects)
 
 
 def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevation_deg):
@@ -104,7 +104,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     if bag_path.exists():
         raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
     config = graph_config(truth, seed, plan)
-    documents = (('/config/truth', truth.text), ('/config/model', model_text))
+    documents = (('/config/truth', truth.text), ('/config/model', model_text),
+                 (SCENARIO_TOPIC, scenario_document(config.scenario)))
     wall_start = time.perf_counter()
     if mode == 'direct':
         _run_direct(config, bag_path, documents, max_sim_s, progress)

@@ -75,6 +75,7 @@ EFFECTS = (
         (
             Parameter('period_s', 1200.0, 's', 'period of the oscillation'),
             Parameter('amplitude_arcsec', 5.0, 'arcsec', 'amplitude of the integrated angle'),
+            Parameter('phase_deg', 0.0, 'deg', 'phase of the integrated angle at the start of the record'),
         ),
     ),
     EffectSpec(

@@ -99,6 +99,7 @@ EFFECTS = (
             Parameter('linear_px_per_min', 1.4, 'px/min', 'linear drift of the FPI row centroid'),
             Parameter('sine_amplitude_px', 2.2, 'px', 'amplitude of the sinusoidal drift'),
             Parameter('sine_period_min', 5.2, 'min', 'period of the sinusoidal drift'),
+            Parameter('sine_phase_deg', 0.0, 'deg', 'phase of the sinusoidal drift rate at the start of the record'),
         ),
     ),
     EffectSpec(

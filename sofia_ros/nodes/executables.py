@@ -35,6 +35,7 @@ def _build(executable, values):
     from sofia_ros.nodes.recorder_node import RecorderNode
     from sofia_ros.nodes.shell import CoreNode
     from sofia_ros.sim.graph import build_core, build_cores, graph_topics
+    from sofia_ros.sim.scenario import SCENARIO_TOPIC, scenario_document
 
     config = graph_config_from_parameters(values)
     cores = build_cores(config)
@@ -46,7 +47,7 @@ def _build(executable, values):
     if executable == 'recorder':
         if not values['bag_path']:
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
-        documents = [('/config/truth', config.truth.text)]
+        documents = [('/config/truth', config.truth.text), (SCENARIO_TOPIC, scenario_document(config.scenario))]
         if values['model_file']:
             documents.append(('/config/model', Path(values['model_file']).read_text()))
         return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns,

@@ -49,6 +49,7 @@ import datetime as dt
 import functools
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError, InvalidArgumentError
@@ -222,13 +223,13 @@ def camera_errors(camera, effects):
 
 
 def flexure_rotation_arcsec(errors, elevation_deg):
-    """Gravity rotation (EL, XEL, LOS) ["] of a camera frame against TARF (Tables 3.2, 3.3; 6.2)."""
+    """Gravity rotation (EL, XEL, LOS) ["] of a camera frame against TARF (Tables 3.2, 3.3; 6.2), (..., 3)."""
     load = gravity_load_tarf(elevation_deg)
-    los_load_g = -load[2] / STANDARD_GRAVITY_M_PER_S2
+    los_load_g = -load[..., 2:] / STANDARD_GRAVITY_M_PER_S2
     # Rotations below 2' add as vectors: the second-order error is below 1e-3".
-    rotation = np.zeros(3)
-    rotation[:2] = (errors.focal_plane_flexure_scale * focal_plane_telescope_rotation_arcsec(load)
-                    + los_load_g * np.asarray(errors.internal_flexure_el_xel_arcsec_per_g))
+    rotation = np.zeros(load.shape)
+    rotation[..., :2] = (errors.focal_plane_flexure_scale * focal_plane_telescope_rotation_arcsec(load)
+                         + los_load_g * np.asarray(errors.internal_flexure_el_xel_arcsec_per_g))
     if errors.head_ring_flexure_scale:
         rotation += errors.head_ring_flexure_scale * imager_rotation_arcsec(errors.camera, load)
     return rotation
@@ -245,10 +246,11 @@ def _fixed_mounting_dcm(boresight_el_xel_arcsec, rotation_of_field_deg):
 
 
 def camera_from_tarf_dcm(errors, elevation_deg):
-    """True A_CAM,TARF = A(rotation of field) A(boresight offset) A(flexure) (3.3.1, 3.3.3, 3.4.1)."""
+    """True A_CAM,TARF = A(rotation of field) A(boresight offset) A(flexure) (3.3.1, 3.3.3, 3.4.1); (..., 3, 3)."""
     flexure_rad = flexure_rotation_arcsec(errors, elevation_deg) * RAD_PER_ARCSEC
-    return (_fixed_mounting_dcm(errors.boresight_el_xel_arcsec, errors.rotation_of_field_deg)
-            @ dcm_from_rotation_angles(flexure_rad))
+    flexure_dcm = np.swapaxes(Rotation.from_rotvec(flexure_rad.reshape(-1, 3)).as_matrix(), -1, -2)
+    mounting = _fixed_mounting_dcm(errors.boresight_el_xel_arcsec, errors.rotation_of_field_deg) @ flexure_dcm
+    return mounting.reshape(*flexure_rad.shape[:-1], 3, 3)
 
 
 def star_directions_irf(stars, scene, elapsed_s, weather=None):

@@ -5,10 +5,12 @@ from __future__ import annotations
 import datetime as dt
 from dataclasses import dataclass
 
+import yaml
+
 from sofia_ros.errors import ConfigError
 from sofia_ros.sky import Site
 
-__all__ = ['Scenario', 'scenario_from_mapping']
+__all__ = ['SCENARIO_TOPIC', 'Scenario', 'scenario_document', 'scenario_from_document', 'scenario_from_mapping']
 
 
 @dataclass(frozen=True)
@@ -55,3 +57,30 @@ def scenario_from_mapping(defaults, overrides):
     site = Site(numbers['latitude_deg'], numbers['longitude_deg'], numbers['height_m'])
     return Scenario(site, start_utc, numbers['heading_deg'], numbers['start_elevation_deg'],
                     numbers['start_temperature_c'], numbers['temperature_slope_c_per_h'])
+
+
+#: Topic of the scenario document in a bag: where and when the campaign happened, as a logbook would record it.
+SCENARIO_TOPIC = '/config/scenario'
+
+
+def scenario_document(scenario):
+    """The scenario as the YAML document recorded on SCENARIO_TOPIC."""
+    return yaml.safe_dump({
+        'latitude_deg': scenario.site.latitude_deg, 'longitude_deg': scenario.site.longitude_deg,
+        'height_m': scenario.site.height_m, 'start_utc': scenario.start_utc.isoformat(),
+        'heading_deg': scenario.heading_deg, 'start_elevation_deg': scenario.start_elevation_deg,
+        'start_temperature_c': scenario.start_temperature_c,
+        'temperature_slope_c_per_h': scenario.temperature_slope_c_per_h,
+    }, sort_keys=False)
+
+
+def scenario_from_document(text):
+    """A Scenario from a recorded scenario document; ConfigError if it is not one."""
+    try:
+        fields = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(f'{SCENARIO_TOPIC} is not valid YAML; re-record the bag') from err
+    if not isinstance(fields, dict) or not {'latitude_deg', 'start_utc', 'heading_deg'} <= set(fields):
+        raise ConfigError(f'{SCENARIO_TOPIC} lacks latitude_deg, start_utc or heading_deg; re-record the bag')
+    placeholder = Scenario(Site(0.0, 0.0, 0.0), dt.datetime(2000, 1, 1, tzinfo=dt.timezone.utc), 0.0, 40.0)
+    return scenario_from_mapping(placeholder, fields)

@@ -17,6 +17,7 @@ __all__ = [
     'UnknownEffectError',
     'CommandRefusedError',
     'BagError',
+    'FitError',
 ]
 
 
@@ -54,3 +55,7 @@ class CommandRefusedError(SofiaError):
 
 class BagError(SofiaError):
     """A bag is missing, corrupt, truncated or lacks the needed topics."""
+
+
+class FitError(SofiaError):
+    """A model cannot be fitted to a bag's measurements (it sends stars off their detectors)."""

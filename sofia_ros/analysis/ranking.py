@@ -28,6 +28,7 @@ __all__ = [
     'bic',
     'linear_fit',
     'rank_candidates',
+    'degenerate_pairs',
 ]
 
 #: A candidate counts as detected when it lowers the BIC by at least this much (Kass & Raftery: "strong").
@@ -85,10 +86,16 @@ def linear_fit(residual, jacobian, names):
         return LinearFit(names, np.zeros(0), np.zeros(0), np.zeros((0, 0)), float(residual @ residual), n)
     norms = np.linalg.norm(jacobian, axis=0)
     norms[norms == 0.0] = 1.0
-    u, singular, vt = np.linalg.svd(jacobian / norms, full_matrices=False)
-    keep = singular > singular[0] * 1e-12
+    scaled = jacobian / norms
+    # Normal equations of the column-scaled problem: their eigenvectors are the right singular
+    # vectors and their eigenvalues the squared singular values, at a fraction of the SVD's cost.
+    eigenvalues, vectors = np.linalg.eigh(scaled.T @ scaled)
+    order = np.argsort(eigenvalues)[::-1]
+    singular = np.sqrt(np.clip(eigenvalues[order], 0.0, None))
+    vt = vectors[:, order].T
+    keep = singular > singular[0] * 1e-7
     inverse = np.where(keep, 1.0 / np.where(keep, singular, 1.0), 0.0)
-    step = (vt.T * inverse) @ (u.T @ residual) / norms
+    step = (vt.T * inverse**2) @ (vt @ (scaled.T @ residual)) / norms
     after = residual - jacobian @ step
     rss = float(after @ after)
     variance = rss / max(n - k, 1)
@@ -199,3 +206,18 @@ def _with_degeneracies(ranked, signatures):
                 pairs[second].append(first)
     return [RankedCandidate(c.name, c.params, c.sigma, c.rss_after, c.delta_bic, c.observable,
                             tuple(pairs.get(c.name, ()))) for c in ranked]
+
+
+def degenerate_pairs(ranked, delta_bic_by_name=None):
+    """Pairs of collinear candidates whose delta-BIC differ by less than SIGNIFICANT_DELTA_BIC: not separable.
+
+    ``delta_bic_by_name`` overrides the linearized delta-BIC (e.g. after a full refit).
+    """
+    scores = {candidate.name: candidate.delta_bic for candidate in ranked}
+    scores.update(delta_bic_by_name or {})
+    pairs = set()
+    for candidate in ranked:
+        for other in candidate.degenerate_with:
+            if abs(scores[candidate.name] - scores[other]) < SIGNIFICANT_DELTA_BIC:
+                pairs.add(tuple(sorted((candidate.name, other))))
+    return sorted(pairs)

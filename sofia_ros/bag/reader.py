@@ -118,6 +118,22 @@ class BagReader:
         records = self._raw(topics, start_ns, stop_ns)
         return ((connection.topic, stamp_ns, data) for connection, stamp_ns, data in records)
 
+    def messages_by_topic(self, *topics: str, raw: tuple[str, ...] = ()) -> dict[str, tuple[list, list]]:
+        """One pass over ``topics``: topic -> (log stamps ns, messages); topics in ``raw`` keep CDR bytes."""
+        collected: dict[str, tuple[list, list]] = {topic: ([], []) for topic in topics}
+        typestore = self._reader.typestore
+        for connection, stamp_ns, data in self._raw(topics, None, None):
+            stamps, values = collected[connection.topic]
+            stamps.append(stamp_ns)
+            if connection.topic in raw:
+                values.append(data)
+                continue
+            try:
+                values.append(decode_cdr(data, connection.msgtype, typestore))
+            except _DAMAGE_ERRORS as err:
+                raise _damaged(self.path, err) from err
+        return collected
+
     def document(self, topic: str) -> str:
         """Return the text of the last document (std_msgs/String) stored on ``topic``."""
         if (msgtype := self.topic(topic).msgtype) != DOCUMENT_MSGTYPE:

@@ -15,6 +15,9 @@ class Parameter:
     default: object
     unit: str
     description: str
+    #: True for a parameter that shapes the effect (period, phase, weather) rather than scaling it:
+    #: the effect vanishes when its scaling parameters are zero, whatever the shaping ones are.
+    shape: bool = False
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,7 @@ EFFECTS = (
             Parameter('quantization_arcsec', 0.000767, 'arcsec', 'angular increment (scale factor) per count'),
             Parameter('arw_deg_per_sqrt_h', 0.00022, 'deg/sqrt(h)', 'angle random walk coefficient N'),
             Parameter('bias_instability_deg_per_h', 0.0, 'deg/h', 'bias instability coefficient B'),
-            Parameter('bias_instability_cutoff_hz', 10.0, 'Hz', '3-dB cut-off f0 of the 1/f noise'),
+            Parameter('bias_instability_cutoff_hz', 10.0, 'Hz', '3-dB cut-off f0 of the 1/f noise', shape=True),
             Parameter('rrw_deg_per_h_sqrt_h', 0.00216, 'deg/h^1.5', 'rate random walk coefficient K'),
         ),
     ),
@@ -73,9 +73,9 @@ EFFECTS = (
         'los_oscillation', 'gyro', '5.2.4, Figs. 5.8-5.9',
         'Slow sinusoid on the LOS gyro, period about 20 min, documented since [Moik 2000].',
         (
-            Parameter('period_s', 1200.0, 's', 'period of the oscillation'),
+            Parameter('period_s', 1200.0, 's', 'period of the oscillation', shape=True),
             Parameter('amplitude_arcsec', 5.0, 'arcsec', 'amplitude of the integrated angle'),
-            Parameter('phase_deg', 0.0, 'deg', 'phase of the integrated angle at the start of the record'),
+            Parameter('phase_deg', 0.0, 'deg', 'phase of the integrated angle at the start of the record', shape=True),
         ),
     ),
     EffectSpec(

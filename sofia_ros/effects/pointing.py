@@ -80,10 +80,10 @@ EFFECTS = (
         'atmospheric_refraction', 'atmosphere', '4.3.2, eqs. 4.33-4.35',
         'Refraction raises every star towards the zenith; defaults are the Waco weather of 2004-09-02 24:00 CDT.',
         (
-            Parameter('temperature_c', 22.8, 'C', 'air temperature'),
+            Parameter('temperature_c', 22.8, 'C', 'air temperature', shape=True),
             Parameter('pressure_hpa', 996.3, 'hPa', 'air pressure'),
-            Parameter('humidity', 0.74, '1', 'relative humidity'),
-            Parameter('wavelength_um', 0.55, 'um', 'effective wavelength'),
+            Parameter('humidity', 0.74, '1', 'relative humidity', shape=True),
+            Parameter('wavelength_um', 0.55, 'um', 'effective wavelength', shape=True),
         ),
     ),
     EffectSpec(
@@ -98,8 +98,8 @@ EFFECTS = (
         (
             Parameter('linear_px_per_min', 1.4, 'px/min', 'linear drift of the FPI row centroid'),
             Parameter('sine_amplitude_px', 2.2, 'px', 'amplitude of the sinusoidal drift'),
-            Parameter('sine_period_min', 5.2, 'min', 'period of the sinusoidal drift'),
-            Parameter('sine_phase_deg', 0.0, 'deg', 'phase of the sinusoidal drift rate at the start of the record'),
+            Parameter('sine_period_min', 5.2, 'min', 'period of the sinusoidal drift', shape=True),
+            Parameter('sine_phase_deg', 0.0, 'deg', 'phase of the sinusoidal drift rate at the start of the record', shape=True),
         ),
     ),
     EffectSpec(

@@ -73,8 +73,8 @@ class CameraCore(NodeCore):
             fraction = (midpoint_ns - previous[0]) / (stamp_ns - previous[0])
             quaternion = Slerp([0.0, 1.0], Rotation.from_quat([previous[1], current[1]]))(fraction).as_quat()
             elevation_deg = previous[2] + fraction * (current[2] - previous[2])
-            centroids = self.truth.centroids(midpoint_ns / m.NS_PER_S, dcm_from_quaternion(quaternion),
-                                             elevation_deg)
+            opening_s = (midpoint_ns - self.exposure_ns // 2) / m.NS_PER_S
+            centroids = self.truth.centroids(opening_s, dcm_from_quaternion(quaternion), elevation_deg)
             stamp = centroids[0].stamp_s if centroids else midpoint_ns / m.NS_PER_S
             outputs.append((self.topic.name, m.centroid_array(m.seconds_to_ns(stamp), self.name, centroids)))
         return outputs

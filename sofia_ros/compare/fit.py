@@ -1,0 +1,196 @@
+"""Fitting a model's free terms to a bag's centroids: robust Gauss-Newton with attitude anchors.
+
+Residuals are measured minus predicted centroids in arcsec (nominal image scale), whitened by
+each camera's centroid noise (compare.floor). Free parameters are the numeric parameters of
+every model effect marked ``fit: true``, in their physical units; their Jacobian columns are
+forward differences of the prediction, the anchors' columns follow from the prediction's
+derivative with respect to a rotation of IRF. Huber weights (k = 3 sigma) keep a bad
+centroid from steering the fit; rows beyond 5 sigma are flagged as outliers and reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sofia_ros.analysis.ranking import bic, linear_fit
+from sofia_ros.effects import get_effect
+from sofia_ros.errors import FitError, InvalidArgumentError
+
+__all__ = ['FreeParameter', 'ModelFit', 'free_parameters', 'fit_model', 'OUTLIER_SIGMA']
+
+HUBER_K = 3.0
+OUTLIER_SIGMA = 5.0
+_MAX_ITERATIONS = 12
+_IRF_STEP_RAD = 1e-6
+
+
+@dataclass(frozen=True)
+class FreeParameter:
+    """One fitted number: effect, parameter, unit and the finite-difference step in that unit."""
+
+    effect: str
+    name: str
+    unit: str
+    step: float
+
+    @property
+    def label(self):
+        """effect.parameter, as tables print it."""
+        return f'{self.effect}.{self.name}'
+
+
+def free_parameters(effect_names):
+    """The numeric parameters of effects, in catalogue order, with steps 1e-3 of their scale."""
+    parameters = []
+    for name in effect_names:
+        for param in get_effect(name).params:
+            if isinstance(param.default, float):
+                parameters.append(FreeParameter(name, param.name, param.unit, 1e-3 * max(abs(param.default), 1.0)))
+    return tuple(parameters)
+
+
+@dataclass(frozen=True, eq=False)
+class ModelFit:
+    """A converged fit: effects with fitted values, sigmas, correlation, anchors, residuals, weights."""
+
+    effects: dict
+    free: tuple
+    values: np.ndarray
+    sigma: np.ndarray
+    correlation: np.ndarray
+    anchors_rad: np.ndarray
+    residual_arcsec: np.ndarray
+    whitened: np.ndarray
+    jacobian: np.ndarray
+    weights: np.ndarray
+    outlier: np.ndarray
+    iterations: int
+
+    @property
+    def parameter_count(self):
+        """Fitted numbers including the anchors."""
+        return self.jacobian.shape[1]
+
+    @property
+    def bic(self):
+        """BIC of the weighted whitened residual (analysis.ranking)."""
+        weighted = np.sqrt(self.weights) * self.whitened
+        return bic(float(weighted @ weighted), len(weighted), self.parameter_count)
+
+
+def _with_values(effects, free, values):
+    updated = {name: dict(params) for name, params in effects.items()}
+    for parameter, value in zip(free, values):
+        updated[parameter.effect][parameter.name] = float(value)
+    return updated
+
+
+class _Problem:
+    """Whitened residuals and Jacobians of one predictor for one set of free parameters."""
+
+    def __init__(self, predictor, sigma_arcsec):
+        centroids = predictor.observations.centroids
+        self.predictor = predictor
+        self.arcsec_per_px = centroids.arcsec_per_px()[:, None]
+        self.row_sigma = np.asarray(sigma_arcsec)[centroids.camera_index][:, None]
+
+    def whiten(self, predicted_px):
+        """(measured - predicted) in units of each camera's noise, flattened (x, y per row)."""
+        measured = self.predictor.observations.centroids.measured_px
+        return ((measured - predicted_px) * self.arcsec_per_px / self.row_sigma).ravel()
+
+    def scaled(self, delta_px):
+        return (delta_px * self.arcsec_per_px / self.row_sigma).ravel()
+
+    def anchor_columns(self, effects, anchors, predicted):
+        """d prediction / d anchor knot rotations, from the derivative against an IRF rotation."""
+        times = self.predictor.row_times_s(effects)
+        basis = self.predictor.anchor_basis(times)
+        columns = []
+        for axis in range(3):
+            rotation = np.zeros(3)
+            rotation[axis] = _IRF_STEP_RAD
+            moved = self.predictor.predict_px(effects, anchors, irf_rotation_rad=rotation)
+            derivative = (moved - predicted) / _IRF_STEP_RAD * self.arcsec_per_px / self.row_sigma  # (N, 2)
+            columns.append(derivative[:, :, None] * basis[:, None, :])  # (N, 2, knots)
+        return np.stack(columns, axis=-1).reshape(len(times) * 2, -1)  # columns ordered knot-major
+
+    def parameter_columns(self, effects, free, values, anchors, predicted):
+        columns = np.empty((predicted.size, len(free)))
+        for index, parameter in enumerate(free):
+            stepped = values.copy()
+            stepped[index] += parameter.step
+            moved = self.predictor.predict_px(_with_values(effects, free, stepped), anchors)
+            columns[:, index] = self.scaled(moved - predicted) / parameter.step
+        return columns
+
+
+def _huber_weights(whitened):
+    magnitude = np.abs(whitened)
+    return np.where(magnitude <= HUBER_K, 1.0, HUBER_K / np.maximum(magnitude, 1e-300))
+
+
+def _robust_cost(whitened):
+    """Huber cost of whitened residuals: quadratic inside k, linear beyond."""
+    magnitude = np.abs(whitened)
+    return float(np.sum(np.where(magnitude <= HUBER_K, 0.5 * magnitude**2, HUBER_K * magnitude - 0.5 * HUBER_K**2)))
+
+
+def _try_whitened(problem, effects, free, values, anchors):
+    """Whitened residuals at a trial point, or None where the model sends a star off a detector."""
+    try:
+        return problem.whiten(problem.predictor.predict_px(_with_values(effects, free, values), anchors))
+    except InvalidArgumentError:
+        return None
+
+
+def fit_model(predictor, effects, free, sigma_arcsec, *, anchors_rad=None):
+    """Robust Gauss-Newton over the anchors and the free parameters, from the effects' given values.
+
+    A step that raises the Huber cost (or sends a star off its detector) is halved, up to
+    eight times; a fit that cannot improve stops where it is.
+    """
+    problem = _Problem(predictor, sigma_arcsec)
+    free = tuple(free)
+    values = np.array([effects[p.effect][p.name] for p in free], dtype=float)
+    anchors = np.zeros((predictor.anchor_count, 3)) if anchors_rad is None else np.array(anchors_rad)
+    whitened = _try_whitened(problem, effects, free, values, anchors)
+    if whitened is None:
+        raise FitError('the model\'s starting values put stars off their detectors; give closer values')
+    for iteration in range(1, _MAX_ITERATIONS + 1):
+        current = _with_values(effects, free, values)
+        predicted = predictor.predict_px(current, anchors)
+        jacobian = np.hstack([problem.anchor_columns(current, anchors, predicted),
+                              problem.parameter_columns(current, free, values, anchors, predicted)])
+        root = np.sqrt(_huber_weights(whitened))
+        step = linear_fit(root * whitened, root[:, None] * jacobian, [''] * jacobian.shape[1])
+        anchor_step = step.step[:anchors.size].reshape(anchors.shape)
+        parameter_step = step.step[anchors.size:]
+        cost, scale = _robust_cost(whitened), 1.0
+        for _ in range(8):
+            trial = _try_whitened(problem, effects, free, values + scale * parameter_step,
+                                  anchors + scale * anchor_step)
+            if trial is not None and _robust_cost(trial) <= cost * (1.0 + 1e-12):
+                break
+            scale /= 2.0
+        else:
+            break
+        anchors, values, whitened = anchors + scale * anchor_step, values + scale * parameter_step, trial
+        sigma = step.sigma[anchors.size:]
+        small = np.all(np.abs(parameter_step) <= 1e-3 * np.where(np.isfinite(sigma), sigma, np.inf))
+        if small and np.max(np.abs(anchor_step), initial=0.0) < 1e-9:
+            break
+    current = _with_values(effects, free, values)
+    predicted = predictor.predict_px(current, anchors)
+    jacobian = np.hstack([problem.anchor_columns(current, anchors, predicted),
+                          problem.parameter_columns(current, free, values, anchors, predicted)])
+    weights = _huber_weights(whitened)
+    root = np.sqrt(weights)
+    final = linear_fit(root * whitened, root[:, None] * jacobian, [''] * jacobian.shape[1])
+    parameters = slice(anchors.size, None)
+    residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
+    outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)
+    return ModelFit(current, free, values, final.sigma[parameters], final.correlation[parameters, parameters],
+                    anchors, residual_arcsec, whitened, jacobian, weights, outlier, iteration)

@@ -1,0 +1,201 @@
+"""What a campaign bag measured, as arrays for `sofia compare` (no /truth topic is read).
+
+Per camera frame and star: the centroid, its stamp, the coarse-drive elevation, the fine-drive
+LOS angle, the gyro-box temperature and the TASCU motion status at that time; the 400 Hz gyro
+samples with the temperature of their tick; the TASCU's first attitude (a starting guess only)
+and the scenario (site and epoch, as the logbook records them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sofia_ros.bag import BagReader
+from sofia_ros.bag.imu import decode_imu_cdr
+from sofia_ros.compare.predict import tick_means
+from sofia_ros.errors import BagError, ConfigError, InvalidArgumentError
+from sofia_ros.frames import dcm_from_quaternion
+from sofia_ros.sensors.imager_model import CAMERAS, nominal_detector
+from sofia_ros.sim import messages as m
+from sofia_ros.sim.gyro_box import IMU_TOPIC, TEMPERATURE_TOPIC
+from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
+from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
+from sofia_ros.sim.scenario import SCENARIO_TOPIC, scenario_from_document
+from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
+from sofia_ros.units import DEG_PER_RAD
+
+__all__ = ['MOTION_STATES', 'Centroids', 'GyroSamples', 'Observations', 'read_observations']
+
+#: TASCU motion states (6.3), coded by index in Centroids.motion_code.
+MOTION_STATES = ('transient', 'settled', 'locked')
+REQUIRED_TOPICS = (IMU_TOPIC.name, TEMPERATURE_TOPIC.name, PLANT_TOPICS['joint_states'].name,
+                   TASCU_TOPICS['attitude'].name, SCENARIO_TOPIC)
+
+
+@dataclass(frozen=True, eq=False)
+class Centroids:
+    """One row per star per frame, sorted by camera then stamp."""
+
+    cameras: tuple
+    camera_index: np.ndarray
+    hip: np.ndarray
+    measured_px: np.ndarray
+    stamp_s: np.ndarray
+    frame_index: np.ndarray
+    elevation_deg: np.ndarray
+    fd_los_deg: np.ndarray
+    temperature_c: np.ndarray
+    motion_code: np.ndarray
+
+    def __len__(self):
+        return len(self.hip)
+
+    def arcsec_per_px(self):
+        """Nominal image scale of each row's camera (Table 2.6, 3.3.1)."""
+        scales = np.array([nominal_detector(camera).scale_arcsec_per_px for camera in self.cameras])
+        return scales[self.camera_index]
+
+
+@dataclass(frozen=True, eq=False)
+class GyroSamples:
+    """400 Hz GYRF rates with the temperature of their tick and the tick each belongs to."""
+
+    time_s: np.ndarray
+    rates_gyrf_rad_per_s: np.ndarray
+    temperature_c: np.ndarray
+    tick_end_s: np.ndarray
+    tick_temperature_c: np.ndarray
+    tick_start_index: np.ndarray
+    sample_period_s: float
+    tick_mean_rates_gyrf_rad_per_s: np.ndarray
+    tick_mean_time_s: np.ndarray
+    tick_sample_count: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Observations:
+    """Everything `sofia compare` reads from one bag."""
+
+    bag_path: Path
+    scenario: object
+    centroids: Centroids
+    gyro: GyroSamples
+    initial_time_s: float
+    initial_tarf_from_irf: np.ndarray
+    campaign_topics: frozenset
+    move_start_s: np.ndarray
+
+
+def _series(records, value_of):
+    """Stamps (header stamp when the message has one, else log time) in s and values of one topic."""
+    stamps, values = [], []
+    for log_ns, message in zip(*records):
+        stamp_ns = m.stamp_ns_of(message.header.stamp) if hasattr(message, 'header') else log_ns
+        stamps.append(stamp_ns / m.NS_PER_S)
+        values.append(value_of(message))
+    return np.asarray(stamps), values
+
+
+def _motion_series(records):
+    stamps, codes = [], []
+    for log_ns, message in zip(*records):
+        if message.message in MOTION_STATES:
+            stamps.append(log_ns / m.NS_PER_S)
+            codes.append(MOTION_STATES.index(message.message))
+    return np.asarray(stamps), np.asarray(codes, dtype=np.int8)
+
+
+def _centroid_rows(records_by_camera):
+    rows = {key: [] for key in ('camera', 'hip', 'x', 'y', 'stamp', 'frame')}
+    frame = 0
+    for index, (_, messages) in enumerate(records_by_camera):
+        for message in messages:
+            stamp_s = m.stamp_ns_of(message.header.stamp) / m.NS_PER_S
+            for hip, x_px, y_px in m.centroids_of(message):
+                for key, value in zip(rows, (index, hip, x_px, y_px, stamp_s, frame)):
+                    rows[key].append(value)
+            frame += 1
+    return {key: np.asarray(values) for key, values in rows.items()}
+
+
+def _gyro_samples(imu_records, temperature_records):
+    try:
+        imu = decode_imu_cdr(*imu_records)
+    except InvalidArgumentError as err:
+        raise BagError(f'{IMU_TOPIC.name}: {err}') from err
+    time_s = imu.header_stamp_ns / m.NS_PER_S
+    if len(time_s) < 2 or np.any(np.diff(time_s) <= 0):
+        raise BagError(f'{IMU_TOPIC.name} holds {len(time_s)} samples out of time order; the bag is damaged')
+    tick_end_s, temperatures = _series(temperature_records, lambda msg: msg.temperature)
+    if len(tick_end_s) == 0:
+        raise BagError(f'{TEMPERATURE_TOPIC.name} is empty; `sofia compare` needs the gyro-box tick stamps')
+    # A sample in (t_k-1, t_k] belongs to tick k, whose temperature the box used (sim.gyro_box).
+    tick = np.minimum(np.searchsorted(tick_end_s, time_s, side='left'), len(tick_end_s) - 1)
+    keep = time_s <= tick_end_s[-1]
+    tick, time_s = tick[keep], time_s[keep]
+    starts = np.searchsorted(tick, np.arange(len(tick_end_s)), side='left')
+    period_s = float(np.median(np.diff(time_s)))
+    temperatures = np.asarray(temperatures, dtype=float)
+    rates = imu.angular_velocity_rad_per_s[keep]
+    counts = np.diff(np.append(starts, len(time_s)))
+    return GyroSamples(time_s, rates, temperatures[tick], tick_end_s, temperatures, starts, period_s,
+                       tick_means(rates, starts), tick_means(time_s[:, None], starts)[:, 0], counts)
+
+
+def _at(stamps_s, series_s, values, what):
+    if len(series_s) == 0:
+        raise BagError(f'the bag has no {what} samples')
+    return np.interp(stamps_s, series_s, values)
+
+
+def read_observations(bag_path):
+    """The observables of a campaign bag; BagError names a missing topic and how to get it."""
+    bag_path = Path(bag_path)
+    try:
+        with BagReader(bag_path) as bag:
+            names = {topic.name for topic in bag.topics}
+            missing = [topic for topic in REQUIRED_TOPICS if topic not in names]
+            if missing:
+                raise BagError(f'{bag_path} lacks {", ".join(missing)}; `sofia compare` needs a campaign bag '
+                               'recorded by `sofia run alignment` (or star-hop)')
+            cameras = tuple(camera for camera in CAMERAS if f'/{camera}/centroids' in names)
+            if not cameras:
+                raise BagError(f'{bag_path} has no /<camera>/centroids topic; nothing to compare')
+            scenario = scenario_from_document(bag.document(SCENARIO_TOPIC))
+            camera_topics = [f'/{camera}/centroids' for camera in cameras]
+            optional = [topic for topic in (TASCU_TOPICS['motion_status'].name,) if topic in names]
+            records = bag.messages_by_topic(*REQUIRED_TOPICS[:-1], *optional, *camera_topics, raw=(IMU_TOPIC.name,))
+    except ConfigError as err:
+        raise BagError(f'{bag_path}: {err}') from err
+    rows = _centroid_rows([records[topic] for topic in camera_topics])
+    gyro = _gyro_samples(records[IMU_TOPIC.name], records[TEMPERATURE_TOPIC.name])
+    joint_s, joints = _series(records[PLANT_TOPICS['joint_states'].name], m.joint_positions_of)
+    attitude_s, quaternions = _series(records[TASCU_TOPICS['attitude'].name],
+                                      lambda msg: m.quaternion_xyzw_of(msg.quaternion))
+    motion_s, motion_codes = _motion_series(records.get(TASCU_TOPICS['motion_status'].name, ([], [])))
+    if len(rows['hip']) == 0:
+        raise BagError(f'{bag_path}: the cameras recorded no star; nothing to compare')
+    if len(attitude_s) == 0:
+        raise BagError(f'{bag_path}: {TASCU_TOPICS["attitude"].name} is empty; the TASCU never ran')
+    initial_time_s = float(attitude_s[0])
+    # Frames must lie where the gyros cover them: after the first attitude, before the last tick.
+    keep = (rows['stamp'] > initial_time_s) & (rows['stamp'] < gyro.tick_end_s[-1])
+    rows = {key: values[keep] for key, values in rows.items()}
+    stamps = rows['stamp']
+    elevation_deg = _at(stamps, joint_s, [joint[CD_JOINT] * DEG_PER_RAD for joint in joints], 'joint-state')
+    fd_los_deg = _at(stamps, joint_s, [joint[FD_JOINTS[2]] * DEG_PER_RAD for joint in joints], 'joint-state')
+    temperature_c = _at(stamps, gyro.tick_end_s, gyro.tick_temperature_c, 'temperature')
+    if len(motion_s):
+        motion_code = motion_codes[np.clip(np.searchsorted(motion_s, stamps, side='right') - 1, 0, None)]
+    else:
+        motion_code = np.full(len(stamps), MOTION_STATES.index('transient'), dtype=np.int8)
+    centroids = Centroids(cameras, rows['camera'].astype(int), rows['hip'].astype(np.int64),
+                          np.column_stack([rows['x'], rows['y']]), stamps, rows['frame'].astype(int),
+                          elevation_deg, fd_los_deg, temperature_c, motion_code)
+    transient = motion_codes == MOTION_STATES.index('transient')
+    move_start_s = motion_s[transient & ~np.concatenate([[False], transient[:-1]])]
+    return Observations(bag_path, scenario, centroids, gyro, initial_time_s, dcm_from_quaternion(quaternions[0]),
+                        frozenset(names), move_start_s)

@@ -1,0 +1,237 @@
+"""The model side of every effect: predicted centroids of a bag's frames from a model's effects.
+
+The prediction reuses the truth simulator's own physics with the model's parameters:
+
+1. Attitude: the recorded 400 Hz GYRF rates, turned into the TARF rates the model believes
+   (sensors.gyro_errors inverted: misalignment, scale, bias, ramp, axis swap, LOS oscillation,
+   tracker drift), summed per tick (the plant holds its rate over a tick) and composed from
+   the TASCU's first attitude (3.20, B.23), interpolated at each frame's time.
+2. Attitude anchors: a piecewise-linear small rotation of IRF with knots every
+   ``anchor_spacing_s`` absorbs what no model term describes on long time scales (the gyro
+   random walk, 4.2.3; a start attitude known only to arcminutes), as 6.1 fits a drift per block.
+3. Stars: ERFA places of the Hipparcos stars (sky.places), refracted with the model's weather
+   (Stone, 4.33-4.35) when it has ``atmospheric_refraction``, in the IRF of the model's Earth rate.
+4. Cameras: sensors.imager_model.camera_errors with the model's effects - mounting, flexure
+   (Tables 3.2, 3.3, 6.2), detector fiducials and scale (3.2-3.7), HIPO clock offset (6.2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sofia_ros.frames import pixel_to_vector, vector_to_pixel
+from sofia_ros.mount import hrf_from_irf_dcm
+from sofia_ros.sensors.gyro_errors import gyro_error_model, rate_offsets_rad_per_s, true_rates_tarf_rad_per_s
+from sofia_ros.sensors.imager_model import (
+    Scene,
+    camera_errors,
+    camera_from_tarf_dcm,
+    refracted_directions_hrf,
+    star_directions_irf,
+)
+from sofia_ros.sky.catalogue import star_by_hip
+from sofia_ros.units import RAD_PER_DEG
+
+__all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means', 'GYRO_EFFECTS']
+
+#: Effects whose parameters change the gyro-derived attitude.
+GYRO_EFFECTS = ('gyro_misalignment', 'gyro_scale_factor', 'gyro_bias', 'gyro_bias_drift', 'gyro_axis_swap',
+                'los_oscillation', 'vibration_lines', 'tracker_drift')
+#: Star places are re-evaluated on this grid; unrefracted places move < 0.003" per minute in IRF.
+_PLACE_EPOCH_S = 60.0
+
+
+def _dcms_from_rotvecs(rotvecs):
+    """Attitude DCMs of rotation vectors, A = R^T (the passive convention of B.3), (N, 3, 3)."""
+    return np.swapaxes(Rotation.from_rotvec(np.reshape(rotvecs, (-1, 3))).as_matrix(), -1, -2)
+
+
+def propagate_tick_attitudes(increments_rad, initial_dcm):
+    """A_TARF,IRF at every tick end from per-tick body rotation vectors, A_k = R(phi_k)^T A_k-1 (3.20, B.23)."""
+    steps = _dcms_from_rotvecs(increments_rad)
+    attitudes = np.empty((len(steps) + 1, 3, 3))
+    attitudes[0] = initial_dcm
+    for index, step in enumerate(steps):
+        attitudes[index + 1] = step @ attitudes[index]
+    return attitudes
+
+
+def attitudes_at(times_s, tick_end_s, tick_attitudes, increments_rad):
+    """Attitudes at times inside the ticks: the tick's constant rate applied for the elapsed fraction."""
+    index = np.clip(np.searchsorted(tick_end_s, times_s, side='left'), 1, len(tick_end_s) - 1)
+    start_s, end_s = tick_end_s[index - 1], tick_end_s[index]
+    fraction = (times_s - start_s) / (end_s - start_s)
+    partial = _dcms_from_rotvecs(increments_rad[index - 1] * fraction[:, None])
+    return partial @ tick_attitudes[index - 1]
+
+
+class Predictor:
+    """Predicted centroids (px) of one bag's frames for any effect set, with caches per effect family."""
+
+    def __init__(self, observations, *, anchor_spacing_s=120.0):
+        self.observations = observations
+        centroids = observations.centroids
+        self.scene = Scene(observations.scenario.site, observations.scenario.start_utc)
+        self.anchor_knots_s = _knots(observations.initial_time_s, float(centroids.stamp_s.max()), anchor_spacing_s)
+        self._hips = np.unique(centroids.hip)
+        self._hip_row = np.searchsorted(self._hips, centroids.hip)
+        gyro = observations.gyro
+        self._first_tick = int(np.searchsorted(gyro.tick_end_s, observations.initial_time_s, side='left'))
+        self._tick_end_s = gyro.tick_end_s[self._first_tick:]
+        self._directions_irf = self._catalogue_directions()
+        self._cache = {}
+        self.initial_dcm = observations.initial_tarf_from_irf
+
+    @property
+    def anchor_count(self):
+        """Number of anchor knots (three rotation parameters each)."""
+        return len(self.anchor_knots_s)
+
+    def anchor_basis(self, times_s):
+        """Hat-function weights (N, knots) of the piecewise-linear anchors at times."""
+        return _hat_basis(times_s, self.anchor_knots_s)
+
+    def _catalogue_directions(self):
+        """IRF unit vectors of every observed star on the place epochs, (epochs, stars, 3) (4.1, C.4.2)."""
+        stamps = self.observations.centroids.stamp_s
+        epochs = np.arange(np.floor(stamps.min() / _PLACE_EPOCH_S), np.floor(stamps.max() / _PLACE_EPOCH_S) + 1)
+        stars = [star_by_hip(int(hip)) for hip in self._hips]
+        self._epoch_origin = epochs[0]
+        return np.stack([star_directions_irf(stars, self.scene, (epoch + 0.5) * _PLACE_EPOCH_S) for epoch in epochs])
+
+    def _cached(self, key, compute):
+        if key not in self._cache:
+            if len(self._cache) > 256:
+                self._cache.clear()
+            self._cache[key] = compute()
+        return self._cache[key]
+
+    def _tick_track(self, gyro_effects):
+        """Tick-end attitudes and per-tick increments of the gyro data under the model's gyro errors.
+
+        The plant holds its rate over a tick and the error model is linear in the rate, so the
+        tick means of the samples give the exact tick increments; only vibration lines, fast
+        against a tick, are averaged over the samples themselves.
+        """
+        gyro = self.observations.gyro
+        errors = gyro_error_model(gyro_effects)
+        lines = errors.vibration_lines
+        errors = dataclasses.replace(errors, vibration_lines=None)
+        means = gyro.tick_mean_rates_gyrf_rad_per_s
+        if lines:
+            per_sample = rate_offsets_rad_per_s(gyro_error_model({'vibration_lines': lines}), gyro.time_s)
+            means = means - tick_means(per_sample, gyro.tick_start_index)
+        rates = true_rates_tarf_rad_per_s(errors, means, gyro.tick_mean_time_s, gyro.tick_temperature_c)
+        increments = (rates * (gyro.tick_sample_count * gyro.sample_period_s)[:, None])[self._first_tick + 1:]
+        return propagate_tick_attitudes(increments, self.initial_dcm), increments
+
+    def attitudes(self, effects, times_s):
+        """A_TARF,IRF the model believes at times (gyro propagation only, no anchors)."""
+        gyro_effects = {name: effects[name] for name in GYRO_EFFECTS if name in effects}
+        tick_attitudes, increments = self._cached(('gyro', repr(gyro_effects)), lambda: self._tick_track(gyro_effects))
+        return attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)
+
+    def _star_directions(self, effects, times_s):
+        """Model IRF directions of each row's star at times: refraction and Earth rate as the model has them."""
+        epoch = np.clip(np.floor(times_s / _PLACE_EPOCH_S) - self._epoch_origin, 0,
+                        len(self._directions_irf) - 1).astype(int)
+        directions = self._directions_irf[epoch, self._hip_row]
+        earth = effects.get('earth_rotation')
+        model_rate = earth['rate_deg_per_h'] * RAD_PER_DEG / 3600.0 if earth else 0.0
+        refraction = effects.get('atmospheric_refraction')
+        hrf_from_irf = hrf_from_irf_dcm(self.scene.earth_latitude_deg, times_s)
+        directions_hrf = np.einsum('nij,nj->ni', hrf_from_irf, directions)
+        if refraction is not None:
+            weather = camera_errors('hipo', {'atmospheric_refraction': refraction}).weather
+            directions_hrf = refracted_directions_hrf(directions_hrf, self.scene.site, weather)
+        model_hrf_from_irf = hrf_from_irf_dcm(self.scene.earth_latitude_deg, times_s, model_rate)
+        return np.einsum('nji,nj->ni', model_hrf_from_irf, directions_hrf)
+
+    def measured_directions_tarf(self, effects):
+        """Each row's measured star direction in TARF through the model's detector and mounting (3.2-3.7)."""
+        centroids = self.observations.centroids
+        measured = np.empty((len(centroids), 3))
+        for index, camera in enumerate(centroids.cameras):
+            rows = centroids.camera_index == index
+            errors = camera_errors(camera, effects)
+            in_camera = pixel_to_vector(centroids.measured_px[rows], errors.detector)
+            mounting = camera_from_tarf_dcm(errors, centroids.elevation_deg[rows])
+            measured[rows] = np.einsum('nji,nj->ni', mounting, in_camera)
+        return measured
+
+    def align_initial_attitude(self, effects):
+        """Set the start attitude that best maps the model's stars onto all measured ones (Wahba's problem)."""
+        self.initial_dcm = np.eye(3)
+        self._cache.clear()
+        times = self.row_times_s(effects)
+        # With A = A_rel(t) A_0: A_rel(t)^T v_TARF = A_0 d_IRF for every row.
+        at_start = np.einsum('nji,nj->ni', self.attitudes(effects, times), self.measured_directions_tarf(effects))
+        rotation, _ = Rotation.align_vectors(at_start, self._star_directions(effects, times))
+        self.initial_dcm = rotation.as_matrix()
+        self._cache.clear()
+
+    def row_times_s(self, effects):
+        """Each row's exposure-midpoint time on the TA clock: the stamp less the model's HIPO clock offset (6.2)."""
+        centroids = self.observations.centroids
+        times = centroids.stamp_s.copy()
+        if 'timestamp_offset' in effects and 'hipo' in centroids.cameras:
+            hipo = centroids.camera_index == centroids.cameras.index('hipo')
+            times[hipo] -= effects['timestamp_offset']['offset_s']
+        return times
+
+    def predict_px(self, effects, anchors_rad=None, irf_rotation_rad=None):
+        """Predicted centroids (N, 2) px; anchors (knots, 3) rad; an extra IRF rotation for derivatives."""
+        centroids = self.observations.centroids
+        times = self.row_times_s(effects)
+        attitude = self.attitudes(effects, times)
+        correction = np.zeros((len(times), 3))
+        if anchors_rad is not None:
+            correction += self.anchor_basis(times) @ np.asarray(anchors_rad).reshape(-1, 3)
+        if irf_rotation_rad is not None:
+            correction += np.asarray(irf_rotation_rad)
+        if np.any(correction):
+            attitude = attitude @ _dcms_from_rotvecs(correction)
+        key = ('stars', repr(effects.get('atmospheric_refraction')), repr(effects.get('earth_rotation')),
+               repr(effects.get('timestamp_offset')))
+        if irf_rotation_rad is None and key[1:] == self._cache.get('stars_key'):
+            directions = self._cache['stars_value']
+        else:
+            directions = self._star_directions(effects, times)
+            self._cache['stars_key'], self._cache['stars_value'] = key[1:], directions
+        in_tarf = np.einsum('nij,nj->ni', attitude, directions)
+        predicted = np.empty((len(times), 2))
+        for index, camera in enumerate(centroids.cameras):
+            rows = centroids.camera_index == index
+            errors = camera_errors(camera, effects)
+            mounting = self._cached(('mount', camera, repr(errors)),
+                                    lambda: camera_from_tarf_dcm(errors, centroids.elevation_deg[rows]))
+            in_camera = np.einsum('nij,nj->ni', mounting, in_tarf[rows])
+            predicted[rows] = vector_to_pixel(in_camera, errors.detector)
+        return predicted
+
+
+def tick_means(per_sample, tick_start_index):
+    """Mean of per-sample rows over each tick (zero for a tick without samples)."""
+    counts = np.diff(np.append(tick_start_index, len(per_sample)))
+    sums = np.add.reduceat(per_sample, np.minimum(tick_start_index, len(per_sample) - 1), axis=0)
+    sums[counts == 0] = 0.0
+    return sums / np.maximum(counts, 1)[:, None]
+
+
+def _knots(start_s, end_s, spacing_s):
+    count = max(int(np.ceil((end_s - start_s) / spacing_s)), 1)
+    return np.linspace(start_s, end_s, count + 1)
+
+
+def _hat_basis(times_s, knots_s):
+    """Linear-interpolation weights of times on the knots, (N, knots)."""
+    basis = np.zeros((len(times_s), len(knots_s)))
+    index = np.clip(np.searchsorted(knots_s, times_s, side='right') - 1, 0, len(knots_s) - 2)
+    fraction = np.clip((times_s - knots_s[index]) / (knots_s[index + 1] - knots_s[index]), 0.0, 1.0)
+    rows = np.arange(len(times_s))
+    basis[rows, index] = 1.0 - fraction
+    basis[rows, index + 1] += fraction
+    return basis

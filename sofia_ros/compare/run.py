@@ -1,0 +1,175 @@
+"""`sofia compare`: fit a model to a bag, keep the ledger, rank the missing effects (DESIGN.md 6).
+
+1. Read the observables (compare.observations) and the centroid noise floor (compare.floor).
+2. Fit the model: first with its fitted terms at their given values (anchors only), then adding
+   each fitted term in turn - the ledger of residual RMS per camera, like a pointing-model fit.
+3. Candidates: every catalogue effect not in the model is linearized at its thesis defaults
+   and fitted jointly with the model (analysis.ranking); the best few are refitted in full.
+   Effects the campaign cannot see are listed as unobservable, collinear ones as degenerate.
+4. A signature scan of what is left (compare.scan) says where the model fails.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC, CandidateTerm, degenerate_pairs, rank_candidates
+from sofia_ros.compare.fit import fit_model, free_parameters
+from sofia_ros.compare.floor import centroid_noise_arcsec
+from sofia_ros.compare.observations import read_observations
+from sofia_ros.compare.predict import Predictor
+from sofia_ros.compare.scan import signature_scan
+from sofia_ros.effects import CATALOGUE, resolve_params
+from sofia_ros.errors import FitError
+
+__all__ = ['CompareResult', 'compare_bag', 'NOISE_EFFECTS', 'REFINED_CANDIDATES']
+
+#: Random processes: they set the noise floor, they do not move a prediction.
+NOISE_EFFECTS = ('gyro_noise', 'seeing')
+#: The best candidates of the linearized ranking are refitted in full (nonlinear, robust).
+REFINED_CANDIDATES = 3
+
+
+@dataclass(frozen=True, eq=False)
+class CompareResult:
+    """The comparison: the JSON document of DESIGN.md 6 plus what plots and tables need."""
+
+    document: dict
+    observations: object
+    final_fit: object
+    best_fit: object
+    best_name: str | None
+    noise_arcsec: np.ndarray
+
+
+def _rms_by_camera(fit, centroids):
+    """Residual RMS ["] per camera and in total over both axes, outliers excluded (they are listed)."""
+    keep = ~fit.outlier
+    squares = np.sum(fit.residual_arcsec**2, axis=1)
+    rms = {'total': float(np.sqrt(np.mean(squares[keep]) / 2.0))}
+    for index, camera in enumerate(centroids.cameras):
+        rows = keep & (centroids.camera_index == index)
+        if np.any(rows):
+            rms[camera] = float(np.sqrt(np.mean(squares[rows]) / 2.0))
+    return rms
+
+
+def _term_table(fit):
+    return [{'effect': p.effect, 'param': p.name, 'unit': p.unit, 'value': float(value), 'sigma': float(sigma)}
+            for p, value, sigma in zip(fit.free, fit.values, fit.sigma)]
+
+
+def _linearized_candidates(predictor, fit, noise_arcsec, names):
+    """CandidateTerms linearized where each effect vanishes: scaling parameters 0, shaping ones at default."""
+    centroids = predictor.observations.centroids
+    arcsec_per_px = centroids.arcsec_per_px()[:, None]
+    row_sigma = noise_arcsec[centroids.camera_index][:, None]
+    root = np.sqrt(fit.weights)
+    base = predictor.predict_px(fit.effects, fit.anchors_rad)
+    terms = []
+    for name in names:
+        free = free_parameters([name])
+        if not free:
+            continue
+        spec = CATALOGUE[name]
+        start = np.array([spec.parameter(p.name).default if spec.parameter(p.name).shape else 0.0 for p in free])
+        switched = {**fit.effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
+        at_start = predictor.predict_px(switched, fit.anchors_rad)
+        columns = np.empty((base.size, len(free)))
+        for index, parameter in enumerate(free):
+            stepped = {**switched, name: {**switched[name], parameter.name: start[index] + parameter.step}}
+            moved = predictor.predict_px(stepped, fit.anchors_rad)
+            columns[:, index] = ((moved - at_start) * arcsec_per_px / row_sigma).ravel() / parameter.step
+        shift = ((at_start - base) * arcsec_per_px / row_sigma).ravel()
+        terms.append(CandidateTerm(name, tuple(p.name for p in free), start, root[:, None] * columns, root * shift))
+    return terms
+
+
+def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, observable=True, refined=False, seconds=0.0):
+    units = {param.name: param.unit for param in CATALOGUE[name].params}
+    return {'effect': name, 'rms_after_arcsec': rms_after, 'delta_bic': delta_bic, 'params': params, 'sigma': sigma,
+            'units': {key: units[key] for key in params}, 'observable': observable, 'refined': refined,
+            'seconds': round(seconds, 3)}
+
+
+def compare_bag(bag_path, model, *, anchor_spacing_s=120.0, candidate_names=None):
+    """Compare ``model`` (an EffectConfig) with the bag; return the CompareResult."""
+    started = time.perf_counter()
+    observations = read_observations(bag_path)
+    centroids = observations.centroids
+    noise_arcsec = centroid_noise_arcsec(centroids)
+    counts = np.bincount(centroids.camera_index, minlength=len(centroids.cameras))
+    floor_arcsec = float(np.sqrt(np.sum(counts * noise_arcsec**2) / np.sum(counts)))
+    predictor = Predictor(observations, anchor_spacing_s=anchor_spacing_s)
+    effects = {name: dict(params) for name, params in model.effects.items()}
+    predictor.align_initial_attitude(effects)
+    fitted_order = [name for name in model.effects if name in model.fitted]
+
+    ledger, fit, free = [], None, ()
+    for step_name in [None, *fitted_order]:
+        if step_name is not None:
+            free = free + free_parameters([step_name])
+        start = effects if fit is None else fit.effects
+        fit = fit_model(predictor, start, free, noise_arcsec, anchors_rad=None if fit is None else fit.anchors_rad)
+        ledger.append({'term': step_name or 'model as given (anchors only)',
+                       'residual_rms_arcsec': _rms_by_camera(fit, centroids), 'bic': fit.bic})
+    final = fit
+    rms = _rms_by_camera(final, centroids)
+
+    names = [name for name in (candidate_names or CATALOGUE) if name not in effects and name not in NOISE_EFFECTS]
+    linear_started = time.perf_counter()
+    terms = _linearized_candidates(predictor, final, noise_arcsec, names)
+    root = np.sqrt(final.weights)
+    ranked = rank_candidates(root * final.whitened, root[:, None] * final.jacobian, terms)
+    per_candidate_s = (time.perf_counter() - linear_started) / max(len(terms), 1)
+    rss_base = float(np.sum((root * final.whitened) ** 2))
+    entries = {}
+    for candidate in ranked:
+        rms_after = rms['total'] * float(np.sqrt(candidate.rss_after / rss_base))
+        entries[candidate.name] = _candidate_entry(candidate.name, candidate.params, candidate.sigma, rms_after,
+                                                   candidate.delta_bic, observable=candidate.observable,
+                                                   seconds=per_candidate_s)
+    best_fit, best_name = None, None
+    for candidate in [c for c in ranked if c.significant][:REFINED_CANDIDATES]:
+        refine_started = time.perf_counter()
+        trial_effects = {**final.effects, candidate.name: dict(resolve_params(candidate.name, {}), **candidate.params)}
+        try:
+            trial = fit_model(predictor, trial_effects, final.free + free_parameters([candidate.name]), noise_arcsec,
+                              anchors_rad=final.anchors_rad)
+        except FitError:
+            continue  # the linearized entry stands
+        extra = trial.free[len(final.free):]
+        entries[candidate.name] = _candidate_entry(
+            candidate.name, {p.name: float(v) for p, v in zip(extra, trial.values[len(final.free):])},
+            {p.name: float(s) for p, s in zip(extra, trial.sigma[len(final.free):])},
+            _rms_by_camera(trial, centroids)['total'], final.bic - trial.bic, refined=True,
+            seconds=per_candidate_s + time.perf_counter() - refine_started)
+        if best_fit is None or trial.bic < best_fit.bic:
+            best_fit, best_name = trial, candidate.name
+    candidates = sorted(entries.values(), key=lambda entry: (not entry['observable'], -entry['delta_bic']))
+    degenerate = degenerate_pairs(ranked, {name: entry['delta_bic'] for name, entry in entries.items()})
+    document = {
+        'bag': str(observations.bag_path),
+        'model': model.source,
+        'observations': {camera: int(count) for camera, count in zip(centroids.cameras, counts)},
+        'residual_rms_arcsec': rms,
+        'noise_floor_arcsec': floor_arcsec,
+        'centroid_noise_arcsec': {camera: float(v) for camera, v in zip(centroids.cameras, noise_arcsec)},
+        'outliers': int(np.sum(final.outlier)),
+        'terms': _term_table(final),
+        'correlation': {'params': [p.label for p in final.free], 'matrix': np.round(final.correlation, 4).tolist()},
+        'ledger': ledger,
+        'candidates': candidates,
+        'degenerate': [list(pair) for pair in degenerate],
+        'unobservable': [c['effect'] for c in candidates if not c['observable']],
+        'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
+        'signature': signature_scan(observations, final, predictor),
+        'anchor_spacing_s': anchor_spacing_s,
+        'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4)},
+    }
+    document['seconds']['total'] = round(time.perf_counter() - started, 3)
+    return CompareResult(document, observations, final, best_fit, best_name, noise_arcsec)
+

@@ -158,6 +158,18 @@ def _noise(args):
     return run_noise(args)
 
 
+def _compare(args):
+    from sofia_ros.compare.cli import run_compare
+
+    return run_compare(args, sys.stdout)
+
+
+def _model(args):
+    from sofia_ros.compare.cli import run_model_add
+
+    return run_model_add(args, sys.stdout)
+
+
 def _add_noise_arguments(parser):
     from sofia_ros.analysis.noise_cli import add_noise_arguments
 
@@ -199,6 +211,16 @@ def build_parser():
     noise = verbs.add_parser('noise', help='noise analysis of a gyro-stability bag (5.2): Earth rate, Allan, lines')
     _add_noise_arguments(noise)
     noise.set_defaults(handler=_noise)
+
+    from sofia_ros.compare.cli import add_compare_arguments, add_model_arguments
+
+    compare = verbs.add_parser('compare', help='fit a model to a campaign bag and rank the effects it lacks')
+    add_compare_arguments(compare)
+    compare.set_defaults(handler=_compare)
+
+    model = verbs.add_parser('model', help='edit a model file: `sofia model add EFFECT --model M.yaml`')
+    add_model_arguments(model)
+    model.set_defaults(handler=_model)
 
     demo = verbs.add_parser('demo', help='worked demonstration of the science core against the thesis tables')
     demo.set_defaults(handler=_run_demo)

@@ -43,6 +43,7 @@ class CompareResult:
     best_fit: object
     best_name: str | None
     noise_arcsec: np.ndarray
+    predictor: object
 
 
 def _rms_by_camera(fit, centroids):
@@ -171,5 +172,5 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=120.0, candidate_names=None
         'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4)},
     }
     document['seconds']['total'] = round(time.perf_counter() - started, 3)
-    return CompareResult(document, observations, final, best_fit, best_name, noise_arcsec)
+    return CompareResult(document, observations, final, best_fit, best_name, noise_arcsec, predictor)
 

@@ -1,0 +1,182 @@
+"""The `sofia compare` and `sofia model add` commands: tables on stdout, JSON and report written whole."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from sofia_ros.errors import ConfigError
+
+__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'write_text_atomically']
+
+
+def add_compare_arguments(parser):
+    """Arguments of `sofia compare`."""
+    parser.add_argument('bag', help='bag directory of a campaign (sofia run alignment)')
+    parser.add_argument('--model', required=True, help='model YAML (effects: ..., fit: true for fitted terms)')
+    parser.add_argument('--json', help='write the comparison as JSON (DESIGN.md section 6)')
+    parser.add_argument('--report', help='write an HTML report with plots to this directory (ledger kept across runs)')
+    parser.add_argument('--anchor-s', type=float, default=30.0,
+                        help='spacing of the attitude anchors in s (default 30; they absorb the gyro random walk)')
+
+
+def add_model_arguments(parser):
+    """Arguments of `sofia model add`."""
+    parser.add_argument('action', choices=('add',), help='add: put a catalogue effect into a model as a fitted term')
+    parser.add_argument('effect', help='catalogue effect name (sofia effects)')
+    parser.add_argument('--model', required=True, help='model YAML to edit in place')
+
+
+def write_text_atomically(path, text):
+    """Write a file whole or not at all (temporary file in the same directory, then rename)."""
+    path = Path(path)
+    if path.parent and not path.parent.exists():
+        raise ConfigError(f'directory {path.parent} does not exist; create it or choose another path')
+    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
+    try:
+        with os.fdopen(handle, 'w') as stream:
+            stream.write(text)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def _json_ready(value):
+    if isinstance(value, dict):
+        return {key: _json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(item) for item in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _format_params(params, sigma, units):
+    return ', '.join(f'{name} = {value:.4g} +- {sigma[name]:.2g} {units.get(name, "")}'.rstrip()
+                     for name, value in params.items())
+
+
+def print_comparison(document, out):
+    """The ten-second table: terms, correlations, ledger, candidates, degeneracies, where the model fails."""
+    counts = ', '.join(f'{camera.upper()} {count}' for camera, count in document['observations'].items())
+    print(f'sofia compare: {document["bag"]} against {document["model"]}', file=out)
+    print(f'  centroids: {counts}; noise floor {document["noise_floor_arcsec"]:.3f}" per axis (centroid scatter '
+          f'of locked frames); {document["outliers"]} outliers beyond 5 sigma flagged', file=out)
+    if document['terms']:
+        print('fitted terms:', file=out)
+        for term in document['terms']:
+            print(f'  {term["effect"] + "." + term["param"]:<44} {term["value"]:>12.4f} +- {term["sigma"]:<9.4f} '
+                  f'{term["unit"]}', file=out)
+        labels, matrix = document['correlation']['params'], np.array(document['correlation']['matrix'], dtype=float)
+        strong = [(labels[i], labels[j], matrix[i, j]) for i in range(len(labels)) for j in range(i + 1, len(labels))
+                  if np.isfinite(matrix[i, j]) and abs(matrix[i, j]) >= 0.9]
+        for first, second, value in strong:
+            print(f'  correlated: {first} ~ {second}  r = {value:+.3f}', file=out)
+    cameras = [camera for camera in ('hipo', 'fpi', 'ffi', 'wfi') if camera in document['residual_rms_arcsec']]
+    print('ledger: residual RMS per axis ["] as terms are fitted', file=out)
+    print(f'  {"step":<40} {"total":>7}' + ''.join(f' {camera.upper():>7}' for camera in cameras), file=out)
+    for row in document['ledger']:
+        rms = row['residual_rms_arcsec']
+        name = row['term'] if row is document['ledger'][0] else '+ ' + row['term']
+        print(f'  {name:<40} {rms["total"]:>7.3f}' + ''.join(f' {rms[camera]:>7.3f}' for camera in cameras), file=out)
+    print(f'candidates (catalogue effects not in the model), best first; significant at delta-BIC >= '
+          f'{document["significant_delta_bic"]:g}:', file=out)
+    for candidate in [c for c in document['candidates'] if c['observable']][:6]:
+        mark = '*' if candidate['delta_bic'] >= document['significant_delta_bic'] else ' '
+        print(f' {mark}{candidate["effect"]:<28} dBIC {candidate["delta_bic"]:>10.1f}  RMS after '
+              f'{candidate["rms_after_arcsec"]:.3f}"  {"refit" if candidate["refined"] else "linear"}', file=out)
+        if mark == '*':
+            print(f'      {_format_params(candidate["params"], candidate["sigma"], candidate["units"])}', file=out)
+    if document['unobservable']:
+        print(f'  not observable in this campaign: {", ".join(document["unobservable"])}', file=out)
+    for first, second in document['degenerate']:
+        print(f'  degenerate: {first} and {second} explain the same residual; this campaign cannot tell them apart',
+              file=out)
+    _print_verdict(document, out)
+
+
+def _print_verdict(document, out):
+    significant = [c for c in document['candidates'] if c['observable']
+                   and c['delta_bic'] >= document['significant_delta_bic']]
+    floor = document['noise_floor_arcsec']
+    ratio = document['residual_rms_arcsec']['total'] / floor
+    if significant:
+        best = significant[0]
+        tied = [pair for pair in document['degenerate'] if best['effect'] in pair]
+        if tied:
+            print(f'verdict: the residual needs {" or ".join(tied[0])}; the data cannot choose', file=out)
+        else:
+            print(f'verdict: missing effect {best["effect"]} (RMS {document["residual_rms_arcsec"]["total"]:.3f}" -> '
+                  f'{best["rms_after_arcsec"]:.3f}", floor {floor:.3f}"); add it with '
+                  f'`sofia model add {best["effect"]} --model {document["model"]}`', file=out)
+        return
+    if ratio <= 1.2:
+        print(f'verdict: the model explains the data to the noise (RMS / floor = {ratio:.2f}); no candidate is needed',
+              file=out)
+        return
+    print(f'verdict: RMS / floor = {ratio:.2f} and no catalogue effect explains it; where the model fails:', file=out)
+    for trend in document['signature']['trends'][:3]:
+        print(f'  {trend["observable"]} trends with {trend["variable"]}: {trend["change_over_range_arcsec"]:+.2f}" '
+              f'over its range ({trend["significance_sigma"]:.0f} sigma)', file=out)
+    for period in document['signature']['periods'][:2]:
+        print(f'  {period["observable"]}: period {period["period_s"]:.0f} s, amplitude {period["amplitude_arcsec"]:.2f}"',
+              file=out)
+
+
+def run_compare(args, out):
+    """`sofia compare`: fit, rank, print; then write JSON and report whole."""
+    from sofia_ros.compare.run import compare_bag
+    from sofia_ros.config import load_effect_config
+
+    model = load_effect_config(args.model)
+    if not args.anchor_s > 0:
+        raise ConfigError(f'--anchor-s must be a positive number of seconds, got {args.anchor_s}')
+    for target in (args.json, args.report):
+        if target and not Path(target).resolve().parent.exists():
+            raise ConfigError(f'the directory of {target} does not exist; create it first')
+    result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
+    document = _json_ready(result.document)
+    print_comparison(document, out)
+    if args.json:
+        write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
+    if args.report:
+        from sofia_ros.compare.report import write_report
+
+        path = write_report(result, document, args.report)
+        print(f'report: {path}', file=out)
+    return 0
+
+
+def run_model_add(args, out):
+    """`sofia model add EFFECT --model M.yaml`: the effect becomes a fitted term; the file is rewritten whole."""
+    from sofia_ros.config import parse_effect_config
+    from sofia_ros.effects import get_effect
+
+    spec = get_effect(args.effect)
+    path = Path(args.model)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise ConfigError(f'cannot read {path}: {err.strerror}; check the path') from err
+    parse_effect_config(text, str(path))
+    document = yaml.safe_load(text) or {}
+    effects = document.setdefault('effects', {}) or {}
+    document['effects'] = effects
+    current = effects.get(spec.name)
+    if isinstance(current, dict) and current.get('fit'):
+        raise ConfigError(f'{path} already fits {spec.name}; nothing to add')
+    effects[spec.name] = {**(current or {}), 'fit': True}
+    new_text = yaml.safe_dump(document, sort_keys=False)
+    parse_effect_config(new_text, str(path))
+    write_text_atomically(path, new_text)
+    print(f'{path}: {spec.name} added as a fitted term (starting at its thesis defaults); rerun sofia compare',
+          file=out)
+    return 0

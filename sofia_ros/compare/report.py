@@ -1,0 +1,198 @@
+"""The `sofia compare --report DIR` page: where the model fails, at a glance (PNG plots + HTML).
+
+Residuals against elevation, time, slew angle, LOS angle and temperature per camera, before
+and after the best candidate; residual vectors in each detector's pixel plane; the ledger of
+this run and of every earlier run written to the same directory (ledger.json), so adding an
+effect and comparing again shows the error falling.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use('Agg')
+import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
+import numpy as np  # noqa: E402
+
+from sofia_ros.compare.scan import VARIABLES, row_variables  # noqa: E402
+from sofia_ros.errors import ConfigError  # noqa: E402
+
+__all__ = ['write_report']
+
+_LEDGER = 'ledger.json'
+_GRID = 8
+
+
+def _binned_means(values, residual, bins=20):
+    edges = np.linspace(values.min(), values.max(), bins + 1)
+    index = np.clip(np.digitize(values, edges) - 1, 0, bins - 1)
+    counts = np.bincount(index, minlength=bins)
+    sums = np.bincount(index, residual, minlength=bins)
+    filled = counts > 0
+    return ((edges[:-1] + edges[1:]) / 2.0)[filled], sums[filled] / counts[filled]
+
+
+def _residual_plot(result, fits, path):
+    observations = result.observations
+    centroids = observations.centroids
+    predictor_variables = [row_variables(observations, fit, result.predictor) for _, fit in fits]
+    cameras = centroids.cameras
+    figure, axes = plt.subplots(len(cameras), len(VARIABLES), figsize=(3.2 * len(VARIABLES), 2.4 * len(cameras)),
+                                squeeze=False, sharey='row')
+    for row, camera in enumerate(cameras):
+        rows = centroids.camera_index == row
+        for column, (key, label) in enumerate(VARIABLES.items()):
+            axis = axes[row, column]
+            for (name, fit), variables, colour in zip(fits, predictor_variables, ('tab:red', 'tab:blue')):
+                keep = rows & ~fit.outlier
+                if np.count_nonzero(keep) < 2:
+                    continue
+                values = variables[key][keep]
+                for component, style in ((0, '-'), (1, '--')):
+                    residual = fit.residual_arcsec[keep, component]
+                    axis.plot(values, residual, ',', color=colour, alpha=0.25)
+                    if np.ptp(values) > 0:
+                        centres, means = _binned_means(values, residual)
+                        axis.plot(centres, means, style, color=colour, lw=1.2,
+                                  label=f'{name} {"XY"[component]}' if row == 0 and column == 0 else None)
+            axis.axhline(0.0, color='k', lw=0.5)
+            if row == len(cameras) - 1:
+                axis.set_xlabel(key)
+            if column == 0:
+                axis.set_ylabel(f'{camera.upper()} residual ["]')
+    axes[0, 0].legend(fontsize=7, loc='upper left')
+    figure.suptitle('Residuals (measured - predicted, pixel axes) against the scanned variables; lines: bin means')
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def _vector_plot(result, fits, path):
+    centroids = result.observations.centroids
+    cameras = centroids.cameras
+    figure, axes = plt.subplots(len(fits), len(cameras), figsize=(3.6 * len(cameras), 3.4 * len(fits)), squeeze=False)
+    for row, (name, fit) in enumerate(fits):
+        for column, camera in enumerate(cameras):
+            axis = axes[row, column]
+            keep = (centroids.camera_index == column) & ~fit.outlier
+            pixels = centroids.measured_px[keep]
+            residual = fit.residual_arcsec[keep]
+            if len(pixels) == 0:
+                continue
+            edges_x = np.linspace(pixels[:, 0].min(), pixels[:, 0].max() + 1e-9, _GRID + 1)
+            edges_y = np.linspace(pixels[:, 1].min(), pixels[:, 1].max() + 1e-9, _GRID + 1)
+            cell = (np.clip(np.digitize(pixels[:, 0], edges_x) - 1, 0, _GRID - 1) * _GRID
+                    + np.clip(np.digitize(pixels[:, 1], edges_y) - 1, 0, _GRID - 1))
+            counts = np.bincount(cell, minlength=_GRID * _GRID)
+            filled = counts >= 3
+            mean_px = np.stack([np.bincount(cell, pixels[:, k], minlength=_GRID**2) for k in (0, 1)], axis=1)
+            mean_res = np.stack([np.bincount(cell, residual[:, k], minlength=_GRID**2) for k in (0, 1)], axis=1)
+            mean_px = mean_px[filled] / counts[filled, None]
+            mean_res = mean_res[filled] / counts[filled, None]
+            axis.quiver(mean_px[:, 0], mean_px[:, 1], mean_res[:, 0], mean_res[:, 1], angles='xy',
+                        scale_units='inches', scale=1.0)
+            axis.set_title(f'{camera.upper()}: {name}', fontsize=8)
+            axis.set_xlabel('X [px]')
+            axis.set_ylabel('Y [px]')
+            axis.set_aspect('equal', adjustable='datalim')
+    figure.suptitle('Mean residual vectors in each detector plane (1 inch = 1")')
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def _ledger_plot(runs, path):
+    figure, axis = plt.subplots(figsize=(6.4, 3.2))
+    totals = [run['residual_rms_arcsec']['total'] for run in runs]
+    floors = [run['noise_floor_arcsec'] for run in runs]
+    labels = [f'{index + 1}: {run["last_term"]}' for index, run in enumerate(runs)]
+    axis.plot(range(len(runs)), totals, 'o-', label='residual RMS')
+    axis.plot(range(len(runs)), floors, 'k--', label='noise floor')
+    axis.set_xticks(range(len(runs)), labels, rotation=20, fontsize=7, ha='right')
+    axis.set_ylabel('RMS per axis ["]')
+    axis.set_ylim(bottom=0.0)
+    axis.legend(fontsize=8)
+    axis.set_title('Ledger across runs written to this report directory')
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
+def _table(headers, rows):
+    head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in headers)
+    body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>' for row in rows)
+    return f'<table><tr>{head}</tr>{body}</table>'
+
+
+def _page(document, runs):
+    cameras = [c for c in ('hipo', 'fpi', 'ffi', 'wfi') if c in document['residual_rms_arcsec']]
+    ledger_rows = [[row['term'], *(f'{row["residual_rms_arcsec"][k]:.3f}' for k in ['total', *cameras])]
+                   for row in document['ledger']]
+    candidate_rows = [[c['effect'], f'{c["delta_bic"]:.1f}', f'{c["rms_after_arcsec"]:.3f}',
+                       ', '.join(f'{k} = {v:.4g} +- {c["sigma"][k]:.2g} {c["units"][k]}' for k, v in c['params'].items()),
+                       'refit' if c['refined'] else 'linear']
+                      for c in document['candidates'] if c['observable']]
+    term_rows = [[t['effect'], t['param'], f'{t["value"]:.4f}', f'{t["sigma"]:.4f}', t['unit']] for t in document['terms']]
+    run_rows = [[index + 1, run['model'], run['last_term'], f'{run["residual_rms_arcsec"]["total"]:.3f}',
+                 f'{run["noise_floor_arcsec"]:.3f}', run['top_candidate']] for index, run in enumerate(runs)]
+    degenerate = ''.join(f'<li>{html.escape(a)} and {html.escape(b)} cannot be told apart by this campaign</li>'
+                         for a, b in document['degenerate'])
+    return f'''<!DOCTYPE html>
+<html><head><meta charset="utf-8"><title>sofia compare: {html.escape(document["bag"])}</title>
+<style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse;margin:1em 0}}
+td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}</style></head><body>
+<h1>sofia compare</h1>
+<p>Bag <code>{html.escape(document["bag"])}</code>, model <code>{html.escape(document["model"])}</code>.
+Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {document["residual_rms_arcsec"]["total"]:.3f}";
+{document["outliers"]} outliers flagged.</p>
+<h2>Where the model fails</h2><img src="residuals.png" alt="residuals against variables">
+<img src="vectors.png" alt="residual vectors in the detector planes">
+<h2>Ledger of this run</h2>{_table(["step", "total", *[c.upper() for c in cameras]], ledger_rows)}
+<h2>Ledger across runs</h2><img src="ledger.png" alt="ledger across runs">
+{_table(["run", "model", "last fitted term", "RMS", "floor", "top candidate"], run_rows)}
+<h2>Fitted terms</h2>{_table(["effect", "parameter", "value", "sigma", "unit"], term_rows)}
+<h2>Candidates</h2>{_table(["effect", "delta-BIC", "RMS after", "parameters", "fit"], candidate_rows)}
+<p>Not observable in this campaign: {html.escape(", ".join(document["unobservable"]) or "none")}.</p>
+<ul>{degenerate}</ul>
+</body></html>
+'''
+
+
+def write_report(result, document, directory):
+    """Write index.html and the PNGs into ``directory`` (created if needed), all files or none."""
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise ConfigError(f'--report {directory} is a file; give a directory')
+    runs = []
+    ledger_path = directory / _LEDGER
+    if ledger_path.exists():
+        try:
+            runs = json.loads(ledger_path.read_text())
+        except json.JSONDecodeError as err:
+            raise ConfigError(f'{ledger_path} is not a ledger written by sofia compare; remove it') from err
+    top = next((c['effect'] for c in document['candidates']
+                if c['observable'] and c['delta_bic'] >= document['significant_delta_bic']), 'none')
+    runs.append({'model': document['model'], 'last_term': document['ledger'][-1]['term'],
+                 'residual_rms_arcsec': document['residual_rms_arcsec'],
+                 'noise_floor_arcsec': document['noise_floor_arcsec'], 'top_candidate': top})
+    fits = [('model', result.final_fit)]
+    if result.best_fit is not None:
+        fits.append((f'+ {result.best_name}', result.best_fit))
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix='.sofia_report_', dir=directory.parent) as staging:
+        staging = Path(staging)
+        _residual_plot(result, fits, staging / 'residuals.png')
+        _vector_plot(result, fits, staging / 'vectors.png')
+        _ledger_plot(runs, staging / 'ledger.png')
+        (staging / 'index.html').write_text(_page(document, runs))
+        (staging / _LEDGER).write_text(json.dumps(runs, indent=2) + '\n')
+        directory.mkdir(exist_ok=True)
+        for staged in staging.iterdir():
+            shutil.move(str(staged), directory / staged.name)
+    return directory / 'index.html'

@@ -143,13 +143,14 @@ class RankedCandidate:
 
 
 def _orthonormal_basis(jacobian):
-    """Orthonormal basis of the column span (rank-revealing SVD)."""
-    if jacobian.shape[1] == 0:
-        return jacobian
+    """Orthonormal basis of the column span (QR of the non-zero columns; collinear ones add nothing)."""
     norms = np.linalg.norm(jacobian, axis=0)
-    norms[norms == 0.0] = 1.0
-    u, singular, _ = np.linalg.svd(jacobian / norms, full_matrices=False)
-    return u[:, singular > singular[0] * 1e-12] if singular.size and singular[0] > 0 else u[:, :0]
+    columns = jacobian[:, norms > 0.0] / norms[norms > 0.0]
+    if columns.shape[1] == 0:
+        return columns
+    q, r = np.linalg.qr(columns)
+    diagonal = np.abs(np.diag(r))
+    return q[:, diagonal > diagonal.max() * 1e-10]
 
 
 def rank_candidates(residual, base_jacobian, candidates):

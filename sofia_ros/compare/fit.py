@@ -179,13 +179,11 @@ def fit_model(predictor, effects, free, sigma_arcsec, *, anchors_rad=None):
             break
         anchors, values, whitened = anchors + scale * anchor_step, values + scale * parameter_step, trial
         sigma = step.sigma[anchors.size:]
-        small = np.all(np.abs(parameter_step) <= 1e-3 * np.where(np.isfinite(sigma), sigma, np.inf))
-        if small and np.max(np.abs(anchor_step), initial=0.0) < 1e-9:
+        small = np.all(np.abs(parameter_step) <= 1e-2 * np.where(np.isfinite(sigma), sigma, np.inf))
+        if small and np.max(np.abs(anchor_step), initial=0.0) < 1e-8:
             break
+    # Converged steps are below 1 % of a sigma: the last Jacobian serves for the covariance.
     current = _with_values(effects, free, values)
-    predicted = predictor.predict_px(current, anchors)
-    jacobian = np.hstack([problem.anchor_columns(current, anchors, predicted),
-                          problem.parameter_columns(current, free, values, anchors, predicted)])
     weights = _huber_weights(whitened)
     root = np.sqrt(weights)
     final = linear_fit(root * whitened, root[:, None] * jacobian, [''] * jacobian.shape[1])

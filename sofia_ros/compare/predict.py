@@ -71,7 +71,7 @@ def attitudes_at(times_s, tick_end_s, tick_attitudes, increments_rad):
 class Predictor:
     """Predicted centroids (px) of one bag's frames for any effect set, with caches per effect family."""
 
-    def __init__(self, observations, *, anchor_spacing_s=120.0):
+    def __init__(self, observations, *, anchor_spacing_s=30.0):
         self.observations = observations
         centroids = observations.centroids
         self.scene = Scene(observations.scenario.site, observations.scenario.start_utc)

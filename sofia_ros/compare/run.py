@@ -96,7 +96,7 @@ def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, observable=Tr
             'seconds': round(seconds, 3)}
 
 
-def compare_bag(bag_path, model, *, anchor_spacing_s=120.0, candidate_names=None):
+def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None):
     """Compare ``model`` (an EffectConfig) with the bag; return the CompareResult."""
     started = time.perf_counter()
     observations = read_observations(bag_path)

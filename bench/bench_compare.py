@@ -1,0 +1,55 @@
+"""Benchmark: `sofia compare` on a full-size alignment-campaign bag with the whole catalogue as candidates.
+
+The bag is the default campaign of `scripts/run-main` (nominal truth, seed 1, 6 repetitions,
+direct mode), made in a temporary directory unless a bag is given. Printed: wall time of the
+comparison (reading the bag, the ledger fits, every candidate, the refits), its parts, and the
+time per candidate. Target: <= 10 s wall on the 2-core machine.
+
+Run: .venv/bin/python bench/bench_compare.py [BAG]
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from sofia_ros.campaigns.alignment import run_alignment  # noqa: E402
+from sofia_ros.compare.observations import read_observations  # noqa: E402
+from sofia_ros.compare.run import compare_bag  # noqa: E402
+from sofia_ros.config import load_effect_config  # noqa: E402
+
+
+def main():
+    with tempfile.TemporaryDirectory(prefix='bench_compare_') as folder:
+        if len(sys.argv) > 1:
+            bag = Path(sys.argv[1])
+        else:
+            bag = Path(folder) / 'alignment'
+            started = time.perf_counter()
+            run_alignment(load_effect_config(ROOT / 'config/truth/nominal.yaml'), seed=1, bag_path=bag, mode='direct')
+            print(f'campaign (direct mode) recorded in {time.perf_counter() - started:.1f} s: {bag}')
+        model = load_effect_config(ROOT / 'config/model/nominal.yaml')
+        started = time.perf_counter()
+        observations = read_observations(bag)
+        read_s = time.perf_counter() - started
+        started = time.perf_counter()
+        document = compare_bag(bag, model).document
+        total_s = time.perf_counter() - started
+    candidates = document['candidates']
+    print(f'centroids: {sum(document["observations"].values())}, gyro samples: {len(observations.gyro.time_s)}')
+    print(f'reading the bag alone: {read_s:.2f} s')
+    print(f'sofia compare, whole: {total_s:.2f} s wall (target <= 10 s); {len(candidates)} candidates, '
+          f'{document["seconds"]["per_candidate"] * 1000:.0f} ms each linearized')
+    for candidate in candidates:
+        print(f'  {candidate["effect"]:<28} {candidate["seconds"]:6.3f} s  '
+              f'{"refit" if candidate["refined"] else "linear"}  dBIC {candidate["delta_bic"]:9.1f}')
+    print(f'residual RMS {document["residual_rms_arcsec"]["total"]:.3f}", floor {document["noise_floor_arcsec"]:.3f}"')
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,195 @@
+"""`sofia compare` on reduced alignment campaigns: hidden effects found, null test, degeneracy, bad input.
+
+Each campaign is the real Table 3.4 sequence in direct mode with 2 repetitions (instead of 6)
+and 1 verification; the truth is config/truth/nominal.yaml plus one effect at its thesis
+default, the model is config/model/nominal.yaml. Expected parameter values are those
+defaults (sofia_ros/effects: eq. 6.1, 3.3.1 footnote, Table 2.6, 6.2), checked within 3 sigma.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sofia_ros.campaigns.alignment import run_alignment
+from sofia_ros.cli import main
+from sofia_ros.compare.run import compare_bag
+from sofia_ros.config import load_effect_config, parse_effect_config
+from sofia_ros.effects import resolve_params
+from sofia_ros.sim.calibration import AlignmentPlan
+
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL_TRUTH = ROOT / 'config' / 'truth' / 'nominal.yaml'
+NOMINAL_MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
+PLAN = AlignmentPlan(repetitions=2, verification_repetitions=1)
+#: A gyro box warming at 10 C/h: the swapped calibrations' temperature slope becomes visible (6.3).
+WARMING = {'temperature_slope_c_per_h': 10.0}
+HIDDEN = {
+    'gyro_scale_factor': None,
+    'timestamp_offset': None,
+    'hipo_fiducial_error': None,
+    'fpi_internal_flexure': None,
+    'imager_boresight_offset': None,
+    'imager_rotation_of_field': None,
+    'imager_scale_error': None,
+    'gyro_axis_swap': WARMING,
+}
+
+
+def _truth_with(effect=None, scenario=None):
+    document = yaml.safe_load(NOMINAL_TRUTH.read_text())
+    if effect:
+        document['effects'][effect] = {}
+    if scenario:
+        document['scenario'] = scenario
+    return parse_effect_config(yaml.safe_dump(document), f'nominal + {effect}')
+
+
+def _campaign(folder, effect=None, scenario=None, seed=3):
+    bag = folder / 'bag'
+    run_alignment(_truth_with(effect, scenario), seed=seed, bag_path=bag, plan=PLAN, mode='direct')
+    return bag
+
+
+@pytest.fixture(scope='module')
+def model():
+    return load_effect_config(NOMINAL_MODEL)
+
+
+@pytest.fixture(scope='module')
+def null_bag(tmp_path_factory):
+    return _campaign(tmp_path_factory.mktemp('null'))
+
+
+@pytest.mark.parametrize('effect', sorted(HIDDEN))
+def test_hidden_effect_is_the_top_candidate_within_three_sigma_and_brings_the_floor(tmp_path, model, effect):
+    bag = _campaign(tmp_path, effect, HIDDEN[effect])
+    document = compare_bag(bag, model).document
+    top = document['candidates'][0]
+    assert top['effect'] == effect, [(c['effect'], round(c['delta_bic'], 1)) for c in document['candidates'][:3]]
+    assert top['delta_bic'] >= 6.0 and top['refined']
+    assert not any(effect in pair for pair in document['degenerate'])
+    truth = resolve_params(effect, {})
+    for name, value in top['params'].items():
+        sigma = top['sigma'][name]
+        if np.isfinite(sigma):
+            assert abs(value - truth[name]) <= 3.0 * sigma, (name, value, truth[name], sigma)
+    assert top['rms_after_arcsec'] <= 1.2 * document['noise_floor_arcsec']
+
+
+def test_null_truth_equals_model_no_candidate_and_rms_at_the_floor(null_bag, model):
+    document = compare_bag(null_bag, model).document
+    assert all(c['delta_bic'] < 6.0 for c in document['candidates'])
+    ratio = document['residual_rms_arcsec']['total'] / document['noise_floor_arcsec']
+    assert 0.8 <= ratio <= 1.2
+    # The fitted misalignment is the truth's eq. 6.1 rotation (gyro_misalignment defaults).
+    truth = resolve_params('gyro_misalignment', {})
+    for term in document['terms']:
+        if term['effect'] == 'gyro_misalignment':
+            assert abs(term['value'] - truth[term['param']]) <= 3.0 * term['sigma']
+    assert {'heading_error', 'accelerometer_bias'} <= set(document['unobservable'])
+
+
+def test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scale_factor(tmp_path, model):
+    # Without a temperature change the swap is +s on EL and -s on XEL: a scale-factor error (6.3).
+    bag = _campaign(tmp_path, 'gyro_axis_swap')
+    document = compare_bag(bag, model).document
+    assert ['gyro_axis_swap', 'gyro_scale_factor'] in document['degenerate']
+    assert {c['effect'] for c in document['candidates'][:2]} == {'gyro_axis_swap', 'gyro_scale_factor'}
+
+
+def test_cli_loop_compare_add_compare_shows_the_error_falling(tmp_path, capsys):
+    bag = _campaign(tmp_path, 'fpi_internal_flexure')
+    model_path = tmp_path / 'model.yaml'
+    model_path.write_text(NOMINAL_MODEL.read_text())
+    report = tmp_path / 'report'
+    assert main(['compare', str(bag), '--model', str(model_path), '--json', str(tmp_path / 'a.json'),
+                 '--report', str(report)]) == 0
+    first = capsys.readouterr().out
+    assert 'verdict: missing effect fpi_internal_flexure' in first
+    assert main(['model', 'add', 'fpi_internal_flexure', '--model', str(model_path)]) == 0
+    assert 'fpi_internal_flexure' in load_effect_config(model_path).fitted
+    assert main(['compare', str(bag), '--model', str(model_path), '--json', str(tmp_path / 'b.json'),
+                 '--report', str(report)]) == 0
+    assert 'explains the data to the noise' in capsys.readouterr().out
+    import json
+
+    before, after = (json.loads((tmp_path / name).read_text()) for name in ('a.json', 'b.json'))
+    assert after['residual_rms_arcsec']['fpi'] < 0.5 * before['residual_rms_arcsec']['fpi']
+    assert {'index.html', 'residuals.png', 'vectors.png', 'ledger.png', 'ledger.json'} <= {
+        p.name for p in report.iterdir()}
+    assert len(json.loads((report / 'ledger.json').read_text())) == 2
+    for key in ('residual_rms_arcsec', 'noise_floor_arcsec', 'candidates', 'degenerate'):
+        assert key in after
+    assert {'total', 'hipo', 'fpi', 'ffi', 'wfi'} <= set(after['residual_rms_arcsec'])
+
+
+def _error_line(capsys, argv):
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1, captured.err
+    return lines[0]
+
+
+def test_unknown_effect_in_the_model_is_one_line_and_exit_2(tmp_path, capsys, null_bag):
+    model = tmp_path / 'm.yaml'
+    model.write_text('effects:\n  fpi_internal_flexur: {fit: true}\n')
+    out = tmp_path / 'out.json'
+    line = _error_line(capsys, ['compare', str(null_bag), '--model', str(model), '--json', str(out)])
+    assert 'unknown effect' in line and 'fpi_internal_flexure' in line
+    assert not out.exists()
+
+
+def test_parameter_with_wrong_units_is_refused(tmp_path, capsys, null_bag):
+    model = tmp_path / 'm.yaml'
+    model.write_text("effects:\n  gyro_bias: {el_deg_per_h: '0.1 arcsec/s'}\n")
+    line = _error_line(capsys, ['compare', str(null_bag), '--model', str(model)])
+    assert 'must be a number in deg/h' in line
+
+
+def test_bag_without_the_observables_is_refused(tmp_path, capsys):
+    from sofia_ros.bag import BagWriter
+
+    bag = tmp_path / 'empty'
+    writer = BagWriter(bag)
+    writer.open()
+    writer.write_document('/config/truth', 'effects: {}\n', 0)
+    writer.close()
+    line = _error_line(capsys, ['compare', str(bag), '--model', str(NOMINAL_MODEL)])
+    assert 'lacks' in line and '/gyro_box/imu' in line
+
+
+def test_truncated_bag_is_refused_and_nothing_is_written(tmp_path, capsys, null_bag):
+    import shutil
+
+    damaged = tmp_path / 'damaged'
+    shutil.copytree(null_bag, damaged)
+    mcap = next(damaged.glob('*.mcap'))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    out, report = tmp_path / 'out.json', tmp_path / 'report'
+    line = _error_line(capsys, ['compare', str(damaged), '--model', str(NOMINAL_MODEL), '--json', str(out),
+                                '--report', str(report)])
+    assert str(damaged) in line
+    assert not out.exists() and not report.exists()
+
+
+def test_model_add_refuses_unknown_and_already_fitted_effects(tmp_path, capsys):
+    model = tmp_path / 'm.yaml'
+    model.write_text(NOMINAL_MODEL.read_text())
+    line = _error_line(capsys, ['model', 'add', 'gyro_scale_factr', '--model', str(model)])
+    assert 'gyro_scale_factor' in line
+    line = _error_line(capsys, ['model', 'add', 'gyro_bias', '--model', str(model)])
+    assert 'already fits gyro_bias' in line
+    line = _error_line(capsys, ['model', 'add', 'gyro_bias', '--model', str(tmp_path / 'missing.yaml')])
+    assert 'cannot read' in line
+    assert model.read_text() == NOMINAL_MODEL.read_text()
+
+
+def test_bad_anchor_spacing_and_missing_output_directory_are_refused(tmp_path, capsys, null_bag):
+    line = _error_line(capsys, ['compare', str(null_bag), '--model', str(NOMINAL_MODEL), '--anchor-s', '0'])
+    assert '--anchor-s' in line
+    line = _error_line(capsys, ['compare', str(null_bag), '--model', str(NOMINAL_MODEL), '--json',
+                                str(tmp_path / 'no' / 'such' / 'out.json')])
+    assert 'does not exist' in line

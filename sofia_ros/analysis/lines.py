@@ -5,11 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
+from scipy import ndimage, signal, stats
 
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
 
-__all__ = ['KNOWN_LINES_HZ', 'SpectralLine', 'find_lines', 'likely_source']
+__all__ = ['KNOWN_LINES_HZ', 'SpectralLine', 'find_lines', 'likely_source', 'line_threshold']
 
 #: Frequencies the thesis names, with their source (Tables 5.4, 5.5 and 5.2.5), as measured at 400 Hz.
 KNOWN_LINES_HZ = (
@@ -36,21 +36,35 @@ class SpectralLine:
     source: str
 
 
-def likely_source(freq_hz):
-    """The thesis' source of a line within 0.3 Hz (aliases of 400 Hz sampling included), else 'unknown'."""
-    best = min(KNOWN_LINES_HZ, key=lambda known: abs(known[0] - freq_hz))
-    return best[1] if abs(best[0] - freq_hz) <= _MATCH_HZ else 'unknown'
+def likely_source(freq_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
+    """The thesis' source of a line within 0.3 Hz, where it lands when sampled at sample_rate_hz, else 'unknown'."""
+    # The table values are as measured at 400 Hz; every k-th sample (4.2.5) folds them again.
+    def landed(known_hz):
+        folded = known_hz % sample_rate_hz
+        return min(folded, sample_rate_hz - folded)
+
+    best = min(KNOWN_LINES_HZ, key=lambda known: abs(landed(known[0]) - freq_hz))
+    return best[1] if abs(landed(best[0]) - freq_hz) <= _MATCH_HZ else 'unknown'
 
 
-def find_lines(freq_hz, psd, *, threshold=20.0, min_freq_hz=0.3, max_freq_hz=GYRO_SAMPLE_RATE_HZ / 2.0):
-    """Lines standing ``threshold`` times above the local median of a one-sided rate PSD (5.2.5)."""
+def line_threshold(dof, n_bins, false_alarms=0.01):
+    """Ratio to the running median that chi-square noise of dof degrees of freedom passes in false_alarms of records."""
+    # A Welch value is S chi^2_dof / dof and the running median S median(chi^2_dof) / dof, so noise
+    # alone exceeds q times the median in a bin with probability P(chi^2_dof > q median(chi^2_dof)).
+    return float(stats.chi2.isf(false_alarms / n_bins, dof) / stats.chi2.median(dof))
+
+
+def find_lines(freq_hz, psd, dof, *, min_freq_hz=0.3, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
+    """Lines standing out of a one-sided rate PSD of dof degrees of freedom, with amplitude and source (5.2.5)."""
     freq = np.asarray(freq_hz)
     power = np.asarray(psd)
     df = float(freq[1] - freq[0])
-    band = (freq >= min_freq_hz) & (freq <= max_freq_hz)
-    # The background from a running median over about 2 Hz, robust against the lines themselves.
+    band = (freq >= min_freq_hz) & (freq <= sample_rate_hz / 2.0)
+    # The background from a running median over about 2 Hz, robust against the lines themselves;
+    # reflected at 0 and fs/2 (zero padding would halve it there and raise false lines).
     width = max(3, int(2.0 / df) | 1)
-    background = signal.medfilt(power, width)
+    background = ndimage.median_filter(power, size=width, mode='reflect')
+    threshold = line_threshold(dof, int(band.sum()))
     peaks, _ = signal.find_peaks(power, height=threshold * background, distance=max(1, int(0.5 / df)))
     lines = []
     for peak in peaks[band[peaks]]:
@@ -58,5 +72,5 @@ def find_lines(freq_hz, psd, *, threshold=20.0, min_freq_hz=0.3, max_freq_hz=GYR
         lo, hi = max(peak - 4, 0), min(peak + 5, len(power))
         excess = np.clip(power[lo:hi] - background[lo:hi], 0.0, None)
         amplitude = float(np.sqrt(2.0 * excess.sum() * df))
-        lines.append(SpectralLine(float(freq[peak]), amplitude, likely_source(float(freq[peak]))))
+        lines.append(SpectralLine(float(freq[peak]), amplitude, likely_source(float(freq[peak]), sample_rate_hz)))
     return lines

@@ -26,7 +26,7 @@ from scipy.optimize import lsq_linear
 
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
-from sofia_ros.validate import finite_array, positive_scalar
+from sofia_ros.validate import finite_array, finite_scalar, positive_scalar
 
 __all__ = [
     'BIAS_INSTABILITY_PLATEAU',
@@ -44,6 +44,9 @@ __all__ = [
     'rrw_adev',
     'rate_ramp_adev',
     'noise_adev',
+    'sinusoid_adev',
+    'decimated_quantization_variance',
+    'arw_of_decimated_record',
     'allan_variance_from_psd',
     'arw_deg_per_sqrt_h_from_white_psd',
     'loglog_slope',
@@ -165,6 +168,45 @@ def noise_adev(tau_s, quantization_arcsec=0.0, arw_arcsec_per_sqrt_s=0.0, bias_i
     )
 
 
+def sinusoid_adev(tau_s, amplitude_arcsec_per_s, frequency_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
+    """Root AV of a sampled sinusoid, A sin^2(pi f tau) / |m sin(pi f t_s)| (4.6-4.7 on A sin(2 pi f t))."""
+    # Cluster means of m samples scale the sinusoid by sin(pi f tau) / (m sin(pi f t_s)) (the
+    # discrete form of 4.10's sin(x)/x, exact for every m and for lines above fs/2, which alias);
+    # two means tau apart differ by 2 sin(pi f tau) times that, and 4.7 halves the mean square.
+    tau = _tau(tau_s)
+    sample_time_s = 1.0 / positive_scalar('sample_rate_hz', sample_rate_hz)
+    frequency = finite_scalar('frequency_hz', frequency_hz)
+    clusters = np.rint(tau / sample_time_s)
+    across_sample = np.sin(np.pi * frequency * sample_time_s)
+    across_cluster = np.sin(np.pi * frequency * clusters * sample_time_s)
+    if abs(across_sample) < 1e-15:  # a line at a multiple of fs is sampled as a constant
+        return np.zeros_like(tau)
+    return abs(amplitude_arcsec_per_s) * across_cluster**2 / (clusters * abs(across_sample))
+
+
+def decimated_quantization_variance(quantization_arcsec, readout_rate_hz=GYRO_SAMPLE_RATE_HZ):
+    """Rate variance quantization leaves in every k-th read-out (k >= 2), SF^2 / (6 t_s^2) (4.11 at full band)."""
+    # The rate is the difference of two rounded angles (2.11), each off by a uniform error of
+    # variance SF^2 / 12: at the read-out rate the difference is blue (4.11); samples k >= 2 apart
+    # share no rounding error, so in decimated data it is white noise of variance 2 SF^2 / (12 t_s^2).
+    sample_time_s = 1.0 / positive_scalar('readout_rate_hz', readout_rate_hz)
+    return quantization_arcsec**2 / (6.0 * sample_time_s**2)
+
+
+def arw_of_decimated_record(arw_sampled_arcsec_per_sqrt_s, sampled_rate_hz, quantization_arcsec,
+                            readout_rate_hz=GYRO_SAMPLE_RATE_HZ):
+    """Read-out ARW from every k-th sample: 4.27, less the white quantization SF^2 / (6 t_s) it carries."""
+    # 4.27 assumes white read-out noise; quantization is not (4.11), so in every k-th sample it adds
+    # decimated_quantization_variance x t_s = SF^2 / (6 t_s) to N^2 (0.0132"/sqrt(s) reads 0.0146 otherwise).
+    sampled = positive_scalar('sampled_rate_hz', sampled_rate_hz)
+    readout = positive_scalar('readout_rate_hz', readout_rate_hz)
+    if sampled >= readout:
+        raise InvalidArgumentError(f'sampled_rate_hz ({sampled:g}) must be below readout_rate_hz ({readout:g})')
+    corrected_sq = finite_array('arw_sampled_arcsec_per_sqrt_s', arw_sampled_arcsec_per_sqrt_s) ** 2 * sampled / readout
+    floor_sq = decimated_quantization_variance(quantization_arcsec, readout) / readout
+    return np.sqrt(np.maximum(corrected_sq - floor_sq, 0.0))
+
+
 def allan_variance_from_psd(tau_s, psd_function, f_min_hz=0.0, f_max_hz=np.inf):
     """AV from a one-sided rate PSD, 2 int S(f) sin^4(pi f tau) / (pi f tau)^2 df (eq. 4.10, factor 2)."""
     # In x = pi f tau: Gauss-Legendre on log-spaced pieces of the first half period (where 1/f^n
@@ -247,13 +289,15 @@ class NoiseFit:
         }
 
 
-def fit_noise_model(curve, terms=NOISE_TERMS):
+def fit_noise_model(curve, terms=NOISE_TERMS, lines_hz=(), sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
     """Weighted non-negative least squares of 4.24 (AV space) to a root AV curve in arcsec/s, errors 4.25."""
     # AV = sum_k a_k tau^p_k with a_k >= 0, where the terms add. An AV point's relative error is
     # twice the 4.25 error of its root, taken of the model AV (refitted a few times, so that low
     # fluctuations don't pull the fit). The covariance is multiplied by the points per octave, since
     # closer AV points share most clusters; a coefficient's sigma is half the width of the 1-sigma
-    # interval of a_k mapped through sqrt. Terms not listed are held at zero.
+    # interval of a_k mapped through sqrt. Terms not listed are held at zero. Lines at lines_hz
+    # (e.g. found in the PSD) enter as further AV terms A^2 sinusoid_adev(tau, 1, f)^2 whose powers
+    # are fitted and dropped: otherwise their bulges below ~10 s (5.2.6) are read as ARW.
     unknown = set(terms) - set(NOISE_TERMS)
     if unknown or not terms:
         raise InvalidArgumentError(f'terms must be a non-empty subset of {NOISE_TERMS}, got {terms}')
@@ -261,9 +305,11 @@ def fit_noise_model(curve, terms=NOISE_TERMS):
     variance = finite_array('curve.adev', curve.adev) ** 2
     relative = 2.0 * finite_array('curve.sigma_rel', curve.sigma_rel)
     active = np.array([name in terms for name in NOISE_TERMS])
-    if tau.size <= active.sum():
-        raise InvalidArgumentError(f'curve needs more than {active.sum()} points to fit {len(terms)} terms')
-    design = tau[:, np.newaxis] ** _AV_POWERS[active]
+    line_columns = [sinusoid_adev(tau, 1.0, frequency, sample_rate_hz) ** 2 for frequency in lines_hz]
+    if tau.size <= active.sum() + len(line_columns):
+        raise InvalidArgumentError(f'curve needs more than {active.sum() + len(line_columns)} points to fit '
+                                   f'{len(terms)} terms and {len(line_columns)} lines')
+    design = np.column_stack([tau[:, np.newaxis] ** _AV_POWERS[active], *line_columns])
     model = variance
     for _ in range(_REWEIGHTING_PASSES):
         weighted = design / (relative * model)[:, np.newaxis]
@@ -278,6 +324,7 @@ def fit_noise_model(curve, terms=NOISE_TERMS):
         amplitude_sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0) * _redundancy(tau))
     except np.linalg.LinAlgError:
         amplitude_sigma = np.full(amplitudes.size, np.inf)
+    amplitudes, amplitude_sigma = np.maximum(amplitudes[:active.sum()], 0.0), amplitude_sigma[:active.sum()]
     values, sigmas = np.zeros(len(NOISE_TERMS)), np.zeros(len(NOISE_TERMS))
     values[active] = _COEFFICIENT_FACTORS[active] * np.sqrt(amplitudes)
     upper = np.sqrt(amplitudes + amplitude_sigma)
@@ -319,8 +366,13 @@ class BiasStability:
     sigma_arcsec_per_s: float
 
 
-def bias_stability(curve):
-    """Bias stability: the lowest root AV point, its tau and its 4.25 error (4.2.3, Table 5.8)."""
+def bias_stability(curve, max_sigma_rel=np.inf):
+    """Bias stability: the lowest root AV point with a 4.25 error <= max_sigma_rel, its tau and error (Table 5.8)."""
+    # The last points of a curve run to T/3 with a 50 % error (5.2.6): the lowest of several such
+    # points is mostly the one noise pushed down, so a record reads only where it knows the curve.
     adev = finite_array('curve.adev', curve.adev)
-    lowest = int(np.argmin(adev))
+    eligible = np.asarray(curve.sigma_rel) <= max_sigma_rel
+    if not np.any(eligible):
+        raise InvalidArgumentError(f'no curve point has a 4.25 error <= {max_sigma_rel:g}; the record is too short')
+    lowest = int(np.argmin(np.where(eligible, adev, np.inf)))
     return BiasStability(float(adev[lowest]), float(curve.tau_s[lowest]), float(adev[lowest] * curve.sigma_rel[lowest]))

@@ -1,65 +1,223 @@
-"""`sofia noise`: a stability record's rates against Earth rate, its noise coefficients and lines (5.2)."""
+"""`sofia noise`: a stability record's rates against Earth rate, its noise coefficients and lines, the model loop (5.2).
+
+One record of `sofia run gyro-stability` is read once (load_noise_record) and analyzed
+(analyze_record), optionally as if only every k-th sample had been kept (the housekeeping case of
+4.2.5, corrected by 4.27 with the quantization term of noise_model.arw_of_decimated_record):
+
+- the Earth-rate table of Table 5.7 with the heading search and its degeneracy (noise_earth_rate);
+- per axis, the overlapping Allan deviation (4.6-4.8) of the mean-removed rate, its five-term fit
+  (4.24) with 4.25 errors and the PSD's lines as nuisance terms, the bias stability read at the
+  curve's minimum (Table 5.8) among points known to 25 % and whether the record resolves it, the
+  Welch PSD of 5.2.5 and its lines with their likely sources, and the largest excursion of the
+  integrated angle (Figs. 5.8-5.9);
+- the noise-model loop (noise_loop): the model's residual and the missing terms ranked.
+
+The document is the `sofia noise --json` contract (docs/noise.md, DESIGN.md 6).
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
 import yaml
 
 from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
 from sofia_ros.analysis.lines import find_lines
-from sofia_ros.analysis.noise_model import bias_stability, fit_noise_model
-from sofia_ros.analysis.spectra import welch_rate_psd
+from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
+from sofia_ros.analysis.noise_loop import fit_base, measured_noise, rank_missing_terms, residual_summary
+from sofia_ros.analysis.noise_model import arw_of_decimated_record, bias_stability, fit_noise_model
+from sofia_ros.analysis.spectra import welch_equivalent_dof, welch_rate_psd, welch_segment_samples
 from sofia_ros.bag import BagReader
-from sofia_ros.earth_rate import best_fit_heading_deg, earth_rate_tarf_deg_per_h
-from sofia_ros.errors import BagError
-from sofia_ros.units import DEG_PER_RAD, GYRO_SAMPLE_RATE_HZ, RAD_PER_ARCSEC
+from sofia_ros.campaigns.gyro_stability import SUBSYSTEM_TOPIC
+from sofia_ros.errors import BagError, InvalidArgumentError
+from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
+from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC
+from sofia_ros.units import GYRO_SAMPLE_RATE_HZ, RAD_PER_ARCSEC
 
-__all__ = ['AXES', 'analyze_noise']
+__all__ = [
+    'AXES',
+    'IMU_TOPIC',
+    'CASE_TOPIC',
+    'MIN_SAMPLES',
+    'NoiseRecord',
+    'NoiseAnalysis',
+    'checked_decimation',
+    'integrated_angle_arcsec',
+    'load_noise_record',
+    'analyze_record',
+    'analyze_noise',
+]
 
 AXES = ('el', 'xel', 'los')
+IMU_TOPIC = '/gyro_box/imu'
+CASE_TOPIC = '/config/case'
+#: Shortest analyzable record: four Welch segments of 256 samples (spectra.welch_segment_samples).
+MIN_SAMPLES = 1024
 _N_TAUS = 60
+#: The bias stability is read among AV points known to 25 % (4.25: at least 9 clusters, tau <= T/9).
+BIAS_STABILITY_MAX_SIGMA_REL = 0.25
 
 
-def analyze_noise(bag_path, imu_topic='/gyro_box/imu'):
-    """The `sofia noise --json` document of a bag (DESIGN.md section 6)."""
+@dataclass(frozen=True)
+class NoiseRecord:
+    """What `sofia noise` reads from a bag: GYRF rates at the read-out rate, the case and the TA configuration."""
+
+    bag_path: Path
+    rates_arcsec_per_s: np.ndarray
+    case: dict
+    subsystems: dict | None
+
+
+@dataclass(frozen=True)
+class NoiseAnalysis:
+    """The JSON document and the arrays the report plots."""
+
+    document: dict
+    sample_rate_hz: float
+    noise_arcsec_per_s: np.ndarray
+    curves: tuple
+    fits: tuple
+    freq_hz: np.ndarray
+    psd: np.ndarray
+    segment_samples: int
+    measured: object
+    base: object
+    effects: dict
+
+
+def checked_decimation(decimate):
+    """The --decimate factor as an int >= 1, or InvalidArgumentError naming the fix."""
+    try:
+        factor = int(str(decimate))
+    except ValueError as err:
+        raise InvalidArgumentError(
+            f'--decimate must be a whole number of read-out samples (>= 1), got {decimate!r}') from err
+    if factor < 1:
+        raise InvalidArgumentError(f'--decimate must be >= 1 (1 keeps every 400 Hz sample), got {factor}')
+    return factor
+
+
+def integrated_angle_arcsec(noise_arcsec_per_s, sample_rate_hz):
+    """Mean-removed rate summed into angle, the angular error of Figs. 5.8-5.9 (5.2.4)."""
+    return np.cumsum(noise_arcsec_per_s - noise_arcsec_per_s.mean(axis=0), axis=0) / sample_rate_hz
+
+
+def load_noise_record(bag_path, imu_topic=IMU_TOPIC):
+    """Read a gyro-stability bag: /gyro_box/imu, /config/case and, if recorded, /ta/subsystem_status."""
     with BagReader(bag_path) as bag:
         names = {topic.name for topic in bag.topics}
         if imu_topic not in names:
             raise BagError(f'{bag_path} has no {imu_topic}; record a gyro-stability campaign first')
-        if '/config/case' not in names:
-            raise BagError(f'{bag_path} has no /config/case; `sofia noise` reads the geometry of a gyro-stability run')
-        case = yaml.safe_load(bag.document('/config/case'))
+        if CASE_TOPIC not in names:
+            raise BagError(f'{bag_path} has no {CASE_TOPIC}; `sofia noise` reads the geometry of a gyro-stability run')
+        case = yaml.safe_load(bag.document(CASE_TOPIC))
+        subsystems = None
+        if SUBSYSTEM_TOPIC in names:
+            for _, _, message in bag.messages(SUBSYSTEM_TOPIC):
+                subsystems = {value.key: value.value for value in message.values}
         imu = bag.imu_arrays(imu_topic)
-    rates_arcsec_per_s = imu.angular_velocity_rad_per_s / RAD_PER_ARCSEC
-    if len(rates_arcsec_per_s) < 3 * 400:
-        raise BagError(f'{bag_path}: only {len(rates_arcsec_per_s)} samples; record at least a few seconds')
-    measured_deg_per_h = imu.angular_velocity_rad_per_s.mean(axis=0) * DEG_PER_RAD * 3600.0
-    theoretical = earth_rate_tarf_deg_per_h(case['latitude_deg'], case['heading_deg'], case['elevation_deg'])
-    heading = best_fit_heading_deg(measured_deg_per_h, case['latitude_deg'], case['elevation_deg'])
-    # Noise about the mean rate: Earth rate and the constant biases are not noise (5.2.6).
-    noise = rates_arcsec_per_s - rates_arcsec_per_s.mean(axis=0)
-    curves = overlapping_allan_deviation(noise, GYRO_SAMPLE_RATE_HZ,
-                                         log_spaced_cluster_sizes(len(noise), _N_TAUS))
-    freq_hz, psd = welch_rate_psd(noise)
-    axes = {}
-    for index, (axis, curve) in enumerate(zip(AXES, curves)):
-        fit = fit_noise_model(curve)
-        stability = bias_stability(curve)
-        axes[axis] = {
-            'arw_arcsec_per_sqrt_s': fit.arw_arcsec_per_sqrt_s, 'arw_sigma': fit.arw_sigma_arcsec_per_sqrt_s,
-            'bias_stability_arcsec_per_s': stability.bias_stability_arcsec_per_s,
-            'bias_stability_tau_s': stability.tau_s,
-            'rrw_arcsec_per_s_sqrt_s': fit.rrw_arcsec_per_s_sqrt_s, 'rrw_sigma': fit.rrw_sigma_arcsec_per_s_sqrt_s,
-            'lines': [{'freq_hz': line.freq_hz, 'amplitude_arcsec_per_s': line.amplitude_arcsec_per_s,
-                       'source': line.source} for line in find_lines(freq_hz, psd[:, index])],
-        }
-    return {
-        'case': case.get('case'), 'samples_per_axis': int(len(noise)),
-        'axes': axes,
-        'earth_rate_deg_per_h': {
-            'measured': dict(zip(AXES, map(float, measured_deg_per_h))),
-            'theoretical': dict(zip(AXES, map(float, theoretical))),
-            'heading_deg': float(case['heading_deg']), 'best_fit_heading_deg': heading,
-        },
-        # The noise-model loop (ranked missing terms) is not built yet.
-        'candidates': [],
+    return NoiseRecord(Path(bag_path), imu.angular_velocity_rad_per_s / RAD_PER_ARCSEC, case, subsystems)
+
+
+def _decimated_arw(fit, sample_rate_hz, quantization_arcsec):
+    """(read-out ARW, its sigma) of a decimated record's fit (noise_model.arw_of_decimated_record)."""
+    arw = float(arw_of_decimated_record(fit.arw_arcsec_per_sqrt_s, sample_rate_hz, quantization_arcsec))
+    # dN/dN_sampled = N_sampled (f_sampled / f_read-out) / N
+    slope = fit.arw_arcsec_per_sqrt_s * sample_rate_hz / GYRO_SAMPLE_RATE_HZ / arw if arw > 0.0 else np.inf
+    return arw, float(fit.arw_sigma_arcsec_per_sqrt_s * slope)
+
+
+def _axis_document(curve, fit, lines, angle_max_arcsec, sample_rate_hz, quantization_arcsec):
+    stability = bias_stability(curve, BIAS_STABILITY_MAX_SIGMA_REL)
+    # Table 5.8 reads the minimum where the curve turns up again: resolved when a readable point after
+    # it stands 2 sigma (4.25) above it; else the value is an upper bound (TC-4: "no statement possible").
+    after = (curve.sigma_rel <= BIAS_STABILITY_MAX_SIGMA_REL) & (curve.tau_s > stability.tau_s)
+    rise = curve.adev[after] - stability.bias_stability_arcsec_per_s
+    document = {
+        'arw_arcsec_per_sqrt_s': fit.arw_arcsec_per_sqrt_s, 'arw_sigma': fit.arw_sigma_arcsec_per_sqrt_s,
+        'bias_stability_arcsec_per_s': stability.bias_stability_arcsec_per_s,
+        'bias_stability_sigma': stability.sigma_arcsec_per_s,
+        'bias_stability_tau_s': stability.tau_s,
+        'bias_stability_resolved': bool(np.any(rise > 2.0 * curve.sigma_rel[after] * curve.adev[after])),
+        'rrw_arcsec_per_s_sqrt_s': fit.rrw_arcsec_per_s_sqrt_s, 'rrw_sigma': fit.rrw_sigma_arcsec_per_s_sqrt_s,
+        'quantization_arcsec': fit.quantization_arcsec, 'quantization_sigma': fit.quantization_sigma_arcsec,
+        'bias_instability_arcsec_per_s': fit.bias_instability_arcsec_per_s,
+        'bias_instability_sigma': fit.bias_instability_sigma_arcsec_per_s,
+        'rate_ramp_arcsec_per_s2': fit.rate_ramp_arcsec_per_s2, 'rate_ramp_sigma': fit.rate_ramp_sigma_arcsec_per_s2,
+        'integrated_angle_max_arcsec': angle_max_arcsec,
+        'lines': [{'freq_hz': line.freq_hz, 'amplitude_arcsec_per_s': line.amplitude_arcsec_per_s,
+                   'source': line.source} for line in lines],
     }
+    if sample_rate_hz < GYRO_SAMPLE_RATE_HZ:
+        document['arw_sampled_arcsec_per_sqrt_s'] = fit.arw_arcsec_per_sqrt_s
+        document['arw_arcsec_per_sqrt_s'], document['arw_sigma'] = _decimated_arw(fit, sample_rate_hz,
+                                                                                   quantization_arcsec)
+    return document
+
+
+def _degenerate_pairs(candidates):
+    pairs = [list(DEGENERATE_PAIR)]
+    for candidate in candidates:
+        for other in candidate['degenerate_with']:
+            pair = sorted((candidate['label'], other))
+            if pair not in pairs:
+                pairs.append(pair)
+    return pairs
+
+
+def analyze_record(record, *, model=None, decimate=1):
+    """The `sofia noise` analysis of a record against a noise model (an EffectConfig, or None for none)."""
+    factor = checked_decimation(decimate)
+    sample_rate_hz = GYRO_SAMPLE_RATE_HZ / factor
+    rates = np.ascontiguousarray(record.rates_arcsec_per_s[::factor])
+    if len(rates) < MIN_SAMPLES:
+        hint = 'use a smaller --decimate' if factor > 1 else 'record a longer run'
+        raise InvalidArgumentError(f'{record.bag_path}: {len(rates)} samples at {sample_rate_hz:g} Hz; the analysis '
+                                   f'needs at least {MIN_SAMPLES} ({hint})')
+    effects = dict(model.effects) if model is not None else {}
+    case = record.case
+    tarf_from_gyrf = tarf_from_gyrf_dcm(effects) if 'gyro_misalignment' in effects else None
+    # arcsec/s and deg/h are the same number (3600 / 3600).
+    earth = earth_rate_table(rates.mean(axis=0), case['latitude_deg'], case['heading_deg'], case['elevation_deg'],
+                             tarf_from_gyrf)
+    # Noise about the mean rate: Earth rate and the constant biases are not noise (5.2.6).
+    noise = rates - rates.mean(axis=0)
+    curves = overlapping_allan_deviation(noise, sample_rate_hz, log_spaced_cluster_sizes(len(noise), _N_TAUS))
+    segment = welch_segment_samples(len(noise))
+    freq_hz, psd = welch_rate_psd(noise, sample_rate_hz, segment_samples=segment, fft_points=4 * segment)
+    angle_max = np.abs(integrated_angle_arcsec(noise, sample_rate_hz)).max(axis=0)
+    quantization = effects['gyro_noise']['quantization_arcsec'] if effects.get('gyro_noise') else QUANTIZATION_ARCSEC
+    dof = welch_equivalent_dof(len(noise), segment)
+    lines = [find_lines(freq_hz, psd[:, index], dof, sample_rate_hz=sample_rate_hz) for index in range(3)]
+    fits = tuple(fit_noise_model(curve, lines_hz=[line.freq_hz for line in axis_lines], sample_rate_hz=sample_rate_hz)
+                 for curve, axis_lines in zip(curves, lines))
+    axes = {axis: _axis_document(curve, fit, axis_lines, float(angle_max[index]), sample_rate_hz, quantization)
+            for index, (axis, curve, fit, axis_lines) in enumerate(zip(AXES, curves, fits, lines))}
+    measured = measured_noise(curves, freq_hz, psd, sample_rate_hz=sample_rate_hz,
+                              readout_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=segment, n_samples=len(noise))
+    base = fit_base(measured, effects)
+    candidates = rank_missing_terms(measured, base, effects)
+    document = {
+        'bag': str(record.bag_path), 'case': case.get('case'), 'description': case.get('description'),
+        'samples_per_axis': int(len(noise)), 'record_s': len(noise) / sample_rate_hz,
+        'sample_rate_hz': sample_rate_hz, 'readout_rate_hz': GYRO_SAMPLE_RATE_HZ, 'decimation': factor,
+        'subsystems': record.subsystems,
+        'axes': axes,
+        'earth_rate_deg_per_h': earth,
+        'model': {
+            'path': None if model is None else model.source,
+            'effects': sorted(effects),
+            'arw_refit_arcsec_per_sqrt_s': dict(zip(AXES, map(float, base.arw_readout_arcsec_per_sqrt_s))),
+            'residual': residual_summary(measured, base.av, base.psd),
+        },
+        'candidates': candidates,
+        'degenerate': _degenerate_pairs(candidates),
+    }
+    return NoiseAnalysis(document, sample_rate_hz, noise, curves, fits, freq_hz, psd, segment, measured, base, effects)
+
+
+def analyze_noise(bag_path, *, model=None, decimate=1, imu_topic=IMU_TOPIC):
+    """The `sofia noise --json` document of a bag (DESIGN.md section 6, docs/noise.md)."""
+    return analyze_record(load_noise_record(bag_path, imu_topic), model=model, decimate=decimate).document

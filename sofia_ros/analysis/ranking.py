@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse
 
 from sofia_ros.errors import InvalidArgumentError
 
@@ -65,18 +66,56 @@ class LinearFit:
 
 def _checked(residual, jacobian):
     residual = np.asarray(residual, dtype=float).ravel()
-    jacobian = np.asarray(jacobian, dtype=float)
-    if jacobian.ndim == 1:
-        jacobian = jacobian[:, np.newaxis]
+    if scipy.sparse.issparse(jacobian):
+        jacobian = scipy.sparse.csr_matrix(jacobian, dtype=float)
+        values = jacobian.data
+    else:
+        jacobian = np.asarray(jacobian, dtype=float)
+        if jacobian.ndim == 1:
+            jacobian = jacobian[:, np.newaxis]
+        values = jacobian
     if jacobian.shape[0] != residual.size:
         raise InvalidArgumentError(f'jacobian has {jacobian.shape[0]} rows for {residual.size} residuals')
-    if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(jacobian))):
+    if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(values))):
         raise InvalidArgumentError('residual and jacobian must be finite')
     return residual, jacobian
 
 
+def _gram(first, second=None):
+    """first^T second as a dense array, for dense or sparse operands."""
+    product = first.T @ (first if second is None else second)
+    return product.toarray() if scipy.sparse.issparse(product) else np.asarray(product)
+
+
+@dataclass(frozen=True)
+class _NormalInverse:
+    """Pseudo-inverse of a Gram matrix through its column-scaled eigendecomposition, and its null space."""
+
+    matrix: np.ndarray
+    unconstrained: np.ndarray
+
+    @classmethod
+    def of(cls, gram):
+        diagonal = np.diag(gram).copy()
+        norms = np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
+        eigenvalues, vectors = np.linalg.eigh(gram / np.outer(norms, norms))
+        # Eigenvalues are squared singular values: 1e-14 keeps singular values above 1e-7 of the largest.
+        keep = eigenvalues > eigenvalues.max(initial=0.0) * 1e-14
+        inverse = (vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T / np.outer(norms, norms)
+        unconstrained = np.any(np.abs(vectors[:, ~keep]) > 1e-6, axis=1)
+        return cls(inverse, unconstrained)
+
+    def covariance(self, variance):
+        """Scaled covariance with infinite variance (and undefined covariance) along unconstrained parameters."""
+        covariance = self.matrix * variance
+        covariance[self.unconstrained, :] = np.nan
+        covariance[:, self.unconstrained] = np.nan
+        covariance[self.unconstrained, self.unconstrained] = np.inf
+        return covariance
+
+
 def linear_fit(residual, jacobian, names):
-    """Step minimizing |r - J step|^2 with covariance s^2 (J^T J)^-1, s^2 = RSS/(n-k) (column-scaled SVD)."""
+    """Step minimizing |r - J step|^2 with covariance s^2 (J^T J)^+, s^2 = RSS/(n-k); J dense or sparse."""
     residual, jacobian = _checked(residual, jacobian)
     names = tuple(names)
     if len(names) != jacobian.shape[1]:
@@ -84,29 +123,11 @@ def linear_fit(residual, jacobian, names):
     n, k = jacobian.shape
     if k == 0:
         return LinearFit(names, np.zeros(0), np.zeros(0), np.zeros((0, 0)), float(residual @ residual), n)
-    norms = np.linalg.norm(jacobian, axis=0)
-    norms[norms == 0.0] = 1.0
-    scaled = jacobian / norms
-    # Normal equations of the column-scaled problem: their eigenvectors are the right singular
-    # vectors and their eigenvalues the squared singular values, at a fraction of the SVD's cost.
-    eigenvalues, vectors = np.linalg.eigh(scaled.T @ scaled)
-    order = np.argsort(eigenvalues)[::-1]
-    singular = np.sqrt(np.clip(eigenvalues[order], 0.0, None))
-    vt = vectors[:, order].T
-    keep = singular > singular[0] * 1e-7
-    inverse = np.where(keep, 1.0 / np.where(keep, singular, 1.0), 0.0)
-    step = (vt.T * inverse**2) @ (vt @ (scaled.T @ residual)) / norms
+    inverse = _NormalInverse.of(_gram(jacobian))
+    step = inverse.matrix @ (jacobian.T @ residual)
     after = residual - jacobian @ step
     rss = float(after @ after)
-    variance = rss / max(n - k, 1)
-    covariance = (vt.T * inverse**2) @ vt / np.outer(norms, norms) * variance
-    # Directions the data do not constrain get infinite sigma, not a fake small one.
-    if not np.all(keep):
-        null = vt[~keep]
-        unconstrained = np.any(np.abs(null) > 1e-6, axis=0)
-        covariance[unconstrained, :] = np.nan
-        covariance[:, unconstrained] = np.nan
-        covariance[unconstrained, unconstrained] = np.inf
+    covariance = inverse.covariance(rss / max(n - k, 1))
     sigma = np.sqrt(np.diag(covariance))
     with np.errstate(invalid='ignore', divide='ignore'):
         correlation = covariance / np.outer(sigma, sigma)
@@ -142,17 +163,6 @@ class RankedCandidate:
         return self.observable and self.delta_bic >= SIGNIFICANT_DELTA_BIC
 
 
-def _orthonormal_basis(jacobian):
-    """Orthonormal basis of the column span (QR of the non-zero columns; collinear ones add nothing)."""
-    norms = np.linalg.norm(jacobian, axis=0)
-    columns = jacobian[:, norms > 0.0] / norms[norms > 0.0]
-    if columns.shape[1] == 0:
-        return columns
-    q, r = np.linalg.qr(columns)
-    diagonal = np.abs(np.diag(r))
-    return q[:, diagonal > diagonal.max() * 1e-10]
-
-
 def rank_candidates(residual, base_jacobian, candidates):
     """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (DESIGN.md 6).
 
@@ -163,10 +173,11 @@ def rank_candidates(residual, base_jacobian, candidates):
     """
     residual, base_jacobian = _checked(residual, base_jacobian)
     n, k_base = base_jacobian.shape
-    basis = _orthonormal_basis(base_jacobian)
+    # Frisch-Waugh-Lovell through the base's normal equations: P x = J (J^T J)^+ J^T x.
+    base_inverse = _NormalInverse.of(_gram(base_jacobian)).matrix
 
     def project_out(matrix):
-        return matrix - basis @ (basis.T @ matrix)
+        return matrix - base_jacobian @ (base_inverse @ (base_jacobian.T @ matrix))
 
     residual_perp = project_out(residual)
     rss_base = float(residual_perp @ residual_perp)

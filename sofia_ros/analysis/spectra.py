@@ -4,25 +4,41 @@ Welch settings of 5.2.5: 2^14-sample Hamming segments, 50 % overlap, 2^16 FFT po
 PSD (4.5) from 0 to the Nyquist frequency. MATLAB's pwelch does not detrend; here each segment's
 mean is removed (scipy's default) so that the rate bias (Earth rate, 5.2.4) does not leak into
 the lowest bins through the window's side lobes.
+
+Records shorter than four 2^14-sample segments (e.g. housekeeping data decimated as in 4.2.5) get
+the largest power-of-two segment that still leaves four, with the same 4x zero padding.
+
+For the model-versus-measurement loop: the expected Welch estimate of a sinusoid (the window's
+transform around the line, aliases included) and the equivalent degrees of freedom of the estimate,
+whose chi-square scatter sets the bias and the error of a log-PSD value.
 """
 
 from __future__ import annotations
 
-from scipy import signal
+import numpy as np
+from scipy import signal, special
 
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
-from sofia_ros.validate import finite_array, positive_scalar
+from sofia_ros.validate import finite_array, finite_scalar, positive_scalar
 
 __all__ = [
     'WELCH_SEGMENT_SAMPLES',
     'WELCH_FFT_POINTS',
     'welch_rate_psd',
+    'welch_segment_samples',
+    'welch_sinusoid_psd',
+    'welch_equivalent_dof',
+    'log_chi_square_bias_and_sigma',
     'rate_spectrogram',
 ]
 
 WELCH_SEGMENT_SAMPLES = 2**14
 WELCH_FFT_POINTS = 2**16
+#: Shortest segment offered for short records (0.64 s at 400 Hz).
+_SHORTEST_SEGMENT = 2**8
+#: Hamming window of 5.2.5: 0.54 - 0.46 cos(2 pi n / N), periodic as scipy builds it for Welch.
+_HAMMING = (0.54, 0.46)
 
 
 def _rate_and_segments(rate, sample_rate_hz, segment_samples, overlap):
@@ -50,6 +66,72 @@ def welch_rate_psd(rate, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=WEL
         data, fs=rate_hz, window='hamming', nperseg=length, noverlap=overlap_samples, nfft=points,
         detrend='constant', return_onesided=True, scaling='density', axis=0,
     )
+
+
+def welch_segment_samples(n_samples):
+    """Segment length: 2^14 as in 5.2.5, or for short records the largest power of two leaving four segments."""
+    count = int(positive_scalar('n_samples', n_samples))
+    if count < 4 * _SHORTEST_SEGMENT:
+        raise InvalidArgumentError(f'a rate PSD needs at least {4 * _SHORTEST_SEGMENT} samples, got {count}')
+    return min(WELCH_SEGMENT_SAMPLES, 1 << (count // 4).bit_length() - 1)
+
+
+def _hamming_transform(frequency_hz, sample_rate_hz, segment_samples):
+    """DTFT of the periodic Hamming window, sum_n w_n exp(-2 pi i f n / fs), in closed form."""
+    theta = 2.0 * np.pi * np.asarray(frequency_hz, dtype=float) / sample_rate_hz
+    step = 2.0 * np.pi / segment_samples
+
+    def dirichlet(angle):
+        half = np.sin(0.5 * angle)
+        small = np.abs(half) < 1e-12
+        ratio = np.where(small, segment_samples * np.cos(0.5 * angle * (segment_samples - 1)),
+                         np.sin(0.5 * segment_samples * angle) / np.where(small, 1.0, half))
+        return np.exp(-0.5j * angle * (segment_samples - 1)) * ratio
+
+    a0, a1 = _HAMMING
+    return a0 * dirichlet(theta) - 0.5 * a1 * (dirichlet(theta - step) + dirichlet(theta + step))
+
+
+def welch_sinusoid_psd(freq_hz, amplitude_arcsec_per_s, line_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ,
+                       segment_samples=WELCH_SEGMENT_SAMPLES):
+    """Expected one-sided Welch PSD (5.2.5) of A sin(2 pi f0 t): A^2 (|W(f-f0)|^2 + |W(f+f0)|^2) / (2 fs sum w^2)."""
+    # Averaged over the line's phase in each segment; W is periodic in fs, so lines above the
+    # Nyquist frequency land on their aliases (Tables 5.4, 5.5). Integrates to A^2 / 2 (4.5).
+    rate_hz = positive_scalar('sample_rate_hz', sample_rate_hz)
+    length = int(positive_scalar('segment_samples', segment_samples))
+    frequency = finite_array('freq_hz', freq_hz)
+    line = finite_scalar('line_hz', line_hz)
+    window = signal.get_window('hamming', length)
+    power = (np.abs(_hamming_transform(frequency - line, rate_hz, length)) ** 2
+             + np.abs(_hamming_transform(frequency + line, rate_hz, length)) ** 2)
+    return amplitude_arcsec_per_s**2 * power / (2.0 * rate_hz * np.sum(window**2))
+
+
+def welch_equivalent_dof(n_samples, segment_samples=WELCH_SEGMENT_SAMPLES, overlap=0.5):
+    """Equivalent chi-square degrees of freedom of a Hamming Welch estimate, 2K / (1 + 2 sum (1-j/K) rho_j^2)."""
+    # Welch (1967); Percival & Walden (1993) eq. 292b: rho_j is the window's overlap correlation at
+    # a shift of j segment steps, K the number of segments.
+    length = int(positive_scalar('segment_samples', segment_samples))
+    step = length - int(round(float(overlap) * length))
+    segments = (int(positive_scalar('n_samples', n_samples)) - length) // step + 1
+    if segments < 1:
+        raise InvalidArgumentError(f'n_samples ({n_samples}) is shorter than one segment ({length})')
+    window = signal.get_window('hamming', length)
+    energy = np.sum(window**2)
+    total = 0.0
+    for shift in range(1, segments):
+        if shift * step >= length:
+            break
+        rho = np.dot(window[:length - shift * step], window[shift * step:]) / energy
+        total += (1.0 - shift / segments) * rho**2
+    return 2.0 * segments / (1.0 + 2.0 * total)
+
+
+def log_chi_square_bias_and_sigma(dof):
+    """Mean and standard deviation of ln(S_hat / S) for a chi-square estimate with dof degrees of freedom."""
+    # ln of chi^2_nu / nu: mean digamma(nu/2) - ln(nu/2), variance trigamma(nu/2).
+    half = 0.5 * positive_scalar('dof', dof)
+    return float(special.digamma(half) - np.log(half)), float(np.sqrt(special.polygamma(1, half)))
 
 
 def rate_spectrogram(rate, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=2**12, overlap=0.5):

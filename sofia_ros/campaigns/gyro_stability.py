@@ -4,7 +4,9 @@ CD at 40.1077 deg, true heading 324 deg (GPS), N 34.9368 deg, 697 m (Table 5.3, 
 plant holds the telescope to the Earth (the gyros see eqs. 4.1-4.3); the truth file gives the
 gyros' own errors and the case adds the disturbances its subsystem configuration brings
 (Table 5.2; lines of 5.2.5 and Tables 5.4/5.5). Line amplitudes are illustrative: the thesis
-shows them only as PSD plots (Figs. 5.10-5.12).
+shows them only as PSD plots (Figs. 5.10-5.12). The case's subsystem configuration (Table 5.2:
+RIS, FD, CD, VIS, oil pumps, cooling carts, fans) is recorded as a latched DiagnosticStatus on
+/ta/subsystem_status, for `sofia noise` and any ROS tool.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import yaml
 from sofia_ros.bag import BagWriter
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
+from sofia_ros.sim import messages as m
 from sofia_ros.sim.clock import ClockCore
 from sofia_ros.sim.gyro_box import GyroBoxCore
 from sofia_ros.sim.plant import PlantCore
@@ -29,7 +32,7 @@ from sofia_ros.sim.scenario import Scenario
 from sofia_ros.sky import EDWARDS_2007_SITE
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
 
-__all__ = ['TestCase', 'CASES', 'edwards_scenario', 'case_effects', 'run_gyro_stability']
+__all__ = ['TestCase', 'CASES', 'SUBSYSTEM_TOPIC', 'edwards_scenario', 'case_effects', 'run_gyro_stability']
 
 #: 2007-06-21, the first day of the test series (5.2); the hour is arbitrary (gyros do not see the sky).
 START_UTC = dt.datetime(2007, 6, 21, 18, 0, 0, tzinfo=dt.timezone.utc)
@@ -45,22 +48,40 @@ class TestCase:
     #: (frequency Hz, amplitude arcsec/s, axis) lines the configuration excites
     lines: tuple
     los_oscillation_period_s: float | None
+    #: (subsystem, state) of Table 5.2 and 5.2.1, recorded on SUBSYSTEM_TOPIC
+    subsystems: tuple
 
 
 _ALWAYS = ((0.7, 0.05, 'el'), (0.7, 0.02, 'xel'), (1.3, 0.05, 'el'), (1.3, 0.02, 'los'))
 _TC1_SERIES = tuple((10.0 + 3.3 * k, 0.02, axis) for k in range(0, 28, 3) for axis in ('el', 'xel'))
 _OIL_PUMP = ((30.0, 0.15, 'el'), (30.0, 0.1, 'xel'), (30.0, 0.1, 'los'), (190.2, 0.1, 'el'), (190.2, 0.1, 'xel'))
 
+def _subsystems(ris, fd, fd_control, vis):
+    """Table 5.2 states of one case; oil pumps and cooling carts run exactly when the RIS does (5.2.1, 5.2.2)."""
+    floated = ris == 'activated'
+    return (('ris', ris), ('fd', fd), ('fd_control', fd_control), ('cd', 'held at 40.1077 deg'), ('vis', vis),
+            ('main_oil_pump', 'on, high rate' if floated else 'off'),
+            ('return_pumps', 'activated periodically' if floated else 'off'),
+            ('cooling_carts', 'on (TA oil cooling)' if floated else 'off'), ('aircraft_fans', 'off'))
+
+
+_CAGED, _UNCAGED = 'caged', 'uncaged (axial air springs evacuated)'
 CASES = {
     'TC-1': TestCase('TC-1', 'RIS shut down, telescope not floated, VIS caged', 4.0,
-                     _ALWAYS + _TC1_SERIES + ((179.1, 0.2, 'el'), (179.1, 0.2, 'xel')), 1200.0),
+                     _ALWAYS + _TC1_SERIES + ((179.1, 0.2, 'el'), (179.1, 0.2, 'xel')), 1200.0,
+                     _subsystems('deactivated', 'braked', 'off', _CAGED)),
     'TC-2': TestCase('TC-2', 'RIS active (floated), FD braked, VIS caged', 4.0,
-                     _ALWAYS + _OIL_PUMP + ((11.7, 0.05, 'el'),), 2400.0),
+                     _ALWAYS + _OIL_PUMP + ((11.7, 0.05, 'el'),), 2400.0,
+                     _subsystems('activated', 'braked', 'off', _CAGED)),
     'TC-3': TestCase('TC-3', 'RIS active, FD braked, VIS uncaged', 4.0,
-                     _ALWAYS + _OIL_PUMP + ((2.3, 0.08, 'xel'), (2.3, 0.08, 'los')), None),
+                     _ALWAYS + _OIL_PUMP + ((2.3, 0.08, 'xel'), (2.3, 0.08, 'los')), None,
+                     _subsystems('activated', 'braked', 'off', _UNCAGED)),
     'TC-4': TestCase('TC-4', 'RIS active, FD open loop, VIS uncaged', 25.0 / 60.0,
-                     _ALWAYS + ((30.0, 0.05, 'el'), (1.0, 0.08, 'el'), (3.4, 0.1, 'el')), 1200.0),
+                     _ALWAYS + ((30.0, 0.05, 'el'), (1.0, 0.08, 'el'), (3.4, 0.1, 'el')), 1200.0,
+                     _subsystems('activated', 'unbraked', 'open loop, TA balanced', _UNCAGED)),
 }
+#: The case's TA configuration (Table 5.2) as one latched diagnostic_msgs/DiagnosticStatus.
+SUBSYSTEM_TOPIC = '/ta/subsystem_status'
 
 
 def edwards_scenario():
@@ -106,6 +127,9 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
     try:
         bag.write_document('/config/truth', truth.text, 0)
         bag.write_document('/config/case', case_text, 0)
+        bag.add_topic(SUBSYSTEM_TOPIC, 'diagnostic_msgs/msg/DiagnosticStatus', latched=True)
+        bag.write_message(SUBSYSTEM_TOPIC, m.status_msg('ta_subsystems', f'{case}: {test_case.description}',
+                                                        dict(test_case.subsystems), hardware_id='TA'), 0)
         runner = LockstepRunner(cores, tick_ns=DEFAULT_TICK_NS, bag=bag)
         until_ns = int(round(hours * 3600.0 * 1e9))
 

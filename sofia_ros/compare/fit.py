@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse
 
 from sofia_ros.analysis.ranking import bic, linear_fit
 from sofia_ros.effects import get_effect
@@ -105,17 +106,22 @@ class _Problem:
         return (delta_px * self.arcsec_per_px / self.row_sigma).ravel()
 
     def anchor_columns(self, effects, anchors, predicted):
-        """d prediction / d anchor knot rotations, from the derivative against an IRF rotation."""
+        """Sparse d prediction / d anchor knot rotations: the derivative against an IRF rotation, times the
+        hat-function weights of the two knots around each row (six non-zeros per residual)."""
         times = self.predictor.row_times_s(effects)
-        basis = self.predictor.anchor_basis(times)
-        columns = []
+        index, fraction = self.predictor.anchor_weights(times)
+        derivative = np.empty((len(times), 2, 3))
         for axis in range(3):
             rotation = np.zeros(3)
             rotation[axis] = _IRF_STEP_RAD
             moved = self.predictor.predict_px(effects, anchors, irf_rotation_rad=rotation)
-            derivative = (moved - predicted) / _IRF_STEP_RAD * self.arcsec_per_px / self.row_sigma  # (N, 2)
-            columns.append(derivative[:, :, None] * basis[:, None, :])  # (N, 2, knots)
-        return np.stack(columns, axis=-1).reshape(len(times) * 2, -1)  # columns ordered knot-major
+            derivative[:, :, axis] = (moved - predicted) / _IRF_STEP_RAD * self.arcsec_per_px / self.row_sigma
+        weights = np.stack([1.0 - fraction, fraction], axis=1)  # (N, 2 knots)
+        data = (derivative[:, :, None, :] * weights[:, None, :, None]).reshape(2 * len(times), 6)
+        knot_columns = 3 * np.stack([index, index + 1], axis=1)[:, :, None] + np.arange(3)  # (N, 2 knots, 3)
+        columns = np.repeat(knot_columns.reshape(len(times), 6), 2, axis=0)
+        return scipy.sparse.csr_matrix((data.ravel(), columns.ravel(), np.arange(0, data.size + 1, 6)),
+                                       shape=(2 * len(times), 3 * self.predictor.anchor_count))
 
     def parameter_columns(self, effects, free, values, anchors, predicted):
         columns = np.empty((predicted.size, len(free)))
@@ -162,10 +168,11 @@ def fit_model(predictor, effects, free, sigma_arcsec, *, anchors_rad=None):
     for iteration in range(1, _MAX_ITERATIONS + 1):
         current = _with_values(effects, free, values)
         predicted = predictor.predict_px(current, anchors)
-        jacobian = np.hstack([problem.anchor_columns(current, anchors, predicted),
-                              problem.parameter_columns(current, free, values, anchors, predicted)])
+        jacobian = scipy.sparse.hstack([problem.anchor_columns(current, anchors, predicted),
+                                        problem.parameter_columns(current, free, values, anchors, predicted)],
+                                       format='csr')
         root = np.sqrt(_huber_weights(whitened))
-        step = linear_fit(root * whitened, root[:, None] * jacobian, [''] * jacobian.shape[1])
+        step = linear_fit(root * whitened, scipy.sparse.diags(root) @ jacobian, [''] * jacobian.shape[1])
         anchor_step = step.step[:anchors.size].reshape(anchors.shape)
         parameter_step = step.step[anchors.size:]
         cost, scale = _robust_cost(whitened), 1.0
@@ -186,7 +193,7 @@ def fit_model(predictor, effects, free, sigma_arcsec, *, anchors_rad=None):
     current = _with_values(effects, free, values)
     weights = _huber_weights(whitened)
     root = np.sqrt(weights)
-    final = linear_fit(root * whitened, root[:, None] * jacobian, [''] * jacobian.shape[1])
+    final = linear_fit(root * whitened, scipy.sparse.diags(root) @ jacobian, [''] * jacobian.shape[1])
     parameters = slice(anchors.size, None)
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)

@@ -40,8 +40,8 @@ __all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means'
 #: Effects whose parameters change the gyro-derived attitude.
 GYRO_EFFECTS = ('gyro_misalignment', 'gyro_scale_factor', 'gyro_bias', 'gyro_bias_drift', 'gyro_axis_swap',
                 'los_oscillation', 'vibration_lines', 'tracker_drift')
-#: Star places are re-evaluated on this grid; unrefracted places move < 0.003" per minute in IRF.
-_PLACE_EPOCH_S = 60.0
+#: Star places are evaluated on this grid and interpolated; unrefracted places move < 0.003" per minute in IRF.
+_PLACE_EPOCH_S = 300.0
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -90,17 +90,26 @@ class Predictor:
         """Number of anchor knots (three rotation parameters each)."""
         return len(self.anchor_knots_s)
 
-    def anchor_basis(self, times_s):
-        """Hat-function weights (N, knots) of the piecewise-linear anchors at times."""
-        return _hat_basis(times_s, self.anchor_knots_s)
+    def anchor_weights(self, times_s):
+        """Knot index k and fraction f of each time: the anchor there is (1 - f) a_k + f a_k+1."""
+        knots = self.anchor_knots_s
+        index = np.clip(np.searchsorted(knots, times_s, side='right') - 1, 0, len(knots) - 2)
+        fraction = np.clip((times_s - knots[index]) / (knots[index + 1] - knots[index]), 0.0, 1.0)
+        return index, fraction
+
+    def anchor_rotations_rad(self, anchors_rad, times_s):
+        """The piecewise-linear anchor rotation (N, 3) at times."""
+        anchors = np.asarray(anchors_rad).reshape(-1, 3)
+        index, fraction = self.anchor_weights(times_s)
+        return (1.0 - fraction)[:, None] * anchors[index] + fraction[:, None] * anchors[index + 1]
 
     def _catalogue_directions(self):
         """IRF unit vectors of every observed star on the place epochs, (epochs, stars, 3) (4.1, C.4.2)."""
         stamps = self.observations.centroids.stamp_s
-        epochs = np.arange(np.floor(stamps.min() / _PLACE_EPOCH_S), np.floor(stamps.max() / _PLACE_EPOCH_S) + 1)
+        epochs = np.arange(np.floor(stamps.min() / _PLACE_EPOCH_S), np.floor(stamps.max() / _PLACE_EPOCH_S) + 2)
         stars = [star_by_hip(int(hip)) for hip in self._hips]
         self._epoch_origin = epochs[0]
-        return np.stack([star_directions_irf(stars, self.scene, (epoch + 0.5) * _PLACE_EPOCH_S) for epoch in epochs])
+        return np.stack([star_directions_irf(stars, self.scene, epoch * _PLACE_EPOCH_S) for epoch in epochs])
 
     def _cached(self, key, compute):
         if key not in self._cache:
@@ -136,9 +145,13 @@ class Predictor:
 
     def _star_directions(self, effects, times_s):
         """Model IRF directions of each row's star at times: refraction and Earth rate as the model has them."""
-        epoch = np.clip(np.floor(times_s / _PLACE_EPOCH_S) - self._epoch_origin, 0,
-                        len(self._directions_irf) - 1).astype(int)
-        directions = self._directions_irf[epoch, self._hip_row]
+        # Linear interpolation between the place epochs (aberration and parallax change smoothly).
+        position = np.clip(times_s / _PLACE_EPOCH_S - self._epoch_origin, 0.0, len(self._directions_irf) - 1.0)
+        epoch = np.minimum(position.astype(int), len(self._directions_irf) - 2)
+        fraction = (position - epoch)[:, None]
+        directions = ((1.0 - fraction) * self._directions_irf[epoch, self._hip_row]
+                      + fraction * self._directions_irf[epoch + 1, self._hip_row])
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
         earth = effects.get('earth_rotation')
         model_rate = earth['rate_deg_per_h'] * RAD_PER_DEG / 3600.0 if earth else 0.0
         refraction = effects.get('atmospheric_refraction')
@@ -189,7 +202,7 @@ class Predictor:
         attitude = self.attitudes(effects, times)
         correction = np.zeros((len(times), 3))
         if anchors_rad is not None:
-            correction += self.anchor_basis(times) @ np.asarray(anchors_rad).reshape(-1, 3)
+            correction += self.anchor_rotations_rad(anchors_rad, times)
         if irf_rotation_rad is not None:
             correction += np.asarray(irf_rotation_rad)
         if np.any(correction):
@@ -224,14 +237,3 @@ def tick_means(per_sample, tick_start_index):
 def _knots(start_s, end_s, spacing_s):
     count = max(int(np.ceil((end_s - start_s) / spacing_s)), 1)
     return np.linspace(start_s, end_s, count + 1)
-
-
-def _hat_basis(times_s, knots_s):
-    """Linear-interpolation weights of times on the knots, (N, knots)."""
-    basis = np.zeros((len(times_s), len(knots_s)))
-    index = np.clip(np.searchsorted(knots_s, times_s, side='right') - 1, 0, len(knots_s) - 2)
-    fraction = np.clip((times_s - knots_s[index]) / (knots_s[index + 1] - knots_s[index]), 0.0, 1.0)
-    rows = np.arange(len(times_s))
-    basis[rows, index] = 1.0 - fraction
-    basis[rows, index + 1] += fraction
-    return basis

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse
 
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC, CandidateTerm, degenerate_pairs, rank_candidates
 from sofia_ros.compare.fit import fit_model, free_parameters
@@ -124,7 +125,7 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
     linear_started = time.perf_counter()
     terms = _linearized_candidates(predictor, final, noise_arcsec, names)
     root = np.sqrt(final.weights)
-    ranked = rank_candidates(root * final.whitened, root[:, None] * final.jacobian, terms)
+    ranked = rank_candidates(root * final.whitened, scipy.sparse.diags(root) @ final.jacobian, terms)
     per_candidate_s = (time.perf_counter() - linear_started) / max(len(terms), 1)
     rss_base = float(np.sum((root * final.whitened) ** 2))
     entries = {}

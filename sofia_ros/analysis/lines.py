@@ -9,7 +9,7 @@ from scipy import ndimage, signal, stats
 
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
 
-__all__ = ['KNOWN_LINES_HZ', 'SpectralLine', 'find_lines', 'likely_source', 'line_threshold']
+__all__ = ['KNOWN_LINES_HZ', 'SpectralLine', 'find_lines', 'likely_source', 'line_threshold', 'silent_sources']
 
 #: Frequencies the thesis names, with their source (Tables 5.4, 5.5 and 5.2.5), as measured at 400 Hz.
 KNOWN_LINES_HZ = (
@@ -25,6 +25,10 @@ KNOWN_LINES_HZ = (
     (130.3, 'return pump 2'), (170.5, 'return pump 2'), (175.2, 'return pump 2'), (190.2, 'main oil pump'),
 )
 _MATCH_HZ = 0.3
+#: The Table 5.2 subsystem (key of the campaign's /ta/subsystem_status) each source needs running.
+_SOURCE_SUBSYSTEM = {'main oil pump': 'main_oil_pump', 'return pump 1': 'return_pumps',
+                     'return pump 2': 'return_pumps', 'cooling carts': 'cooling_carts',
+                     'aircraft fans': 'aircraft_fans'}
 
 
 @dataclass(frozen=True)
@@ -36,14 +40,25 @@ class SpectralLine:
     source: str
 
 
-def likely_source(freq_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
+def silent_sources(subsystems):
+    """Sources the record's Table 5.2 states rule out: their subsystem is off, or the FD is braked (TC-4 lines)."""
+    if not subsystems:
+        return frozenset()
+    silent = {source for source, key in _SOURCE_SUBSYSTEM.items() if subsystems.get(key) == 'off'}
+    if subsystems.get('fd') == 'braked':
+        silent.add('FD open loop (TC-4)')
+    return frozenset(silent)
+
+
+def likely_source(freq_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, silent=frozenset()):
     """The thesis' source of a line within 0.3 Hz, where it lands when sampled at sample_rate_hz, else 'unknown'."""
     # The table values are as measured at 400 Hz; every k-th sample (4.2.5) folds them again.
     def landed(known_hz):
         folded = known_hz % sample_rate_hz
         return min(folded, sample_rate_hz - folded)
 
-    best = min(KNOWN_LINES_HZ, key=lambda known: abs(landed(known[0]) - freq_hz))
+    known = [entry for entry in KNOWN_LINES_HZ if entry[1] not in silent]
+    best = min(known, key=lambda entry: abs(landed(entry[0]) - freq_hz))
     return best[1] if abs(landed(best[0]) - freq_hz) <= _MATCH_HZ else 'unknown'
 
 
@@ -54,7 +69,7 @@ def line_threshold(dof, n_bins, false_alarms=0.01):
     return float(stats.chi2.isf(false_alarms / n_bins, dof) / stats.chi2.median(dof))
 
 
-def find_lines(freq_hz, psd, dof, *, min_freq_hz=0.3, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
+def find_lines(freq_hz, psd, dof, *, min_freq_hz=0.3, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, silent=frozenset()):
     """Lines standing out of a one-sided rate PSD of dof degrees of freedom, with amplitude and source (5.2.5)."""
     freq = np.asarray(freq_hz)
     power = np.asarray(psd)
@@ -72,5 +87,6 @@ def find_lines(freq_hz, psd, dof, *, min_freq_hz=0.3, sample_rate_hz=GYRO_SAMPLE
         lo, hi = max(peak - 4, 0), min(peak + 5, len(power))
         excess = np.clip(power[lo:hi] - background[lo:hi], 0.0, None)
         amplitude = float(np.sqrt(2.0 * excess.sum() * df))
-        lines.append(SpectralLine(float(freq[peak]), amplitude, likely_source(float(freq[peak]), sample_rate_hz)))
+        source = likely_source(float(freq[peak]), sample_rate_hz, silent)
+        lines.append(SpectralLine(float(freq[peak]), amplitude, source))
     return lines

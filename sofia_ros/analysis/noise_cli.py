@@ -62,12 +62,15 @@ def _write_json(document, target):
 
 def run_noise(args):
     """`sofia noise`: check every input, analyze, write report and JSON, print the tables (5.2)."""
+    from sofia_ros.analysis.noise_loop import check_noise_model
     from sofia_ros.analysis.noise_plots import check_report_dir, write_report
     from sofia_ros.analysis.noise_report import analyze_record, checked_decimation, load_noise_record
     from sofia_ros.config import load_effect_config
 
     decimate = checked_decimation(args.decimate)
     model = load_effect_config(args.model) if args.model else None
+    if model is not None:
+        check_noise_model(model.effects)
     json_target = _check_json_target(args.json) if args.json else None
     if args.report:
         check_report_dir(args.report)
@@ -125,7 +128,8 @@ def _print_noise(document, axes):
         print(f'  every {document["decimation"]}. sample: ARW corrected to 400 Hz by 4.27 less the white quantization '
               '(sampled values in the JSON)')
     if not all(document['axes'][axis]['bias_stability_resolved'] for axis in axes):
-        print('  * minimum in the last octave of taus: the record is too short to resolve the bias stability')
+        print('  * the curve does not rise significantly after its minimum among the taus known to 25 % (4.25): '
+              'an upper bound, the record is too short to resolve the bias stability')
     print('  specification (Table 5.8): ARW 0.0180"/sqrt(s), bias stability 0.0030"/s')
     for axis in axes:
         for line in document['axes'][axis]['lines']:

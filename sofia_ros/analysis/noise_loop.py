@@ -73,6 +73,7 @@ __all__ = [
     'MeasuredNoise',
     'measured_noise',
     'model_lines',
+    'check_noise_model',
     'predicted_noise',
     'BaseFit',
     'fit_base',
@@ -101,6 +102,8 @@ _MODEL_LINE_GUARD_BINS = 3
 #: lobes fall from -43 dB by 6 dB per octave, to about -67 dB here.
 _LINE_WINDOW_BINS = 40
 _PERIOD_GRID = 80
+#: A fitted period within this fraction of a bound counts as pinned there.
+_PINNED = 1e-3
 _JACOBIAN_STEP = 1e-4
 _DEFAULT_BI_CUTOFF_HZ = 10.0
 
@@ -128,7 +131,8 @@ class MeasuredNoise:
 
     Rows of the residual vector: ln root AV for el, xel, los at every tau, then ln PSD for el, xel,
     los at every grid frequency. ``log_values`` holds the measured side (the PSD less its chi-square
-    log bias), ``weights`` one over each row's error, ``log_factor`` 1/2 on AV rows (root AV).
+    log bias), ``weights`` one over each row's error, ``log_factor`` 1/2 on AV rows (root AV),
+    ``row_axis`` the axis index of each row.
     """
 
     grid: NoiseGrid
@@ -143,6 +147,7 @@ class MeasuredNoise:
     log_values: np.ndarray
     weights: np.ndarray
     log_factor: np.ndarray
+    row_axis: np.ndarray
 
     def allan_rows(self, index):
         """Residual rows of one axis's root AV."""
@@ -183,6 +188,7 @@ def measured_noise(curves, fine_freq_hz, fine_psd, *, sample_rate_hz, readout_ra
         log_values=np.concatenate([np.log(adev).ravel(), (np.log(psd) - bias).ravel()]),
         weights=np.concatenate([np.tile(1.0 / allan_sigma_ln, 3), np.full(psd.size, 1.0 / psd_sigma_ln)]),
         log_factor=np.concatenate([np.full(adev.size, 0.5), np.ones(psd.size)]),
+        row_axis=np.concatenate([np.repeat(np.arange(3), tau_s.size), np.repeat(np.arange(3), grid.freq_hz.size)]),
     )
 
 
@@ -241,6 +247,17 @@ def model_lines(effects):
         raise ConfigError(f'vibration_lines: frequencies and amplitudes must be numbers ({err})') from err
 
 
+def check_noise_model(effects):
+    """ConfigError naming the effect when a model cannot predict noise (lines, LOS period, noise coefficients)."""
+    model_lines(effects)
+    if effects.get('los_oscillation') and effects['los_oscillation']['period_s'] <= 0.0:
+        raise ConfigError(f'los_oscillation: period_s must be > 0 s, got {effects["los_oscillation"]["period_s"]:g}')
+    negative = sorted(key for key, value in (effects.get('gyro_noise') or {}).items()
+                      if isinstance(value, float) and value < 0.0)
+    if negative:
+        raise ConfigError(f'gyro_noise: {", ".join(negative)} must be >= 0 (noise coefficients, Table 5.1)')
+
+
 def predicted_noise(effects, grid, freq_hz=None, *, include_arw=True):
     """Model AV (3 x taus, (arcsec/s)^2) and one-sided PSD (3 x freqs) per axis (module docstring)."""
     freq_hz = grid.freq_hz if freq_hz is None else freq_hz
@@ -285,6 +302,7 @@ class BaseFit:
     av: np.ndarray
     psd: np.ndarray
     white_level: np.ndarray
+    white_linear: np.ndarray
     arw_readout_arcsec_per_sqrt_s: np.ndarray
     residual: np.ndarray
     jacobian: np.ndarray
@@ -315,7 +333,8 @@ def fit_base(measured, effects):
     # The white level a is N_sampled^2 (4.16); 4.27 carries it to the read-out rate. Decimated
     # quantization is a separate white term of the model here, so a holds the ARW alone.
     arw_readout = arw_corrected_for_sampling(np.sqrt(level), grid.sample_rate_hz, grid.readout_rate_hz)
-    return BaseFit(*prediction(solution.x), level, arw_readout, residual(solution.x), jacobian)
+    white = _linear(level[:, np.newaxis] * white_av, level[:, np.newaxis] * white_psd)
+    return BaseFit(*prediction(solution.x), level, white, arw_readout, residual(solution.x), jacobian)
 
 
 def _central_jacobian(function, values, steps):
@@ -362,15 +381,27 @@ class _Proposal:
 
 
 def _candidate_term(proposal, measured, base):
-    """Refine a proposal on its rows (bounded least squares), then linearize it there for rank_candidates."""
-    rows, base_linear = proposal.rows, base.linear[proposal.rows]
+    """Refine a proposal on its rows with the white level of its axes, then linearize it for rank_candidates."""
+    # rank_candidates fits the candidate jointly with the base terms (the white levels); refining it
+    # alone against fixed levels would leave the joint optimum a long, nonlinear step away.
+    rows, base_linear, white = proposal.rows, base.linear[proposal.rows], base.white_linear[proposal.rows]
+    axes, position = np.unique(measured.row_axis[rows], return_inverse=True)
+    count = proposal.start.size
+
+    def joint(parameters):
+        level_change = np.expm1(parameters[count:])[position] * white
+        return _weighted_residual(measured, base_linear + level_change + proposal.contribution(parameters[:count]),
+                                  rows)
 
     def residual(values):
         return _weighted_residual(measured, base_linear + proposal.contribution(values), rows)
 
-    start = np.clip(proposal.start, proposal.lower, proposal.upper)
-    values = optimize.least_squares(residual, start, bounds=(proposal.lower, proposal.upper),
-                                    x_scale=proposal.scale, diff_step=_JACOBIAN_STEP).x
+    free = np.full(axes.size, np.inf)
+    start = np.concatenate([np.clip(proposal.start, proposal.lower, proposal.upper), np.zeros(axes.size)])
+    values = optimize.least_squares(joint, start, bounds=(np.concatenate([proposal.lower, -free]),
+                                                          np.concatenate([proposal.upper, free])),
+                                    x_scale=np.concatenate([proposal.scale, np.full(axes.size, 0.01)]),
+                                    diff_step=_JACOBIAN_STEP).x[:count]
     steps = _JACOBIAN_STEP * np.maximum(np.abs(values), proposal.scale)
     jacobian = np.zeros((measured.log_values.size, values.size))
     jacobian[rows] = -_central_jacobian(residual, values, steps)
@@ -379,7 +410,7 @@ def _candidate_term(proposal, measured, base):
     return values, CandidateTerm(proposal.label, proposal.names, values, jacobian=jacobian, shift=shift)
 
 
-def _line_proposals(measured, base, effects):
+def _line_proposals(measured, base, effects, silent):
     """Residual PSD peaks, per axis, not at a model line: vibration_lines with frequency and amplitude."""
     grid = measured.grid
     bin_hz = grid.sample_rate_hz / grid.segment_samples
@@ -395,7 +426,7 @@ def _line_proposals(measured, base, effects):
             if any(line_index == index and abs(frequency - alias) <= _MODEL_LINE_GUARD_BINS * bin_hz
                    for alias, line_index in model_alias_hz):
                 continue
-            proposals.append(_line_proposal(measured, base, index, frequency, bin_hz))
+            proposals.append(_line_proposal(measured, base, index, frequency, bin_hz, silent))
             kept += 1
             if kept == _PEAKS_PER_AXIS:
                 break
@@ -408,7 +439,7 @@ def _alias_hz(frequency_hz, sample_rate_hz):
     return float(min(folded, sample_rate_hz - folded))
 
 
-def _line_proposal(measured, base, index, frequency_hz, bin_hz):
+def _line_proposal(measured, base, index, frequency_hz, bin_hz, silent):
     """A line at a residual PSD peak: frequency from the fine Welch grid (parabola in ln PSD), power in excess."""
     grid, fine_hz, fine_psd = measured.grid, measured.fine_freq_hz, measured.fine_psd[index]
     near = np.flatnonzero(np.abs(fine_hz - frequency_hz) <= 2.0 * bin_hz)
@@ -436,10 +467,10 @@ def _line_proposal(measured, base, index, frequency_hz, bin_hz):
                      ('frequency_hz', 'amplitude_arcsec_per_s'), np.array([peak_hz, amplitude]),
                      np.array([peak_hz - bin_hz, 0.0]), np.array([peak_hz + bin_hz, np.inf]),
                      np.array([bin_hz / 10.0, max(amplitude, 1e-6)]), rows, contribution, report,
-                     likely_source(peak_hz, grid.sample_rate_hz))
+                     likely_source(peak_hz, grid.sample_rate_hz, silent))
 
 
-def _slow_sinusoid_proposals(measured, base, effects):
+def _slow_sinusoid_proposals(measured, base, effects, silent):
     """Per axis, the sinusoid below the PSD rows that best explains the log-Allan residual (period scan)."""
     grid = measured.grid
     shortest_s = 1.0 / grid.freq_hz[0]
@@ -452,7 +483,7 @@ def _slow_sinusoid_proposals(measured, base, effects):
         if rate_amplitude == 0.0:
             continue
         effect = 'los_oscillation' if axis == 'los' and not effects.get('los_oscillation') else 'vibration_lines'
-        proposals.append(_slow_proposal(measured, index, period_s, rate_amplitude, effect))
+        proposals.append(_slow_proposal(measured, index, period_s, rate_amplitude, effect, silent))
     return proposals
 
 
@@ -478,7 +509,7 @@ def _period_scan(measured, base, index, periods_s):
     return best[1], best[2]
 
 
-def _slow_proposal(measured, index, period_s, rate_amplitude, effect):
+def _slow_proposal(measured, index, period_s, rate_amplitude, effect, silent):
     """A slow sinusoid in fit space (period s, integrated-angle amplitude arcsec) on the axis's AV rows."""
     grid, axis = measured.grid, AXES[index]
     angle_amplitude = rate_amplitude * period_s / (2.0 * np.pi)
@@ -500,7 +531,7 @@ def _slow_proposal(measured, index, period_s, rate_amplitude, effect):
             return ({'frequency_hz': float(1.0 / period), 'amplitude_arcsec_per_s': float(rate)},
                     {'frequency_hz': float(sigmas[0] / period**2), 'amplitude_arcsec_per_s': float(rate_sigma)})
         label = f'vibration_lines {axis} slow sinusoid'
-        source = likely_source(1.0 / period_s, grid.sample_rate_hz)
+        source = likely_source(1.0 / period_s, grid.sample_rate_hz, silent)
     return _Proposal(label, effect, 'slow sinusoid', axis, ('period_s', 'amplitude_arcsec'),
                      np.array([period_s, angle_amplitude]), np.array([1.0 / grid.freq_hz[0], 0.0]),
                      np.array([grid.record_s, np.inf]), np.array([period_s / 100.0, max(angle_amplitude, 1e-6)]),
@@ -543,15 +574,13 @@ def _noise_term_proposals(measured, base, effects):
                                                _coefficient_report((parameter,), to_physical)))
     if not effects.get('gyro_bias_drift'):
         # One candidate per axis: the gyros drift independently (Table 5.1: 0.0008 to 0.01224 deg/h^2).
+        shape = np.concatenate([tau**2, 2.0 * rate_ramp_psd(freq, 1.0)])[np.newaxis]
         for index, axis in enumerate(AXES):
-            shape = np.zeros((1, measured.log_values.size))
-            shape[0, measured.allan_rows(index)] = tau**2
-            shape[0, measured.psd_rows(index)] = 2.0 * rate_ramp_psd(freq, 1.0)
             report = _coefficient_report((f'{axis}_deg_per_h2',),
                                          lambda c: float(rate_ramp_arcsec_per_s2_to_deg_per_h2(np.sqrt(2.0 * c))))
             rows = np.concatenate([measured.allan_rows(index), measured.psd_rows(index)])
             proposals.append(_coefficient_proposal(measured, base, f'gyro_bias_drift {axis}', 'gyro_bias_drift',
-                                                   'rate ramp', axis, rows, shape[:, rows], report))
+                                                   'rate ramp', axis, rows, shape, report))
     return proposals
 
 
@@ -575,17 +604,19 @@ def _coefficient_proposal(measured, base, label, effect, term, axis, rows, shape
                      np.zeros(len(shapes)), np.full(len(shapes), np.inf), scales, rows, contribution, report)
 
 
-def rank_missing_terms(measured, base, effects):
-    """Candidates (DESIGN.md 6 `candidates`), best first, from analysis.ranking.rank_candidates."""
-    proposals = (_line_proposals(measured, base, effects) + _slow_sinusoid_proposals(measured, base, effects)
+def rank_missing_terms(measured, base, effects, silent=frozenset()):
+    """Candidates (DESIGN.md 6 `candidates`), best first, by ranking.rank_candidates; silent sources not named."""
+    proposals = (_line_proposals(measured, base, effects, silent)
+                 + _slow_sinusoid_proposals(measured, base, effects, silent)
                  + _noise_term_proposals(measured, base, effects))
     terms, kept = [], {}
     for proposal in proposals:
         values, term = _candidate_term(proposal, measured, base)
         if proposal.term in ('line', 'slow sinusoid') and values[1] <= 0.0:
             continue  # the peak was noise: a zero-amplitude line has no frequency to report
-        if proposal.term == 'slow sinusoid' and not proposal.lower[0] < values[0] < proposal.upper[0]:
-            continue  # pinned at a period bound: a PSD-band line or a ramp seen through the AV
+        if proposal.term == 'slow sinusoid' and not (
+                proposal.lower[0] * (1.0 + _PINNED) < values[0] < proposal.upper[0] * (1.0 - _PINNED)):
+            continue  # pinned at a period bound (bounded fits stop just inside): a PSD-band line or a ramp
         terms.append(term)
         kept[proposal.label] = proposal
     candidates = []

@@ -24,9 +24,15 @@ import numpy as np
 import yaml
 
 from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
-from sofia_ros.analysis.lines import find_lines
+from sofia_ros.analysis.lines import find_lines, silent_sources
 from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
-from sofia_ros.analysis.noise_loop import fit_base, measured_noise, rank_missing_terms, residual_summary
+from sofia_ros.analysis.noise_loop import (
+    check_noise_model,
+    fit_base,
+    measured_noise,
+    rank_missing_terms,
+    residual_summary,
+)
 from sofia_ros.analysis.noise_model import arw_of_decimated_record, bias_stability, fit_noise_model
 from sofia_ros.analysis.spectra import welch_equivalent_dof, welch_rate_psd, welch_segment_samples
 from sofia_ros.bag import BagReader
@@ -170,13 +176,14 @@ def _degenerate_pairs(candidates):
 def analyze_record(record, *, model=None, decimate=1):
     """The `sofia noise` analysis of a record against a noise model (an EffectConfig, or None for none)."""
     factor = checked_decimation(decimate)
+    effects = dict(model.effects) if model is not None else {}
+    check_noise_model(effects)
     sample_rate_hz = GYRO_SAMPLE_RATE_HZ / factor
     rates = np.ascontiguousarray(record.rates_arcsec_per_s[::factor])
     if len(rates) < MIN_SAMPLES:
         hint = 'use a smaller --decimate' if factor > 1 else 'record a longer run'
         raise InvalidArgumentError(f'{record.bag_path}: {len(rates)} samples at {sample_rate_hz:g} Hz; the analysis '
                                    f'needs at least {MIN_SAMPLES} ({hint})')
-    effects = dict(model.effects) if model is not None else {}
     case = record.case
     tarf_from_gyrf = tarf_from_gyrf_dcm(effects) if 'gyro_misalignment' in effects else None
     # arcsec/s and deg/h are the same number (3600 / 3600).
@@ -190,7 +197,9 @@ def analyze_record(record, *, model=None, decimate=1):
     angle_max = np.abs(integrated_angle_arcsec(noise, sample_rate_hz)).max(axis=0)
     quantization = effects['gyro_noise']['quantization_arcsec'] if effects.get('gyro_noise') else QUANTIZATION_ARCSEC
     dof = welch_equivalent_dof(len(noise), segment)
-    lines = [find_lines(freq_hz, psd[:, index], dof, sample_rate_hz=sample_rate_hz) for index in range(3)]
+    silent = silent_sources(record.subsystems)
+    lines = [find_lines(freq_hz, psd[:, index], dof, sample_rate_hz=sample_rate_hz, silent=silent)
+             for index in range(3)]
     fits = tuple(fit_noise_model(curve, lines_hz=[line.freq_hz for line in axis_lines], sample_rate_hz=sample_rate_hz)
                  for curve, axis_lines in zip(curves, lines))
     axes = {axis: _axis_document(curve, fit, axis_lines, float(angle_max[index]), sample_rate_hz, quantization)
@@ -198,7 +207,7 @@ def analyze_record(record, *, model=None, decimate=1):
     measured = measured_noise(curves, freq_hz, psd, sample_rate_hz=sample_rate_hz,
                               readout_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=segment, n_samples=len(noise))
     base = fit_base(measured, effects)
-    candidates = rank_missing_terms(measured, base, effects)
+    candidates = rank_missing_terms(measured, base, effects, silent)
     document = {
         'bag': str(record.bag_path), 'case': case.get('case'), 'description': case.get('description'),
         'samples_per_axis': int(len(noise)), 'record_s': len(noise) / sample_rate_hz,

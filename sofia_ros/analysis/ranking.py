@@ -99,8 +99,9 @@ class _NormalInverse:
         diagonal = np.diag(gram).copy()
         norms = np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
         eigenvalues, vectors = np.linalg.eigh(gram / np.outer(norms, norms))
-        # Eigenvalues are squared singular values: 1e-14 keeps singular values above 1e-7 of the largest.
-        keep = eigenvalues > eigenvalues.max(initial=0.0) * 1e-14
+        # Eigenvalues are squared singular values: a combination whose singular value is below 1e-5 of
+        # the largest (columns collinear to 5e-11) is not determined by the data; it gets no step.
+        keep = eigenvalues > eigenvalues.max(initial=0.0) * 1e-10
         inverse = (vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T / np.outer(norms, norms)
         unconstrained = np.any(np.abs(vectors[:, ~keep]) > 1e-6, axis=1)
         return cls(inverse, unconstrained)

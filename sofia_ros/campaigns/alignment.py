@@ -14,13 +14,13 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from sofia_ros.bag import BagReader, BagWriter
+from sofia_ros.bag import BagReader
+from sofia_ros.campaigns.recording import record_graph
 from sofia_ros.errors import ConfigError
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.graph import GraphConfig, build_cores
-from sofia_ros.sim.runner import LockstepRunner
+from sofia_ros.sim.graph import GraphConfig
 from sofia_ros.sim.scenario import SCENARIO_TOPIC, Scenario, scenario_document, scenario_from_mapping
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
@@ -107,13 +107,9 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     documents = (('/config/truth', truth.text), ('/config/model', model_text),
                  (SCENARIO_TOPIC, scenario_document(config.scenario)))
     wall_start = time.perf_counter()
-    if mode == 'direct':
-        _run_direct(config, bag_path, documents, max_sim_s, progress)
-    elif mode == 'executor':
-        from sofia_ros.nodes.launch import run_graph_in_process
-
-        run_graph_in_process(config, bag_path, documents=documents, max_sim_s=max_sim_s, timeout_s=timeout_s,
-                             progress=progress)
+    if mode in ('direct', 'executor'):
+        record_graph(config, bag_path, documents, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
+                     progress=progress)
     else:
         from sofia_ros.nodes.launch import run_graph_in_processes
 
@@ -125,7 +121,7 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
                                    max_sim_s=max_sim_s, timeout_s=timeout_s, model_file=model_file,
                                    progress=progress)
     wall_seconds = time.perf_counter() - wall_start
-    result_yaml, sim_seconds = _result_from_bag(bag_path)
+    result_yaml, sim_seconds = result_from_bag(bag_path)
     summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,
                        wall_seconds)
     (bag_path / 'truth.yaml').write_text(truth.text)
@@ -135,29 +131,7 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     return AlignmentRun(summary, result_yaml, bag_path)
 
 
-def _run_direct(config, bag_path, documents, max_sim_s, progress):
-    cores = build_cores(config)
-    calibration = cores[-1]
-    bag = BagWriter(bag_path)
-    bag.open()
-    try:
-        for topic, text in documents:
-            bag.write_document(topic, text, 0)
-        runner = LockstepRunner(cores, tick_ns=config.tick_ns, bag=bag)
-
-        def stop():
-            if progress is not None:
-                progress(runner.stamp_ns / 1e9, max_sim_s)
-            return calibration.outcome.finished or calibration.outcome.failed
-
-        runner.run(until_ns=int(max_sim_s * 1e9), stop=stop)
-    except BaseException:
-        bag.abort()
-        raise
-    bag.close()
-
-
-def _result_from_bag(bag_path):
+def result_from_bag(bag_path):
     """The calibration node's last /calibration/result and the last /clock time, read back from the bag."""
     with BagReader(bag_path) as bag:
         names = {topic.name for topic in bag.topics}

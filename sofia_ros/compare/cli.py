@@ -60,21 +60,28 @@ def _json_ready(value):
 
 
 def _format_params(params, sigma, units):
-    return ', '.join(f'{name} = {value:.4g} +- {sigma[name]:.2g} {units.get(name, "")}'.rstrip()
-                     for name, value in params.items())
+    def one(name, value):
+        spread = 'unconstrained' if sigma[name] is None else f'+- {sigma[name]:.2g}'
+        return f'{name} = {value:.4g} {spread} {units.get(name, "")}'.rstrip()
+
+    return ', '.join(one(name, value) for name, value in params.items())
 
 
 def print_comparison(document, out):
     """The ten-second table: terms, correlations, ledger, candidates, degeneracies, where the model fails."""
     counts = ', '.join(f'{camera.upper()} {count}' for camera, count in document['observations'].items())
     print(f'sofia compare: {document["bag"]} against {document["model"]}', file=out)
+    outliers = ', '.join(f'{camera.upper()} {count}' for camera, count in document['outliers_by_camera'].items()
+                         if count)
     print(f'  centroids: {counts}; noise floor {document["noise_floor_arcsec"]:.3f}" per axis (centroid scatter '
-          f'of locked frames); {document["outliers"]} outliers beyond 5 sigma flagged', file=out)
+          f'of locked frames); outliers beyond 5 sigma (down-weighted, counted in the RMS): '
+          f'{outliers or "none"}', file=out)
     if document['terms']:
         print('fitted terms:', file=out)
         for term in document['terms']:
-            print(f'  {term["effect"] + "." + term["param"]:<44} {term["value"]:>12.4f} +- {term["sigma"]:<9.4f} '
-                  f'{term["unit"]}', file=out)
+            spread = 'unconstrained' if term['sigma'] is None else f'+- {term["sigma"]:<9.4f}'
+            print(f'  {term["effect"] + "." + term["param"]:<44} {term["value"]:>12.4f} {spread:<12} {term["unit"]}',
+                  file=out)
         labels, matrix = document['correlation']['params'], np.array(document['correlation']['matrix'], dtype=float)
         strong = [(labels[i], labels[j], matrix[i, j]) for i in range(len(labels)) for j in range(i + 1, len(labels))
                   if np.isfinite(matrix[i, j]) and abs(matrix[i, j]) >= 0.9]

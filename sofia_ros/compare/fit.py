@@ -6,6 +6,12 @@ every model effect marked ``fit: true``, in their physical units; their Jacobian
 forward differences of the prediction, the anchors' columns follow from the prediction's
 derivative with respect to a rotation of IRF. Huber weights (k = 3 sigma) keep a bad
 centroid from steering the fit; rows beyond 5 sigma are flagged as outliers and reported.
+
+The anchors are not free: the gyro attitude error is a random walk (4.2.3), so consecutive
+knots differ by a rotation of variance N^2 dt + K^2 dt^3 / 3 per axis (angle random walk N
+measured from the bag's own samples, rate random walk K from the model's gyro_noise). These
+prior rows keep a gap without stars (a long slew) from freeing the attitude, which is what
+lets a star hop measure the gyros across its moves (6.3).
 """
 
 from __future__ import annotations
@@ -64,6 +70,7 @@ class ModelFit:
     anchors_rad: np.ndarray
     residual_arcsec: np.ndarray
     whitened: np.ndarray
+    prior_residual: np.ndarray
     jacobian: np.ndarray
     weights: np.ndarray
     outlier: np.ndarray
@@ -75,10 +82,15 @@ class ModelFit:
         return self.jacobian.shape[1]
 
     @property
+    def augmented_residual(self):
+        """Whitened data rows followed by the anchor random-walk prior rows (what the Jacobian's rows are)."""
+        return np.concatenate([self.whitened, self.prior_residual])
+
+    @property
     def bic(self):
-        """BIC of the weighted whitened residual (analysis.ranking)."""
-        weighted = np.sqrt(self.weights) * self.whitened
-        return bic(float(weighted @ weighted), len(weighted), self.parameter_count)
+        """BIC of the whitened residual and the anchor prior, every row at full weight (analysis.ranking)."""
+        residual = self.augmented_residual
+        return bic(float(residual @ residual), len(residual), self.parameter_count)
 
 
 def _with_values(effects, free, values):
@@ -91,11 +103,20 @@ def _with_values(effects, free, values):
 class _Problem:
     """Whitened residuals and Jacobians of one predictor for one set of free parameters."""
 
-    def __init__(self, predictor, sigma_arcsec):
+    def __init__(self, predictor, sigma_arcsec, walk_sigma_rad):
         centroids = predictor.observations.centroids
         self.predictor = predictor
         self.arcsec_per_px = centroids.arcsec_per_px()[:, None]
         self.row_sigma = np.asarray(sigma_arcsec)[centroids.camera_index][:, None]
+        self.prior = _random_walk_prior(predictor.anchor_count, walk_sigma_rad)
+
+    def augmented(self, whitened, jacobian, anchors):
+        """Data rows and prior rows stacked: residuals and Jacobian of the whole least-squares problem."""
+        prior_residual = -(self.prior @ anchors.ravel())
+        prior_jacobian = scipy.sparse.hstack([self.prior, scipy.sparse.csr_matrix(
+            (self.prior.shape[0], jacobian.shape[1] - self.prior.shape[1]))])
+        return (np.concatenate([whitened, prior_residual]),
+                scipy.sparse.vstack([jacobian, prior_jacobian], format='csr'))
 
     def whiten(self, predicted_px):
         """(measured - predicted) in units of each camera's noise, flattened (x, y per row)."""
@@ -133,6 +154,17 @@ class _Problem:
         return columns
 
 
+def _random_walk_prior(knot_count, walk_sigma_rad):
+    """Rows (a_k+1 - a_k) / sigma per axis: the anchors' random-walk prior, sparse (3(K-1), 3K)."""
+    rows = 3 * (knot_count - 1)
+    if rows <= 0:
+        return scipy.sparse.csr_matrix((0, 3 * knot_count))
+    index = np.arange(rows)
+    data = np.concatenate([np.full(rows, 1.0), np.full(rows, -1.0)]) / walk_sigma_rad
+    columns = np.concatenate([index + 3, index])
+    return scipy.sparse.csr_matrix((data, (np.concatenate([index, index]), columns)), shape=(rows, 3 * knot_count))
+
+
 def _huber_weights(whitened):
     magnitude = np.abs(whitened)
     return np.where(magnitude <= HUBER_K, 1.0, HUBER_K / np.maximum(magnitude, 1e-300))
@@ -152,16 +184,21 @@ def _try_whitened(problem, effects, free, values, anchors):
         return None
 
 
-def fit_model(predictor, effects, free, sigma_arcsec, *, anchors_rad=None):
-    """Robust Gauss-Newton over the anchors and the free parameters, from the effects' given values.
+def fit_model(predictor, effects, free, sigma_arcsec, walk_sigma_rad, *, anchors_rad=None):
+    """Robust Gauss-Newton over the anchors (under their random-walk prior) and the free parameters.
 
-    A step that raises the Huber cost (or sends a star off its detector) is halved, up to
-    eight times; a fit that cannot improve stops where it is.
+    Starts from the effects' given values. A step that raises the cost (or sends a star off
+    its detector) is halved, up to eight times; a fit that cannot improve stops where it is.
     """
-    problem = _Problem(predictor, sigma_arcsec)
+    problem = _Problem(predictor, sigma_arcsec, walk_sigma_rad)
     free = tuple(free)
     values = np.array([effects[p.effect][p.name] for p in free], dtype=float)
     anchors = np.zeros((predictor.anchor_count, 3)) if anchors_rad is None else np.array(anchors_rad)
+
+    def cost(whitened_rows, trial_anchors):
+        prior = problem.prior @ trial_anchors.ravel()
+        return _robust_cost(whitened_rows) + 0.5 * float(prior @ prior)
+
     whitened = _try_whitened(problem, effects, free, values, anchors)
     if whitened is None:
         raise FitError('the model\'s starting values put stars off their detectors; give closer values')
@@ -171,15 +208,16 @@ def fit_model(predictor, effects, free, sigma_arcsec, *, anchors_rad=None):
         jacobian = scipy.sparse.hstack([problem.anchor_columns(current, anchors, predicted),
                                         problem.parameter_columns(current, free, values, anchors, predicted)],
                                        format='csr')
-        root = np.sqrt(_huber_weights(whitened))
-        step = linear_fit(root * whitened, scipy.sparse.diags(root) @ jacobian, [''] * jacobian.shape[1])
+        residual, system = problem.augmented(whitened, jacobian, anchors)
+        root = np.concatenate([np.sqrt(_huber_weights(whitened)), np.ones(len(residual) - len(whitened))])
+        step = linear_fit(root * residual, scipy.sparse.diags(root) @ system, [''] * system.shape[1])
         anchor_step = step.step[:anchors.size].reshape(anchors.shape)
         parameter_step = step.step[anchors.size:]
-        cost, scale = _robust_cost(whitened), 1.0
+        current_cost, scale = cost(whitened, anchors), 1.0
         for _ in range(8):
             trial = _try_whitened(problem, effects, free, values + scale * parameter_step,
                                   anchors + scale * anchor_step)
-            if trial is not None and _robust_cost(trial) <= cost * (1.0 + 1e-12):
+            if trial is not None and cost(trial, anchors + scale * anchor_step) <= current_cost * (1.0 + 1e-12):
                 break
             scale /= 2.0
         else:
@@ -191,11 +229,13 @@ def fit_model(predictor, effects, free, sigma_arcsec, *, anchors_rad=None):
             break
     # Converged steps are below 1 % of a sigma: the last Jacobian serves for the covariance.
     current = _with_values(effects, free, values)
+    residual, system = problem.augmented(whitened, jacobian, anchors)
     weights = _huber_weights(whitened)
-    root = np.sqrt(weights)
-    final = linear_fit(root * whitened, scipy.sparse.diags(root) @ jacobian, [''] * jacobian.shape[1])
+    root = np.concatenate([np.sqrt(weights), np.ones(len(residual) - len(whitened))])
+    final = linear_fit(root * residual, scipy.sparse.diags(root) @ system, [''] * system.shape[1])
     parameters = slice(anchors.size, None)
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)
     return ModelFit(current, free, values, final.sigma[parameters], final.correlation[parameters, parameters],
-                    anchors, residual_arcsec, whitened, jacobian, weights, outlier, iteration)
+                    anchors, residual_arcsec, whitened, residual[len(whitened):], system, weights, outlier,
+                    iteration)

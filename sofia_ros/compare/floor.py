@@ -14,7 +14,7 @@ import numpy as np
 from sofia_ros.compare.observations import MOTION_STATES
 from sofia_ros.errors import BagError
 
-__all__ = ['centroid_noise_arcsec', 'MIN_NOISE_ARCSEC']
+__all__ = ['centroid_noise_arcsec', 'angle_random_walk_rad_per_sqrt_s', 'anchor_walk_sigma_rad', 'MIN_NOISE_ARCSEC']
 
 #: Below this the centroid noise is quantization-free simulation; weights must stay finite.
 MIN_NOISE_ARCSEC = 1e-3
@@ -46,3 +46,23 @@ def centroid_noise_arcsec(centroids):
         mad = np.median(np.abs(values - np.median(values)))
         noise.append(max(_MAD_TO_SIGMA * mad / np.sqrt(6.0), MIN_NOISE_ARCSEC))
     return np.array(noise)
+
+
+def angle_random_walk_rad_per_sqrt_s(gyro):
+    """Angle random walk N of the worst gyro axis from sample-to-sample rate differences within ticks (4.2.3).
+
+    Within one tick the plant's rate is constant, so the differences are white noise only:
+    var(diff) = 2 sigma_rate^2 and N = sigma_rate sqrt(dt). (The standard deviation, not a median:
+    the rates are quantized in steps near sigma_rate, which a median would round.)
+    """
+    same_tick = np.diff(np.searchsorted(gyro.tick_end_s, gyro.time_s, side='left')) == 0
+    differences = np.diff(gyro.rates_gyrf_rad_per_s, axis=0)[same_tick]
+    if len(differences) < 100:
+        raise BagError('fewer than 100 gyro samples within ticks; cannot estimate the angle random walk')
+    sigma_rate = np.std(differences, axis=0) / np.sqrt(2.0)
+    return float(np.max(sigma_rate) * np.sqrt(gyro.sample_period_s))
+
+
+def anchor_walk_sigma_rad(arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s, spacing_s):
+    """Attitude random walk between anchor knots: sqrt(N^2 dt + K^2 dt^3 / 3) (4.2.3, Table 4.1)."""
+    return float(np.sqrt(arw_rad_per_sqrt_s**2 * spacing_s + rrw_rad_per_s_sqrt_s**2 * spacing_s**3 / 3.0))

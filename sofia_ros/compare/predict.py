@@ -145,12 +145,19 @@ class Predictor:
 
     def _star_directions(self, effects, times_s):
         """Model IRF directions of each row's star at times: refraction and Earth rate as the model has them."""
+        return self._directions_of(effects, self._hip_row, times_s)
+
+    def star_direction_irf(self, effects, row, time_s):
+        """The model's IRF direction of the star of one row at one time."""
+        return self._directions_of(effects, self._hip_row[[row]], np.array([float(time_s)]))[0]
+
+    def _directions_of(self, effects, hip_rows, times_s):
         # Linear interpolation between the place epochs (aberration and parallax change smoothly).
         position = np.clip(times_s / _PLACE_EPOCH_S - self._epoch_origin, 0.0, len(self._directions_irf) - 1.0)
         epoch = np.minimum(position.astype(int), len(self._directions_irf) - 2)
         fraction = (position - epoch)[:, None]
-        directions = ((1.0 - fraction) * self._directions_irf[epoch, self._hip_row]
-                      + fraction * self._directions_irf[epoch + 1, self._hip_row])
+        directions = ((1.0 - fraction) * self._directions_irf[epoch, hip_rows]
+                      + fraction * self._directions_irf[epoch + 1, hip_rows])
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
         earth = effects.get('earth_rotation')
         model_rate = earth['rate_deg_per_h'] * RAD_PER_DEG / 3600.0 if earth else 0.0

@@ -50,7 +50,8 @@ def _residual_plot(result, fits, path):
         for column, (key, label) in enumerate(VARIABLES.items()):
             axis = axes[row, column]
             for (name, fit), variables, colour in zip(fits, predictor_variables, ('tab:red', 'tab:blue')):
-                keep = rows & ~fit.outlier
+                # Every row is drawn: when one camera fails, all its rows are "outliers".
+                keep = rows
                 if np.count_nonzero(keep) < 2:
                     continue
                 values = variables[key][keep]
@@ -116,7 +117,7 @@ def _ledger_plot(runs, path):
     axis.plot(range(len(runs)), floors, 'k--', label='noise floor')
     axis.set_xticks(range(len(runs)), labels, rotation=20, fontsize=7, ha='right')
     axis.set_ylabel('RMS per axis ["]')
-    axis.set_ylim(bottom=0.0)
+    axis.set_yscale('log')
     axis.legend(fontsize=8)
     axis.set_title('Ledger across runs written to this report directory')
     figure.tight_layout()
@@ -132,13 +133,15 @@ def _table(headers, rows):
 
 def _page(document, runs):
     cameras = [c for c in ('hipo', 'fpi', 'ffi', 'wfi') if c in document['residual_rms_arcsec']]
-    ledger_rows = [[row['term'], *(f'{row["residual_rms_arcsec"][k]:.3f}' for k in ['total', *cameras])]
+    ledger_rows = [[row['term'], *(f'{row["residual_rms_arcsec"].get(k, float("nan")):.3f}' for k in ['total', *cameras])]
                    for row in document['ledger']]
     candidate_rows = [[c['effect'], f'{c["delta_bic"]:.1f}', f'{c["rms_after_arcsec"]:.3f}',
-                       ', '.join(f'{k} = {v:.4g} +- {c["sigma"][k]:.2g} {c["units"][k]}' for k, v in c['params'].items()),
+                       ', '.join(f'{k} = {v:.4g} +- {c["sigma"][k] if c["sigma"][k] is not None else float("inf"):.2g} '
+                                 f'{c["units"][k]}' for k, v in c['params'].items()),
                        'refit' if c['refined'] else 'linear']
                       for c in document['candidates'] if c['observable']]
-    term_rows = [[t['effect'], t['param'], f'{t["value"]:.4f}', f'{t["sigma"]:.4f}', t['unit']] for t in document['terms']]
+    term_rows = [[t['effect'], t['param'], f'{t["value"]:.4f}', 'unconstrained' if t['sigma'] is None else f'{t["sigma"]:.4f}',
+                  t['unit']] for t in document['terms']]
     run_rows = [[index + 1, run['model'], run['last_term'], f'{run["residual_rms_arcsec"]["total"]:.3f}',
                  f'{run["noise_floor_arcsec"]:.3f}', run['top_candidate']] for index, run in enumerate(runs)]
     degenerate = ''.join(f'<li>{html.escape(a)} and {html.escape(b)} cannot be told apart by this campaign</li>'

@@ -15,16 +15,17 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC, CandidateTerm, degenerate_pairs, rank_candidates
 from sofia_ros.compare.fit import fit_model, free_parameters
-from sofia_ros.compare.floor import centroid_noise_arcsec
+from sofia_ros.compare.floor import anchor_walk_sigma_rad, angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.scan import signature_scan
 from sofia_ros.effects import CATALOGUE, resolve_params
 from sofia_ros.errors import FitError
+from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
+from sofia_ros.units import ARCSEC_PER_RAD
 
 __all__ = ['CompareResult', 'compare_bag', 'NOISE_EFFECTS', 'REFINED_CANDIDATES']
 
@@ -48,15 +49,20 @@ class CompareResult:
 
 
 def _rms_by_camera(fit, centroids):
-    """Residual RMS ["] per camera and in total over both axes, outliers excluded (they are listed)."""
-    keep = ~fit.outlier
+    """Residual RMS ["] per camera and in total over both axes, every row counted (outliers are also listed)."""
     squares = np.sum(fit.residual_arcsec**2, axis=1)
-    rms = {'total': float(np.sqrt(np.mean(squares[keep]) / 2.0))}
+    rms = {'total': float(np.sqrt(np.mean(squares) / 2.0))}
     for index, camera in enumerate(centroids.cameras):
-        rows = keep & (centroids.camera_index == index)
+        rows = centroids.camera_index == index
         if np.any(rows):
             rms[camera] = float(np.sqrt(np.mean(squares[rows]) / 2.0))
     return rms
+
+
+def _outliers_by_camera(fit, centroids):
+    """Rows beyond OUTLIER_SIGMA per camera (Huber-weighted in the fit, never dropped)."""
+    return {camera: int(np.sum(fit.outlier & (centroids.camera_index == index)))
+            for index, camera in enumerate(centroids.cameras)}
 
 
 def _term_table(fit):
@@ -69,7 +75,6 @@ def _linearized_candidates(predictor, fit, noise_arcsec, names):
     centroids = predictor.observations.centroids
     arcsec_per_px = centroids.arcsec_per_px()[:, None]
     row_sigma = noise_arcsec[centroids.camera_index][:, None]
-    root = np.sqrt(fit.weights)
     base = predictor.predict_px(fit.effects, fit.anchors_rad)
     terms = []
     for name in names:
@@ -86,7 +91,11 @@ def _linearized_candidates(predictor, fit, noise_arcsec, names):
             moved = predictor.predict_px(stepped, fit.anchors_rad)
             columns[:, index] = ((moved - at_start) * arcsec_per_px / row_sigma).ravel() / parameter.step
         shift = ((at_start - base) * arcsec_per_px / row_sigma).ravel()
-        terms.append(CandidateTerm(name, tuple(p.name for p in free), start, root[:, None] * columns, root * shift))
+        # The anchors' prior rows do not depend on any effect: zeros there.
+        prior_rows = len(fit.prior_residual)
+        terms.append(CandidateTerm(name, tuple(p.name for p in free), start,
+                                   np.vstack([columns, np.zeros((prior_rows, len(free)))]),
+                                   np.concatenate([shift, np.zeros(prior_rows)])))
     return terms
 
 
@@ -107,6 +116,11 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
     floor_arcsec = float(np.sqrt(np.sum(counts * noise_arcsec**2) / np.sum(counts)))
     predictor = Predictor(observations, anchor_spacing_s=anchor_spacing_s)
     effects = {name: dict(params) for name, params in model.effects.items()}
+    arw = angle_random_walk_rad_per_sqrt_s(observations.gyro)
+    # Rate random walk from the model's noise terms, else Table 5.1 (gyro_noise defaults).
+    rrw_deg_per_h_sqrt_h = effects.get('gyro_noise', resolve_params('gyro_noise', {}))['rrw_deg_per_h_sqrt_h']
+    rrw = rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s(rrw_deg_per_h_sqrt_h) / ARCSEC_PER_RAD
+    walk_sigma_rad = anchor_walk_sigma_rad(arw, rrw, float(np.diff(predictor.anchor_knots_s[:2])[0]))
     predictor.align_initial_attitude(effects)
     fitted_order = [name for name in model.effects if name in model.fitted]
 
@@ -115,7 +129,8 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
         if step_name is not None:
             free = free + free_parameters([step_name])
         start = effects if fit is None else fit.effects
-        fit = fit_model(predictor, start, free, noise_arcsec, anchors_rad=None if fit is None else fit.anchors_rad)
+        fit = fit_model(predictor, start, free, noise_arcsec, walk_sigma_rad,
+                        anchors_rad=None if fit is None else fit.anchors_rad)
         ledger.append({'term': step_name or 'model as given (anchors only)',
                        'residual_rms_arcsec': _rms_by_camera(fit, centroids), 'bic': fit.bic})
     final = fit
@@ -124,10 +139,11 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
     names = [name for name in (candidate_names or CATALOGUE) if name not in effects and name not in NOISE_EFFECTS]
     linear_started = time.perf_counter()
     terms = _linearized_candidates(predictor, final, noise_arcsec, names)
-    root = np.sqrt(final.weights)
-    ranked = rank_candidates(root * final.whitened, scipy.sparse.diags(root) @ final.jacobian, terms)
+    # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
+    # "outliers", and the Huber weights that protect the fit would hide that failure from the ranking.
+    ranked = rank_candidates(final.augmented_residual, final.jacobian, terms)
     per_candidate_s = (time.perf_counter() - linear_started) / max(len(terms), 1)
-    rss_base = float(np.sum((root * final.whitened) ** 2))
+    rss_base = float(final.augmented_residual @ final.augmented_residual)
     entries = {}
     for candidate in ranked:
         rms_after = rms['total'] * float(np.sqrt(candidate.rss_after / rss_base))
@@ -140,7 +156,7 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
         trial_effects = {**final.effects, candidate.name: dict(resolve_params(candidate.name, {}), **candidate.params)}
         try:
             trial = fit_model(predictor, trial_effects, final.free + free_parameters([candidate.name]), noise_arcsec,
-                              anchors_rad=final.anchors_rad)
+                              walk_sigma_rad, anchors_rad=final.anchors_rad)
         except FitError:
             continue  # the linearized entry stands
         extra = trial.free[len(final.free):]
@@ -161,6 +177,7 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
         'noise_floor_arcsec': floor_arcsec,
         'centroid_noise_arcsec': {camera: float(v) for camera, v in zip(centroids.cameras, noise_arcsec)},
         'outliers': int(np.sum(final.outlier)),
+        'outliers_by_camera': _outliers_by_camera(final, centroids),
         'terms': _term_table(final),
         'correlation': {'params': [p.label for p in final.free], 'matrix': np.round(final.correlation, 4).tolist()},
         'ledger': ledger,
@@ -170,6 +187,8 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
         'signature': signature_scan(observations, final, predictor),
         'anchor_spacing_s': anchor_spacing_s,
+        'anchor_walk_sigma_arcsec': walk_sigma_rad * ARCSEC_PER_RAD,
+        'angle_random_walk_arcsec_per_sqrt_s': arw * ARCSEC_PER_RAD,
         'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4)},
     }
     document['seconds']['total'] = round(time.perf_counter() - started, 3)

@@ -15,6 +15,7 @@ from sofia_ros.sim.calibration import AlignmentPlan, CalibrationCore
 from sofia_ros.sim.camera import CameraCore
 from sofia_ros.sim.clock import ClockCore
 from sofia_ros.sim.gyro_box import GyroBoxCore
+from sofia_ros.sim.star_hop import StarHopCore, StarHopPlan
 from sofia_ros.sim.plant import PlantCore
 from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 from sofia_ros.sim.tascu import TascuCore
@@ -58,6 +59,8 @@ def build_core(name, config):
     if name == 'tascu':
         return TascuCore()
     if name == 'calibration':
+        if isinstance(config.plan, StarHopPlan):
+            return StarHopCore(config.plan, config.scenario)
         return CalibrationCore(config.plan, config.scenario)
     raise ConfigError(f'unknown node {name!r}; nodes are {", ".join(NODE_NAMES)}')
 

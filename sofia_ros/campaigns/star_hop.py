@@ -1,0 +1,76 @@
+"""The star-hop campaign: absolute pointing (6.3) and differential flexure (6.2), Waco 2004-09-02/03.
+
+The node graph flies Table D.3's 17 observations of six stars (sim.star_hop); the bag then
+holds every centroid, the 400 Hz gyro samples and each observation's hold window, which
+`analysis.star_hop` turns into Table 6.7 and Fig. 6.11 and `sofia compare` into ranked effects.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import json
+import time
+from pathlib import Path
+
+import yaml
+
+from sofia_ros.campaigns.alignment import result_from_bag
+from sofia_ros.campaigns.recording import record_graph
+from sofia_ros.errors import ConfigError
+from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.sim.graph import GraphConfig
+from sofia_ros.sim.scenario import SCENARIO_TOPIC, Scenario, scenario_document, scenario_from_mapping
+from sofia_ros.sim.star_hop import CDT, TABLE_D3_OBSERVATIONS, StarHopPlan
+from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
+
+__all__ = ['default_scenario', 'run_star_hop', 'star_hop_config']
+
+MODES = ('executor', 'direct')
+
+
+def default_scenario(first_star=TABLE_D3_OBSERVATIONS[0][0]):
+    """Waco, the first observation's time (Table D.3); heading and elevation put that star on the LOS (C.3.2)."""
+    start_utc = dt.datetime.fromisoformat(TABLE_D3_OBSERVATIONS[0][1]).replace(tzinfo=CDT).astimezone(dt.timezone.utc)
+    place = observed_place(first_star, WACO_2004_SITE, start_utc, WACO_2004_WEATHER,
+                           min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
+    return Scenario(WACO_2004_SITE, start_utc, 90.0 + place.azimuth_deg, place.apparent_altitude_deg)
+
+
+def star_hop_config(truth, seed, plan=None):
+    """The star hop's GraphConfig: the truth's scenario over the Waco default."""
+    plan = plan or StarHopPlan()
+    scenario = scenario_from_mapping(default_scenario(plan.observations[0][0]), truth.scenario)
+    check_coarse_drive_elevation(scenario.start_elevation_deg)
+    return GraphConfig(truth, scenario, seed, plan)
+
+
+def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_text='effects: {}\n', progress=None,
+                 timeout_s=3600.0):
+    """Fly the sequence, record the bag, and write truth.yaml, model.yaml, star_hop.yaml and summary.json."""
+    if mode not in MODES:
+        raise ConfigError(f'star-hop runs in modes {", ".join(MODES)}, got {mode!r} (no --processes yet)')
+    bag_path = Path(bag_path)
+    if bag_path.exists():
+        raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
+    config = star_hop_config(truth, seed, plan)
+    last_offset_s = config.plan.observations[-1][1]
+    max_sim_s = last_offset_s + 20.0 * config.plan.timeout_s + config.plan.hold_s
+    documents = (('/config/truth', truth.text), ('/config/model', model_text),
+                 (SCENARIO_TOPIC, scenario_document(config.scenario)),
+                 ('/config/plan', yaml.safe_dump(dataclasses.asdict(config.plan), sort_keys=False)))
+    wall_start = time.perf_counter()
+    record_graph(config, bag_path, documents, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
+                 progress=progress)
+    wall_seconds = time.perf_counter() - wall_start
+    result_yaml, sim_seconds = result_from_bag(bag_path)
+    result = yaml.safe_load(result_yaml)
+    summary = {'sim_seconds': round(sim_seconds, 3), 'wall_seconds': round(wall_seconds, 3),
+               'finished': bool(result.get('accepted')), 'observations': len(result.get('observations', []))}
+    if not summary['finished']:
+        summary['reason'] = result.get('reason', 'not finished')
+    (bag_path / 'truth.yaml').write_text(truth.text)
+    (bag_path / 'model.yaml').write_text(model_text)
+    (bag_path / 'star_hop.yaml').write_text(result_yaml)
+    (bag_path / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    return summary

@@ -1,0 +1,126 @@
+"""Star-hop core: the observation sequence of 6.2-6.3 (Fig. 6.2, Tables D.3 and D.4).
+
+Waco, 2004-09-02/03: six stars (Table 6.6) observed 17 times between 23 and 60 deg
+elevation. For each observation the node waits for the table's time, turns the fine
+drive's LOS back near zero (an inertial hold walks it at Earth rate), moves the telescope
+with MTBS_INERTIAL (the coarse drive taking the elevation, 6.3) - or with MTBS_CENTROID when
+the star is already in an imager - centres the star in the FFI and then HIPO, and holds it
+for ``hold_s`` while every camera records frames (Table D.4: 112-315 s in 2004). The TASCU
+flies with the alignment matrix of eq. 6.1 unless the plan gives another: the star hop
+measures a calibrated telescope.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass, field
+
+import numpy as np
+import yaml
+
+from sofia_ros.calibration.published import EQ_6_1
+from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.sim import messages as m
+from sofia_ros.sim.calibration import IMAGERS, TOPICS, CalibrationCore
+from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
+from sofia_ros.sky.catalogue import star_by_name
+from sofia_ros.units import RAD_PER_DEG
+
+__all__ = ['StarHopPlan', 'StarHopCore', 'TABLE_D3_OBSERVATIONS', 'CDT']
+
+CDT = dt.timezone(dt.timedelta(hours=-5), 'CDT')
+#: Table D.3: the star observed at each time (CDT), 2004-09-02/03.
+TABLE_D3_OBSERVATIONS = (
+    ('Eta Cep', '2004-09-02T23:22:16'), ('Polaris', '2004-09-02T23:32:51'), ('Eta Cep', '2004-09-02T23:43:38'),
+    ('Polaris', '2004-09-02T23:47:13'), ('Alpha Cep', '2004-09-02T23:53:40'), ('Beta Cep', '2004-09-03T00:04:15'),
+    ('Alpha Cep', '2004-09-03T00:08:23'), ('Polaris', '2004-09-03T00:14:30'), ('Beta Cep', '2004-09-03T00:17:36'),
+    ('HIP 47193', '2004-09-03T00:25:03'), ('Beta Cep', '2004-09-03T00:28:39'), ('Polaris', '2004-09-03T00:33:01'),
+    ('Beta Cep', '2004-09-03T00:37:26'), ('Xi Cep', '2004-09-03T00:44:26'), ('HIP 47193', '2004-09-03T00:50:59'),
+    ('Polaris', '2004-09-03T00:53:50'), ('Xi Cep', '2004-09-03T00:57:03'),
+)
+_RECENTRE_LOS_DEG = 0.5
+
+
+def table_d3_offsets_s():
+    """(star, seconds after the first observation) of Table D.3."""
+    times = [dt.datetime.fromisoformat(when).replace(tzinfo=CDT) for _, when in TABLE_D3_OBSERVATIONS]
+    return tuple((star, (when - times[0]).total_seconds()) for (star, _), when in zip(TABLE_D3_OBSERVATIONS, times))
+
+
+@dataclass(frozen=True)
+class StarHopPlan:
+    """The star-hop sequence: (star, start offset s) pairs, hold per star, timing and the TASCU's alignment."""
+
+    observations: tuple = field(default_factory=table_d3_offsets_s)
+    hold_s: float = 60.0
+    #: start each observation at its offset (Table D.3); False: as soon as the previous one is done
+    follow_times: bool = True
+    frames_per_position: int = 3
+    timeout_s: float = 180.0
+    tarf_from_gyrf: tuple = tuple(float(value) for value in EQ_6_1.ravel())
+
+    def __post_init__(self):
+        if len(self.observations) < 2:
+            raise InvalidArgumentError('a star hop needs at least two observations')
+        for star, offset_s in self.observations:
+            star_by_name(star)
+            if offset_s < 0:
+                raise InvalidArgumentError(f'observation of {star} starts at {offset_s} s; offsets must be >= 0')
+        if self.hold_s <= 0:
+            raise InvalidArgumentError(f'hold_s must be positive, got {self.hold_s}')
+
+
+class StarHopCore(CalibrationCore):
+    """Commands the star-hop sequence and records each observation's hold window."""
+
+    def __init__(self, plan, scenario):
+        super().__init__(plan, scenario)
+        self.record = {'observations': []}
+
+    def _run(self):
+        self._progress('acquire')
+        yield from self._locked()
+        yield from self._set_alignment(np.asarray(self.plan.tarf_from_gyrf).reshape(3, 3))
+        for index, (star, offset_s) in enumerate(self.plan.observations):
+            if self.plan.follow_times:
+                yield from self._until(offset_s)
+            entry = star_by_name(star)
+            yield from self._recentre_los()
+            self._progress('observation', {'index': index + 1, 'star': star})
+            if not (yield from self._centre_from_imager(entry.hip)):
+                yield from self._point_at(entry.hip)
+                yield from self._acquire(entry.hip)
+            start_ns = self.stamp_ns
+            yield from self._until(start_ns / m.NS_PER_S + self.plan.hold_s)
+            self.record['observations'].append({
+                'index': index + 1, 'star': star, 'hip': int(entry.hip),
+                'hold_start_s': start_ns / m.NS_PER_S, 'hold_end_s': self.stamp_ns / m.NS_PER_S,
+                'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG,
+            })
+        self._progress('finished')
+        self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(
+            {'accepted': True, 'campaign': 'star-hop', **self.record}, sort_keys=False))))
+
+    def _until(self, elapsed_s):
+        """Wait until sim time ``elapsed_s`` (no timeout: the table sets the pace)."""
+        while self.stamp_ns < m.seconds_to_ns(elapsed_s):
+            yield
+
+    def _recentre_los(self):
+        fd_los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
+        if abs(fd_los_deg) > _RECENTRE_LOS_DEG:
+            yield from self._move(np.array([0.0, 0.0, -fd_los_deg * RAD_PER_DEG]))
+
+    def _centre_from_imager(self, hip):
+        """MTBS_CENTROID from the widest imager that already shows the star (6.3); False if none does."""
+        for camera in reversed(IMAGERS):
+            frames = self.frames[camera]
+            latest = frames[-1][1] if frames else ()
+            pixel = next(((x, y) for star_hip, x, y in latest if star_hip == hip), None)
+            if pixel is not None:
+                self.star_hip = hip
+                yield from self._command('mtbs_centroid', self._point_message(camera, pixel))
+                yield from self._locked()
+                yield from self._acquire(hip)
+                return True
+        return False

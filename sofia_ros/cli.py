@@ -72,8 +72,10 @@ def _run_campaign(args):
 
     if args.campaign == 'gyro-stability':
         return _run_gyro_stability(args)
+    if args.campaign == 'star-hop':
+        return _run_star_hop(args)
     if args.campaign != 'alignment':
-        raise ConfigError(f"campaign {args.campaign!r} is not built yet; available: alignment, gyro-stability")
+        raise ConfigError(f"unknown campaign {args.campaign!r}; available: alignment, star-hop, gyro-stability")
     truth = load_effect_config(args.truth)
     model_text = Path(args.model).read_text() if args.model else 'effects: {}\n'
     if args.model:
@@ -106,6 +108,44 @@ def _run_gyro_stability(args):
         progress.close()
     print(f'bag: {args.bag}  ({args.case}: {summary["sim_seconds"]:.1f} s sim, {summary["samples_per_axis"]} samples '
           f'per axis at 400 Hz, in {summary["wall_seconds"]:.1f} s wall)')
+    return 0
+
+
+def _run_star_hop(args):
+    from sofia_ros.campaigns.star_hop import run_star_hop
+    from sofia_ros.config import load_effect_config
+    from sofia_ros.errors import InvalidArgumentError
+    from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
+
+    if args.processes:
+        raise ConfigError('star-hop runs in one process (default) or --direct; --processes is not built for it yet')
+    truth = load_effect_config(args.truth)
+    model_text = Path(args.model).read_text() if args.model else 'effects: {}\n'
+    observations = table_d3_offsets_s()
+    if args.observations is not None:
+        first, _, last = args.observations.partition('-')
+        try:
+            first, last = int(first), int(last or first)
+        except ValueError as err:
+            raise ConfigError(f'--observations takes FIRST-LAST (1-based, Table D.3), got {args.observations!r}') from err
+        if not 1 <= first < last <= len(observations):
+            raise ConfigError(f'--observations needs 1 <= FIRST < LAST <= {len(observations)}, got {args.observations}')
+        observations = observations[first - 1:last]
+    try:
+        plan = StarHopPlan(observations=observations, hold_s=args.hold_s, follow_times=not args.no_follow_times)
+    except InvalidArgumentError as err:
+        raise ConfigError(str(err)) from err
+    progress = _Progress()
+    try:
+        summary = run_star_hop(truth, seed=args.seed, bag_path=args.bag, plan=plan,
+                               mode='direct' if args.direct else 'executor', model_text=model_text, progress=progress)
+    finally:
+        progress.close()
+    print(f'bag: {args.bag}  ({summary["sim_seconds"]:.1f} s sim in {summary["wall_seconds"]:.1f} s wall; '
+          f'{summary["observations"]} observations)')
+    if not summary['finished']:
+        print(f'star hop NOT finished: {summary["reason"]}')
+    print(f'analyze it: sofia compare {args.bag} --model config/model/nominal.yaml')
     return 0
 
 
@@ -186,7 +226,7 @@ def build_parser():
     effects.set_defaults(handler=_print_effects)
 
     run = verbs.add_parser('run', help='run a campaign of the node graph and record it to a bag')
-    run.add_argument('campaign', help='alignment (Table 3.4, 6.1) or gyro-stability (5.2, TC-1..TC-4)')
+    run.add_argument('campaign', help='alignment (Table 3.4, 6.1), star-hop (6.2-6.3, Table D.3) or gyro-stability (5.2)')
     run.add_argument('--case', choices=('TC-1', 'TC-2', 'TC-3', 'TC-4'), help='gyro-stability: the test case')
     run.add_argument('--hours', type=float, help='gyro-stability: record length (default: the case\'s, 4 h or 25 min)')
     run.add_argument('--truth', required=True, help='truth YAML (effects: ...), e.g. config/truth/nominal.yaml')
@@ -200,6 +240,10 @@ def build_parser():
     run.add_argument('--verification-repetitions', type=int, default=2, help='verification maneuvers per axis')
     run.add_argument('--drift-track-s', type=float, default=60.0, help='drift estimation on the star, s')
     run.add_argument('--max-sim-s', type=float, default=7200.0, help='stop after this much sim time')
+    run.add_argument('--hold-s', type=float, default=60.0, help='star-hop: seconds each star is held and recorded')
+    run.add_argument('--no-follow-times', action='store_true',
+                     help='star-hop: go to the next star at once instead of at its Table D.3 time')
+    run.add_argument('--observations', help='star-hop: only observations FIRST-LAST of Table D.3 (e.g. 4-9)')
     run.set_defaults(handler=_run_campaign)
 
     replay = verbs.add_parser('replay', help='re-publish a bag on its topics, with /clock, into a live graph')

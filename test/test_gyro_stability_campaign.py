@@ -7,7 +7,7 @@ import pytest
 
 from sofia_ros.analysis.spectra import welch_rate_psd
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.gyro_stability import CASES, run_gyro_stability
+from sofia_ros.campaigns.gyro_stability import CASES, SUBSYSTEM_TOPIC, run_gyro_stability
 from sofia_ros.config import parse_effect_config
 from sofia_ros.earth_rate import earth_rate_tarf_rad_per_s
 from sofia_ros.errors import BagError, ConfigError
@@ -34,8 +34,8 @@ def test_mean_rates_are_earth_rate_through_misalignment_plus_bias(tc3):
     bias = np.array([TRUTH.effects['gyro_bias'][f'{axis}_deg_per_h'] for axis in ('el', 'xel', 'los')])
     expected = true_tarf_from_gyrf(TRUTH.effects).T @ earth_tarf + bias * RAD_PER_DEG / 3600.0
     mean = imu.angular_velocity_rad_per_s.mean(axis=0)
-    # ARW 0.0132"/sqrt(s) over 180 s leaves ~1e-3 deg/h of scatter in a mean.
-    np.testing.assert_allclose(mean / RAD_PER_DEG * 3600.0, expected / RAD_PER_DEG * 3600.0, atol=0.005)
+    # ARW 0.0132"/sqrt(s) and RRW 3.6e-5"/s^1.5 over 180 s leave 1.0e-3 deg/h of scatter in a mean (3 sigma).
+    np.testing.assert_allclose(mean / RAD_PER_DEG * 3600.0, expected / RAD_PER_DEG * 3600.0, atol=0.0031)
 
 
 def test_one_imu_message_per_400_hz_sample_with_its_own_stamp(tc3):
@@ -72,10 +72,12 @@ def test_noise_analysis_finds_the_case_line_the_arw_and_the_earth_rate_table(tc3
     assert [round(theory[a], 4) for a in ('el', 'xel', 'los')] == [9.9755, -11.2571, 0.0059]
     for axis in ('el', 'xel', 'los'):
         values = document['axes'][axis]
-        # Truth: Table 5.1 gyro 002 (2008), N = 0.00022 deg/sqrt(h) = 0.0132"/sqrt(s). With the oil pumps
-        # running the fitted ARW comes out higher, as Table 5.8 found for TC-2 and TC-3 (5.2.6).
-        assert values['arw_arcsec_per_sqrt_s'] > 0.0132 + 3.0 * values['arw_sigma']
-        assert {'bias_stability_arcsec_per_s', 'bias_stability_tau_s', 'rrw_arcsec_per_s_sqrt_s', 'rrw_sigma'} <= set(values)
+        # Truth: Table 5.1 gyro 002 (2008), N = 0.00022 deg/sqrt(h) = 0.0132"/sqrt(s). The simulated pumps
+        # add lines only, which the fit takes out: the ARW stays the truth's. (Table 5.8 found it higher
+        # for TC-2 and TC-3 above the bulges, 3-140 s: broadband pump noise the campaign does not model.)
+        assert abs(values['arw_arcsec_per_sqrt_s'] - 0.0132) < 3.0 * values['arw_sigma'], axis
+        assert {'bias_stability_arcsec_per_s', 'bias_stability_tau_s', 'rrw_arcsec_per_s_sqrt_s',
+                'rrw_sigma'} <= set(values)
     sources = {line['source'] for line in document['axes']['el']['lines']}
     assert 'main oil pump' in sources and '2.3' not in str(sources)
     pump = next(line for line in document['axes']['el']['lines'] if line['source'] == 'main oil pump'
@@ -83,21 +85,38 @@ def test_noise_analysis_finds_the_case_line_the_arw_and_the_earth_rate_table(tc3
     assert pump['amplitude_arcsec_per_s'] == pytest.approx(0.15, rel=0.15)
     xel_sources = {line['source'] for line in document['axes']['xel']['lines']}
     assert 'VIS natural frequency (uncaged)' in xel_sources  # TC-3: VIS uncaged, 2.3 Hz on XEL
-    assert document['candidates'] == []
     out = tmp_path / 'noise.json'
     assert main(['noise', str(tc3[2]), '--json', str(out)]) == 0
     assert json.loads(out.read_text())['axes']['el']['arw_arcsec_per_sqrt_s'] == values_el(document)
 
 
 def test_without_pumps_the_fitted_arw_is_the_truths(tmp_path):
-    # TC-1 (RIS shut down): the five-term fit recovers N = 0.0132"/sqrt(s) within 3 sigma + 1 %.
+    # TC-1 (RIS shut down): with its 14 lines taken out of the fit, N = 0.0132"/sqrt(s) within 3 sigma.
     from sofia_ros.analysis.noise_report import analyze_noise
 
     run_gyro_stability(TRUTH, case='TC-1', hours=0.05, seed=3, bag_path=tmp_path / 'tc1')
     document = analyze_noise(tmp_path / 'tc1')
     for axis in ('el', 'xel', 'los'):
         values = document['axes'][axis]
-        assert abs(values['arw_arcsec_per_sqrt_s'] - 0.0132) < 3.0 * values['arw_sigma'] + 0.000132, axis
+        assert abs(values['arw_arcsec_per_sqrt_s'] - 0.0132) < 3.0 * values['arw_sigma'], axis
+
+
+def test_the_case_configuration_of_table_5_2_is_recorded_as_a_diagnostic_status(tc3):
+    # TC-3 (5.2.1): RIS active, FD braked, VIS uncaged; the pumps and cooling carts run with the RIS.
+    with BagReader(tc3[2]) as reader:
+        assert reader.topic(SUBSYSTEM_TOPIC).msgtype == 'diagnostic_msgs/msg/DiagnosticStatus'
+        (_, stamp_ns, status), = reader.messages(SUBSYSTEM_TOPIC)
+    states = {value.key: value.value for value in status.values}
+    assert (stamp_ns, status.hardware_id, status.message) == (0, 'TA', 'TC-3: ' + CASES['TC-3'].description)
+    assert states == dict(CASES['TC-3'].subsystems)
+    assert (states['ris'], states['fd'], states['vis'], states['main_oil_pump']) == (
+        'activated', 'braked', 'uncaged (axial air springs evacuated)', 'on, high rate')
+    configurations = {name: dict(case.subsystems) for name, case in CASES.items()}
+    assert [configurations[name]['ris'] for name in CASES] == ['deactivated', 'activated', 'activated', 'activated']
+    assert [configurations[name]['vis'].split()[0] for name in CASES] == ['caged', 'caged', 'uncaged', 'uncaged']
+    assert [configurations[name]['fd'] for name in CASES] == ['braked', 'braked', 'braked', 'unbraked']
+    assert configurations['TC-4']['fd_control'] == 'open loop, TA balanced'
+    assert configurations['TC-1']['cooling_carts'] == 'off' and configurations['TC-2']['cooling_carts'].startswith('on')
 
 
 def values_el(document):

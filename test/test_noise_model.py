@@ -6,16 +6,24 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sofia_ros.analysis.allan import octave_cluster_sizes, overlapping_allan_deviation
+from sofia_ros.analysis.allan import (
+    allan_relative_error,
+    arw_corrected_for_sampling,
+    log_spaced_cluster_sizes,
+    octave_cluster_sizes,
+    overlapping_allan_deviation,
+)
 from sofia_ros.analysis.noise_model import (
     BIAS_INSTABILITY_PLATEAU,
     allan_variance_from_psd,
     arw_adev,
+    arw_of_decimated_record,
     arw_from_slope_fit,
     arw_psd,
     bias_instability_adev,
     bias_instability_psd,
     bias_stability,
+    decimated_quantization_variance,
     fit_noise_model,
     loglog_slope,
     noise_adev,
@@ -27,12 +35,14 @@ from sofia_ros.analysis.noise_model import (
     rate_ramp_psd,
     rrw_adev,
     rrw_psd,
+    sinusoid_adev,
 )
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.sensors.gyro_noise import (
     GYRO_001_1999,
     GYRO_001_2008,
     QUANTIZATION_ARCSEC,
+    NoiseCoefficients,
     SPECIFICATION_BIAS_STABILITY_DEG_PER_H,
     TABLE_5_1,
     TABLE_5_1_IN_RUN_BIAS_STABILITY,
@@ -234,5 +244,78 @@ def test_table_5_8_readings_on_a_generated_gyro_001_2008_record():
      'no curve point with tau_min_s'),
 ])
 def test_bad_input_raises_invalid_argument_naming_it(call, match):
+    with pytest.raises(InvalidArgumentError, match=match):
+        call()
+
+
+def test_sinusoid_adev_is_the_overlapping_av_of_a_sampled_line_as_allantools_computes_it():
+    # Lines of Table 5.5 (main oil pump 30 Hz) and one above the Nyquist frequency (230 Hz lands on
+    # 170 Hz at 400 Hz, Tables 5.4/5.5 note), each 0.1"/s, 10 minutes at 400 Hz.
+    import allantools
+
+    time_s = np.arange(240_000) / SAMPLE_RATE_HZ
+    taus_s = np.array([1, 2, 3, 7, 40, 401, 4000]) / SAMPLE_RATE_HZ
+    for line_hz in (30.0, 230.0):
+        rate = 0.1 * np.sin(2.0 * np.pi * line_hz * time_s + 0.4)
+        _, reference, _, _ = allantools.oadev(rate, rate=SAMPLE_RATE_HZ, data_type='freq', taus=taus_s)
+        expected = sinusoid_adev(taus_s, 0.1, line_hz, SAMPLE_RATE_HZ)
+        # Finite record: a few 1e-5 of the line's AV at these taus (10 min holds 18000+ periods).
+        np.testing.assert_allclose(reference, expected, rtol=1e-3, atol=1e-6)
+    # The continuous 4.10 form sin^2(x)/x is 2 % off at one sample for 30 Hz: the discrete form matters.
+    x = np.pi * 30.0 / SAMPLE_RATE_HZ
+    assert 0.1 * np.sin(x) ** 2 / x / sinusoid_adev(1 / SAMPLE_RATE_HZ, 0.1, 30.0) == pytest.approx(0.991, abs=0.002)
+
+
+def test_4_27_on_every_10th_quantized_sample_needs_the_white_quantization_term():
+    # Housekeeping data (4.2.5): every 10th read-out of a quantized FOG. The rate is a difference of
+    # rounded angles (2.11): blue at 400 Hz (4.11), white once decimated, SF^2 / (6 t_s^2) per sample.
+    coefficients = NoiseCoefficients(quantization_arcsec=QUANTIZATION_ARCSEC, arw_deg_per_sqrt_h=0.00022)
+    rate = gyro_rate_arcsec_per_s(coefficients, 2**21, SAMPLE_RATE_HZ, n_axes=1, rng=41,
+                                  true_rate_arcsec_per_s=10.0)[::10, 0]
+    assert np.var(rate) == pytest.approx(0.0132**2 * SAMPLE_RATE_HZ + decimated_quantization_variance(SF), rel=0.01)
+    sampled_hz = SAMPLE_RATE_HZ / 10.0
+    fit = fit_noise_model(overlapping_allan_deviation(rate, sampled_hz, octave_cluster_sizes(rate.size)))
+    corrected = arw_of_decimated_record(fit.arw_arcsec_per_sqrt_s, sampled_hz, SF)
+    # d corrected / d sampled = N_sampled (f_sampled / f_read-out) / corrected
+    sigma = fit.arw_sigma_arcsec_per_sqrt_s * fit.arw_arcsec_per_sqrt_s * sampled_hz / SAMPLE_RATE_HZ / corrected
+    assert abs(corrected - 0.0132) < 3.0 * sigma < 0.0002  # Table 5.1, gyro 002 (2008): 0.00022 deg/sqrt(h)
+    # 4.27 alone returns sqrt(N^2 + SF^2 / (6 t_s)) = 0.0146"/sqrt(s), 10 % high.
+    alone = arw_corrected_for_sampling(fit.arw_arcsec_per_sqrt_s, sampled_hz)
+    assert alone == pytest.approx(np.sqrt(0.0132**2 + SF**2 / 6.0 * SAMPLE_RATE_HZ), abs=3.0 * sigma)
+    assert alone - 0.0132 > 10.0 * sigma
+
+
+def test_fit_with_the_psd_lines_as_nuisance_terms_reads_the_arw_under_the_bulges():
+    # 5.2.6: "bulges of the AV curve ... smaller than 10 s ... caused by present frequencies". The
+    # always-present 0.7 and 1.3 Hz lines (5.2.5) at 0.05"/s on gyro 002 (2008) noise, 20 min.
+    time_s = np.arange(480_000) / SAMPLE_RATE_HZ
+    rate = gyro_rate_arcsec_per_s(TABLE_5_1['GYRO_002_2008'], time_s.size, SAMPLE_RATE_HZ, n_axes=1, rng=42)[:, 0]
+    rate += 0.05 * np.sin(2.0 * np.pi * 0.7 * time_s) + 0.05 * np.sin(2.0 * np.pi * 1.3 * time_s + 1.0)
+    curve = overlapping_allan_deviation(rate, SAMPLE_RATE_HZ, log_spaced_cluster_sizes(rate.size, 60))
+    with_lines = fit_noise_model(curve, lines_hz=(0.7, 1.3))
+    assert abs(with_lines.arw_arcsec_per_sqrt_s - 0.0132) < 3.0 * with_lines.arw_sigma_arcsec_per_sqrt_s
+    without = fit_noise_model(curve)
+    assert without.arw_arcsec_per_sqrt_s - 0.0132 > 10.0 * without.arw_sigma_arcsec_per_sqrt_s
+
+
+def test_bias_stability_is_read_where_the_curve_is_known_to_the_asked_accuracy():
+    # A curve whose last point (K = 3 clusters, 50 % error, 5.2.6) is the lowest: read among the
+    # points known to 25 % (K >= 9) instead.
+    curve = SimpleNamespace(tau_s=np.array([1.0, 10.0, 100.0, 1000.0]), adev=np.array([3.0, 1.0, 1.2, 0.5]),
+                            sigma_rel=allan_relative_error(np.array([3000, 300, 30, 3])))
+    assert bias_stability(curve).tau_s == 1000.0
+    guarded = bias_stability(curve, max_sigma_rel=0.25)
+    assert (guarded.tau_s, guarded.bias_stability_arcsec_per_s) == (10.0, 1.0)
+    with pytest.raises(InvalidArgumentError, match='no curve point has a 4.25 error <= 0.01'):
+        bias_stability(curve, max_sigma_rel=0.01)
+
+
+@pytest.mark.parametrize('call, match', [
+    (lambda: arw_of_decimated_record(0.04, 400.0, SF), r'sampled_rate_hz \(400\) must be below'),
+    (lambda: sinusoid_adev(0.0, 0.1, 30.0), 'tau_s must be > 0'),
+    (lambda: fit_noise_model(SimpleNamespace(tau_s=np.ones(7), adev=np.ones(7), sigma_rel=np.ones(7)),
+                             lines_hz=(1.0, 2.0)), 'curve needs more than 7 points to fit 5 terms and 2 lines'),
+])
+def test_decimation_line_and_fit_errors_name_the_argument(call, match):
     with pytest.raises(InvalidArgumentError, match=match):
         call()

@@ -2,10 +2,19 @@
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from sofia_ros.analysis.allan import psd_corrected_for_sampling
 from sofia_ros.analysis.noise_model import arw_deg_per_sqrt_h_from_white_psd, loglog_slope, noise_psd
-from sofia_ros.analysis.spectra import rate_spectrogram, welch_rate_psd
+from sofia_ros.analysis.lines import find_lines, likely_source, line_threshold, silent_sources
+from sofia_ros.analysis.spectra import (
+    log_chi_square_bias_and_sigma,
+    rate_spectrogram,
+    welch_equivalent_dof,
+    welch_rate_psd,
+    welch_segment_samples,
+    welch_sinusoid_psd,
+)
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC, SPECIFICATION, NoiseCoefficients, gyro_rate_arcsec_per_s
 
@@ -120,3 +129,80 @@ def test_spectrogram_shows_a_line_switched_off_halfway():
 def test_bad_input_raises_invalid_argument_naming_it(call, match):
     with pytest.raises(InvalidArgumentError, match=match):
         call()
+
+
+@pytest.mark.parametrize('line_hz', [30.0123, 230.0, 0.7])
+def test_expected_welch_estimate_of_a_line_is_scipys_welch_of_it(line_hz):
+    # Main oil pump 30 Hz (Table 5.5), a 230 Hz line that lands on 170 Hz, and the 0.7 Hz line of
+    # 5.2.5: the window transform in closed form against scipy's Welch.
+    time_s = np.arange(2**18) / SAMPLE_RATE_HZ
+    freq_hz, psd = welch_rate_psd(0.15 * np.sin(2.0 * np.pi * line_hz * time_s + 0.3))
+    expected = welch_sinusoid_psd(freq_hz, 0.15, line_hz)
+    near = np.abs(freq_hz - freq_hz[np.argmax(psd)]) < 0.2
+    np.testing.assert_allclose(psd[near], expected[near], rtol=0, atol=1e-4 * psd.max())
+    assert np.sum(expected) * freq_hz[1] == pytest.approx(0.15**2 / 2.0, rel=1e-3)  # A^2 / 2 (4.5)
+
+
+def test_welch_dof_sets_the_scatter_and_the_bias_of_the_log_psd():
+    # White noise at the specified ARW, 3 minutes at 400 Hz (the short records of the tests), 20 records.
+    segment = welch_segment_samples(72_000)
+    dof = welch_equivalent_dof(72_000, segment)
+    assert (segment, round(dof, 1)) == (2**14, 12.8)
+    bias, sigma = log_chi_square_bias_and_sigma(dof)
+    logs = []
+    for seed in range(20):
+        rate = gyro_rate_arcsec_per_s(ARW_ONLY, 72_000, SAMPLE_RATE_HZ, n_axes=1, rng=100 + seed)[:, 0]
+        freq_hz, psd = welch_rate_psd(rate, segment_samples=segment, fft_points=4 * segment)
+        logs.append(np.log(psd[(freq_hz > 1.0) & (freq_hz < 190.0)][::4] / (2.0 * N**2)))
+    logs = np.concatenate(logs)
+    assert np.mean(logs) == pytest.approx(bias, abs=0.01)  # -0.08 in ln: a 7 % low mean
+    assert np.std(logs) == pytest.approx(sigma, rel=0.05)
+    # The chi-square formulas themselves, against scipy's distribution.
+    draws = stats.chi2(dof).rvs(200_000, random_state=1) / dof
+    assert np.mean(np.log(draws)) == pytest.approx(bias, abs=0.002)
+    assert np.std(np.log(draws)) == pytest.approx(sigma, rel=0.01)
+
+
+def test_lines_above_the_chi_square_threshold_are_found_and_noise_is_not():
+    # Noise alone: no line in 20 three-minute records at 1 % false alarms per record.
+    segment = welch_segment_samples(72_000)
+    dof = welch_equivalent_dof(72_000, segment)
+    found = 0
+    for seed in range(20):
+        rate = gyro_rate_arcsec_per_s(ARW_ONLY, 72_000, SAMPLE_RATE_HZ, n_axes=1, rng=200 + seed)[:, 0]
+        found += len(find_lines(*welch_rate_psd(rate, segment_samples=segment, fft_points=4 * segment),
+                                dof=dof))
+    assert found == 0
+    # A 0.02"/s line of the 3.3 Hz TC-1 series (5.2.5) stands ~5x over the median there; at 20x it would be lost.
+    time_s = np.arange(72_000) / SAMPLE_RATE_HZ
+    rate = gyro_rate_arcsec_per_s(ARW_ONLY, 72_000, SAMPLE_RATE_HZ, n_axes=1, rng=7)[:, 0]
+    rate += 0.02 * np.sin(2.0 * np.pi * 49.6 * time_s)
+    lines = find_lines(*welch_rate_psd(rate, segment_samples=segment, fft_points=4 * segment), dof=dof)
+    assert [round(line.freq_hz, 1) for line in lines] == [49.6]
+    assert line_threshold(dof, 32_768) < 5.0
+
+
+def test_known_sources_are_matched_where_decimation_folds_them():
+    # Main oil pump 30 Hz and 190.2 Hz (Table 5.5) in every 10th sample (40 Hz): at 10.0 and 9.8 Hz.
+    assert likely_source(30.0) == 'main oil pump'
+    assert likely_source(10.0, 40.0) == 'main oil pump'
+    assert likely_source(9.8, 40.0) == 'main oil pump'
+    assert likely_source(10.0) == 'unknown'
+
+
+def test_short_records_get_four_power_of_two_segments():
+    assert welch_segment_samples(5_760_000) == 2**14  # 4 h, the 5.2.5 setting
+    assert welch_segment_samples(7_200) == 2**10  # 3 min every 10th sample
+    with pytest.raises(InvalidArgumentError, match='a rate PSD needs at least 1024 samples, got 1000'):
+        welch_segment_samples(1000)
+
+
+def test_sources_whose_subsystem_is_off_are_not_named():
+    # TC-1 (Table 5.2: RIS shut down, so no oil pumps): a line at 29.8 Hz is not the main oil pump's.
+    from sofia_ros.campaigns.gyro_stability import CASES
+
+    tc1, tc4 = silent_sources(dict(CASES['TC-1'].subsystems)), silent_sources(dict(CASES['TC-4'].subsystems))
+    assert likely_source(29.8) == 'main oil pump' and likely_source(29.8, silent=tc1) == 'unknown'
+    assert {'main oil pump', 'return pump 1', 'cooling carts', 'FD open loop (TC-4)'} <= tc1
+    assert likely_source(3.4, silent=tc4) == 'FD open loop (TC-4)' and likely_source(30.0, silent=tc4) == 'main oil pump'
+    assert silent_sources(None) == frozenset()

@@ -29,9 +29,10 @@ __all__ = ['default_scenario', 'run_star_hop', 'star_hop_config']
 MODES = ('executor', 'direct')
 
 
-def default_scenario(first_star=TABLE_D3_OBSERVATIONS[0][0]):
-    """Waco, the first observation's time (Table D.3); heading and elevation put that star on the LOS (C.3.2)."""
-    start_utc = dt.datetime.fromisoformat(TABLE_D3_OBSERVATIONS[0][1]).replace(tzinfo=CDT).astimezone(dt.timezone.utc)
+def default_scenario(first_star=TABLE_D3_OBSERVATIONS[0][0], offset_s=0.0):
+    """Waco at the first planned observation (Table D.3 start + offset); that star on the LOS (C.3.2)."""
+    table_start = dt.datetime.fromisoformat(TABLE_D3_OBSERVATIONS[0][1]).replace(tzinfo=CDT)
+    start_utc = (table_start + dt.timedelta(seconds=offset_s)).astimezone(dt.timezone.utc)
     place = observed_place(first_star, WACO_2004_SITE, start_utc, WACO_2004_WEATHER,
                            min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
     return Scenario(WACO_2004_SITE, start_utc, 90.0 + place.azimuth_deg, place.apparent_altitude_deg)
@@ -40,7 +41,7 @@ def default_scenario(first_star=TABLE_D3_OBSERVATIONS[0][0]):
 def star_hop_config(truth, seed, plan=None):
     """The star hop's GraphConfig: the truth's scenario over the Waco default."""
     plan = plan or StarHopPlan()
-    scenario = scenario_from_mapping(default_scenario(plan.observations[0][0]), truth.scenario)
+    scenario = scenario_from_mapping(default_scenario(*plan.observations[0]), truth.scenario)
     check_coarse_drive_elevation(scenario.start_elevation_deg)
     return GraphConfig(truth, scenario, seed, plan)
 
@@ -55,7 +56,7 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
         raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
     config = star_hop_config(truth, seed, plan)
     last_offset_s = config.plan.observations[-1][1]
-    max_sim_s = last_offset_s + 20.0 * config.plan.timeout_s + config.plan.hold_s
+    max_sim_s = last_offset_s - config.plan.observations[0][1] + 20.0 * config.plan.timeout_s + config.plan.hold_s
     documents = (('/config/truth', truth.text), ('/config/model', model_text),
                  (SCENARIO_TOPIC, scenario_document(config.scenario)),
                  ('/config/plan', yaml.safe_dump(dataclasses.asdict(config.plan), sort_keys=False)))

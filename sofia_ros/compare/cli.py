@@ -107,7 +107,32 @@ def print_comparison(document, out):
     for first, second in document['degenerate']:
         print(f'  degenerate: {first} and {second} explain the same residual; this campaign cannot tell them apart',
               file=out)
+    if 'star_hop' in document:
+        _print_star_hop(document['star_hop'], out)
     _print_verdict(document, out)
+
+
+def _print_star_hop(analysis, out):
+    """Table 6.7 (measured against catalogue distances), the Fig. 6.11 fit and the Fig. 6.4 flexure."""
+    print('star hop: measured (gyros + HIPO, drift-corrected, 6.3) against catalogue distances (refracted, Table D.3)',
+          file=out)
+    print(f'  {"move":<24} {"measured":>11} {"catalogue":>11} {"deviation":>10} {"refraction":>11}', file=out)
+    for move in analysis['moves']:
+        name = f'{move["from"]} -> {move["to"]}'
+        print(f'  {name:<24} {move["measured_arcsec"]:>10.1f}" {move["catalogue_arcsec"]:>10.1f}" '
+              f'{move["deviation_arcsec"]:>+9.2f}" {move["refraction_change_arcsec"]:>+10.1f}"', file=out)
+    fit = analysis['deviation_fit']
+    if fit:
+        print(f'  deviation = {fit["intercept_arcsec"]:+.2f}" + {fit["slope_arcsec_per_deg"]:+.3f}"/deg x distance '
+              f'(+- {fit["slope_sigma"]:.3f}; a scale error of {fit["scale_error_ppm"]:+.0f} ppm; Fig. 6.11), '
+              f'rms about the line {fit["rms_about_fit_arcsec"]:.2f}"', file=out)
+    flexure = analysis['imager_flexure']
+    if flexure:
+        for camera in ('fpi', 'ffi'):
+            measured = flexure['fit'][camera]['change_23_to_60_deg_arcsec']
+            fem = flexure['fem_change_23_to_60_deg_arcsec'][camera]
+            print(f'  {camera.upper()} against HIPO, 23 -> 60 deg: measured ({measured[0]:+.2f}", {measured[1]:+.2f}") '
+                  f'FEM ({fem[0]:+.2f}", {fem[1]:+.2f}")  (dEL, dXEL; Fig. 6.4)', file=out)
 
 
 def _print_verdict(document, out):

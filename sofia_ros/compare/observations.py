@@ -31,6 +31,7 @@ __all__ = ['MOTION_STATES', 'Centroids', 'GyroSamples', 'Observations', 'read_ob
 
 #: TASCU motion states (6.3), coded by index in Centroids.motion_code.
 MOTION_STATES = ('transient', 'settled', 'locked')
+_RESULT_TOPIC = '/calibration/result'
 REQUIRED_TOPICS = (IMU_TOPIC.name, TEMPERATURE_TOPIC.name, PLANT_TOPICS['joint_states'].name,
                    TASCU_TOPICS['attitude'].name, SCENARIO_TOPIC)
 
@@ -87,6 +88,7 @@ class Observations:
     initial_tarf_from_irf: np.ndarray
     campaign_topics: frozenset
     move_start_s: np.ndarray
+    calibration_result: str | None = None
 
 
 def _series(records, value_of):
@@ -166,7 +168,7 @@ def read_observations(bag_path):
                 raise BagError(f'{bag_path} has no /<camera>/centroids topic; nothing to compare')
             scenario = scenario_from_document(bag.document(SCENARIO_TOPIC))
             camera_topics = [f'/{camera}/centroids' for camera in cameras]
-            optional = [topic for topic in (TASCU_TOPICS['motion_status'].name,) if topic in names]
+            optional = [topic for topic in (TASCU_TOPICS['motion_status'].name, _RESULT_TOPIC) if topic in names]
             # Two passes: merging the 400 Hz samples with the other topics in time order costs more.
             records = bag.messages_by_topic(IMU_TOPIC.name, raw=(IMU_TOPIC.name,))
             records.update(bag.messages_by_topic(*REQUIRED_TOPICS[1:-1], *optional, *camera_topics))
@@ -199,5 +201,6 @@ def read_observations(bag_path):
                           elevation_deg, fd_los_deg, temperature_c, motion_code)
     transient = motion_codes == MOTION_STATES.index('transient')
     move_start_s = motion_s[transient & ~np.concatenate([[False], transient[:-1]])]
+    results = records.get(_RESULT_TOPIC, ([], []))[1]
     return Observations(bag_path, scenario, centroids, gyro, initial_time_s, dcm_from_quaternion(quaternions[0]),
-                        frozenset(names), move_start_s)
+                        frozenset(names), move_start_s, results[-1].data if results else None)

@@ -125,6 +125,46 @@ def _ledger_plot(runs, path):
     plt.close(figure)
 
 
+def _star_hop_plot(analysis, path):
+    """Fig. 6.11 (deviation against distance, with the line) and Fig. 6.4 (imager boresights against HIPO)."""
+    figure, axes = plt.subplots(1, 3, figsize=(13.0, 3.6))
+    moves = analysis['moves']
+    distance_deg = np.array([move['catalogue_arcsec'] for move in moves]) / 3600.0
+    deviation = np.array([move['deviation_arcsec'] for move in moves])
+    axes[0].plot(distance_deg, deviation, 'o', label='drift-corrected moves')
+    fit = analysis['deviation_fit']
+    if fit:
+        span = np.linspace(0.0, max(distance_deg.max(), 1.0), 2)
+        axes[0].plot(span, fit['intercept_arcsec'] + fit['slope_arcsec_per_deg'] * span, '-',
+                     label=f'{fit["slope_arcsec_per_deg"]:+.2f}"/deg ({fit["scale_error_ppm"]:+.0f} ppm)')
+    axes[0].axhline(0.0, color='k', lw=0.5)
+    axes[0].set_xlabel('catalogue distance [deg]')
+    axes[0].set_ylabel('measured - catalogue ["]')
+    axes[0].set_title('Fig. 6.11: deviation against distance', fontsize=9)
+    axes[0].legend(fontsize=7)
+    flexure = analysis['imager_flexure']
+    for axis, camera in zip(axes[1:], ('fpi', 'ffi')):
+        if not flexure:
+            axis.set_visible(False)
+            continue
+        elevation = [point['elevation_deg'] for point in flexure['points']]
+        for component, label in ((0, 'dEL'), (1, 'dXEL')):
+            axis.plot(elevation, [point[camera][component] for point in flexure['points']], 'o', label=f'{label}')
+            if camera == 'ffi':
+                order = np.argsort(elevation)
+                axis.plot(np.array(elevation)[order],
+                          np.array([point['ffi_fem'][component] for point in flexure['points']])[order], '--',
+                          label=f'{label} FEM')
+        axis.axhline(0.0, color='k', lw=0.5)
+        axis.set_xlabel('elevation [deg]')
+        axis.set_ylabel('against HIPO ["]')
+        axis.set_title(f'Fig. 6.4: {camera.upper()} boresight against HIPO', fontsize=9)
+        axis.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
 def _table(headers, rows):
     head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in headers)
     body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>' for row in rows)
@@ -156,6 +196,7 @@ Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {docume
 {document["outliers"]} outliers flagged.</p>
 <h2>Where the model fails</h2><img src="residuals.png" alt="residuals against variables">
 <img src="vectors.png" alt="residual vectors in the detector planes">
+{'<h2>Star hop (6.2, 6.3)</h2><img src="star_hop.png" alt="star hop">' if 'star_hop' in document else ''}
 <h2>Ledger of this run</h2>{_table(["step", "total", *[c.upper() for c in cameras]], ledger_rows)}
 <h2>Ledger across runs</h2><img src="ledger.png" alt="ledger across runs">
 {_table(["run", "model", "last fitted term", "RMS", "floor", "top candidate"], run_rows)}
@@ -193,6 +234,8 @@ def write_report(result, document, directory):
         _residual_plot(result, fits, staging / 'residuals.png')
         _vector_plot(result, fits, staging / 'vectors.png')
         _ledger_plot(runs, staging / 'ledger.png')
+        if 'star_hop' in document:
+            _star_hop_plot(document['star_hop'], staging / 'star_hop.png')
         (staging / 'index.html').write_text(_page(document, runs))
         (staging / _LEDGER).write_text(json.dumps(runs, indent=2) + '\n')
         directory.mkdir(exist_ok=True)

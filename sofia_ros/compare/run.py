@@ -22,6 +22,7 @@ from sofia_ros.compare.floor import anchor_walk_sigma_rad, angle_random_walk_rad
 from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.scan import signature_scan
+from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.effects import CATALOGUE, resolve_params
 from sofia_ros.errors import FitError
 from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
@@ -191,6 +192,9 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
         'angle_random_walk_arcsec_per_sqrt_s': arw * ARCSEC_PER_RAD,
         'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4)},
     }
+    windows = hold_windows(observations.calibration_result) if observations.calibration_result else None
+    if windows:
+        document['star_hop'] = star_hop_analysis(predictor, final.effects, windows)
     document['seconds']['total'] = round(time.perf_counter() - started, 3)
     return CompareResult(document, observations, final, best_fit, best_name, noise_arcsec, predictor)
 

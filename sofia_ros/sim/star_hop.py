@@ -51,6 +51,7 @@ def table_d3_offsets_s():
 class StarHopPlan:
     """The star-hop sequence: (star, start offset s) pairs, hold per star, timing and the TASCU's alignment."""
 
+    #: (star, seconds after Table D.3's first observation); the run starts at the first one listed
     observations: tuple = field(default_factory=table_d3_offsets_s)
     hold_s: float = 60.0
     #: start each observation at its offset (Table D.3); False: as soon as the previous one is done
@@ -83,7 +84,8 @@ class StarHopCore(CalibrationCore):
         yield from self._set_alignment(np.asarray(self.plan.tarf_from_gyrf).reshape(3, 3))
         for index, (star, offset_s) in enumerate(self.plan.observations):
             if self.plan.follow_times:
-                yield from self._until(offset_s)
+                # The run starts at the first planned observation (the scenario's start time).
+                yield from self._until(offset_s - self.plan.observations[0][1])
             entry = star_by_name(star)
             yield from self._recentre_los()
             self._progress('observation', {'index': index + 1, 'star': star})

@@ -48,7 +48,7 @@ def swapped_bag(tmp_path_factory):
 def test_run_writes_the_bag_the_observations_and_the_documents(nominal_bag):
     observations = yaml.safe_load((nominal_bag / 'star_hop.yaml').read_text())['observations']
     assert [o['star'] for o in observations] == ['Polaris', 'Alpha Cep', 'Beta Cep', 'Alpha Cep']
-    assert all(o["hold_end_s"] - o["hold_start_s"] >= 60.0 for o in observations)
+    assert all(o["hold_end_s"] - o["hold_start_s"] >= 60.0 - 1e-6 for o in observations)
     # Each observation starts no earlier than its Table D.3 time (relative to observation 4, 23:47:13 CDT).
     offsets = [offset - PLAN.observations[0][1] for _, offset in PLAN.observations]
     assert all(o['hold_start_s'] >= offset for o, offset in zip(observations, offsets))
@@ -127,6 +127,6 @@ def test_the_default_plan_is_table_d3():
     plan = StarHopPlan()
     assert len(plan.observations) == 17 and plan.observations[0] == ('Eta Cep', 0.0)
     # 23:22:16 to 00:57:03 CDT.
-    assert plan.observations[-1][1] == pytest.approx(95 * 60 + 47.0)
+    assert plan.observations[-1][1] == pytest.approx(94 * 60 + 47.0)
     assert np.allclose(np.reshape(plan.tarf_from_gyrf, (3, 3)) @ np.reshape(plan.tarf_from_gyrf, (3, 3)).T,
                        np.eye(3), atol=1e-4)

@@ -99,6 +99,10 @@ def test_without_pumps_the_fitted_arw_is_the_truths(tmp_path):
     for axis in ('el', 'xel', 'los'):
         values = document['axes'][axis]
         assert abs(values['arw_arcsec_per_sqrt_s'] - 0.0132) < 3.0 * values['arw_sigma'], axis
+    # The 3.3 Hz series member at 29.8 Hz lies within 0.3 Hz of the main oil pump's 30 Hz (Table 5.5),
+    # but the recorded Table 5.2 states say the RIS and its pumps are off in TC-1.
+    el_lines = {round(line['freq_hz'], 1): line['source'] for line in document['axes']['el']['lines']}
+    assert el_lines[29.8] == 'unknown' and document['subsystems']['main_oil_pump'] == 'off'
 
 
 def test_the_case_configuration_of_table_5_2_is_recorded_as_a_diagnostic_status(tc3):

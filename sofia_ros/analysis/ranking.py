@@ -208,13 +208,16 @@ def rank_candidates(residual, base_jacobian, candidates):
 
 def _with_degeneracies(ranked, signatures):
     """Name, for every significant candidate, the others whose explained signature is collinear with its own."""
-    significant = [c.name for c in ranked if c.significant and np.linalg.norm(signatures.get(c.name, 0.0)) > 0]
-    pairs = {name: [] for name in significant}
-    for index, first in enumerate(significant):
-        a = signatures[first] / np.linalg.norm(signatures[first])
-        for second in significant[index + 1:]:
-            b = signatures[second] / np.linalg.norm(signatures[second])
-            if abs(a @ b) >= DEGENERATE_COSINE:
+    unit = {}
+    for candidate in ranked:
+        norm = np.linalg.norm(signatures.get(candidate.name, 0.0))
+        if candidate.significant and norm > 0:
+            unit[candidate.name] = signatures[candidate.name] / norm
+    names = list(unit)
+    pairs = {name: [] for name in names}
+    for index, first in enumerate(names):
+        for second in names[index + 1:]:
+            if abs(unit[first] @ unit[second]) >= DEGENERATE_COSINE:
                 pairs[first].append(second)
                 pairs[second].append(first)
     return [RankedCandidate(c.name, c.params, c.sigma, c.rss_after, c.delta_bic, c.observable,

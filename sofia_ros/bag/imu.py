@@ -54,9 +54,12 @@ def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArr
     angular_velocity = np.empty((count, 3))
     linear_acceleration = np.empty((count, 3))
     lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=count)
-    for length in np.unique(lengths):
+    unique_lengths = np.unique(lengths)
+    for length in unique_lengths:
         rows = lengths == length
-        block = np.frombuffer(b''.join(compress(payloads, rows)), dtype=np.uint8)
+        # One frame_id for the whole topic is the rule: then no row selection is needed.
+        chosen = payloads if len(unique_lengths) == 1 else compress(payloads, rows)
+        block = np.frombuffer(b''.join(chosen), dtype=np.uint8)
         header_stamp_ns[rows], angular_velocity[rows], linear_acceleration[rows] = (
             _decode_block(block.reshape(-1, length))
         )

@@ -15,7 +15,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.recording import record_graph
+from sofia_ros.campaigns.recording import new_bag_path, record_graph
 from sofia_ros.errors import ConfigError
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
@@ -100,9 +100,7 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     """
     if mode not in MODES:
         raise ConfigError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
-    bag_path = Path(bag_path)
-    if bag_path.exists():
-        raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
+    bag_path = new_bag_path(bag_path)
     config = graph_config(truth, seed, plan)
     documents = (('/config/truth', truth.text), ('/config/model', model_text),
                  (SCENARIO_TOPIC, scenario_document(config.scenario)))

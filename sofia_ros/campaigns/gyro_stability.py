@@ -15,11 +15,11 @@ import datetime as dt
 import json
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import yaml
 
 from sofia_ros.bag import BagWriter
+from sofia_ros.campaigns.recording import new_bag_path
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
 from sofia_ros.sim import messages as m
@@ -111,9 +111,7 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
     hours = test_case.default_hours if hours is None else float(hours)
     if not 0.0 < hours <= 24.0:
         raise ConfigError(f'--hours must be in (0, 24], got {hours:g}')
-    bag_path = Path(bag_path)
-    if bag_path.exists():
-        raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
+    bag_path = new_bag_path(bag_path)
     effects = case_effects(test_case, truth.effects)
     scenario = edwards_scenario()
     cores = [ClockCore(), PlantCore(scenario, effects, fd_braked=True, tick_ns=DEFAULT_TICK_NS),

@@ -2,12 +2,22 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from sofia_ros.bag import BagWriter
 from sofia_ros.errors import ConfigError
 from sofia_ros.sim.graph import build_cores
 from sofia_ros.sim.runner import LockstepRunner
 
-__all__ = ['record_graph']
+__all__ = ['record_graph', 'new_bag_path']
+
+
+def new_bag_path(bag_path):
+    """The bag directory as a Path; ConfigError if it exists already (a run never overwrites a bag)."""
+    bag_path = Path(bag_path)
+    if bag_path.exists():
+        raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
+    return bag_path
 
 
 def record_graph(config, bag_path, documents, *, mode, max_sim_s, timeout_s, progress=None):

@@ -11,12 +11,11 @@ import dataclasses
 import datetime as dt
 import json
 import time
-from pathlib import Path
 
 import yaml
 
 from sofia_ros.campaigns.alignment import result_from_bag
-from sofia_ros.campaigns.recording import record_graph
+from sofia_ros.campaigns.recording import new_bag_path, record_graph
 from sofia_ros.errors import ConfigError
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sim.graph import GraphConfig
@@ -51,9 +50,7 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
     """Fly the sequence, record the bag, and write truth.yaml, model.yaml, star_hop.yaml and summary.json."""
     if mode not in MODES:
         raise ConfigError(f'star-hop runs in modes {", ".join(MODES)}, got {mode!r} (no --processes yet)')
-    bag_path = Path(bag_path)
-    if bag_path.exists():
-        raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
+    bag_path = new_bag_path(bag_path)
     config = star_hop_config(truth, seed, plan)
     last_offset_s = config.plan.observations[-1][1]
     max_sim_s = last_offset_s - config.plan.observations[0][1] + 20.0 * config.plan.timeout_s + config.plan.hold_s

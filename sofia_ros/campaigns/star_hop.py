@@ -29,12 +29,18 @@ MODES = ('executor', 'direct')
 
 
 def default_scenario(first_star=TABLE_D3_OBSERVATIONS[0][0], offset_s=0.0):
-    """Waco at the first planned observation (Table D.3 start + offset); that star on the LOS (C.3.2)."""
+    """Waco at the first planned observation (Table D.3 start + offset), that star on the LOS (C.3.2).
+
+    The aircraft stood still that night: its heading is the one that put Table D.3's first star,
+    Eta Cep, on the LOS at 23:22:16 CDT, whichever slice of the table is flown.
+    """
     table_start = dt.datetime.fromisoformat(TABLE_D3_OBSERVATIONS[0][1]).replace(tzinfo=CDT)
     start_utc = (table_start + dt.timedelta(seconds=offset_s)).astimezone(dt.timezone.utc)
+    parked = observed_place(TABLE_D3_OBSERVATIONS[0][0], WACO_2004_SITE, table_start.astimezone(dt.timezone.utc),
+                            WACO_2004_WEATHER, min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
     place = observed_place(first_star, WACO_2004_SITE, start_utc, WACO_2004_WEATHER,
                            min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
-    return Scenario(WACO_2004_SITE, start_utc, 90.0 + place.azimuth_deg, place.apparent_altitude_deg)
+    return Scenario(WACO_2004_SITE, start_utc, 90.0 + parked.azimuth_deg, place.apparent_altitude_deg)
 
 
 def star_hop_config(truth, seed, plan=None):

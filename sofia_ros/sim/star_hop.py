@@ -5,7 +5,8 @@ elevation. For each observation the node waits for the table's time, turns the f
 drive's LOS back near zero (an inertial hold walks it at Earth rate), moves the telescope
 with MTBS_INERTIAL (the coarse drive taking the elevation, 6.3) - or with MTBS_CENTROID when
 the star is already in an imager - centres the star in the FFI and then HIPO, and holds it
-for ``hold_s`` while every camera records frames (Table D.4: 112-315 s in 2004). The TASCU
+for ``hold_s`` while every camera records frames (Table D.4: 112-315 s in 2004), then parks
+the fine drive at zero XEL and LOS for the wait (the Earth would walk it into a stop). The TASCU
 flies with the alignment matrix of eq. 6.1 unless the plan gives another: the star hop
 measures a calibrated telescope.
 """
@@ -99,6 +100,7 @@ class StarHopCore(CalibrationCore):
                 'hold_start_s': start_ns / m.NS_PER_S, 'hold_end_s': self.stamp_ns / m.NS_PER_S,
                 'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG,
             })
+            yield from self._park()
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(
             {'accepted': True, 'campaign': 'star-hop', **self.record}, sort_keys=False))))
@@ -107,6 +109,11 @@ class StarHopCore(CalibrationCore):
         """Wait until sim time ``elapsed_s`` (no timeout: the table sets the pace)."""
         while self.stamp_ns < m.seconds_to_ns(elapsed_s):
             yield
+
+    def _park(self):
+        """Turn the fine drive's XEL and LOS back to zero: waiting on a star, the Earth walks them to the stops."""
+        fine_drive = np.array([self.joints.get(joint, 0.0) for joint in FD_JOINTS])
+        yield from self._move(np.array([0.0, -fine_drive[1], -fine_drive[2]]))
 
     def _recentre_los(self):
         fd_los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG

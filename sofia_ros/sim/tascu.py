@@ -10,6 +10,7 @@ the calibration node. Commands beyond the drives' limits are refused with a reas
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import brentq
 from diagnostic_msgs.msg import DiagnosticStatus
 
 from sofia_ros import mount
@@ -227,8 +228,9 @@ class TascuCore(NodeCore):
             elif kind == 'mtbs_inertial':
                 target = dcm_from_quaternion(m.quaternion_xyzw_of(message))
                 rotation = rotation_error_rad(self.commanded_from_inertial, target)
-                cd_target_deg = self._coarse_drive_target_deg(rotation[0])
-                self._check_fine_drive(rotation * np.array([0.0, 1.0, 1.0]))
+                cd_target_deg = self._coarse_drive_target_deg(target, rotation[0])
+                if cd_target_deg is None:
+                    self._check_fine_drive(rotation)
                 self.queue.append((command_ns, kind, rotation, cd_target_deg))
             else:
                 camera = self._camera(message.header.frame_id)
@@ -245,12 +247,31 @@ class TascuCore(NodeCore):
         current = np.array([self.joint_positions.get(joint, 0.0) for joint in FD_JOINTS])
         mount.check_fine_drive_angles(current + rotation_rad)
 
-    def _coarse_drive_target_deg(self, el_rotation_rad):
+    def _coarse_drive_target_deg(self, target, el_rotation_rad):
+        """CD elevation for a large inertial move: the one that leaves the fine drive's EL angle at zero.
+
+        The fine-drive angles at the end are those of the target attitude against the cradle turned
+        by the coarse drive (C.1.1, B.4); they, not the components of one large rotation vector,
+        must lie within +-3 deg. None when the fine drive alone can make the move.
+        """
         if abs(el_rotation_rad) <= mount.FINE_DRIVE_LIMIT_DEG * RAD_PER_DEG / 2.0:
             return None
-        current_deg = self.joint_positions.get(CD_JOINT, 0.0) / RAD_PER_DEG
-        target_deg = current_deg + el_rotation_rad / RAD_PER_DEG
+        now_deg = self.joint_positions.get(CD_JOINT, 0.0) / RAD_PER_DEG
+        fine_drive_now = np.array([self.joint_positions.get(joint, 0.0) for joint in FD_JOINTS])
+        cradle_from_inertial = mount.tarf_from_icrf_dcm(fine_drive_now).T @ self.commanded_from_inertial
+
+        def fine_drive_at(elevation_deg):
+            turn = mount.icrf_from_abrf_dcm(elevation_deg) @ mount.icrf_from_abrf_dcm(now_deg).T
+            return mount.fine_drive_angles_from_dcm(target @ (turn @ cradle_from_inertial).T)
+
+        guess_deg = now_deg + el_rotation_rad / RAD_PER_DEG
+        low, high = guess_deg - 10.0, guess_deg + 10.0
+        if fine_drive_at(low)[0] * fine_drive_at(high)[0] > 0.0:
+            raise CommandRefusedError(f'no coarse-drive elevation near {guess_deg:.1f} deg brings the target '
+                                      'within the fine drive; command a smaller move')
+        target_deg = brentq(lambda elevation_deg: fine_drive_at(elevation_deg)[0], low, high, xtol=1e-9)
         mount.check_coarse_drive_elevation(target_deg)
+        mount.check_fine_drive_angles(fine_drive_at(target_deg))
         return target_deg
 
     def _advance_moves(self, interval_s, estimate):

@@ -65,9 +65,11 @@ def test_nominal_distances_match_the_catalogue_and_refraction_matches_table_d3(n
     assert moves[0]['refraction_change_arcsec'] == pytest.approx(-55.3, abs=0.5)
     assert moves[1]['refraction_change_arcsec'] == pytest.approx(-11.4, abs=0.5)
     assert moves[0]['catalogue_arcsec'] == pytest.approx(98131.4, abs=5.0)
-    # Drift-corrected with the drift of two 60 s holds, gyros and HIPO measure the catalogue distance to
-    # a few arcsec (the drift rate is known to ~0.005"/s over moves of ~400 s; Fig. 6.11 scatters by ~5").
-    assert all(abs(m['deviation_arcsec']) < 3.0 for m in moves)
+    # With the drift of two 60 s holds removed (6.3), gyros and HIPO measure the catalogue distance to
+    # a few arcsec (Fig. 6.11 scatters by about 5"); the white-noise sigma of the drift is reported.
+    for move in moves:
+        assert 0.0 < move['deviation_sigma_arcsec'] < 2.0
+        assert abs(move['deviation_arcsec']) < 3.0
     assert document['star_hop']['imager_flexure'] is not None
 
 

@@ -114,8 +114,8 @@ def print_comparison(document, out):
 
 def _print_star_hop(analysis, out):
     """Table 6.7 (measured against catalogue distances), the Fig. 6.11 fit and the Fig. 6.4 flexure."""
-    print('star hop: measured (gyros + HIPO, drift-corrected, 6.3) against catalogue distances (refracted, Table D.3)',
-          file=out)
+    print('star hop: measured (gyros + HIPO, drift of the holds removed, 6.3) against catalogue distances '
+          '(refracted, Table D.3)', file=out)
     print(f'  {"move":<24} {"measured":>11} {"catalogue":>11} {"deviation":>10} {"refraction":>11}', file=out)
     for move in analysis['moves']:
         name = f'{move["from"]} -> {move["to"]}'

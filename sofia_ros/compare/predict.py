@@ -170,17 +170,21 @@ class Predictor:
         model_hrf_from_irf = hrf_from_irf_dcm(self.scene.earth_latitude_deg, times_s, model_rate)
         return np.einsum('nji,nj->ni', model_hrf_from_irf, directions_hrf)
 
-    def measured_directions_tarf(self, effects):
-        """Each row's measured star direction in TARF through the model's detector and mounting (3.2-3.7)."""
+    def measured_directions_tarf(self, effects, rows=None):
+        """Measured star directions in TARF of the rows (all by default) through the model's detectors and mountings."""
         centroids = self.observations.centroids
+        selected = np.zeros(len(centroids), dtype=bool)
+        selected[np.arange(len(centroids)) if rows is None else rows] = True
         measured = np.empty((len(centroids), 3))
         for index, camera in enumerate(centroids.cameras):
-            rows = centroids.camera_index == index
+            chosen = selected & (centroids.camera_index == index)
+            if not np.any(chosen):
+                continue
             errors = camera_errors(camera, effects)
-            in_camera = pixel_to_vector(centroids.measured_px[rows], errors.detector)
-            mounting = camera_from_tarf_dcm(errors, centroids.elevation_deg[rows])
-            measured[rows] = np.einsum('nji,nj->ni', mounting, in_camera)
-        return measured
+            in_camera = pixel_to_vector(centroids.measured_px[chosen], errors.detector)
+            mounting = camera_from_tarf_dcm(errors, centroids.elevation_deg[chosen])
+            measured[chosen] = np.einsum('nji,nj->ni', mounting, in_camera)
+        return measured[selected] if rows is not None else measured
 
     def align_initial_attitude(self, effects):
         """Set the start attitude that best maps the model's stars onto all measured ones (Wahba's problem)."""

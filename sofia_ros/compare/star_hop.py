@@ -1,10 +1,12 @@
 """Star-hop analysis of a bag: measured against catalogue distances (Table 6.7, Fig. 6.11) and imager flexure (Fig. 6.4).
 
 For each hold window (the calibration node's /calibration/result): HIPO's locked centroids of
-the held star, mapped through the nominal detector (3.5-3.7) and the model's gyro attitude
+the held star, mapped through the model's HIPO (detector 3.5-3.7, flexure) and gyro attitude
 (compare.predict, no anchors) into IRF directions; their linear drift during the hold is the
 gyro drift (6.3). For each move between consecutive holds the drift is solved as one rotation
-rate from both holds' drifts and removed over the move (6.3-6.6); the angle between the two
+rate from both holds' drifts and removed over the move where it stands out of its noise (6.3-6.6;
+the model's gyro biases are left out: fitted to the whole run they would take up part of a missing
+scale error); the angle between the two
 directions is the measured distance, compared with the catalogue distance of the two stars'
 observed places in IRF with and without refraction (4.36-4.38, 6.2, Table D.3). The deviation
 against distance is fitted with a line (Fig. 6.11). The FPI and FFI see the HIPO-centred star
@@ -20,7 +22,6 @@ import yaml
 from sofia_ros.compare.observations import MOTION_STATES
 from sofia_ros.errors import BagError
 from sofia_ros.flexure import differential_imager_rotation_arcsec, gravity_load_tarf
-from sofia_ros.frames import pixel_to_vector
 from sofia_ros.sensors.imager_model import nominal_detector
 from sofia_ros.sim.calibration import boresight_shift_arcsec, flexure_fit
 from sofia_ros.units import ARCSEC_PER_RAD
@@ -29,6 +30,8 @@ __all__ = ['star_hop_analysis', 'hold_windows']
 
 _LOCKED = MOTION_STATES.index('locked')
 _MIN_FRAMES = 5
+#: Hold drift rates below this many sigma are noise, not drift.
+_DRIFT_SIGNIFICANCE = 3.0
 
 
 def hold_windows(result_text):
@@ -52,28 +55,34 @@ def _hold_rows(centroids, camera, hip, window):
 
 
 def _hold_direction(predictor, effects, rows):
-    """Mean IRF direction of the held star at the hold's mid time, and its drift d(direction)/dt (1/s)."""
-    centroids = predictor.observations.centroids
+    """Mean IRF direction of the held star at the hold's mid time, its drift d(direction)/dt (1/s) and that drift's sigma."""
     times = predictor.row_times_s(effects)[rows]
-    in_hipo = pixel_to_vector(centroids.measured_px[rows], nominal_detector('hipo'))
-    directions = np.einsum('nji,nj->ni', predictor.attitudes(effects, times), in_hipo)
+    # Through the model's HIPO: its detector, fiducials and gravity flexure (3.5-3.7, Table 3.2).
+    in_tarf = predictor.measured_directions_tarf(effects, rows)
+    directions = np.einsum('nji,nj->ni', predictor.attitudes(effects, times), in_tarf)
     mid_s = float(times.mean())
     design = np.column_stack([np.ones_like(times), times - mid_s])
     coefficients, *_ = np.linalg.lstsq(design, directions, rcond=None)
+    scatter = directions - design @ coefficients
+    slope_sigma = np.sqrt(np.sum(scatter**2, axis=0) / max(len(times) - 2, 1)
+                          / np.sum((times - mid_s) ** 2))
     direction = coefficients[0] / np.linalg.norm(coefficients[0])
-    return mid_s, direction, coefficients[1]
+    return mid_s, direction, coefficients[1], slope_sigma
 
 
 def _drift_rate(first, second):
-    """One rotation rate w (rad/s, IRF) with s = w x d for both holds' drifts (least squares, 6.3)."""
-    rows, rhs = [], []
-    for direction, slope in (first, second):
+    """One rotation rate w (rad/s, IRF) with s = w x d for both holds' drifts, and its covariance (weighted LSQ, 6.3)."""
+    rows, rhs, weights = [], [], []
+    for direction, slope, sigma in (first, second):
         # w x d = -[d x] w
         rows.append(-np.array([[0.0, -direction[2], direction[1]], [direction[2], 0.0, -direction[0]],
                                [-direction[1], direction[0], 0.0]]))
         rhs.append(slope)
-    rate, *_ = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)
-    return rate
+        weights.append(1.0 / np.maximum(sigma, 1e-15))
+    design = np.vstack(rows) * np.concatenate(weights)[:, None]
+    target = np.concatenate(rhs) * np.concatenate(weights)
+    rate, *_ = np.linalg.lstsq(design, target, rcond=None)
+    return rate, np.linalg.pinv(design.T @ design)
 
 
 def _angle_arcsec(first, second):
@@ -120,6 +129,9 @@ def _imager_flexure(observations, windows):
 def star_hop_analysis(predictor, effects, windows):
     """Moves with measured and catalogue distances, their deviation fit, and the imager flexure series."""
     observations = predictor.observations
+    # As 6.3 does: the gyro drift comes from the holds, not from biases fitted to the whole run
+    # (a fit of biases would take up part of a missing scale error).
+    effects = {name: params for name, params in effects.items() if name not in ('gyro_bias', 'gyro_bias_drift')}
     holds = []
     for window in windows:
         rows = _hold_rows(observations.centroids, 'hipo', window['hip'], window)
@@ -127,11 +139,17 @@ def star_hop_analysis(predictor, effects, windows):
             holds.append((window, *_hold_direction(predictor, effects, rows)))
     refracted = {name: value for name, value in effects.items() if name != 'atmospheric_refraction'}
     moves = []
-    for (first, t1, d1, s1), (second, t2, d2, s2) in zip(holds, holds[1:]):
+    for (first, t1, d1, s1, e1), (second, t2, d2, s2, e2) in zip(holds, holds[1:]):
         if first['hip'] == second['hip']:
             continue
-        rate = _drift_rate((d1, s1), (d2, s2))
-        corrected = d2 - np.cross(rate, d2) * (t2 - t1)
+        rate, rate_covariance = _drift_rate((d1, s1, e1), (d2, s2, e2))
+        rate_sigma = np.sqrt(np.diag(rate_covariance))
+        # Only a rotation about the axis normal to both stars changes their distance (first order).
+        normal = np.cross(d1, d2) / np.linalg.norm(np.cross(d1, d2))
+        distance_sigma_rad = float(np.sqrt(normal @ rate_covariance @ normal)) * (t2 - t1)
+        # The holds' drift is removed where it stands out of its own noise (6.3): removing noise adds error.
+        corrected_by_drift = bool(np.any(np.abs(rate) > _DRIFT_SIGNIFICANCE * rate_sigma))
+        corrected = d2 - np.cross(rate, d2) * (t2 - t1) if corrected_by_drift else d2
         measured = _angle_arcsec(d1, corrected / np.linalg.norm(corrected))
         catalogue = {}
         for label, model in (('refracted', effects), ('unrefracted', refracted)):
@@ -139,10 +157,14 @@ def star_hop_analysis(predictor, effects, windows):
             catalogue[label] = _angle_arcsec(*stars)
         moves.append({'from': first['star'], 'to': second['star'], 'time_s': t2,
                       'measured_arcsec': measured, 'uncorrected_arcsec': _angle_arcsec(d1, d2),
+                      'drift_corrected': corrected_by_drift,
                       'catalogue_arcsec': catalogue['refracted'], 'catalogue_unrefracted_arcsec': catalogue['unrefracted'],
                       'refraction_change_arcsec': catalogue['refracted'] - catalogue['unrefracted'],
                       'deviation_arcsec': measured - catalogue['refracted'],
-                      'drift_rate_arcsec_per_s': (rate * ARCSEC_PER_RAD).tolist()})
+                      # What the holds leave unknown of the drift over the move, corrected or not.
+                      'deviation_sigma_arcsec': distance_sigma_rad * ARCSEC_PER_RAD,
+                      'drift_rate_arcsec_per_s': (rate * ARCSEC_PER_RAD).tolist(),
+                      'drift_rate_sigma_arcsec_per_s': (rate_sigma * ARCSEC_PER_RAD).tolist()})
     return {'moves': moves, 'deviation_fit': _deviation_fit(moves),
             'imager_flexure': _imager_flexure(observations, windows)}
 

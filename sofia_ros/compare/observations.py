@@ -86,7 +86,6 @@ class Observations:
     gyro: GyroSamples
     initial_time_s: float
     initial_tarf_from_irf: np.ndarray
-    campaign_topics: frozenset
     move_start_s: np.ndarray
     calibration_result: str | None = None
 
@@ -203,4 +202,4 @@ def read_observations(bag_path):
     move_start_s = motion_s[transient & ~np.concatenate([[False], transient[:-1]])]
     results = records.get(_RESULT_TOPIC, ([], []))[1]
     return Observations(bag_path, scenario, centroids, gyro, initial_time_s, dcm_from_quaternion(quaternions[0]),
-                        frozenset(names), move_start_s, results[-1].data if results else None)
+                        move_start_s, results[-1].data if results else None)

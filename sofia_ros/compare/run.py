@@ -45,7 +45,6 @@ class CompareResult:
     final_fit: object
     best_fit: object
     best_name: str | None
-    noise_arcsec: np.ndarray
     predictor: object
 
 
@@ -200,5 +199,5 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
     if windows:
         document['star_hop'] = star_hop_analysis(predictor, final.effects, windows)
     document['seconds']['total'] = round(time.perf_counter() - started, 3)
-    return CompareResult(document, observations, final, best_fit, best_name, noise_arcsec, predictor)
+    return CompareResult(document, observations, final, best_fit, best_name, predictor)
 

@@ -9,7 +9,6 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
 
 import yaml
 
@@ -65,6 +64,13 @@ class _Progress:
             sys.stderr.write('\n')
 
 
+def _model_text(args):
+    """The --model file's text, checked like a truth file (an empty model without --model)."""
+    from sofia_ros.config import load_effect_config
+
+    return load_effect_config(args.model).text if args.model else 'effects: {}\n'
+
+
 def _run_campaign(args):
     from sofia_ros.campaigns.alignment import run_alignment
     from sofia_ros.config import load_effect_config
@@ -77,9 +83,7 @@ def _run_campaign(args):
     if args.campaign != 'alignment':
         raise ConfigError(f"unknown campaign {args.campaign!r}; available: alignment, star-hop, gyro-stability")
     truth = load_effect_config(args.truth)
-    model_text = Path(args.model).read_text() if args.model else 'effects: {}\n'
-    if args.model:
-        load_effect_config(args.model)
+    model_text = _model_text(args)
     plan = AlignmentPlan(repetitions=args.repetitions, verification_repetitions=args.verification_repetitions,
                          drift_track_s=args.drift_track_s)
     mode = 'processes' if args.processes else 'direct' if args.direct else 'executor'
@@ -120,7 +124,7 @@ def _run_star_hop(args):
     if args.processes:
         raise ConfigError('star-hop runs in one process (default) or --direct; --processes is not built for it yet')
     truth = load_effect_config(args.truth)
-    model_text = Path(args.model).read_text() if args.model else 'effects: {}\n'
+    model_text = _model_text(args)
     observations = table_d3_offsets_s()
     if args.observations is not None:
         first, _, last = args.observations.partition('-')

@@ -174,6 +174,8 @@ def run_compare(args, out):
     for target in (args.json, args.report):
         if target and not Path(target).resolve().parent.exists():
             raise ConfigError(f'the directory of {target} does not exist; create it first')
+    if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
+        raise ConfigError(f'--report {args.report} is a file; give a directory')
     result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
     document = _json_ready(result.document)
     print_comparison(document, out)

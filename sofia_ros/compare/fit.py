@@ -25,7 +25,7 @@ from sofia_ros.analysis.ranking import bic, linear_fit
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
-__all__ = ['FreeParameter', 'ModelFit', 'free_parameters', 'fit_model', 'OUTLIER_SIGMA']
+__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'OUTLIER_SIGMA']
 
 HUBER_K = 3.0
 OUTLIER_SIGMA = 5.0
@@ -100,7 +100,7 @@ def _with_values(effects, free, values):
     return updated
 
 
-class _Problem:
+class WhitenedProblem:
     """Whitened residuals and Jacobians of one predictor for one set of free parameters."""
 
     def __init__(self, predictor, sigma_arcsec, walk_sigma_rad):
@@ -124,6 +124,7 @@ class _Problem:
         return ((measured - predicted_px) * self.arcsec_per_px / self.row_sigma).ravel()
 
     def scaled(self, delta_px):
+        """A change of predicted pixels in units of each camera's noise, flattened like the residuals."""
         return (delta_px * self.arcsec_per_px / self.row_sigma).ravel()
 
     def anchor_columns(self, effects, anchors, predicted):
@@ -145,6 +146,7 @@ class _Problem:
                                        shape=(2 * len(times), 3 * self.predictor.anchor_count))
 
     def parameter_columns(self, effects, free, values, anchors, predicted):
+        """Forward-difference columns d prediction / d free parameter at values, whitened (units of noise per unit)."""
         columns = np.empty((predicted.size, len(free)))
         for index, parameter in enumerate(free):
             stepped = values.copy()
@@ -190,7 +192,7 @@ def fit_model(predictor, effects, free, sigma_arcsec, walk_sigma_rad, *, anchors
     Starts from the effects' given values. A step that raises the cost (or sends a star off
     its detector) is halved, up to eight times; a fit that cannot improve stops where it is.
     """
-    problem = _Problem(predictor, sigma_arcsec, walk_sigma_rad)
+    problem = WhitenedProblem(predictor, sigma_arcsec, walk_sigma_rad)
     free = tuple(free)
     values = np.array([effects[p.effect][p.name] for p in free], dtype=float)
     anchors = np.zeros((predictor.anchor_count, 3)) if anchors_rad is None else np.array(anchors_rad)

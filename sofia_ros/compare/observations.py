@@ -62,11 +62,10 @@ class Centroids:
 
 @dataclass(frozen=True, eq=False)
 class GyroSamples:
-    """400 Hz GYRF rates with the temperature of their tick and the tick each belongs to."""
+    """400 Hz GYRF rates, the ticks they belong to, and per tick their mean, mean time, count and temperature."""
 
     time_s: np.ndarray
     rates_gyrf_rad_per_s: np.ndarray
-    temperature_c: np.ndarray
     tick_end_s: np.ndarray
     tick_temperature_c: np.ndarray
     tick_start_index: np.ndarray
@@ -142,7 +141,7 @@ def _gyro_samples(imu_records, temperature_records):
     temperatures = np.asarray(temperatures, dtype=float)
     rates = imu.angular_velocity_rad_per_s[keep]
     counts = np.diff(np.append(starts, len(time_s)))
-    return GyroSamples(time_s, rates, temperatures[tick], tick_end_s, temperatures, starts, period_s,
+    return GyroSamples(time_s, rates, tick_end_s, temperatures, starts, period_s,
                        tick_means(rates, starts), tick_means(time_s[:, None], starts)[:, 0], counts)
 
 

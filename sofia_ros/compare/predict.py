@@ -218,13 +218,10 @@ class Predictor:
             correction += np.asarray(irf_rotation_rad)
         if np.any(correction):
             attitude = attitude @ _dcms_from_rotvecs(correction)
+        # The directions depend on the sky effects and the row times (the HIPO clock offset) only.
         key = ('stars', repr(effects.get('atmospheric_refraction')), repr(effects.get('earth_rotation')),
                repr(effects.get('timestamp_offset')))
-        if irf_rotation_rad is None and key[1:] == self._cache.get('stars_key'):
-            directions = self._cache['stars_value']
-        else:
-            directions = self._star_directions(effects, times)
-            self._cache['stars_key'], self._cache['stars_value'] = key[1:], directions
+        directions = self._cached(key, lambda: self._star_directions(effects, times))
         in_tarf = np.einsum('nij,nj->ni', attitude, directions)
         predicted = np.empty((len(times), 2))
         for index, camera in enumerate(centroids.cameras):

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC, CandidateTerm, degenerate_pairs, rank_candidates
-from sofia_ros.compare.fit import fit_model, free_parameters
+from sofia_ros.compare.fit import WhitenedProblem, fit_model, free_parameters
 from sofia_ros.compare.floor import anchor_walk_sigma_rad, angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
@@ -70,11 +70,9 @@ def _term_table(fit):
             for p, value, sigma in zip(fit.free, fit.values, fit.sigma)]
 
 
-def _linearized_candidates(predictor, fit, noise_arcsec, names):
+def _linearized_candidates(predictor, fit, noise_arcsec, walk_sigma_rad, names):
     """CandidateTerms linearized where each effect vanishes: scaling parameters 0, shaping ones at default."""
-    centroids = predictor.observations.centroids
-    arcsec_per_px = centroids.arcsec_per_px()[:, None]
-    row_sigma = noise_arcsec[centroids.camera_index][:, None]
+    problem = WhitenedProblem(predictor, noise_arcsec, walk_sigma_rad)
     base = predictor.predict_px(fit.effects, fit.anchors_rad)
     terms = []
     for name in names:
@@ -85,12 +83,8 @@ def _linearized_candidates(predictor, fit, noise_arcsec, names):
         start = np.array([spec.parameter(p.name).default if spec.parameter(p.name).shape else 0.0 for p in free])
         switched = {**fit.effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
         at_start = predictor.predict_px(switched, fit.anchors_rad)
-        columns = np.empty((base.size, len(free)))
-        for index, parameter in enumerate(free):
-            stepped = {**switched, name: {**switched[name], parameter.name: start[index] + parameter.step}}
-            moved = predictor.predict_px(stepped, fit.anchors_rad)
-            columns[:, index] = ((moved - at_start) * arcsec_per_px / row_sigma).ravel() / parameter.step
-        shift = ((at_start - base) * arcsec_per_px / row_sigma).ravel()
+        columns = problem.parameter_columns(switched, free, start, fit.anchors_rad, at_start)
+        shift = problem.scaled(at_start - base)
         # The anchors' prior rows do not depend on any effect: zeros there.
         prior_rows = len(fit.prior_residual)
         terms.append(CandidateTerm(name, tuple(p.name for p in free), start,
@@ -142,7 +136,7 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
 
     names = [name for name in (candidate_names or CATALOGUE) if name not in effects and name not in NOISE_EFFECTS]
     linear_started = time.perf_counter()
-    terms = _linearized_candidates(predictor, final, noise_arcsec, names)
+    terms = _linearized_candidates(predictor, final, noise_arcsec, walk_sigma_rad, names)
     # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
     # "outliers", and the Huber weights that protect the fit would hide that failure from the ranking.
     ranked = rank_candidates(final.augmented_residual, final.jacobian, terms)

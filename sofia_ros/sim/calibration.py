@@ -231,11 +231,14 @@ class CalibrationCore(NodeCore):
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(self.result(), sort_keys=False))))
 
-    def _centre_star(self):
-        # An inertial hold walks the fine drive at Earth rate, mostly about LOS here: turn it back first.
+    def _recentre_los(self, threshold_deg=_RECENTRE_LOS_DEG):
+        """Turn the fine drive's LOS back to zero beyond a threshold: an inertial hold walks it at Earth rate."""
         fd_los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
-        if abs(fd_los_deg) > _RECENTRE_LOS_DEG:
+        if abs(fd_los_deg) > threshold_deg:
             yield from self._move(np.array([0.0, 0.0, -fd_los_deg * RAD_PER_DEG]))
+
+    def _centre_star(self):
+        yield from self._recentre_los()
         pixel, _ = yield from self._star_frames('hipo', 1)
         yield from self._command('mtbs_centroid', self._point_message('hipo', pixel))
         yield from self._locked()

@@ -88,7 +88,7 @@ class StarHopCore(CalibrationCore):
                 # The run starts at the first planned observation (the scenario's start time).
                 yield from self._until(offset_s - self.plan.observations[0][1])
             entry = star_by_name(star)
-            yield from self._recentre_los()
+            yield from self._recentre_los(_RECENTRE_LOS_DEG)
             self._progress('observation', {'index': index + 1, 'star': star})
             if not (yield from self._centre_from_imager(entry.hip)):
                 yield from self._point_at(entry.hip)
@@ -114,11 +114,6 @@ class StarHopCore(CalibrationCore):
         """Turn the fine drive's XEL and LOS back to zero: waiting on a star, the Earth walks them to the stops."""
         fine_drive = np.array([self.joints.get(joint, 0.0) for joint in FD_JOINTS])
         yield from self._move(np.array([0.0, -fine_drive[1], -fine_drive[2]]))
-
-    def _recentre_los(self):
-        fd_los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
-        if abs(fd_los_deg) > _RECENTRE_LOS_DEG:
-            yield from self._move(np.array([0.0, 0.0, -fd_los_deg * RAD_PER_DEG]))
 
     def _centre_from_imager(self, hip):
         """MTBS_CENTROID from the widest imager that already shows the star (6.3); False if none does."""

@@ -192,7 +192,9 @@ def _replay(args):
 
     if args.rate < 0:
         raise ConfigError(f'--rate must be >= 0 (0 = as fast as possible), got {args.rate}')
-    replay_bag(args.bag, rate=args.rate, topics=args.topics or None, out=sys.stdout)
+    if args.wait_s < 0:
+        raise ConfigError(f'--wait-s must be >= 0 (0 = publish at once), got {args.wait_s}')
+    replay_bag(args.bag, rate=args.rate, topics=args.topics or None, out=sys.stdout, wait_s=args.wait_s)
     return 0
 
 
@@ -254,6 +256,8 @@ def build_parser():
     replay.add_argument('bag', help='bag directory')
     replay.add_argument('--rate', type=float, default=1.0, help='speed-up against the recorded time (0: unpaced)')
     replay.add_argument('--topics', nargs='*', help='only these topics')
+    replay.add_argument('--wait-s', type=float, default=5.0,
+                        help='wait this long (wall s) for a subscriber on every replayed topic before publishing')
     replay.set_defaults(handler=_replay)
 
     noise = verbs.add_parser('noise', help='noise analysis of a gyro-stability bag (5.2): Earth rate, Allan, lines')

@@ -91,3 +91,10 @@ def test_missing_truth_file_is_refused(tmp_path):
 def test_replay_of_a_missing_bag_is_refused(tmp_path):
     result = run_sofia('replay', str(tmp_path / 'none'))
     assert result.returncode == 2 and 'does not exist' in result.stderr
+
+
+@pytest.mark.parametrize('option, value, message', [('--rate', '-1', '--rate must be >= 0'),
+                                                    ('--wait-s', '-2', '--wait-s must be >= 0')])
+def test_replay_refuses_negative_rate_and_wait(tmp_path, option, value, message):
+    result = run_sofia('replay', str(tmp_path / 'none'), option, value)
+    assert result.returncode == 2 and message in result.stderr

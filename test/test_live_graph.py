@@ -131,7 +131,7 @@ def test_replay_publishes_a_bag_into_a_live_graph(direct_run):
         received = []
         node.create_subscription(QuaternionStamped, '/tascu/attitude', received.append, DATA_QOS)
         replay = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'replay', str(direct_run.bag_path),
-                                   '--rate', '0', '--topics', '/tascu/attitude', '/clock'],
+                                   '--rate', '0', '--topics', '/tascu/attitude', '/clock', '--wait-s', '60'],
                                   stdout=subprocess.PIPE, text=True)
         while replay.poll() is None:
             rclpy.spin_once(node, timeout_sec=0.05)

@@ -16,8 +16,12 @@ from sofia_ros.sim import messages as m
 __all__ = ['replay_bag']
 
 
-def replay_bag(bag_path, *, rate=1.0, topics=None, out=None):
-    """Publish every recorded message at its log time, scaled by ``rate`` (0: as fast as possible)."""
+def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
+    """Publish every recorded message at its log time, scaled by ``rate`` (0: as fast as possible).
+
+    Publishing starts once every replayed data topic has a subscriber, or after ``wait_s`` of wall
+    time: a volatile topic drops what is published before discovery has matched its subscribers.
+    """
     from rclpy.node import Node
 
     with BagReader(bag_path) as bag:
@@ -30,7 +34,9 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None):
                 qos = SYNC_QOS if info.msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
                 publishers[info.name] = node.create_publisher(message_class(info.msgtype), info.name, qos)
             clock = publishers.get('/clock') or node.create_publisher(Clock, '/clock', SYNC_QOS)
-            time.sleep(1.0)  # let subscribers discover the publishers
+            waiting = _wait_for_subscribers(node, [p for name, p in publishers.items() if name != '/clock'], wait_s)
+            if waiting and out is not None:
+                out.write(f'no subscriber after {wait_s:g} s on {", ".join(waiting)}; replaying anyway\n')
             start_wall, first_ns, count = time.monotonic(), None, 0
             for topic, stamp_ns, data in bag.raw_messages(*publishers):
                 first_ns = stamp_ns if first_ns is None else first_ns
@@ -51,3 +57,13 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None):
         finally:
             rclpy.try_shutdown()
     return count
+
+
+def _wait_for_subscribers(node, publishers, wait_s):
+    """Spin until every publisher has a matched subscription or ``wait_s`` passed; return the topics still without."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        waiting = [publisher.topic_name for publisher in publishers if publisher.get_subscription_count() == 0]
+        if not waiting or time.monotonic() >= deadline:
+            return waiting
+        rclpy.spin_once(node, timeout_sec=0.05)

@@ -24,7 +24,12 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.frames import pixel_to_vector, vector_to_pixel
 from sofia_ros.mount import hrf_from_irf_dcm
-from sofia_ros.sensors.gyro_errors import gyro_error_model, rate_offsets_rad_per_s, true_rates_tarf_rad_per_s
+from sofia_ros.sensors.gyro_errors import (
+    gyro_effect_names,
+    gyro_error_model,
+    rate_offsets_rad_per_s,
+    true_rates_tarf_rad_per_s,
+)
 from sofia_ros.sensors.imager_model import (
     Scene,
     camera_errors,
@@ -35,11 +40,8 @@ from sofia_ros.sensors.imager_model import (
 from sofia_ros.sky.catalogue import star_by_hip
 from sofia_ros.units import RAD_PER_DEG
 
-__all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means', 'GYRO_EFFECTS']
+__all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means']
 
-#: Effects whose parameters change the gyro-derived attitude.
-GYRO_EFFECTS = ('gyro_misalignment', 'gyro_scale_factor', 'gyro_bias', 'gyro_bias_drift', 'gyro_axis_swap',
-                'los_oscillation', 'vibration_lines', 'tracker_drift')
 #: Star places are evaluated on this grid and interpolated; unrefracted places move < 0.003" per minute in IRF.
 _PLACE_EPOCH_S = 300.0
 
@@ -131,7 +133,7 @@ class Predictor:
         errors = dataclasses.replace(errors, vibration_lines=None)
         means = gyro.tick_mean_rates_gyrf_rad_per_s
         if lines:
-            per_sample = rate_offsets_rad_per_s(gyro_error_model({'vibration_lines': lines}), gyro.time_s)
+            per_sample = rate_offsets_rad_per_s(gyro_error_model({'vibration_lines': lines}), gyro.time_s, 0.0)
             means = means - tick_means(per_sample, gyro.tick_start_index)
         rates = true_rates_tarf_rad_per_s(errors, means, gyro.tick_mean_time_s, gyro.tick_temperature_c)
         increments = (rates * (gyro.tick_sample_count * gyro.sample_period_s)[:, None])[self._first_tick + 1:]
@@ -139,7 +141,7 @@ class Predictor:
 
     def attitudes(self, effects, times_s):
         """A_TARF,IRF the model believes at times (gyro propagation only, no anchors)."""
-        gyro_effects = {name: effects[name] for name in GYRO_EFFECTS if name in effects}
+        gyro_effects = {name: effects[name] for name in gyro_effect_names() if name in effects}
         tick_attitudes, increments = self._cached(('gyro', repr(gyro_effects)), lambda: self._tick_track(gyro_effects))
         return attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)
 

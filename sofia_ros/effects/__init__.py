@@ -1,16 +1,63 @@
-"""The catalogue of physical effects (DESIGN.md section 5), one module per family."""
+"""The catalogue of physical effects (DESIGN.md section 5), one module per family, plus plug-ins.
+
+A plug-in is one importable module with an ``EFFECTS`` tuple of EffectSpec whose physics is
+in the spec's ``gyro_rate_offset`` or ``camera_rotation`` hook; name its modules in the
+environment variable SOFIA_EFFECT_MODULES (comma-separated, importable from PYTHONPATH).
+"""
 
 from __future__ import annotations
 
 import difflib
+import importlib
+import os
 
 from sofia_ros.effects import gyro, pointing
 from sofia_ros.effects.base import EffectSpec, Parameter
 from sofia_ros.errors import ConfigError, UnknownEffectError
 
-__all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'get_effect', 'resolve_params', 'catalogue_as_json']
+__all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'PLUGIN_ENVIRONMENT_VARIABLE', 'get_effect', 'resolve_params',
+           'catalogue_as_json', 'plugin_terms']
 
-CATALOGUE = {spec.name: spec for spec in (*gyro.EFFECTS, *pointing.EFFECTS)}
+PLUGIN_ENVIRONMENT_VARIABLE = 'SOFIA_EFFECT_MODULES'
+
+
+def _checked_plugin_specs(module_name, built_in):
+    """The EffectSpecs of one plug-in module, or ConfigError naming what is wrong with it."""
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as err:
+        raise ConfigError(f'{PLUGIN_ENVIRONMENT_VARIABLE}: cannot import {module_name!r} ({err}); '
+                          'put its folder on PYTHONPATH') from err
+    specs = getattr(module, 'EFFECTS', None)
+    if not isinstance(specs, tuple) or not all(isinstance(spec, EffectSpec) for spec in specs):
+        raise ConfigError(f'effect plug-in {module_name!r} must define EFFECTS as a tuple of EffectSpec')
+    for spec in specs:
+        if spec.name in built_in:
+            raise ConfigError(f'effect plug-in {module_name!r}: {spec.name!r} is already in the catalogue; rename it')
+        hooks = [hook for hook in (spec.gyro_rate_offset, spec.camera_rotation) if hook is not None]
+        if len(hooks) != 1 or not callable(hooks[0]):
+            raise ConfigError(f'effect plug-in {module_name!r}: {spec.name!r} needs exactly one callable hook, '
+                              'gyro_rate_offset or camera_rotation')
+    return specs
+
+
+def _catalogue():
+    built_in = {spec.name: spec for spec in (*gyro.EFFECTS, *pointing.EFFECTS)}
+    names = [name.strip() for name in os.environ.get(PLUGIN_ENVIRONMENT_VARIABLE, '').split(',') if name.strip()]
+    plugins = {}
+    for module_name in names:
+        for spec in _checked_plugin_specs(module_name, {**built_in, **plugins}):
+            plugins[spec.name] = spec
+    return {**built_in, **plugins}
+
+
+CATALOGUE = _catalogue()
+
+
+def plugin_terms(effects, hook):
+    """(function, parameters) of every effect in ``effects`` whose spec brings ``hook`` (a plug-in's physics)."""
+    return tuple((getattr(CATALOGUE[name], hook), params) for name, params in effects.items()
+                 if name in CATALOGUE and getattr(CATALOGUE[name], hook) is not None)
 
 
 def get_effect(name):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 __all__ = ['Parameter', 'EffectSpec']
@@ -22,13 +23,26 @@ class Parameter:
 
 @dataclass(frozen=True)
 class EffectSpec:
-    """A named piece of physics: thesis section, description and parameters in physical units."""
+    """A named piece of physics: thesis section, description and parameters in physical units.
+
+    The catalogue's own effects keep their physics in the shared error models
+    (sensors.gyro_errors, sensors.imager_model). A plug-in effect brings its physics along in
+    one of two hooks, which the truth simulator and `sofia compare` both call:
+
+    - ``gyro_rate_offset(params, times_s, temperature_c) -> (N, 3)``: rad/s every GYRF axis reads
+      on top of the true rate (the gyro box adds it, the model removes it);
+    - ``camera_rotation(params, camera, elevation_deg) -> (..., 3)``: arcsec rotation (EL, XEL,
+      LOS) of a camera frame against TARF, added to its gravity flexure (zeros for cameras it
+      does not touch).
+    """
 
     name: str
     family: str
     thesis: str
     description: str
     params: tuple = field(default_factory=tuple)
+    gyro_rate_offset: Callable | None = None
+    camera_rotation: Callable | None = None
 
     def defaults(self):
         """Parameter name -> default value (the thesis' magnitudes)."""

@@ -9,7 +9,8 @@ the model's parameters to turn recorded measurements into the rates the model be
 with A_TARF,GYRF the rotation by ``gyro_misalignment`` (read like eq. 6.1), D = diag(1 + scale
 factor error + the axis-swap scale error at temperature T), and the offset the bias, rate
 ramp (4.2.3), LOS oscillation (5.2.4), vibration lines (5.2.5), axis-swap bias (6.3) and the
-residual tracker drift (6.3: a rate error the gyros do not see, so the telescope really drifts).
+residual tracker drift (6.3: a rate error the gyros do not see, so the telescope really drifts),
+plus the rate offsets of plug-in effects (EffectSpec.gyro_rate_offset).
 Random noise is not here: it is sensors.gyro_noise.
 """
 
@@ -19,10 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sofia_ros.effects import CATALOGUE, plugin_terms
 from sofia_ros.frames import dcm_from_rotation_angles
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 
-__all__ = ['AXES', 'GyroErrorModel', 'gyro_error_model', 'measured_rates_gyrf_rad_per_s',
+__all__ = ['AXES', 'GyroErrorModel', 'gyro_error_model', 'gyro_effect_names', 'measured_rates_gyrf_rad_per_s',
            'true_rates_tarf_rad_per_s', 'tarf_from_gyrf_dcm', 'AXIS_SWAP_REFERENCE_C']
 
 AXES = ('el', 'xel', 'los')
@@ -31,6 +33,13 @@ _AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
 AXIS_SWAP_REFERENCE_C = 22.8
 _FPI_ARCSEC_PER_PX = 0.55
 _RAD_PER_S_PER_DEG_PER_H = RAD_PER_DEG / 3600.0
+_BUILT_IN_EFFECTS = ('gyro_misalignment', 'gyro_scale_factor', 'gyro_bias', 'gyro_bias_drift', 'gyro_axis_swap',
+                     'los_oscillation', 'vibration_lines', 'tracker_drift')
+
+
+def gyro_effect_names():
+    """Names of the effects that change what the gyros read: the built-in ones and gyro plug-ins."""
+    return _BUILT_IN_EFFECTS + tuple(name for name, spec in CATALOGUE.items() if spec.gyro_rate_offset is not None)
 
 
 def tarf_from_gyrf_dcm(effects):
@@ -58,6 +67,8 @@ class GyroErrorModel:
     vibration_lines: dict | None = None
     axis_swap: dict | None = None
     tracker_drift: dict | None = None
+    #: (hook, parameters) of plug-in effects (EffectSpec.gyro_rate_offset).
+    plugins: tuple = ()
 
 
 def gyro_error_model(effects):
@@ -71,6 +82,7 @@ def gyro_error_model(effects):
         vibration_lines=effects.get('vibration_lines'),
         axis_swap=effects.get('gyro_axis_swap'),
         tracker_drift=effects.get('tracker_drift'),
+        plugins=plugin_terms(effects, 'gyro_rate_offset'),
     )
 
 
@@ -92,8 +104,8 @@ def scale_factors(model, temperature_c):
     return factors
 
 
-def rate_offsets_rad_per_s(model, times_s):
-    """offset(t): bias, ramp (4.2.3), LOS oscillation (5.2.4), lines (5.2.5), swap bias and tracker drift (6.3), (N, 3)."""
+def rate_offsets_rad_per_s(model, times_s, temperature_c):
+    """offset(t, T): bias, ramp (4.2.3), LOS oscillation (5.2.4), lines (5.2.5), swap bias, tracker drift (6.3), plug-ins, (N, 3)."""
     times = np.asarray(times_s, dtype=float)
     offsets = np.tile(model.bias_rad_per_s, (len(times), 1)) + np.outer(times, model.ramp_rad_per_s2)
     if model.los_oscillation:
@@ -121,17 +133,20 @@ def rate_offsets_rad_per_s(model, times_s):
         drift_px_per_s = params['linear_px_per_min'] / 60.0 + params['sine_amplitude_px'] * omega * np.cos(
             omega * times + phase)
         offsets[:, 0] += drift_px_per_s * _FPI_ARCSEC_PER_PX * RAD_PER_ARCSEC
+    temperature = np.broadcast_to(np.asarray(temperature_c, dtype=float), times.shape)
+    for hook, params in model.plugins:
+        offsets += np.asarray(hook(params, times, temperature), dtype=float).reshape(len(times), 3)
     return offsets
 
 
 def measured_rates_gyrf_rad_per_s(model, true_rates_tarf, times_s, temperature_c):
     """Noise-free GYRF measurements D(T) A_GYRF,TARF omega + offset(t, T) of true TARF rates (N, 3)."""
     rates_gyrf = np.atleast_2d(true_rates_tarf) @ model.tarf_from_gyrf
-    return scale_factors(model, temperature_c) * rates_gyrf + rate_offsets_rad_per_s(model, times_s)
+    return scale_factors(model, temperature_c) * rates_gyrf + rate_offsets_rad_per_s(model, times_s, temperature_c)
 
 
 def true_rates_tarf_rad_per_s(model, measured_gyrf, times_s, temperature_c):
     """The inverse: TARF rates A_TARF,GYRF D(T)^-1 (measured - offset(t, T)) a model believes (N, 3)."""
-    corrected = (np.atleast_2d(measured_gyrf) - rate_offsets_rad_per_s(model, times_s)) / scale_factors(
+    corrected = (np.atleast_2d(measured_gyrf) - rate_offsets_rad_per_s(model, times_s, temperature_c)) / scale_factors(
         model, temperature_c)
     return corrected @ model.tarf_from_gyrf.T

@@ -51,7 +51,7 @@ import functools
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sofia_ros.effects import resolve_params
+from sofia_ros.effects import plugin_terms, resolve_params
 from sofia_ros.errors import ConfigError, InvalidArgumentError
 from sofia_ros.flexure import (
     IMAGER_FLEXURE,
@@ -188,6 +188,8 @@ class CameraErrors:
     seeing_rms_arcsec: float = 0.0
     clock_offset_s: float = 0.0
     weather: Weather | None = None
+    #: (hook, parameters) of plug-in effects (EffectSpec.camera_rotation).
+    plugins: tuple = ()
 
 
 def camera_errors(camera, effects):
@@ -219,11 +221,12 @@ def camera_errors(camera, effects):
     if refraction is not None:
         values['weather'] = Weather(refraction['temperature_c'], refraction['pressure_hpa'],
                                     refraction['humidity'], refraction['wavelength_um'])
-    return CameraErrors(camera, _true_detector(camera, effects), **values)
+    return CameraErrors(camera, _true_detector(camera, effects), plugins=plugin_terms(effects, 'camera_rotation'),
+                        **values)
 
 
 def flexure_rotation_arcsec(errors, elevation_deg):
-    """Gravity rotation (EL, XEL, LOS) ["] of a camera frame against TARF (Tables 3.2, 3.3; 6.2), (..., 3)."""
+    """Gravity rotation (EL, XEL, LOS) ["] of a camera frame against TARF (Tables 3.2, 3.3; 6.2) and plug-ins', (..., 3)."""
     load = gravity_load_tarf(elevation_deg)
     los_load_g = -load[..., 2:] / STANDARD_GRAVITY_M_PER_S2
     # Rotations below 2' add as vectors: the second-order error is below 1e-3".
@@ -232,6 +235,8 @@ def flexure_rotation_arcsec(errors, elevation_deg):
                          + los_load_g * np.asarray(errors.internal_flexure_el_xel_arcsec_per_g))
     if errors.head_ring_flexure_scale:
         rotation += errors.head_ring_flexure_scale * imager_rotation_arcsec(errors.camera, load)
+    for hook, params in errors.plugins:
+        rotation += np.asarray(hook(params, errors.camera, np.asarray(elevation_deg, dtype=float)), dtype=float)
     return rotation
 
 

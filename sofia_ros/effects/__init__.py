@@ -16,7 +16,7 @@ from sofia_ros.effects.base import EffectSpec, Parameter
 from sofia_ros.errors import ConfigError, UnknownEffectError
 
 __all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'PLUGIN_ENVIRONMENT_VARIABLE', 'get_effect', 'resolve_params',
-           'catalogue_as_json', 'plugin_terms']
+           'catalogue_as_json', 'load_catalogue', 'plugin_terms']
 
 PLUGIN_ENVIRONMENT_VARIABLE = 'SOFIA_EFFECT_MODULES'
 
@@ -41,9 +41,10 @@ def _checked_plugin_specs(module_name, built_in):
     return specs
 
 
-def _catalogue():
+def load_catalogue(environ=os.environ):
+    """The built-in effects plus those of the plug-in modules named in SOFIA_EFFECT_MODULES."""
     built_in = {spec.name: spec for spec in (*gyro.EFFECTS, *pointing.EFFECTS)}
-    names = [name.strip() for name in os.environ.get(PLUGIN_ENVIRONMENT_VARIABLE, '').split(',') if name.strip()]
+    names = [name.strip() for name in environ.get(PLUGIN_ENVIRONMENT_VARIABLE, '').split(',') if name.strip()]
     plugins = {}
     for module_name in names:
         for spec in _checked_plugin_specs(module_name, {**built_in, **plugins}):
@@ -51,7 +52,7 @@ def _catalogue():
     return {**built_in, **plugins}
 
 
-CATALOGUE = _catalogue()
+CATALOGUE = load_catalogue()
 
 
 def plugin_terms(effects, hook):

@@ -241,6 +241,42 @@ def test_bag_reader_gives_back_what_was_written_in_time_order(round_trip):
     assert read == {topic: sorted(messages) for topic, messages in written.items()}
 
 
+def test_reading_through_the_message_indexes_equals_reading_record_by_record(round_trip):
+    path, _, _ = round_trip
+    with BagReader(path) as bag:
+        names = tuple(info.name for info in bag.topics)
+        by_index = bag.messages_by_topic(*names, raw=names)
+        decoded = bag.messages_by_topic(*names)
+        record_by_record: dict[str, tuple[list, list, list]] = {name: ([], [], []) for name in names}
+        for topic, stamp_ns, data in bag.raw_messages():
+            record_by_record[topic][0].append(stamp_ns)
+            record_by_record[topic][1].append(bytes(data))
+        for topic, _, message in bag.messages():
+            record_by_record[topic][2].append(plain(message))
+    for name in names:
+        stamps, payloads, messages = record_by_record[name]
+        assert by_index[name][0] == stamps and decoded[name][0] == stamps
+        assert [bytes(payload) for payload in by_index[name][1]] == payloads
+        assert [plain(message) for message in decoded[name][1]] == messages
+
+
+def test_a_chunk_that_fails_its_crc_raises_bag_error(round_trip, tmp_path):
+    path, _, _ = round_trip
+    damaged = shutil.copytree(path, tmp_path / 'crc')
+    mcap_file = damaged / 'round_trip.mcap'
+    with mcap_file.open('rb') as stream:
+        last_chunk = make_reader(stream).get_summary().chunk_indexes[-1]
+    # The chunk record's uncompressed_crc field follows its opcode, length, two times and size.
+    crc_at = last_chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8
+    data = bytearray(mcap_file.read_bytes())
+    data[crc_at:crc_at + 4] = bytes(a ^ 0xFF for a in data[crc_at:crc_at + 4])
+    mcap_file.write_bytes(bytes(data))
+    with BagReader(damaged) as bag:
+        with pytest.raises(BagError, match=r'is truncated or corrupt \(ValueError: chunk at byte \d+ fails its size '
+                                           r'or CRC check\); salvage'):
+            bag.messages_by_topic(*(info.name for info in bag.topics))
+
+
 def test_anyreader_and_mcap_ros2_decode_the_same_values(round_trip):
     path, written, _ = round_trip
     with AnyReader([path], default_typestore=TYPESTORE) as reader:
@@ -377,6 +413,9 @@ def test_corrupt_chunk_raises_bag_error(round_trip, tmp_path):
     with pytest.raises(BagError, match=r'is truncated or corrupt \(ZstdError'):
         with BagReader(damaged) as bag:
             list(bag.messages())
+    with pytest.raises(BagError, match=r'is truncated or corrupt \(ZstdError'):
+        with BagReader(damaged) as bag:
+            bag.messages_by_topic(*(info.name for info in bag.topics))
 
 
 def test_corrupt_message_raises_bag_error(tmp_path):

@@ -21,7 +21,7 @@ from sofia_ros.errors import InvalidArgumentError
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['ImuArrays', 'decode_imu_cdr']
+__all__ = ['ImuArrays', 'decode_imu_cdr', 'decode_imu_blocks']
 
 _ENCAPSULATION_CDR_LE = (0, 1)
 _DOUBLES_BYTES = 37 * 8
@@ -50,24 +50,31 @@ def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArr
     count = len(payloads)
     if len(stamp_ns) != count:
         raise InvalidArgumentError(f'got {len(stamp_ns)} stamps for {count} Imu payloads')
-    header_stamp_ns = np.empty(count, dtype=np.int64)
-    angular_velocity = np.empty((count, 3))
-    linear_acceleration = np.empty((count, 3))
+    stamps = np.asarray(stamp_ns, dtype=np.int64)
     lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=count)
     unique_lengths = np.unique(lengths)
+    blocks = []
     for length in unique_lengths:
         rows = lengths == length
         # One frame_id for the whole topic is the rule: then no row selection is needed.
         chosen = payloads if len(unique_lengths) == 1 else compress(payloads, rows)
-        block = np.frombuffer(b''.join(chosen), dtype=np.uint8)
-        header_stamp_ns[rows], angular_velocity[rows], linear_acceleration[rows] = (
-            _decode_block(block.reshape(-1, length))
-        )
+        blocks.append((stamps[rows], np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(-1, length)))
+    return decode_imu_blocks(blocks)
+
+
+def decode_imu_blocks(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> ImuArrays:
+    """Decode (log stamps ns, 2-D uint8 rows of equal-length Imu CDR) blocks into ImuArrays in log-time order."""
+    decoded = [(stamps, *_decode_block(rows)) for stamps, rows in blocks if len(stamps)]
+    if not decoded:
+        empty = np.empty((0, 3))
+        return ImuArrays(np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), empty, empty.copy())
+    stamps, header_stamps, angular, linear = (np.concatenate(column) for column in zip(*decoded))
+    order = np.argsort(stamps, kind='stable')
     return ImuArrays(
-        stamp_ns=np.asarray(stamp_ns, dtype=np.int64),
-        header_stamp_ns=header_stamp_ns,
-        angular_velocity_rad_per_s=angular_velocity,
-        linear_acceleration_m_per_s2=linear_acceleration,
+        stamp_ns=stamps[order],
+        header_stamp_ns=header_stamps[order],
+        angular_velocity_rad_per_s=angular[order],
+        linear_acceleration_m_per_s2=linear[order],
     )
 
 

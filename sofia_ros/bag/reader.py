@@ -7,11 +7,13 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag2 import ReaderError
 
-from sofia_ros.bag.imu import decode_imu_cdr
+from sofia_ros.bag.imu import ImuArrays, decode_imu_blocks, decode_imu_cdr
+from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, indexed_records
 from sofia_ros.bag.msgtypes import (
     DOCUMENT_MSGTYPE,
     IMU_MSGTYPE,
@@ -33,8 +35,6 @@ if TYPE_CHECKING:
     from types import TracebackType
 
     from rosbags.interfaces import Connection
-
-    from sofia_ros.bag.imu import ImuArrays
 
     RawRecords = Iterator[tuple[Connection, int, bytes]]
 
@@ -118,18 +118,36 @@ class BagReader:
         records = self._raw(topics, start_ns, stop_ns)
         return ((connection.topic, stamp_ns, data) for connection, stamp_ns, data in records)
 
-    def messages_by_topic(self, *topics: str, raw: tuple[str, ...] = ()) -> dict[str, tuple[list, list]]:
-        """One pass over ``topics``: topic -> (log stamps ns, messages); topics in ``raw`` keep CDR bytes."""
-        collected: dict[str, tuple[list, list]] = {topic: ([], []) for topic in topics}
+    def messages_by_topic(
+        self, *topics: str, raw: tuple[str, ...] = (), imu: tuple[str, ...] = ()
+    ) -> dict[str, Any]:
+        """One pass over ``topics``: topic -> (log stamps ns, messages); topics in ``raw`` keep CDR bytes,
+        topics in ``imu`` come back as ImuArrays decoded in bulk.
+
+        Read through the MCAP message indexes where the file has them (mcap_index), else record by record.
+        """
+        for topic in imu:
+            if (msgtype := self.topic(topic).msgtype) != IMU_MSGTYPE:
+                raise BagError(f'topic {topic} in bag {self.path} holds {msgtype}, not {IMU_MSGTYPE}')
+        collected = self._indexed(topics, imu)
+        if collected is None:
+            collected = {topic: ([], []) for topic in topics}
+            for connection, stamp_ns, data in self._raw(topics, None, None):
+                collected[connection.topic][0].append(stamp_ns)
+                collected[connection.topic][1].append(data)
         typestore = self._reader.typestore
-        for connection, stamp_ns, data in self._raw(topics, None, None):
-            stamps, values = collected[connection.topic]
-            stamps.append(stamp_ns)
-            if connection.topic in raw:
-                values.append(data)
-                continue
+        for topic in topics:
             try:
-                values.append(decode_cdr(data, connection.msgtype, typestore))
+                if topic in imu:
+                    records = collected[topic]
+                    collected[topic] = (decode_imu_blocks(records) if isinstance(records, list)
+                                        else decode_imu_cdr(*records))
+                elif topic not in raw:
+                    msgtype = self.topic(topic).msgtype
+                    collected[topic] = (collected[topic][0],
+                                        [decode_cdr(data, msgtype, typestore) for data in collected[topic][1]])
+            except InvalidArgumentError as err:
+                raise BagError(f'topic {topic} in bag {self.path}: {err}') from err
             except _DAMAGE_ERRORS as err:
                 raise _damaged(self.path, err) from err
         return collected
@@ -149,18 +167,30 @@ class BagReader:
     def imu_arrays(
         self, topic: str, *, start_ns: int | None = None, stop_ns: int | None = None
     ) -> ImuArrays:
-        """Return the sensor_msgs/Imu samples of ``topic`` as arrays, decoded in bulk."""
-        if (msgtype := self.topic(topic).msgtype) != IMU_MSGTYPE:
-            raise BagError(f'topic {topic} in bag {self.path} holds {msgtype}, not {IMU_MSGTYPE}')
-        stamps_ns: list[int] = []
-        payloads: list[bytes] = []
-        for _, stamp_ns, data in self._raw((topic,), start_ns, stop_ns):
-            stamps_ns.append(stamp_ns)
-            payloads.append(data)
+        """Return the sensor_msgs/Imu samples of ``topic`` (log times in [start_ns, stop_ns)) as arrays."""
+        imu = self.messages_by_topic(topic, imu=(topic,))[topic]
+        keep = np.ones(len(imu.stamp_ns), dtype=bool)
+        if start_ns is not None:
+            keep &= imu.stamp_ns >= start_ns
+        if stop_ns is not None:
+            keep &= imu.stamp_ns < stop_ns
+        if keep.all():
+            return imu
+        return ImuArrays(imu.stamp_ns[keep], imu.header_stamp_ns[keep], imu.angular_velocity_rad_per_s[keep],
+                         imu.linear_acceleration_m_per_s2[keep])
+
+    def _indexed(self, topics: tuple[str, ...], packed: tuple[str, ...]) -> dict[str, Any] | None:
+        """The raw records of ``topics`` read through the message indexes of a one-file bag, or None."""
+        self._require_open()
+        for topic in topics:
+            self.topic(topic)
+        files = list(self.path.glob('*.mcap'))
+        if len(files) != 1:
+            return None
         try:
-            return decode_imu_cdr(stamps_ns, payloads)
-        except InvalidArgumentError as err:
-            raise BagError(f'topic {topic} in bag {self.path}: {err}') from err
+            return indexed_records(files[0], topics, packed)
+        except INDEX_DAMAGE_ERRORS as err:
+            raise _damaged(self.path, err) from err
 
     def _require_open(self) -> None:
         """Raise unless the bag is open."""

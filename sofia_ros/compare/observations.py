@@ -14,9 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from sofia_ros.bag import BagReader
-from sofia_ros.bag.imu import decode_imu_cdr
 from sofia_ros.compare.predict import tick_means
-from sofia_ros.errors import BagError, ConfigError, InvalidArgumentError
+from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.frames import dcm_from_quaternion
 from sofia_ros.sensors.imager_model import CAMERAS, nominal_detector
 from sofia_ros.sim import messages as m
@@ -121,11 +120,7 @@ def _centroid_rows(records_by_camera):
     return {key: np.asarray(values) for key, values in rows.items()}
 
 
-def _gyro_samples(imu_records, temperature_records):
-    try:
-        imu = decode_imu_cdr(*imu_records)
-    except InvalidArgumentError as err:
-        raise BagError(f'{IMU_TOPIC.name}: {err}') from err
+def _gyro_samples(imu, temperature_records):
     time_s = imu.header_stamp_ns / m.NS_PER_S
     if len(time_s) < 2 or np.any(np.diff(time_s) <= 0):
         raise BagError(f'{IMU_TOPIC.name} holds {len(time_s)} samples out of time order; the bag is damaged')
@@ -167,9 +162,8 @@ def read_observations(bag_path):
             scenario = scenario_from_document(bag.document(SCENARIO_TOPIC))
             camera_topics = [f'/{camera}/centroids' for camera in cameras]
             optional = [topic for topic in (TASCU_TOPICS['motion_status'].name, _RESULT_TOPIC) if topic in names]
-            # Two passes: merging the 400 Hz samples with the other topics in time order costs more.
-            records = bag.messages_by_topic(IMU_TOPIC.name, raw=(IMU_TOPIC.name,))
-            records.update(bag.messages_by_topic(*REQUIRED_TOPICS[1:-1], *optional, *camera_topics))
+            records = bag.messages_by_topic(IMU_TOPIC.name, *REQUIRED_TOPICS[1:-1], *optional, *camera_topics,
+                                            imu=(IMU_TOPIC.name,))
     except ConfigError as err:
         raise BagError(f'{bag_path}: {err}') from err
     rows = _centroid_rows([records[topic] for topic in camera_topics])

@@ -1,0 +1,135 @@
+"""Selective reading of an MCAP file through its message indexes, for bags dominated by one fast topic.
+
+rosbags (and the mcap package) walk every record of every chunk in Python, so reading the
+0.5 Hz calibration topics of an alignment bag costs as much as reading its 400 Hz gyro and
+truth samples. The MCAP summary holds, per chunk and channel, a MessageIndex of (log time,
+offset) pairs: with it the wanted records are sliced out of each decompressed chunk with
+numpy, and the others are never touched. The summary is parsed with the mcap package; only
+the bulk access is ours. A file without a summary or message indexes gives None, and the
+caller reads it the general way.
+"""
+
+from __future__ import annotations
+
+import mmap
+import struct
+import sys
+import zlib
+from pathlib import Path
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+if sys.version_info >= (3, 14):
+    from compression import zstd
+else:
+    from backports import zstd
+
+__all__ = ['indexed_records', 'INDEX_DAMAGE_ERRORS']
+
+#: What a damaged file raises here: summary parsing, record layout, zstd, the CRC check.
+INDEX_DAMAGE_ERRORS = (McapError, struct.error, zstd.ZstdError, ValueError, IndexError)
+
+_CHUNK_OPCODE = 0x06
+_MESSAGE_INDEX_OPCODE = 0x07
+_MESSAGE_OPCODE = 0x05
+#: opcode (1) + record length (8).
+_RECORD_HEAD = 9
+#: channel id (2) + sequence (4) + log time (8) + publish time (8) before a message's data.
+_MESSAGE_HEAD = 22
+
+
+def indexed_records(mcap_path, topics, packed=()):
+    """topic -> (log times ns, CDR payloads) in log-time order, read through the message indexes; None without them.
+
+    Topics in ``packed`` come back as a list of (log times ns, 2-D uint8 array of equal-length
+    payloads) blocks instead, for bulk decoding without a Python object per message.
+    """
+    with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        summary = make_reader(file).get_summary()
+        if summary is None or not summary.chunk_indexes:
+            return None
+        channel_topic = {channel.id: channel.topic for channel in summary.channels.values()
+                         if channel.topic in topics}
+        found = {topic: ([], []) for topic in topics if topic not in packed}
+        blocks = {topic: [] for topic in packed}
+        for chunk in summary.chunk_indexes:
+            wanted = [channel for channel in chunk.message_index_offsets if channel in channel_topic]
+            if not wanted:
+                continue
+            records = _chunk_records(data, chunk)
+            for channel in wanted:
+                topic = channel_topic[channel]
+                log_ns, starts, ends = _channel_messages(data, chunk.message_index_offsets[channel], channel, records)
+                if topic in blocks:
+                    blocks[topic].extend(_equal_length_blocks(records, log_ns, starts, ends))
+                else:
+                    found[topic][0].append(log_ns)
+                    view = memoryview(records)
+                    found[topic][1].extend(view[start:end] for start, end in zip(starts.tolist(), ends.tolist()))
+    return {**{topic: _in_time_order(stamps, payloads) for topic, (stamps, payloads) in found.items()}, **blocks}
+
+
+def _chunk_records(data, chunk):
+    """The decompressed, CRC-checked records of one Chunk record."""
+    start = chunk.chunk_start_offset
+    if data[start] != _CHUNK_OPCODE:
+        raise ValueError(f'no chunk record at byte {start}')
+    head = start + _RECORD_HEAD
+    uncompressed_size, crc, name_length = struct.unpack_from('<QII', data, head + 16)
+    body = head + 32 + name_length
+    (length,) = struct.unpack_from('<Q', data, body)
+    compressed = data[body + 8:body + 8 + length]
+    if chunk.compression == 'zstd':
+        records = zstd.decompress(compressed)
+    elif chunk.compression == '':
+        records = bytes(compressed)
+    else:
+        raise ValueError(f'chunk compression {chunk.compression!r} is not supported')
+    if len(records) != uncompressed_size or (crc and zlib.crc32(records) != crc):
+        raise ValueError(f'chunk at byte {start} fails its size or CRC check')
+    return records
+
+
+def _channel_messages(data, index_offset, channel, records):
+    """(log times, payload starts, payload ends) of one channel's messages in one chunk, from its MessageIndex record."""
+    if data[index_offset] != _MESSAGE_INDEX_OPCODE:
+        raise ValueError(f'no message index record at byte {index_offset}')
+    indexed_channel, pairs_length = struct.unpack_from('<HI', data, index_offset + _RECORD_HEAD)
+    if indexed_channel != channel:
+        raise ValueError(f'message index at byte {index_offset} is for channel {indexed_channel}, not {channel}')
+    pairs = np.frombuffer(data, dtype='<u8', count=pairs_length // 8, offset=index_offset + _RECORD_HEAD + 6)
+    log_ns, offsets = pairs[0::2].astype(np.int64), pairs[1::2].astype(np.int64)
+    raw = np.frombuffer(records, dtype=np.uint8)
+    if len(offsets) and (np.any(raw[offsets] != _MESSAGE_OPCODE) or offsets.max() + _RECORD_HEAD > len(raw)):
+        raise ValueError('a message index points outside the message records of its chunk')
+    # Each record's length: the 8 bytes after its opcode, gathered for all records at once.
+    lengths = raw[offsets[:, None] + np.arange(1, _RECORD_HEAD)].copy().view('<u8')[:, 0].astype(np.int64)
+    starts = offsets + _RECORD_HEAD + _MESSAGE_HEAD
+    ends = offsets + _RECORD_HEAD + lengths
+    if len(offsets) and ends.max() > len(raw):
+        raise ValueError('a message record runs past the end of its chunk')
+    return log_ns, starts, ends
+
+
+def _equal_length_blocks(records, log_ns, starts, ends):
+    """(log times, rows) per payload length: each row one message's bytes, gathered at once."""
+    raw = np.frombuffer(records, dtype=np.uint8)
+    lengths = ends - starts
+    blocks = []
+    for length in np.unique(lengths):
+        rows = lengths == length
+        # Row k of the window view is raw[k:k + length]: picking rows copies only the payloads.
+        windows = np.lib.stride_tricks.sliding_window_view(raw, int(length))
+        blocks.append((log_ns[rows], windows[starts[rows]]))
+    return blocks
+
+
+def _in_time_order(stamp_blocks, payloads):
+    """Chunks may overlap in time: a stable sort by log time, as a time-ordered reader returns them."""
+    stamps = np.concatenate(stamp_blocks) if stamp_blocks else np.empty(0, dtype=np.int64)
+    order = np.argsort(stamps, kind='stable')
+    if np.all(order[1:] > order[:-1]):
+        return stamps.tolist(), payloads
+    return stamps[order].tolist(), [payloads[index] for index in order]

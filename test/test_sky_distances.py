@@ -4,9 +4,13 @@ import numpy as np
 import pytest
 
 from sofia_ros.errors import InvalidArgumentError
+from scipy.spatial.transform import Rotation
+
+from sofia_ros.frames import FPI, dcm_from_euler123, pixel_to_vector
 from sofia_ros.sky.distances import (
     FPI_SCALE_ARCSEC_PER_PX,
     angular_distance_arcsec,
+    attitude_change_euler_arcsec,
     angular_distance_cosine_rule_arcsec,
     refraction_adjusted_distance_arcsec,
     short_move_euler_arcsec,
@@ -94,6 +98,40 @@ def test_short_move_correction_eq_6_7_6_8():
     assert FPI_SCALE_ARCSEC_PER_PX == 0.55
     assert el_arcsec == pytest.approx(100000.0 + 0.55 * (546.20 - 588.40), abs=1e-9)  # 6.7
     assert xel_arcsec == pytest.approx(-4000.0 + 0.55 * (437.20 - 510.20), abs=1e-9)  # 6.8
+
+
+@pytest.mark.parametrize('move', list(TABLE_D_6))
+def test_attitude_change_gives_el_xel_los_with_los_last(move):
+    # Two attitudes a Table D.6 move apart (LOS 1000"): B.24 then B.11-B.13 give the angles back,
+    # and eq. 4.38 the listed distance whatever the LOS.
+    el_arcsec, xel_arcsec, distance_arcsec = TABLE_D_6[move]
+    first = Rotation.from_rotvec([0.4, -1.0, 0.3]).as_matrix()
+    second = dcm_from_euler123(np.array([el_arcsec, xel_arcsec, 1000.0]) * RAD_PER_ARCSEC) @ first
+    angles = attitude_change_euler_arcsec(first, second)
+    assert angles == pytest.approx([el_arcsec, xel_arcsec, 1000.0], abs=1e-6)
+    assert spherical_sum_arcsec(*angles[:2]) == pytest.approx(distance_arcsec, abs=0.1)
+
+
+def test_short_move_correction_is_first_order_and_star_two_must_sit_at_the_boresight():
+    # The reduced star hop's Beta Cep -> Alpha Cep short move: EL 28640", XEL -4013", LOS 2490".
+    angles_arcsec = np.array([28640.2, -4012.6, 2490.0])
+    change = dcm_from_euler123(angles_arcsec * RAD_PER_ARCSEC)
+    centre = FPI.center_px
+
+    def error_arcsec(before_px, after_px, swapped=False):
+        first = pixel_to_vector(before_px, FPI)
+        second = change.T @ pixel_to_vector(after_px, FPI)
+        exact = np.arctan2(np.linalg.norm(np.cross(first, second)), first @ second) * ARCSEC_PER_RAD
+        pixels = (after_px, before_px) if swapped else (before_px, after_px)
+        return float(spherical_sum_arcsec(*short_move_euler_arcsec(*angles_arcsec[:2], *pixels))) - exact
+
+    offset = np.array([-378.0, 0.0])  # 208" along the column, as the first star stood after the park
+    # Star 1 off the boresight: eqs. 6.7-6.8 leave 0.28" (of order offset x XEL x (1 - cos EL));
+    # the correction with the opposite sign would leave 29".
+    assert error_arcsec(centre + offset, centre) == pytest.approx(0.28, abs=0.01)
+    assert abs(error_arcsec(centre + offset, centre, swapped=True)) > 25.0
+    # Star 2 off the boresight: its offset turns with the LOS angle (2490" x 208" = 2.5").
+    assert abs(error_arcsec(centre, centre + offset)) > 2.4
 
 
 def test_bad_input_raises():

@@ -113,19 +113,25 @@ def print_comparison(document, out):
 
 
 def _print_star_hop(analysis, out):
-    """Table 6.7 (measured against catalogue distances), the Fig. 6.11 fit and the Fig. 6.4 flexure."""
+    """Table 6.7 (drift-corrected and short moves against the catalogue), Fig. 6.11's lines, Fig. 6.4, 6.3's drift."""
     print('star hop: measured (gyros + HIPO, drift of the holds removed, 6.3) against catalogue distances '
-          '(refracted, Table D.3)', file=out)
-    print(f'  {"move":<24} {"measured":>11} {"catalogue":>11} {"deviation":>10} {"refraction":>11}', file=out)
+          '(refracted, Table D.3);', file=out)
+    print('  short move: gyros + the FPI just before and after the move (6.7-6.8, Table D.6) against the catalogue '
+          'at those times', file=out)
+    print(f'  {"move":<24} {"measured":>11} {"catalogue":>11} {"deviation":>10} {"refraction":>11} '
+          f'{"short move":>11} {"deviation":>10} {"sigma":>6} {"interval":>8}', file=out)
     for move in analysis['moves']:
         name = f'{move["from"]} -> {move["to"]}'
+        short = '' if move['short_move_arcsec'] is None else (
+            f' {move["short_move_arcsec"]:>10.1f}" {move["short_move_deviation_arcsec"]:>+9.2f}" '
+            f'{move["short_move_sigma_arcsec"]:>5.2f}" {move["short_move_interval_s"]:>6.0f} s')
         print(f'  {name:<24} {move["measured_arcsec"]:>10.1f}" {move["catalogue_arcsec"]:>10.1f}" '
-              f'{move["deviation_arcsec"]:>+9.2f}" {move["refraction_change_arcsec"]:>+10.1f}"', file=out)
-    fit = analysis['deviation_fit']
-    if fit:
-        print(f'  deviation = {fit["intercept_arcsec"]:+.2f}" + {fit["slope_arcsec_per_deg"]:+.3f}"/deg x distance '
-              f'(+- {fit["slope_sigma"]:.3f}; a scale error of {fit["scale_error_ppm"]:+.0f} ppm; Fig. 6.11), '
-              f'rms about the line {fit["rms_about_fit_arcsec"]:.2f}"', file=out)
+              f'{move["deviation_arcsec"]:>+9.2f}" {move["refraction_change_arcsec"]:>+10.1f}"{short}', file=out)
+    for label, fit in (('', analysis['deviation_fit']), ('short moves: ', analysis['short_move_fit'])):
+        if fit:
+            print(f'  {label}deviation = {fit["intercept_arcsec"]:+.2f}" + {fit["slope_arcsec_per_deg"]:+.3f}"/deg x '
+                  f'distance (+- {fit["slope_sigma"]:.3f}; a scale error of {fit["scale_error_ppm"]:+.0f} ppm; '
+                  f'Fig. 6.11), rms about the line {fit["rms_about_fit_arcsec"]:.2f}"', file=out)
     flexure = analysis['imager_flexure']
     if flexure:
         for camera in ('fpi', 'ffi'):
@@ -133,6 +139,34 @@ def _print_star_hop(analysis, out):
             fem = flexure['fem_change_23_to_60_deg_arcsec'][camera]
             print(f'  {camera.upper()} against HIPO, 23 -> 60 deg: measured ({measured[0]:+.2f}", {measured[1]:+.2f}") '
                   f'FEM ({fem[0]:+.2f}", {fem[1]:+.2f}")  (dEL, dXEL; Fig. 6.4)', file=out)
+    _print_centroid_drift(analysis['centroid_drift'], out)
+
+
+def _print_centroid_drift(holds, out):
+    """6.3's residual FPI centroid drift: the range over the holds, and every sinusoid the BIC kept."""
+    if not holds:
+        return
+    column = [hold['column']['drift_px_per_min'] for hold in holds]
+    row = [hold['row']['drift_px_per_min'] for hold in holds]
+    sigma = [hold[axis]['drift_sigma'] for hold in holds for axis in ('column', 'row')
+             if hold[axis]['drift_sigma'] is not None]
+    spread = f' (+- {min(sigma):.2f}-{max(sigma):.2f})' if sigma else ''
+    selected = [hold for hold in holds if hold['row']['sinusoid']]
+    print(f'  FPI centroid drift in {len(holds)} holds (6.3): column {min(column):+.2f} to {max(column):+.2f} '
+          f'px/min, row {min(row):+.2f} to {max(row):+.2f} px/min{spread}; row sinusoid (delta-BIC >= 6 against '
+          f'the line) in {len(selected)} of {len(holds)}', file=out)
+    for hold in selected:
+        sine = hold['row']['sinusoid']
+        print(f'    {hold["star"]} (hold at {hold["hold_start_s"]:.0f} s): row '
+              f'{hold["row"]["drift_px_per_min"]:+.2f} {_spread(hold["row"]["drift_sigma"], ".2f")} px/min + '
+              f'sinusoid of {sine["period_s"]:.0f} '
+              f'{_spread(sine["period_sigma"], ".0f")} s, {sine["amplitude_px"]:.2f} '
+              f'{_spread(sine["amplitude_sigma"], ".2f")} px, phase {sine["phase_deg"]:+.0f} '
+              f'{_spread(sine["phase_sigma"], ".0f")} deg at {hold["reference_time_s"]:.0f} s', file=out)
+
+
+def _spread(sigma, spec):
+    return 'unconstrained' if sigma is None else f'+- {sigma:{spec}}'
 
 
 def _print_verdict(document, out):

@@ -20,7 +20,9 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first)
 import numpy as np  # noqa: E402
 
+from sofia_ros.analysis.centroid_drift import line_and_sinusoid_px  # noqa: E402
 from sofia_ros.compare.scan import VARIABLES, row_variables  # noqa: E402
+from sofia_ros.compare.star_hop import hold_rows  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
 
 __all__ = ['write_report']
@@ -126,17 +128,21 @@ def _ledger_plot(runs, path):
 
 
 def _star_hop_plot(analysis, path):
-    """Fig. 6.11 (deviation against distance, with the line) and Fig. 6.4 (imager boresights against HIPO)."""
+    """Fig. 6.11 (deviation against distance: drift-corrected and short moves, with their lines) and Fig. 6.4."""
     figure, axes = plt.subplots(1, 3, figsize=(13.0, 3.6))
     moves = analysis['moves']
-    distance_deg = np.array([move['catalogue_arcsec'] for move in moves]) / 3600.0
-    deviation = np.array([move['deviation_arcsec'] for move in moves])
-    axes[0].plot(distance_deg, deviation, 'o', label='drift-corrected moves')
-    fit = analysis['deviation_fit']
-    if fit:
-        span = np.linspace(0.0, max(distance_deg.max(), 1.0), 2)
-        axes[0].plot(span, fit['intercept_arcsec'] + fit['slope_arcsec_per_deg'] * span, '-',
-                     label=f'{fit["slope_arcsec_per_deg"]:+.2f}"/deg ({fit["scale_error_ppm"]:+.0f} ppm)')
+    span = np.linspace(0.0, max(max(move['catalogue_arcsec'] for move in moves) / 3600.0, 1.0), 2)
+    for label, key, fit, style in (('drift-corrected moves', 'deviation_arcsec', analysis['deviation_fit'], 'o-'),
+                                   ('short moves', 'short_move_deviation_arcsec', analysis['short_move_fit'], 's--')):
+        shown = [move for move in moves if move[key] is not None]
+        distance_deg = np.array([move['catalogue_arcsec'] for move in shown]) / 3600.0
+        points = axes[0].plot(distance_deg, [move[key] for move in shown], style[0],
+                              mfc='none' if style[0] == 's' else None, label=label)[0]
+        if fit:
+            line_label = (f'{fit["slope_arcsec_per_deg"]:+.2f} +- {fit["slope_sigma"]:.2f}"/deg '
+                          f'({fit["scale_error_ppm"]:+.0f} ppm)')
+            axes[0].plot(span, fit['intercept_arcsec'] + fit['slope_arcsec_per_deg'] * span, style[1:],
+                         color=points.get_color(), label=line_label)
     axes[0].axhline(0.0, color='k', lw=0.5)
     axes[0].set_xlabel('catalogue distance [deg]')
     axes[0].set_ylabel('measured - catalogue ["]')
@@ -165,6 +171,36 @@ def _star_hop_plot(analysis, path):
     plt.close(figure)
 
 
+def _centroid_drift_plot(holds, centroids, path):
+    """6.3's residual drift: each hold's FPI centroid (column, row) less the fitted offset, with the fitted curve."""
+    columns = min(len(holds), 4)
+    rows_of_panels = -(-len(holds) // columns)
+    figure, axes = plt.subplots(rows_of_panels, columns, figsize=(3.4 * columns, 2.6 * rows_of_panels), squeeze=False)
+    for axis, hold in zip(axes.ravel(), holds):
+        rows = hold_rows(centroids, 'fpi', hold['hip'], hold)
+        elapsed = centroids.stamp_s[rows] - hold['reference_time_s']
+        smooth = np.linspace(elapsed.min(), elapsed.max(), 200)
+        for index, (axis_name, colour) in enumerate((('column', 'tab:blue'), ('row', 'tab:orange'))):
+            fit = hold[axis_name]
+            sine = fit.get('sinusoid') or {'amplitude_px': 0.0, 'period_s': 1.0, 'phase_deg': 0.0}
+            curve = line_and_sinusoid_px(smooth, 0.0, fit['drift_px_per_min'] / 60.0, sine['amplitude_px'],
+                                         sine['period_s'], np.deg2rad(sine['phase_deg']))
+            axis.plot(elapsed, centroids.measured_px[rows, index] - fit['offset_px'], '.', color=colour, ms=3)
+            label = f'{axis_name} {fit["drift_px_per_min"]:+.1f} px/min' + (' + sinusoid' if fit.get('sinusoid') else '')
+            axis.plot(smooth, curve, '-', color=colour, label=label)
+        axis.set_title(f'{hold["star"]}, hold at {hold["hold_start_s"]:.0f} s', fontsize=8)
+        axis.set_xlabel('time from hold middle [s]', fontsize=7)
+        axis.set_ylabel('FPI centroid - offset [px]', fontsize=7)
+        axis.legend(fontsize=6)
+    for axis in axes.ravel()[len(holds):]:
+        axis.set_visible(False)
+    figure.suptitle('6.3: residual FPI centroid drift per hold (column linear, row linear + sinusoid where the BIC '
+                    'keeps it)', fontsize=9)
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
 def _table(headers, rows):
     head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in headers)
     body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>' for row in rows)
@@ -173,6 +209,7 @@ def _table(headers, rows):
 
 def _page(document, runs):
     cameras = [c for c in ('hipo', 'fpi', 'ffi', 'wfi') if c in document['residual_rms_arcsec']]
+    drift_plot = bool(document.get('star_hop', {}).get('centroid_drift'))
     ledger_rows = [[row['term'], *(f'{row["residual_rms_arcsec"].get(k, float("nan")):.3f}' for k in ['total', *cameras])]
                    for row in document['ledger']]
     candidate_rows = [[c['effect'], f'{c["delta_bic"]:.1f}', f'{c["rms_after_arcsec"]:.3f}',
@@ -197,6 +234,7 @@ Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {docume
 <h2>Where the model fails</h2><img src="residuals.png" alt="residuals against variables">
 <img src="vectors.png" alt="residual vectors in the detector planes">
 {'<h2>Star hop (6.2, 6.3)</h2><img src="star_hop.png" alt="star hop">' if 'star_hop' in document else ''}
+{'<img src="star_hop_drift.png" alt="FPI centroid drift per hold">' if drift_plot else ''}
 <h2>Ledger of this run</h2>{_table(["step", "total", *[c.upper() for c in cameras]], ledger_rows)}
 <h2>Ledger across runs</h2><img src="ledger.png" alt="ledger across runs">
 {_table(["run", "model", "last fitted term", "RMS", "floor", "top candidate"], run_rows)}
@@ -236,6 +274,9 @@ def write_report(result, document, directory):
         _ledger_plot(runs, staging / 'ledger.png')
         if 'star_hop' in document:
             _star_hop_plot(document['star_hop'], staging / 'star_hop.png')
+            if document['star_hop']['centroid_drift']:
+                _centroid_drift_plot(document['star_hop']['centroid_drift'], result.observations.centroids,
+                                     staging / 'star_hop_drift.png')
         (staging / 'index.html').write_text(_page(document, runs))
         (staging / _LEDGER).write_text(json.dumps(runs, indent=2) + '\n')
         directory.mkdir(exist_ok=True)

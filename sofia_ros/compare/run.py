@@ -191,7 +191,9 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
     }
     windows = hold_windows(observations.calibration_result) if observations.calibration_result else None
     if windows:
-        document['star_hop'] = star_hop_analysis(predictor, final.effects, windows)
+        fpi_noise_arcsec = float(noise_arcsec[centroids.cameras.index('fpi')]) if 'fpi' in centroids.cameras else None
+        document['star_hop'] = star_hop_analysis(predictor, final.effects, windows, fpi_noise_arcsec=fpi_noise_arcsec,
+                                                 arw_rad_per_sqrt_s=arw)
     document['seconds']['total'] = round(time.perf_counter() - started, 3)
     return CompareResult(document, observations, final, best_fit, best_name, predictor)
 

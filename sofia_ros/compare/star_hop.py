@@ -9,29 +9,51 @@ the model's gyro biases are left out: fitted to the whole run they would take up
 scale error); the angle between the two
 directions is the measured distance, compared with the catalogue distance of the two stars'
 observed places in IRF with and without refraction (4.36-4.38, 6.2, Table D.3). The deviation
-against distance is fitted with a line (Fig. 6.11). The FPI and FFI see the HIPO-centred star
-during every hold: their offsets from the first hold, as rotations (6.2), against elevation,
-give the differential flexure beside the FEM prediction (Table 3.3, Fig. 6.4).
+against distance is fitted with a line (Fig. 6.11).
+
+Short moves (6.3, Fig. 6.10, Tables D.5, D.6): the FPI centroid of the star just before the move
+(the last locked frames before the move starts) and of the next star just after it (the first
+locked frames of its hold), each the mean of three frames; the attitude change between the two
+times from the same gyro attitude, with the holds' drift removed over the short interval (the
+TA's drift estimation on the tracked star, which this campaign does not run), as EL, XEL with
+LOS last of the FPI's own frame (the model's FPI mounting and flexure at each elevation: the
+pixels are the FPI's, as eq. 6.5 turns the rotation into the FPI frame); EL, XEL corrected by
+the pixels (6.7-6.8) give the distance (4.38), against the catalogue distance at the same two
+times. Their deviations get their own line, weighted by the predicted sigma of each move.
+
+The FPI and FFI see the HIPO-centred star during every hold: their offsets from the first hold,
+as rotations (6.2), against elevation, give the differential flexure beside the FEM prediction
+(Table 3.3, Fig. 6.4). The FPI centroid of each hold is fitted for its residual drift, column
+linear and row linear plus a sinusoid where the BIC selects it (6.3, analysis.centroid_drift).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import yaml
+from scipy.spatial.transform import Rotation
 
+from sofia_ros.analysis.centroid_drift import fit_centroid_drift
 from sofia_ros.compare.observations import MOTION_STATES
 from sofia_ros.errors import BagError
 from sofia_ros.flexure import differential_imager_rotation_arcsec, gravity_load_tarf
-from sofia_ros.sensors.imager_model import nominal_detector
+from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm, nominal_detector
 from sofia_ros.sim.calibration import boresight_shift_arcsec, flexure_fit
+from sofia_ros.sky.distances import attitude_change_euler_arcsec, short_move_euler_arcsec, spherical_sum_arcsec
 from sofia_ros.units import ARCSEC_PER_RAD
 
-__all__ = ['star_hop_analysis', 'hold_windows']
+__all__ = ['star_hop_analysis', 'hold_windows', 'hold_rows', 'hold_centroid_drift', 'drift_removed_attitude']
 
 _LOCKED = MOTION_STATES.index('locked')
 _MIN_FRAMES = 5
 #: Hold drift rates below this many sigma are noise, not drift.
 _DRIFT_SIGNIFICANCE = 3.0
+#: Frames averaged on each side of a short move: "the first three images" (6.3).
+_SHORT_MOVE_FRAMES = 3
+#: The keys of a move's short-move entries, None where the FPI did not see both stars.
+_SHORT_MOVE_KEYS = ('short_move_arcsec', 'short_move_catalogue_arcsec', 'short_move_deviation_arcsec',
+                    'short_move_sigma_arcsec', 'short_move_interval_s', 'short_move_euler_arcsec',
+                    'short_move_pixels_px')
 
 
 def hold_windows(result_text):
@@ -45,7 +67,8 @@ def hold_windows(result_text):
     return result.get('observations', [])
 
 
-def _hold_rows(centroids, camera, hip, window):
+def hold_rows(centroids, camera, hip, window):
+    """Rows of one camera's locked centroids of the held star inside a hold window, in time order."""
     if camera not in centroids.cameras:
         return np.empty(0, dtype=int)
     rows = np.flatnonzero((centroids.camera_index == centroids.cameras.index(camera)) & (centroids.hip == hip)
@@ -85,6 +108,13 @@ def _drift_rate(first, second):
     return rate, np.linalg.pinv(design.T @ design)
 
 
+def drift_removed_attitude(attitude_dcm, drift_rate_irf_rad_per_s, elapsed_s):
+    """A R(w dt): an attitude with the drift w (IRF, s = w x d) of the holds removed over elapsed_s (6.3)."""
+    # The drifting attitude maps a fixed star to R(w dt) d; A R(w dt) maps it back onto d.
+    turn = Rotation.from_rotvec(np.asarray(drift_rate_irf_rad_per_s) * elapsed_s).as_matrix()
+    return np.asarray(attitude_dcm) @ turn
+
+
 def _angle_arcsec(first, second):
     return float(np.arctan2(np.linalg.norm(np.cross(first, second)), first @ second) * ARCSEC_PER_RAD)
 
@@ -95,14 +125,14 @@ def _imager_flexure(observations, windows):
     rows_out = []
     for window in windows:
         row = {'star': window['star'], 'elevation_deg': float(window['elevation_deg'])}
-        hipo_rows = _hold_rows(centroids, 'hipo', window['hip'], window)
+        hipo_rows = hold_rows(centroids, 'hipo', window['hip'], window)
         if len(hipo_rows) < _MIN_FRAMES:
             continue
         hipo_px = centroids.measured_px[hipo_rows].mean(axis=0)
         hipo_shift = boresight_shift_arcsec('hipo', hipo_px, nominal_detector('hipo').center_px)
         complete = True
         for camera in ('fpi', 'ffi'):
-            rows = _hold_rows(centroids, camera, window['hip'], window)
+            rows = hold_rows(centroids, camera, window['hip'], window)
             if len(rows) < 2:
                 complete = False
                 break
@@ -126,15 +156,15 @@ def _imager_flexure(observations, windows):
             'fem_change_23_to_60_deg_arcsec': {'fpi': [0.0, 0.0], 'ffi': fem.tolist()}}
 
 
-def star_hop_analysis(predictor, effects, windows):
-    """Moves with measured and catalogue distances, their deviation fit, and the imager flexure series."""
+def star_hop_analysis(predictor, effects, windows, *, fpi_noise_arcsec, arw_rad_per_sqrt_s):
+    """Moves (drift-corrected and short) against catalogue distances, their lines, imager flexure, hold drift."""
     observations = predictor.observations
     # As 6.3 does: the gyro drift comes from the holds, not from biases fitted to the whole run
     # (a fit of biases would take up part of a missing scale error).
     effects = {name: params for name, params in effects.items() if name not in ('gyro_bias', 'gyro_bias_drift')}
     holds = []
     for window in windows:
-        rows = _hold_rows(observations.centroids, 'hipo', window['hip'], window)
+        rows = hold_rows(observations.centroids, 'hipo', window['hip'], window)
         if len(rows) >= _MIN_FRAMES:
             holds.append((window, *_hold_direction(predictor, effects, rows)))
     refracted = {name: value for name, value in effects.items() if name != 'atmospheric_refraction'}
@@ -151,6 +181,10 @@ def star_hop_analysis(predictor, effects, windows):
         corrected_by_drift = bool(np.any(np.abs(rate) > _DRIFT_SIGNIFICANCE * rate_sigma))
         corrected = d2 - np.cross(rate, d2) * (t2 - t1) if corrected_by_drift else d2
         measured = _angle_arcsec(d1, corrected / np.linalg.norm(corrected))
+        rows = _short_move_rows(observations, first, second)
+        short = dict.fromkeys(_SHORT_MOVE_KEYS) if rows is None else _short_move(
+            predictor, effects, rows, rate if corrected_by_drift else np.zeros(3),
+            float(np.sqrt(normal @ rate_covariance @ normal)), fpi_noise_arcsec, arw_rad_per_sqrt_s)
         catalogue = {}
         for label, model in (('refracted', effects), ('unrefracted', refracted)):
             stars = _catalogue_directions(predictor, model, (first['hip'], second['hip']), (t1, t2))
@@ -164,9 +198,75 @@ def star_hop_analysis(predictor, effects, windows):
                       # What the holds leave unknown of the drift over the move, corrected or not.
                       'deviation_sigma_arcsec': distance_sigma_rad * ARCSEC_PER_RAD,
                       'drift_rate_arcsec_per_s': (rate * ARCSEC_PER_RAD).tolist(),
-                      'drift_rate_sigma_arcsec_per_s': (rate_sigma * ARCSEC_PER_RAD).tolist()})
+                      'drift_rate_sigma_arcsec_per_s': (rate_sigma * ARCSEC_PER_RAD).tolist(), **short})
+    short_moves = [move for move in moves if move['short_move_arcsec'] is not None]
     return {'moves': moves, 'deviation_fit': _deviation_fit(moves),
-            'imager_flexure': _imager_flexure(observations, windows)}
+            'short_move_fit': _deviation_fit(short_moves, 'short_move_deviation_arcsec', 'short_move_sigma_arcsec'),
+            'imager_flexure': _imager_flexure(observations, windows),
+            'centroid_drift': hold_centroid_drift(observations.centroids, windows)}
+
+
+def _short_move_rows(observations, first, second):
+    """FPI rows of the star just before the move (last locked stretch) and of the next star just after it."""
+    centroids = observations.centroids
+    if 'fpi' not in centroids.cameras:
+        return None
+    stamps = centroids.stamp_s
+    before = np.flatnonzero((centroids.camera_index == centroids.cameras.index('fpi'))
+                            & (centroids.hip == first['hip']) & (centroids.motion_code == _LOCKED)
+                            & (stamps >= first['hold_start_s']) & (stamps < second['hold_start_s']))
+    if len(before):
+        # Every move starts "transient": the last stretch between two move starts is just before the move.
+        stretch = np.searchsorted(observations.move_start_s, centroids.stamp_s[before])
+        before = before[stretch == stretch[-1]][-_SHORT_MOVE_FRAMES:]
+    # The hold starts locked after the last centring: its first frames are the first of a still telescope.
+    after = hold_rows(centroids, 'fpi', second['hip'], second)[:_SHORT_MOVE_FRAMES]
+    if len(before) < _SHORT_MOVE_FRAMES or len(after) < _SHORT_MOVE_FRAMES:
+        return None
+    return before, after
+
+
+def _short_move(predictor, effects, rows, drift_rate_rad_per_s, normal_rate_sigma_rad_per_s, fpi_noise_arcsec,
+                arw_rad_per_sqrt_s):
+    """One short move (6.3, Fig. 6.10, Tables D.5-D.6): distance, catalogue distance at its times, sigma."""
+    centroids = predictor.observations.centroids
+    times = predictor.row_times_s(effects)
+    start_s, end_s = (float(times[side].mean()) for side in rows)
+    errors = camera_errors('fpi', effects)
+    # The FPI's attitude A_FPI,IRF = A_FPI,TARF(elevation) A_TARF,IRF: the model's mounting and flexure.
+    first, second = (camera_from_tarf_dcm(errors, float(centroids.elevation_deg[side].mean())) @ attitude
+                     for side, attitude in zip(rows, predictor.attitudes(effects, np.array([start_s, end_s]))))
+    second = drift_removed_attitude(second, drift_rate_rad_per_s, end_s - start_s)
+    el, xel, los = attitude_change_euler_arcsec(first, second)
+    before_px, after_px = (centroids.measured_px[side].mean(axis=0) for side in rows)
+    el_short, xel_short = short_move_euler_arcsec(el, xel, before_px, after_px, errors.detector.scale_arcsec_per_px)
+    distance = float(spherical_sum_arcsec(el_short, xel_short))
+    hips = tuple(int(centroids.hip[side[0]]) for side in rows)
+    catalogue = _angle_arcsec(*_catalogue_directions(predictor, effects, hips, (start_s, end_s)))
+    interval_s = end_s - start_s
+    # Each end's mean centroid scatters along the great circle by its frames' noise; the gyros walk
+    # over the interval (ARW, 4.2.3); the holds leave the drift rate about the stars' normal uncertain.
+    variance = (fpi_noise_arcsec**2 * sum(1.0 / len(side) for side in rows)
+                + (arw_rad_per_sqrt_s * ARCSEC_PER_RAD) ** 2 * interval_s
+                + (normal_rate_sigma_rad_per_s * ARCSEC_PER_RAD * interval_s) ** 2)
+    return {'short_move_arcsec': distance, 'short_move_catalogue_arcsec': catalogue,
+            'short_move_deviation_arcsec': distance - catalogue, 'short_move_sigma_arcsec': float(np.sqrt(variance)),
+            'short_move_interval_s': interval_s,
+            'short_move_euler_arcsec': [float(el_short), float(xel_short), float(los)],
+            'short_move_pixels_px': [before_px.tolist(), after_px.tolist()]}
+
+
+def hold_centroid_drift(centroids, windows):
+    """The FPI centroid drift of each hold: column linear, row linear + sinusoid where BIC selects it (6.3)."""
+    drifts = []
+    for window in windows:
+        rows = hold_rows(centroids, 'fpi', window['hip'], window)
+        if len(rows) < _MIN_FRAMES:
+            continue
+        fit = fit_centroid_drift(centroids.stamp_s[rows], *centroids.measured_px[rows].T)
+        drifts.append({'star': window['star'], 'hip': int(window['hip']),
+                       'hold_start_s': float(window['hold_start_s']), 'hold_end_s': float(window['hold_end_s']), **fit})
+    return drifts
 
 
 def _catalogue_directions(predictor, effects, hips, times_s):
@@ -178,13 +278,20 @@ def _catalogue_directions(predictor, effects, hips, times_s):
     return directions
 
 
-def _deviation_fit(moves):
-    """Deviation = a + b distance (Fig. 6.11), b in arcsec per deg of distance, with 1-sigma errors."""
+def _deviation_fit(moves, deviation_key='deviation_arcsec', sigma_key=None):
+    """Deviation = a + b distance (Fig. 6.11), b in arcsec per deg of distance, with 1-sigma errors.
+
+    With ``sigma_key`` the points are weighted by their predicted sigmas, which then set the errors.
+    """
     if len(moves) < 3:
         return None
     distance_deg = np.array([move['catalogue_arcsec'] for move in moves]) / 3600.0
-    deviation = np.array([move['deviation_arcsec'] for move in moves])
-    coefficients, covariance = np.polyfit(distance_deg, deviation, 1, cov='unscaled' if len(moves) < 4 else True)
+    deviation = np.array([move[deviation_key] for move in moves])
+    if sigma_key is None:
+        coefficients, covariance = np.polyfit(distance_deg, deviation, 1, cov='unscaled' if len(moves) < 4 else True)
+    else:
+        weights = 1.0 / np.array([move[sigma_key] for move in moves])
+        coefficients, covariance = np.polyfit(distance_deg, deviation, 1, w=weights, cov='unscaled')
     sigma = np.sqrt(np.diag(covariance))
     residual = deviation - np.polyval(coefficients, distance_deg)
     return {'slope_arcsec_per_deg': float(coefficients[0]), 'slope_sigma': float(sigma[0]),

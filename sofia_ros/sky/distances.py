@@ -1,5 +1,6 @@
 """Angular distances between stars: from horizontal coordinates (4.36-4.37), from TA Euler
-angles (4.38), corrected for the centroid offsets of short moves (6.7-6.8) and for refraction (6.2).
+angles of an attitude change (4.3.3, 4.38), corrected for the centroid offsets of short moves
+(6.7-6.8) and for refraction (6.2).
 
 The printed cosine formulas lose precision for small separations (cos d is flat near 0), so
 the functions evaluate the same quantities in forms that are well conditioned at every
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sofia_ros.frames import euler123_from_dcm
 from sofia_ros.sky.refraction import apparent_altitude_deg
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import finite_array, positive_scalar
@@ -18,6 +20,7 @@ __all__ = [
     'FPI_SCALE_ARCSEC_PER_PX',
     'angular_distance_arcsec',
     'angular_distance_cosine_rule_arcsec',
+    'attitude_change_euler_arcsec',
     'spherical_sum_arcsec',
     'short_move_euler_arcsec',
     'refraction_adjusted_distance_arcsec',
@@ -56,6 +59,12 @@ def angular_distance_cosine_rule_arcsec(altitude1_deg, azimuth1_deg, altitude2_d
     cosine = (np.cos(delta_azimuth) * np.cos(altitude1) * np.cos(altitude2)
               + np.sin(altitude1) * np.sin(altitude2))
     return np.arccos(np.clip(cosine, -1.0, 1.0)) * ARCSEC_PER_RAD
+
+
+def attitude_change_euler_arcsec(first_dcm, second_dcm):
+    """EL, XEL, LOS ["] of the attitude change from A1 to A2, LOS the last rotation (4.3.3: B.24, B.11-B.13)."""
+    # DCM(dq) = A2 A1^T (B.24); Euler 1-2-3 = EL, XEL, LOS about the axes of the first attitude.
+    return euler123_from_dcm(np.asarray(second_dcm) @ np.asarray(first_dcm).T) * ARCSEC_PER_RAD
 
 
 def spherical_sum_arcsec(el_arcsec, xel_arcsec):

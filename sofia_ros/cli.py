@@ -86,15 +86,19 @@ def _run_campaign(args):
     model_text = _model_text(args)
     plan = AlignmentPlan(repetitions=args.repetitions, verification_repetitions=args.verification_repetitions,
                          drift_track_s=args.drift_track_s)
-    mode = 'processes' if args.processes else 'direct' if args.direct else 'executor'
     progress = _Progress()
     try:
-        run = run_alignment(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=mode,
+        run = run_alignment(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=_mode(args),
                             max_sim_s=args.max_sim_s, model_text=model_text, progress=progress)
     finally:
         progress.close()
     _print_alignment_summary(run)
     return 0 if run.summary['accepted'] else 1
+
+
+def _mode(args):
+    """The run mode of --processes / --direct (default: every node in one process under an executor)."""
+    return 'processes' if args.processes else 'direct' if args.direct else 'executor'
 
 
 def _run_gyro_stability(args):
@@ -121,8 +125,6 @@ def _run_star_hop(args):
     from sofia_ros.errors import InvalidArgumentError
     from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
 
-    if args.processes:
-        raise ConfigError('star-hop runs in one process (default) or --direct; --processes is not built for it yet')
     truth = load_effect_config(args.truth)
     model_text = _model_text(args)
     observations = table_d3_offsets_s()
@@ -141,8 +143,8 @@ def _run_star_hop(args):
         raise ConfigError(str(err)) from err
     progress = _Progress()
     try:
-        summary = run_star_hop(truth, seed=args.seed, bag_path=args.bag, plan=plan,
-                               mode='direct' if args.direct else 'executor', model_text=model_text, progress=progress)
+        summary = run_star_hop(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=_mode(args),
+                               model_text=model_text, progress=progress)
     finally:
         progress.close()
     print(f'bag: {args.bag}  ({summary["sim_seconds"]:.1f} s sim in {summary["wall_seconds"]:.1f} s wall; '

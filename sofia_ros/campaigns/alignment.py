@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import datetime as dt
 import json
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,13 +14,12 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.recording import new_bag_path, record_graph
-from sofia_ros.errors import ConfigError
+from sofia_ros.campaigns.recording import MODES, new_bag_path, record_graph
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import GraphConfig
-from sofia_ros.sim.scenario import SCENARIO_TOPIC, Scenario, scenario_document, scenario_from_mapping
+from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 from sofia_ros.units import ARCSEC_PER_RAD
@@ -87,37 +85,19 @@ def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevati
     return Rotation.from_matrix(error.T).as_rotvec() * ARCSEC_PER_RAD
 
 
-MODES = ('executor', 'processes', 'direct')
-
-
 def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=7200.0, model_text='effects: {}\n',
                   progress=None, timeout_s=3600.0):
     """Run the campaign and write the bag plus truth.yaml, model.yaml, calibration.yaml and summary.json.
 
-    ``mode``: 'executor' (every node in this process under one executor, over DDS),
-    'processes' (each node its own process, as `ros2 run` starts them) or 'direct'
+    ``mode``: one of recording.MODES, 'executor' (every node in this process under one executor,
+    over DDS), 'processes' (each node its own process, as `ros2 run` starts them) or 'direct'
     (the same cores in one loop without DDS, for Monte Carlo and fast tests).
     """
-    if mode not in MODES:
-        raise ConfigError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
     bag_path = new_bag_path(bag_path)
     config = graph_config(truth, seed, plan)
-    documents = (('/config/truth', truth.text), ('/config/model', model_text),
-                 (SCENARIO_TOPIC, scenario_document(config.scenario)))
     wall_start = time.perf_counter()
-    if mode in ('direct', 'executor'):
-        record_graph(config, bag_path, documents, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
-                     progress=progress)
-    else:
-        from sofia_ros.nodes.launch import run_graph_in_processes
-
-        with tempfile.TemporaryDirectory(prefix='sofia_run_') as folder:
-            truth_file, model_file = Path(folder) / 'truth.yaml', Path(folder) / 'model.yaml'
-            truth_file.write_text(truth.text)
-            model_file.write_text(model_text)
-            run_graph_in_processes(truth_file, seed, config.plan, bag_path, tick_ns=config.tick_ns,
-                                   max_sim_s=max_sim_s, timeout_s=timeout_s, model_file=model_file,
-                                   progress=progress)
+    record_graph(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
+                 progress=progress)
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)
     summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,

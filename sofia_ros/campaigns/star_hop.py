@@ -7,7 +7,6 @@ holds every centroid, the 400 Hz gyro samples and each observation's hold window
 
 from __future__ import annotations
 
-import dataclasses
 import datetime as dt
 import json
 import time
@@ -16,16 +15,13 @@ import yaml
 
 from sofia_ros.campaigns.alignment import result_from_bag
 from sofia_ros.campaigns.recording import new_bag_path, record_graph
-from sofia_ros.errors import ConfigError
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sim.graph import GraphConfig
-from sofia_ros.sim.scenario import SCENARIO_TOPIC, Scenario, scenario_document, scenario_from_mapping
+from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sim.star_hop import CDT, TABLE_D3_OBSERVATIONS, StarHopPlan
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 
 __all__ = ['default_scenario', 'run_star_hop', 'star_hop_config']
-
-MODES = ('executor', 'direct')
 
 
 def default_scenario(first_star=TABLE_D3_OBSERVATIONS[0][0], offset_s=0.0):
@@ -53,18 +49,16 @@ def star_hop_config(truth, seed, plan=None):
 
 def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_text='effects: {}\n', progress=None,
                  timeout_s=3600.0):
-    """Fly the sequence, record the bag, and write truth.yaml, model.yaml, star_hop.yaml and summary.json."""
-    if mode not in MODES:
-        raise ConfigError(f'star-hop runs in modes {", ".join(MODES)}, got {mode!r} (no --processes yet)')
+    """Fly the sequence, record the bag, and write truth.yaml, model.yaml, star_hop.yaml and summary.json.
+
+    ``mode``: one of recording.MODES ('executor', 'processes', 'direct'), as for the alignment campaign.
+    """
     bag_path = new_bag_path(bag_path)
     config = star_hop_config(truth, seed, plan)
     last_offset_s = config.plan.observations[-1][1]
     max_sim_s = last_offset_s - config.plan.observations[0][1] + 20.0 * config.plan.timeout_s + config.plan.hold_s
-    documents = (('/config/truth', truth.text), ('/config/model', model_text),
-                 (SCENARIO_TOPIC, scenario_document(config.scenario)),
-                 ('/config/plan', yaml.safe_dump(dataclasses.asdict(config.plan), sort_keys=False)))
     wall_start = time.perf_counter()
-    record_graph(config, bag_path, documents, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
+    record_graph(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
                  progress=progress)
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)

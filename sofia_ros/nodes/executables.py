@@ -4,7 +4,6 @@ imager (fpi/ffi/wfi by the ``camera`` parameter), hipo, tascu, calibration, reco
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -18,7 +17,7 @@ __all__ = ['clock', 'plant', 'gyro_box', 'imager', 'hipo', 'tascu', 'calibration
 
 
 def _read_parameters(executable):
-    """Graph parameters as given by --ros-args (params file or -p), with their defaults."""
+    """Graph parameters as given by --ros-args (params file or -p), with their defaults, and every plan.* given."""
     reader = Node(f'{executable}_parameters', automatically_declare_parameters_from_overrides=True,
                   allow_undeclared_parameters=True)
     values = {name: default for name, (default, _) in GRAPH_PARAMETERS.items()}
@@ -26,16 +25,19 @@ def _read_parameters(executable):
     for name in list(values):
         if reader.has_parameter(name):
             values[name] = reader.get_parameter(name).value
+    plan = reader.get_parameters_by_prefix('plan')
+    values.update({f'plan.{name}': parameter.value for name, parameter in plan.items()})
     reader.destroy_node()
     return values
 
 
 def _build(executable, values):
+    from sofia_ros.campaigns.recording import graph_documents
+    from sofia_ros.config import load_effect_config
     from sofia_ros.nodes.clock_node import ClockNode
     from sofia_ros.nodes.recorder_node import RecorderNode
     from sofia_ros.nodes.shell import CoreNode
     from sofia_ros.sim.graph import build_core, build_cores, graph_topics
-    from sofia_ros.sim.scenario import SCENARIO_TOPIC, scenario_document
 
     config = graph_config_from_parameters(values)
     cores = build_cores(config)
@@ -47,11 +49,9 @@ def _build(executable, values):
     if executable == 'recorder':
         if not values['bag_path']:
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
-        documents = [('/config/truth', config.truth.text), (SCENARIO_TOPIC, scenario_document(config.scenario))]
-        if values['model_file']:
-            documents.append(('/config/model', Path(values['model_file']).read_text()))
+        model_text = load_effect_config(values['model_file']).text if values['model_file'] else None
         return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns,
-                            documents=documents)
+                            documents=graph_documents(config, model_text))
     name = values['camera'] if executable == 'imager' else executable
     if executable == 'imager' and name not in ('fpi', 'ffi', 'wfi'):
         raise SofiaError(f"imager needs -p camera:=fpi|ffi|wfi, got {name!r}")

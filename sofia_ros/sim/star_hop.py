@@ -52,8 +52,9 @@ def table_d3_offsets_s():
 class StarHopPlan:
     """The star-hop sequence: (star, start offset s) pairs, hold per star, timing and the TASCU's alignment."""
 
-    #: (star, seconds after Table D.3's first observation); the run starts at the first one listed
-    observations: tuple = field(default_factory=table_d3_offsets_s)
+    #: (star, seconds after Table D.3's first observation); the run starts at the first one listed.
+    #: As node parameters: one array per column, plan.observations.star and plan.observations.offset_s.
+    observations: tuple = field(default_factory=table_d3_offsets_s, metadata={'columns': ('star', 'offset_s')})
     hold_s: float = 60.0
     #: start each observation at its offset (Table D.3); False: as soon as the previous one is done
     follow_times: bool = True

@@ -107,6 +107,9 @@ def _run_gyro_stability(args):
 
     if args.case is None:
         raise ConfigError('gyro-stability needs --case TC-1|TC-2|TC-3|TC-4')
+    if args.processes or args.direct:
+        raise ConfigError('gyro-stability records the gyro box alone, without a node graph; '
+                          'drop --processes / --direct')
     truth = load_effect_config(args.truth)
     progress = _Progress()
     try:

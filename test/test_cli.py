@@ -98,3 +98,11 @@ def test_replay_of_a_missing_bag_is_refused(tmp_path):
 def test_replay_refuses_negative_rate_and_wait(tmp_path, option, value, message):
     result = run_sofia('replay', str(tmp_path / 'none'), option, value)
     assert result.returncode == 2 and message in result.stderr
+
+
+@pytest.mark.parametrize('mode', ['--processes', '--direct'])
+def test_gyro_stability_refuses_a_graph_mode(tmp_path, mode):
+    result = run_sofia('run', 'gyro-stability', '--case', 'TC-1', '--truth', 'config/truth/nominal.yaml',
+                       '--bag', str(tmp_path / 'b'), mode)
+    assert result.returncode == 2 and 'without a node graph; drop --processes / --direct' in result.stderr
+    assert not (tmp_path / 'b').exists()

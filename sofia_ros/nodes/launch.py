@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -143,8 +144,13 @@ def stop_graph(graph):
 
 def run_graph_in_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, timeout_s=3600.0,
                            stall_timeout_s=15.0, model_file='', progress=None):
-    """Each node as its own process; return the GraphProcesses after the recorder closed the bag."""
+    """Each node as its own process; return the GraphProcesses after the recorder closed the bag.
+
+    The node logs and params file are removed once the bag is closed; a run that fails keeps
+    them, and its GraphRunError names the folder.
+    """
     graph = start_graph_processes(truth_file, seed, plan, bag_path, tick_ns=tick_ns, max_sim_s=max_sim_s,
                                   stall_timeout_s=stall_timeout_s, model_file=model_file)
     wait_for_graph(graph, timeout_s=timeout_s, progress=progress, max_sim_s=max_sim_s)
+    shutil.rmtree(graph.workdir, ignore_errors=True)
     return graph

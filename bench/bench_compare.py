@@ -46,17 +46,20 @@ def main():
             run_alignment(load_effect_config(ROOT / 'config/truth/nominal.yaml'), seed=1, bag_path=bag, mode='direct')
             print(f'campaign (direct mode) recorded in {time.perf_counter() - started:.1f} s: {bag}')
         model = load_effect_config(ROOT / 'config/model/nominal.yaml')
-        started = time.perf_counter()
-        observations = read_observations(bag)
-        read_s = time.perf_counter() - started
         with BagReader(bag) as reader:
             topics = ('/gyro_box/imu', *(info.name for info in reader.topics
                                          if info.name.endswith('/centroids') or info.name in (
                                              '/gyro_box/temperature', '/ta/joint_states', '/tascu/attitude',
                                              '/tascu/motion_status', '/calibration/result')))
-        started = time.perf_counter()
-        read_record_by_record(bag, topics)
-        rosbags_s = time.perf_counter() - started
+        # Each reading twice, alternating, the faster kept: the first call also pays imports and caches.
+        read_s, rosbags_s = float('inf'), float('inf')
+        for _ in range(2):
+            started = time.perf_counter()
+            observations = read_observations(bag)
+            read_s = min(read_s, time.perf_counter() - started)
+            started = time.perf_counter()
+            read_record_by_record(bag, topics)
+            rosbags_s = min(rosbags_s, time.perf_counter() - started)
         started = time.perf_counter()
         document = compare_bag(bag, model).document
         total_s = time.perf_counter() - started

@@ -30,7 +30,8 @@ class EffectSpec:
     one of two hooks, which the truth simulator and `sofia compare` both call:
 
     - ``gyro_rate_offset(params, times_s, temperature_c) -> (N, 3)``: rad/s every GYRF axis reads
-      on top of the true rate (the gyro box adds it, the model removes it);
+      on top of the true rate (the gyro box adds it per sample; compare removes it at each 0.2 s
+      tick's mean time and temperature, exact for offsets slow against a tick);
     - ``camera_rotation(params, camera, elevation_deg) -> (..., 3)``: arcsec rotation (EL, XEL,
       LOS) of a camera frame against TARF, added to its gravity flexure (zeros for cameras it
       does not touch).

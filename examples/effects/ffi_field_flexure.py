@@ -15,12 +15,12 @@ from sofia_ros.flexure import gravity_load_tarf
 from sofia_ros.units import STANDARD_GRAVITY_M_PER_S2
 
 
-def ffi_field_rotation_arcsec(params, camera, elevation_deg):
+def ffi_field_rotation_arcsec(params, context):
     """Rotation (EL, XEL, LOS) ["] of the FFI frame: a LOS twist proportional to the LOS load (cf. 6.2)."""
-    load = gravity_load_tarf(elevation_deg)
+    load = gravity_load_tarf(context.elevation_deg)
     rotation = np.zeros(load.shape)
-    if camera == 'ffi':
-        rotation[..., 2] = params['los_arcsec_per_g'] * -load[..., 2] / STANDARD_GRAVITY_M_PER_S2
+    if context.camera == 'ffi':
+        rotation[:, 2] = params['los_arcsec_per_g'] * -load[:, 2] / STANDARD_GRAVITY_M_PER_S2
     return rotation
 
 

@@ -61,7 +61,7 @@ class Centroids:
 
 @dataclass(frozen=True, eq=False)
 class GyroSamples:
-    """400 Hz GYRF rates, the ticks they belong to, and per tick their mean, mean time, count and temperature."""
+    """400 Hz GYRF rates, the ticks they belong to, and per tick their mean, mean time, count, temperature and specific force."""
 
     time_s: np.ndarray
     rates_gyrf_rad_per_s: np.ndarray
@@ -72,6 +72,8 @@ class GyroSamples:
     tick_mean_rates_gyrf_rad_per_s: np.ndarray
     tick_mean_time_s: np.ndarray
     tick_sample_count: np.ndarray
+    #: Mean accelerometer specific force per tick, in the gyro box's axes (m/s^2).
+    tick_mean_specific_force_m_per_s2: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,7 +139,8 @@ def _gyro_samples(imu, temperature_records):
     rates = imu.angular_velocity_rad_per_s[keep]
     counts = np.diff(np.append(starts, len(time_s)))
     return GyroSamples(time_s, rates, tick_end_s, temperatures, starts, period_s,
-                       tick_means(rates, starts), tick_means(time_s[:, None], starts)[:, 0], counts)
+                       tick_means(rates, starts), tick_means(time_s[:, None], starts)[:, 0], counts,
+                       tick_means(imu.linear_acceleration_m_per_s2[keep], starts))
 
 
 def _at(stamps_s, series_s, values, what):

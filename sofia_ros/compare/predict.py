@@ -30,11 +30,14 @@ from sofia_ros.sensors.gyro_errors import (
     rate_offsets_rad_per_s,
     true_rates_tarf_rad_per_s,
 )
+from sofia_ros.effects.context import CameraContext
+from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import (
     Scene,
     camera_errors,
     camera_from_tarf_dcm,
     refracted_directions_hrf,
+    shifted_centroids_px,
     star_directions_irf,
 )
 from sofia_ros.sky.catalogue import star_by_hip
@@ -135,13 +138,14 @@ class Predictor:
         if lines:
             per_sample = rate_offsets_rad_per_s(gyro_error_model({'vibration_lines': lines}), gyro.time_s, 0.0)
             means = means - tick_means(per_sample, gyro.tick_start_index)
-        rates = true_rates_tarf_rad_per_s(errors, means, gyro.tick_mean_time_s, gyro.tick_temperature_c)
+        force_tarf = gyro.tick_mean_specific_force_m_per_s2 @ errors.tarf_from_gyrf.T
+        rates = true_rates_tarf_rad_per_s(errors, means, gyro.tick_mean_time_s, gyro.tick_temperature_c, force_tarf)
         increments = (rates * (gyro.tick_sample_count * gyro.sample_period_s)[:, None])[self._first_tick + 1:]
         return propagate_tick_attitudes(increments, self.initial_dcm), increments
 
     def attitudes(self, effects, times_s):
         """A_TARF,IRF the model believes at times (gyro propagation only, no anchors)."""
-        gyro_effects = {name: effects[name] for name in gyro_effect_names() if name in effects}
+        gyro_effects = {name: effects[name] for name in gyro_effect_names(effects) if name in effects}
         tick_attitudes, increments = self._cached(('gyro', repr(gyro_effects)), lambda: self._tick_track(gyro_effects))
         return attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)
 
@@ -178,14 +182,15 @@ class Predictor:
         selected = np.zeros(len(centroids), dtype=bool)
         selected[np.arange(len(centroids)) if rows is None else rows] = True
         measured = np.empty((len(centroids), 3))
-        for index, camera in enumerate(centroids.cameras):
-            chosen = selected & (centroids.camera_index == index)
+        times = self.row_times_s(effects)
+        for index in range(len(centroids.cameras)):
+            camera_rows = centroids.camera_index == index
+            chosen = selected & camera_rows
             if not np.any(chosen):
                 continue
-            errors = camera_errors(camera, effects)
+            errors, mounting, _ = self._camera_model(effects, index, times)
             in_camera = pixel_to_vector(centroids.measured_px[chosen], errors.detector)
-            mounting = camera_from_tarf_dcm(errors, centroids.elevation_deg[chosen])
-            measured[chosen] = np.einsum('nji,nj->ni', mounting, in_camera)
+            measured[chosen] = np.einsum('nji,nj->ni', mounting[chosen[camera_rows]], in_camera)
         return measured[selected] if rows is not None else measured
 
     def align_initial_attitude(self, effects):
@@ -208,6 +213,35 @@ class Predictor:
             times[hipo] -= effects['timestamp_offset']['offset_s']
         return times
 
+    def camera_context(self, effects, camera_index, times_s):
+        """The CameraContext of one camera's rows: what plug-in hooks see on the model side (effects.context)."""
+        centroids = self.observations.centroids
+        rows = centroids.camera_index == camera_index
+        gyro = self.observations.gyro
+        force_gyrf = np.column_stack([np.interp(times_s[rows], gyro.tick_mean_time_s,
+                                                gyro.tick_mean_specific_force_m_per_s2[:, axis]) for axis in range(3)])
+        force_tarf = force_gyrf @ tarf_from_gyrf_dcm(effects).T
+        return CameraContext(centroids.cameras[camera_index], times_s[rows], centroids.elevation_deg[rows],
+                             centroids.temperature_c[rows], force_tarf, centroids.fd_los_deg[rows])
+
+    def _camera_model(self, effects, index, times_s):
+        """A_CAM,TARF of one camera's rows and its errors; hooks see the rows' context (cached per effect set)."""
+        centroids = self.observations.centroids
+        camera = centroids.cameras[index]
+        errors = camera_errors(camera, effects)
+        hooked = bool(errors.plugins or errors.shift_plugins)
+        # A hook's context depends on the row times (HIPO clock offset) and the misalignment (forces in TARF).
+        key = ('mount', camera, repr(errors),
+               repr((effects.get('timestamp_offset'), effects.get('gyro_misalignment'))) if hooked else None)
+
+        def compute():
+            rows = centroids.camera_index == index
+            context = self.camera_context(effects, index, times_s) if hooked else None
+            return camera_from_tarf_dcm(errors, centroids.elevation_deg[rows], context), context
+
+        mounting, context = self._cached(key, compute)
+        return errors, mounting, context
+
     def predict_px(self, effects, anchors_rad=None, irf_rotation_rad=None):
         """Predicted centroids (N, 2) px; anchors (knots, 3) rad; an extra IRF rotation for derivatives."""
         centroids = self.observations.centroids
@@ -226,13 +260,13 @@ class Predictor:
         directions = self._cached(key, lambda: self._star_directions(effects, times))
         in_tarf = np.einsum('nij,nj->ni', attitude, directions)
         predicted = np.empty((len(times), 2))
-        for index, camera in enumerate(centroids.cameras):
+        for index in range(len(centroids.cameras)):
             rows = centroids.camera_index == index
-            errors = camera_errors(camera, effects)
-            mounting = self._cached(('mount', camera, repr(errors)),
-                                    lambda: camera_from_tarf_dcm(errors, centroids.elevation_deg[rows]))
+            errors, mounting, context = self._camera_model(effects, index, times)
             in_camera = np.einsum('nij,nj->ni', mounting, in_tarf[rows])
             predicted[rows] = vector_to_pixel(in_camera, errors.detector)
+            if errors.shift_plugins:
+                predicted[rows] = shifted_centroids_px(errors, predicted[rows], context, centroids.hip[rows])
         return predicted
 
 

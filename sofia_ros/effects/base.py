@@ -5,7 +5,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-__all__ = ['Parameter', 'EffectSpec']
+__all__ = ['Parameter', 'EffectSpec', 'HOOKS']
+
+#: Hook name -> number of columns its result has per row.
+HOOKS = {'gyro_rate_offset': 3, 'camera_rotation': 3, 'camera_shift_px': 2}
 
 
 @dataclass(frozen=True)
@@ -27,14 +30,21 @@ class EffectSpec:
 
     The catalogue's own effects keep their physics in the shared error models
     (sensors.gyro_errors, sensors.imager_model). A plug-in effect brings its physics along in
-    one of two hooks, which the truth simulator and `sofia compare` both call:
+    hooks, which the truth simulator and `sofia compare` both call with the same kind of
+    context (effects.context: the recorded variables, their frames and signs):
 
-    - ``gyro_rate_offset(params, times_s, temperature_c) -> (N, 3)``: rad/s every GYRF axis reads
-      on top of the true rate (the gyro box adds it per sample; compare removes it at each 0.2 s
-      tick's mean time and temperature, exact for offsets slow against a tick);
-    - ``camera_rotation(params, camera, elevation_deg) -> (..., 3)``: arcsec rotation (EL, XEL,
+    - ``gyro_rate_offset(params, context: GyroContext) -> (N, 3)``: rad/s every GYRF axis reads
+      on top of the true rate; it may depend on time, temperature, specific force and the rates
+      themselves (a scale-factor-like term). The gyro box adds it per sample; compare removes it
+      at each 0.2 s tick's means, exact for offsets slow against a tick.
+    - ``camera_rotation(params, context: CameraContext) -> (N, 3)``: arcsec rotation (EL, XEL,
       LOS) of a camera frame against TARF, added to its gravity flexure (zeros for cameras it
       does not touch).
+    - ``camera_shift_px(params, context: CameraContext) -> (N, 2)``: pixels (X, Y) added to each
+      centroid on the detector; its context also holds the detector position and the star.
+
+    A hook that raises, returns the wrong shape or a non-finite value is reported as one line
+    naming the effect (ConfigError).
     """
 
     name: str
@@ -44,6 +54,12 @@ class EffectSpec:
     params: tuple = field(default_factory=tuple)
     gyro_rate_offset: Callable | None = None
     camera_rotation: Callable | None = None
+    camera_shift_px: Callable | None = None
+
+    @property
+    def hooks(self):
+        """Names of the hooks this effect brings (empty for the built-in effects)."""
+        return tuple(name for name in HOOKS if getattr(self, name) is not None)
 
     def defaults(self):
         """Parameter name -> default value (the thesis' magnitudes)."""

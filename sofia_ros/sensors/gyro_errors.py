@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sofia_ros.effects import CATALOGUE, plugin_terms
+from sofia_ros.effects import CATALOGUE, get_effect, is_empirical, plugin_terms
+from sofia_ros.effects.context import GyroContext
 from sofia_ros.frames import dcm_from_rotation_angles
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 
@@ -37,9 +38,11 @@ _BUILT_IN_EFFECTS = ('gyro_misalignment', 'gyro_scale_factor', 'gyro_bias', 'gyr
                      'los_oscillation', 'vibration_lines', 'tracker_drift')
 
 
-def gyro_effect_names():
-    """Names of the effects that change what the gyros read: the built-in ones and gyro plug-ins."""
-    return _BUILT_IN_EFFECTS + tuple(name for name, spec in CATALOGUE.items() if spec.gyro_rate_offset is not None)
+def gyro_effect_names(effects=()):
+    """Names of the effects that change what the gyros read: built-in, gyro plug-ins, and gyro empirical terms of ``effects``."""
+    empirical = tuple(name for name in effects if is_empirical(name) and get_effect(name).gyro_rate_offset is not None)
+    return (_BUILT_IN_EFFECTS + tuple(name for name, spec in CATALOGUE.items() if spec.gyro_rate_offset is not None)
+            + empirical)
 
 
 def tarf_from_gyrf_dcm(effects):
@@ -67,7 +70,7 @@ class GyroErrorModel:
     vibration_lines: dict | None = None
     axis_swap: dict | None = None
     tracker_drift: dict | None = None
-    #: (hook, parameters) of plug-in effects (EffectSpec.gyro_rate_offset).
+    #: HookTerms of plug-in and empirical effects (EffectSpec.gyro_rate_offset).
     plugins: tuple = ()
 
 
@@ -104,9 +107,13 @@ def scale_factors(model, temperature_c):
     return factors
 
 
-def rate_offsets_rad_per_s(model, times_s, temperature_c):
-    """offset(t, T): bias, ramp (4.2.3), LOS oscillation (5.2.4), lines (5.2.5), swap bias, tracker drift (6.3), plug-ins, (N, 3)."""
-    times = np.asarray(times_s, dtype=float)
+def rate_offsets_rad_per_s(model, times_s, temperature_c, *, specific_force_tarf_m_per_s2=None, rates_gyrf_rad_per_s=None):
+    """offset(t, T): bias, ramp (4.2.3), LOS oscillation (5.2.4), lines (5.2.5), swap bias, tracker drift (6.3), plug-ins, (N, 3).
+
+    Plug-in hooks get a GyroContext: the specific force (TARF; zeros when not given) and the
+    GYRF rates (zeros when not given).
+    """
+    times = np.atleast_1d(np.asarray(times_s, dtype=float))
     offsets = np.tile(model.bias_rad_per_s, (len(times), 1)) + np.outer(times, model.ramp_rad_per_s2)
     if model.los_oscillation:
         params = model.los_oscillation
@@ -133,20 +140,29 @@ def rate_offsets_rad_per_s(model, times_s, temperature_c):
         drift_px_per_s = params['linear_px_per_min'] / 60.0 + params['sine_amplitude_px'] * omega * np.cos(
             omega * times + phase)
         offsets[:, 0] += drift_px_per_s * _FPI_ARCSEC_PER_PX * RAD_PER_ARCSEC
-    temperature = np.broadcast_to(np.asarray(temperature_c, dtype=float), times.shape)
-    for hook, params in model.plugins:
-        offsets += np.asarray(hook(params, times, temperature), dtype=float).reshape(len(times), 3)
+    if model.plugins:
+        temperature = np.broadcast_to(np.asarray(temperature_c, dtype=float), times.shape)
+        force = np.zeros((len(times), 3)) if specific_force_tarf_m_per_s2 is None else np.broadcast_to(
+            np.asarray(specific_force_tarf_m_per_s2, dtype=float), (len(times), 3))
+        rates = np.zeros((len(times), 3)) if rates_gyrf_rad_per_s is None else np.broadcast_to(
+            np.asarray(rates_gyrf_rad_per_s, dtype=float), (len(times), 3))
+        context = GyroContext(times, temperature, force, rates)
+        for term in model.plugins:
+            offsets += term(context)
     return offsets
 
 
-def measured_rates_gyrf_rad_per_s(model, true_rates_tarf, times_s, temperature_c):
-    """Noise-free GYRF measurements D(T) A_GYRF,TARF omega + offset(t, T) of true TARF rates (N, 3)."""
+def measured_rates_gyrf_rad_per_s(model, true_rates_tarf, times_s, temperature_c, specific_force_tarf_m_per_s2=None):
+    """Noise-free GYRF measurements D(T) A_GYRF,TARF omega + offset(t, T, f, omega) of true TARF rates (N, 3)."""
     rates_gyrf = np.atleast_2d(true_rates_tarf) @ model.tarf_from_gyrf
-    return scale_factors(model, temperature_c) * rates_gyrf + rate_offsets_rad_per_s(model, times_s, temperature_c)
+    offsets = rate_offsets_rad_per_s(model, times_s, temperature_c, rates_gyrf_rad_per_s=rates_gyrf,
+                                     specific_force_tarf_m_per_s2=specific_force_tarf_m_per_s2)
+    return scale_factors(model, temperature_c) * rates_gyrf + offsets
 
 
-def true_rates_tarf_rad_per_s(model, measured_gyrf, times_s, temperature_c):
-    """The inverse: TARF rates A_TARF,GYRF D(T)^-1 (measured - offset(t, T)) a model believes (N, 3)."""
-    corrected = (np.atleast_2d(measured_gyrf) - rate_offsets_rad_per_s(model, times_s, temperature_c)) / scale_factors(
-        model, temperature_c)
-    return corrected @ model.tarf_from_gyrf.T
+def true_rates_tarf_rad_per_s(model, measured_gyrf, times_s, temperature_c, specific_force_tarf_m_per_s2=None):
+    """The inverse: TARF rates A_TARF,GYRF D(T)^-1 (measured - offset(t, T, f, measured)) a model believes (N, 3)."""
+    measured = np.atleast_2d(measured_gyrf)
+    offsets = rate_offsets_rad_per_s(model, times_s, temperature_c, rates_gyrf_rad_per_s=measured,
+                                     specific_force_tarf_m_per_s2=specific_force_tarf_m_per_s2)
+    return ((measured - offsets) / scale_factors(model, temperature_c)) @ model.tarf_from_gyrf.T

@@ -52,6 +52,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.effects import plugin_terms, resolve_params
+from sofia_ros.effects.context import CameraContext
 from sofia_ros.errors import ConfigError, InvalidArgumentError
 from sofia_ros.flexure import (
     IMAGER_FLEXURE,
@@ -86,6 +87,7 @@ __all__ = [
     'camera_errors',
     'flexure_rotation_arcsec',
     'camera_from_tarf_dcm',
+    'shifted_centroids_px',
     'star_directions_irf',
     'refracted_directions_hrf',
     'select_candidate_stars',
@@ -188,8 +190,10 @@ class CameraErrors:
     seeing_rms_arcsec: float = 0.0
     clock_offset_s: float = 0.0
     weather: Weather | None = None
-    #: (hook, parameters) of plug-in effects (EffectSpec.camera_rotation).
+    #: HookTerms of plug-in effects that rotate the camera frame (EffectSpec.camera_rotation).
     plugins: tuple = ()
+    #: HookTerms of plug-in and empirical effects that shift centroids (EffectSpec.camera_shift_px).
+    shift_plugins: tuple = ()
 
 
 def camera_errors(camera, effects):
@@ -222,11 +226,15 @@ def camera_errors(camera, effects):
         values['weather'] = Weather(refraction['temperature_c'], refraction['pressure_hpa'],
                                     refraction['humidity'], refraction['wavelength_um'])
     return CameraErrors(camera, _true_detector(camera, effects), plugins=plugin_terms(effects, 'camera_rotation'),
-                        **values)
+                        shift_plugins=plugin_terms(effects, 'camera_shift_px'), **values)
 
 
-def flexure_rotation_arcsec(errors, elevation_deg):
-    """Gravity rotation (EL, XEL, LOS) ["] of a camera frame against TARF (Tables 3.2, 3.3; 6.2) and plug-ins', (..., 3)."""
+def flexure_rotation_arcsec(errors, elevation_deg, context=None):
+    """Gravity rotation (EL, XEL, LOS) ["] of a camera frame against TARF (Tables 3.2, 3.3; 6.2) and plug-ins', (..., 3).
+
+    Plug-in rotation hooks get ``context`` (a CameraContext of the same rows), or one made from
+    the elevation alone (the telescope at rest) when none is given.
+    """
     load = gravity_load_tarf(elevation_deg)
     los_load_g = -load[..., 2:] / STANDARD_GRAVITY_M_PER_S2
     # Rotations below 2' add as vectors: the second-order error is below 1e-3".
@@ -235,9 +243,21 @@ def flexure_rotation_arcsec(errors, elevation_deg):
                          + los_load_g * np.asarray(errors.internal_flexure_el_xel_arcsec_per_g))
     if errors.head_ring_flexure_scale:
         rotation += errors.head_ring_flexure_scale * imager_rotation_arcsec(errors.camera, load)
-    for hook, params in errors.plugins:
-        rotation += np.asarray(hook(params, errors.camera, np.asarray(elevation_deg, dtype=float)), dtype=float)
+    if errors.plugins:
+        if context is None:
+            context = CameraContext.at_rest(errors.camera, elevation_deg)
+        for term in errors.plugins:
+            rotation += term(context).reshape(rotation.shape)
     return rotation
+
+
+def shifted_centroids_px(errors, pixels_px, context, hip):
+    """Centroids plus the plug-in shifts (EffectSpec.camera_shift_px) at their detector positions, (N, 2)."""
+    pixels = np.asarray(pixels_px, dtype=float)
+    if not errors.shift_plugins or len(pixels) == 0:
+        return pixels
+    located = context.with_detector(pixels, hip)
+    return pixels + sum(term(located) for term in errors.shift_plugins)
 
 
 @functools.lru_cache(maxsize=16)
@@ -250,9 +270,9 @@ def _fixed_mounting_dcm(boresight_el_xel_arcsec, rotation_of_field_deg):
     return dcm
 
 
-def camera_from_tarf_dcm(errors, elevation_deg):
+def camera_from_tarf_dcm(errors, elevation_deg, context=None):
     """True A_CAM,TARF = A(rotation of field) A(boresight offset) A(flexure) (3.3.1, 3.3.3, 3.4.1); (..., 3, 3)."""
-    flexure_rad = flexure_rotation_arcsec(errors, elevation_deg) * RAD_PER_ARCSEC
+    flexure_rad = flexure_rotation_arcsec(errors, elevation_deg, context) * RAD_PER_ARCSEC
     flexure_dcm = np.swapaxes(Rotation.from_rotvec(flexure_rad.reshape(-1, 3)).as_matrix(), -1, -2)
     mounting = _fixed_mounting_dcm(errors.boresight_el_xel_arcsec, errors.rotation_of_field_deg) @ flexure_dcm
     return mounting.reshape(*flexure_rad.shape[:-1], 3, 3)
@@ -361,13 +381,23 @@ class ImagerTruth:
         self._directions_irf = np.empty((0, 3))
         self._places_elapsed_s = None
 
-    def centroids(self, elapsed_s, tarf_from_irf, elevation_deg):
-        """Centroids of every star on the chip for a frame opening at elapsed_s (3.2-3.7, 6.1)."""
+    def centroids(self, elapsed_s, tarf_from_irf, elevation_deg, *, temperature_c=np.nan,
+                  specific_force_tarf_m_per_s2=None, los_angle_deg=0.0):
+        """Centroids of every star on the chip for a frame opening at elapsed_s (3.2-3.7, 6.1).
+
+        Temperature, specific force (TARF; at rest when not given) and fine-drive LOS angle are
+        what plug-in hooks may depend on (effects.context).
+        """
         start_s = finite_scalar('elapsed_s', elapsed_s)
         attitude = orthonormal_dcm('tarf_from_irf', tarf_from_irf)
         elevation = _checked_elevation_deg(elevation_deg)
         mid_s = start_s + self.exposure_s / 2.0
-        camera_from_irf = camera_from_tarf_dcm(self.errors, elevation) @ attitude
+        context = CameraContext.at_rest(self.errors.camera, elevation, time_s=mid_s, temperature_c=temperature_c,
+                                        los_angle_deg=los_angle_deg)
+        if specific_force_tarf_m_per_s2 is not None:
+            context = dataclasses.replace(context, specific_force_m_per_s2=np.reshape(
+                np.asarray(specific_force_tarf_m_per_s2, dtype=float), (1, 3)))
+        camera_from_irf = camera_from_tarf_dcm(self.errors, elevation, context) @ attitude
         self._update_candidates(mid_s, camera_from_irf[2])
         directions_irf, hips = self._directions_irf, self._candidate_hip
         weather = self.errors.weather
@@ -381,6 +411,9 @@ class ImagerTruth:
         in_camera = directions_irf @ camera_from_irf.T
         in_front = in_camera[:, 2] > 0.0
         pixels = vector_to_pixel(in_camera[in_front], self.errors.detector)
+        if self.errors.shift_plugins:
+            rows = np.zeros(len(pixels), dtype=int)
+            pixels = shifted_centroids_px(self.errors, pixels, context.rows(rows), hips[in_front])
         if self._seeing_px:
             pixels = pixels + self._rng.normal(0.0, self._seeing_px, size=pixels.shape)
         low, high_x, high_y = self._pixel_bounds

@@ -13,7 +13,7 @@ from sofia_ros.errors import ConfigError
 from sofia_ros.frames import dcm_from_quaternion
 from sofia_ros.sensors.imager_model import CAMERAS, ImagerTruth, Scene
 from sofia_ros.sim import messages as m
-from sofia_ros.sim.plant import CD_JOINT
+from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
 from sofia_ros.sim.protocol import NodeCore, TopicSpec
 from sofia_ros.units import DEG_PER_RAD
@@ -46,7 +46,8 @@ class CameraCore(NodeCore):
         self.truth = ImagerTruth(camera, truth_effects, Scene(scenario.site, scenario.start_utc),
                                  exposure_s=self.exposure_ns / m.NS_PER_S, seed=seed)
         self.topic = centroid_topic(camera)
-        self.previous = None  # (stamp_ns, attitude quaternion xyzw, elevation_deg)
+        self.scenario = scenario
+        self.previous = None  # (stamp_ns, attitude quaternion xyzw, elevation_deg, specific force, LOS deg)
         self.pending = {}
 
     def inputs(self):
@@ -63,8 +64,9 @@ class CameraCore(NodeCore):
         joints = self.pending.pop(PLANT_TOPICS['truth_joints'].name, None)
         if imu is None or joints is None:
             return []
-        current = (stamp_ns, m.quaternion_xyzw_of(imu.orientation),
-                   m.joint_positions_of(joints)[CD_JOINT] * DEG_PER_RAD)
+        positions = m.joint_positions_of(joints)
+        current = (stamp_ns, m.quaternion_xyzw_of(imu.orientation), positions[CD_JOINT] * DEG_PER_RAD,
+                   m.vector_of(imu.linear_acceleration), positions[FD_JOINTS[2]] * DEG_PER_RAD)
         previous, self.previous = self.previous, current
         if previous is None:
             return []
@@ -72,9 +74,11 @@ class CameraCore(NodeCore):
         for midpoint_ns in self._midpoints_ns(previous[0], stamp_ns):
             fraction = (midpoint_ns - previous[0]) / (stamp_ns - previous[0])
             quaternion = Slerp([0.0, 1.0], Rotation.from_quat([previous[1], current[1]]))(fraction).as_quat()
-            elevation_deg = previous[2] + fraction * (current[2] - previous[2])
+            elevation_deg, force, los_deg = (previous[i] + fraction * (current[i] - previous[i]) for i in (2, 3, 4))
             opening_s = (midpoint_ns - self.exposure_ns // 2) / m.NS_PER_S
-            centroids = self.truth.centroids(opening_s, dcm_from_quaternion(quaternion), elevation_deg)
+            centroids = self.truth.centroids(opening_s, dcm_from_quaternion(quaternion), elevation_deg,
+                                             temperature_c=self.scenario.temperature_c_at(midpoint_ns / m.NS_PER_S),
+                                             specific_force_tarf_m_per_s2=force, los_angle_deg=los_deg)
             stamp = centroids[0].stamp_s if centroids else midpoint_ns / m.NS_PER_S
             outputs.append((self.topic.name, m.centroid_array(m.seconds_to_ns(stamp), self.name, centroids)))
         return outputs

@@ -89,7 +89,8 @@ class GyroBoxCore(NodeCore):
         times_s = stamps_ns / m.NS_PER_S
         temperature_c = self.temperature_c if self.temperature_c is not None else AXIS_SWAP_REFERENCE_C
         rates = measured_rates_gyrf_rad_per_s(self.errors, m.vector_of(truth.angular_velocity), times_s,
-                                              np.full(len(times_s), temperature_c))
+                                              np.full(len(times_s), temperature_c),
+                                              m.vector_of(truth.linear_acceleration))
         if self.noise is not None:
             rates = self.noise.next_rad_per_s(len(stamps_ns), rates)
         force = self.accrf_from_tarf @ m.vector_of(truth.linear_acceleration) + self.accelerometer_bias_m_per_s2

@@ -129,8 +129,7 @@ class PlantCore(NodeCore):
         w.x, w.y, w.z = (float(v) for v in rate_rad_per_s)
         a.x, a.y, a.z = (float(v) for v in self.specific_force_tarf_m_per_s2(elapsed_s))
         positions = {CD_JOINT: self.elevation_deg * RAD_PER_DEG, **dict(zip(FD_JOINTS, self.fine_drive_rad))}
-        temperature_c = (self.scenario.start_temperature_c
-                         + self.scenario.temperature_slope_c_per_h * elapsed_s / 3600.0)
+        temperature_c = self.scenario.temperature_c_at(elapsed_s)
         return [
             (TOPICS['truth_imu'].name, imu),
             (TOPICS['truth_joints'].name, m.joint_state(stamp_ns, positions)),

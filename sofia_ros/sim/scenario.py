@@ -29,6 +29,10 @@ class Scenario:
         """Latitude of the bearing centre (4.1)."""
         return self.site.latitude_deg
 
+    def temperature_c_at(self, elapsed_s):
+        """Telescope structure temperature at ``elapsed_s``: a linear drift through the night."""
+        return self.start_temperature_c + self.temperature_slope_c_per_h * elapsed_s / 3600.0
+
 
 def scenario_from_mapping(defaults, overrides):
     """A Scenario from campaign defaults overlaid with a truth file's ``scenario:`` mapping."""

@@ -20,6 +20,8 @@ __all__ = ['main', 'build_parser']
 def _print_effects(args):
     from sofia_ros.effects import CATALOGUE, catalogue_as_json
 
+    if args.action == 'new':
+        return _new_plugin(args)
     if args.json:
         json.dump(catalogue_as_json(), sys.stdout, indent=2)
         sys.stdout.write('\n')
@@ -29,6 +31,17 @@ def _print_effects(args):
         print(f'    {spec.description}')
         for param in spec.params:
             print(f'    - {param.name} = {param.default} {param.unit}: {param.description}')
+    return 0
+
+
+def _new_plugin(args):
+    from sofia_ros.effects.template import write_plugin_template
+
+    if not args.name or not args.kind:
+        raise ConfigError('usage: sofia effects new NAME --kind camera|camera-rotation|gyro [--dir DIR]')
+    path = write_plugin_template(args.name, args.kind, args.dir)
+    print(f'{path}: a {args.kind} plug-in; edit its hook, then `export SOFIA_EFFECT_MODULES={args.name} '
+          f'PYTHONPATH={path.parent}` and compare again')
     return 0
 
 
@@ -232,7 +245,12 @@ def build_parser():
     parser = argparse.ArgumentParser(prog='sofia', description=__doc__.splitlines()[0])
     verbs = parser.add_subparsers(dest='verb', required=True, metavar='COMMAND')
 
-    effects = verbs.add_parser('effects', help='list the catalogue of physical effects')
+    effects = verbs.add_parser('effects', help='list the catalogue of physical effects, or write a plug-in template')
+    effects.add_argument('action', nargs='?', choices=('new',), help='new NAME: write a plug-in template NAME.py')
+    effects.add_argument('name', nargs='?', help='new: the effect (and module) name, a lower-case identifier')
+    effects.add_argument('--kind', choices=('camera', 'camera-rotation', 'gyro'),
+                         help='new: camera (shift on the detector), camera-rotation or gyro (a rate)')
+    effects.add_argument('--dir', default='.', help='new: folder to write NAME.py into (default: here)')
     effects.add_argument('--json', action='store_true', help='print the catalogue as JSON')
     effects.set_defaults(handler=_print_effects)
 

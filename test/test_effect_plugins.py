@@ -72,10 +72,10 @@ def test_gyro_hook_is_read_by_the_box_and_removed_by_the_model(tmp_path, monkeyp
         import numpy as np
         from sofia_ros.effects import EffectSpec, Parameter
 
-        def thermal_bias_rad_per_s(params, times_s, temperature_c):
+        def thermal_bias_rad_per_s(params, context):
             """EL rate bias proportional to the temperature above 20 C."""
-            offsets = np.zeros((len(times_s), 3))
-            offsets[:, 0] = params['el_rad_per_s_per_c'] * (temperature_c - 20.0)
+            offsets = np.zeros((len(context), 3))
+            offsets[:, 0] = params['el_rad_per_s_per_c'] * (context.temperature_c - 20.0)
             return offsets
 
         EFFECTS = (EffectSpec('gyro_thermal_bias', 'gyro', 'test', 'thermal bias',
@@ -99,7 +99,9 @@ def test_gyro_hook_is_read_by_the_box_and_removed_by_the_model(tmp_path, monkeyp
     ('from sofia_ros.effects import EffectSpec\nEFFECTS = (EffectSpec("gyro_bias", "gyro", "", ""),)\n',
      "'gyro_bias' is already in the catalogue; rename it"),
     ('from sofia_ros.effects import EffectSpec\nEFFECTS = (EffectSpec("no_physics", "gyro", "", ""),)\n',
-     "'no_physics' needs exactly one callable hook"),
+     "'no_physics' needs a callable hook"),
+    ('from sofia_ros.effects import EffectSpec\nEFFECTS = (EffectSpec("empirical:x", "gyro", "", "", (), abs),)\n',
+     'uses the reserved prefix "empirical:"'),
 ])
 def test_malformed_plugins_are_refused_with_the_fix(tmp_path, monkeypatch, text, message):
     name = f'plugin_{abs(hash(text))}'
@@ -133,3 +135,146 @@ def test_a_hidden_plugin_effect_is_the_top_candidate_within_three_sigma(tmp_path
     value, sigma = top['params']['los_arcsec_per_g'], top['sigma']['los_arcsec_per_g']
     assert abs(value - 600.0) <= 3.0 * sigma, (value, sigma)
     assert top['rms_after_arcsec'] <= 1.2 * result['noise_floor_arcsec']
+
+
+def _gyro_plugin(tmp_path, monkeypatch, name, body):
+    """A gyro plug-in whose hook body is given, registered in this process's catalogue."""
+    module = _write_module(tmp_path, f'{name}_{abs(hash(body))}', f'''
+        import numpy as np
+        from sofia_ros.effects import EffectSpec, Parameter
+
+        def hook(params, context):
+            {body}
+
+        EFFECTS = (EffectSpec({name!r}, 'gyro', 'test', 'test hook',
+                              (Parameter('k', 1.0, '1', 'gain'),), gyro_rate_offset=hook),)
+    ''')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    spec = load_catalogue({PLUGIN_ENVIRONMENT_VARIABLE: module})[name]
+    monkeypatch.setitem(CATALOGUE, name, spec)
+    return gyro_error_model({name: {'k': 1.0}})
+
+
+@pytest.mark.parametrize('body, message', [
+    ('raise RuntimeError("table missing")', "effect 'bad_hook': its gyro_rate_offset hook raised RuntimeError: "
+                                            "table missing; fix the plug-in"),
+    ('return np.zeros((len(context), 2))', r"returned shape \(3, 2\) for 3 rows; it must return \(3, 3\)"),
+    ('return np.full((len(context), 3), np.nan)', 'returned NaN or inf'),
+])
+def test_a_failing_hook_is_one_line_naming_the_plugin(tmp_path, monkeypatch, body, message):
+    model = _gyro_plugin(tmp_path, monkeypatch, 'bad_hook', body)
+    with pytest.raises(ConfigError, match=message):
+        measured_rates_gyrf_rad_per_s(model, np.zeros((3, 3)), np.arange(3.0), np.full(3, 20.0))
+
+
+def test_a_gyro_hook_sees_the_specific_force_and_may_scale_the_rate(tmp_path, monkeypatch):
+    # g-sensitivity on LOS plus a 100 ppm scale error on EL, both in one hook.
+    model = _gyro_plugin(tmp_path, monkeypatch, 'g_sensitive',
+                         'return np.column_stack([1e-4 * context.rates_rad_per_s[:, 0], 0 * context.time_s, '
+                         'params["k"] * 1e-7 * context.specific_force_m_per_s2[:, 2]])')
+    true_rates = np.tile([1e-3, 0.0, 0.0], (2, 1))
+    force_tarf = np.array([[0.0, -5.0, 8.0], [0.0, -8.0, 5.0]])
+    measured = measured_rates_gyrf_rad_per_s(model, true_rates, np.arange(2.0), np.full(2, 20.0), force_tarf)
+    np.testing.assert_allclose(measured[:, 0], 1e-3 * (1 + 1e-4), rtol=1e-12)
+    np.testing.assert_allclose(measured[:, 2], [8e-7, 5e-7], rtol=1e-12)
+    # The model side evaluates the scale on the measured rate: exact to the square of the scale error.
+    recovered = true_rates_tarf_rad_per_s(model, measured, np.arange(2.0), np.full(2, 20.0), force_tarf)
+    np.testing.assert_allclose(recovered, true_rates, atol=1e-3 * 1e-8)
+
+
+def test_a_camera_shift_hook_moves_the_centroids_on_the_detector(tmp_path, monkeypatch):
+    from sofia_ros.effects.context import CameraContext
+    from sofia_ros.sensors.imager_model import shifted_centroids_px
+
+    module = _write_module(tmp_path, 'distortion_module', '''
+        import numpy as np
+        from sofia_ros.effects import EffectSpec, Parameter
+
+        def radial_px(params, context):
+            """A radial distortion of the WFI: k r^2 along the radius from the chip centre."""
+            shift = np.zeros((len(context), 2))
+            if context.camera == 'wfi':
+                dx, dy = context.detector_x_px - 511.5, context.detector_y_px - 511.5
+                shift[:, 0], shift[:, 1] = params['k_per_px2'] * (dx**2 + dy**2) * np.array([dx, dy]) / 1.0
+            return shift
+
+        EFFECTS = (EffectSpec('wfi_distortion', 'camera', 'test', 'radial distortion',
+                              (Parameter('k_per_px2', 1e-9, '1/px^2', 'cubic radial term'),),
+                              camera_shift_px=radial_px),)
+    ''')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(CATALOGUE, 'wfi_distortion', load_catalogue({PLUGIN_ENVIRONMENT_VARIABLE: module})['wfi_distortion'])
+    effects = {'wfi_distortion': {'k_per_px2': 1e-9}}
+    pixels = np.array([[511.5, 511.5], [1011.5, 511.5]])
+    context = CameraContext.at_rest('wfi', [40.0, 40.0])
+    shifted = shifted_centroids_px(camera_errors('wfi', effects), pixels, context, np.array([1, 2]))
+    np.testing.assert_allclose(shifted - pixels, [[0.0, 0.0], [1e-9 * 500.0**3, 0.0]], atol=1e-12)
+    fpi = shifted_centroids_px(camera_errors('fpi', effects), pixels, CameraContext.at_rest('fpi', [40.0, 40.0]),
+                               np.array([1, 2]))
+    np.testing.assert_array_equal(fpi, pixels)
+
+
+@pytest.mark.parametrize('kind, hook', [('camera', 'camera_shift_px'), ('camera-rotation', 'camera_rotation'),
+                                        ('gyro', 'gyro_rate_offset')])
+def test_effects_new_writes_a_template_that_loads_and_changes_nothing_at_its_default(tmp_path, monkeypatch, capsys,
+                                                                                     kind, hook):
+    from sofia_ros.cli import main
+    from sofia_ros.effects.context import CameraContext, GyroContext
+
+    name = f'my_{kind.replace("-", "_")}_effect'
+    assert main(['effects', 'new', name, '--kind', kind, '--dir', str(tmp_path)]) == 0
+    assert f'SOFIA_EFFECT_MODULES={name}' in capsys.readouterr().out
+    monkeypatch.syspath_prepend(str(tmp_path))
+    spec = load_catalogue({PLUGIN_ENVIRONMENT_VARIABLE: name})[name]
+    assert spec.hooks == (hook,)
+    context = (GyroContext.at_rest(np.arange(3.0), 20.0) if kind == 'gyro'
+               else CameraContext.at_rest('ffi', [30.0, 40.0, 50.0], temperature_c=25.0).with_detector(
+                   np.zeros((3, 2)), np.arange(3)))
+    defaults = spec.defaults()
+    np.testing.assert_array_equal(getattr(spec, hook)(defaults, context), 0.0)
+    # A non-zero parameter moves something: the template is live physics, not a stub.
+    assert np.any(getattr(spec, hook)({key: 1.0 for key in defaults}, context) != 0.0)
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['effects', 'new', 'gyro_bias', '--kind', 'gyro'], "'gyro_bias' is already an effect; choose another name"),
+    (['effects', 'new', 'Bad-Name', '--kind', 'gyro'], "'Bad-Name' must be a lower-case Python identifier"),
+    (['effects', 'new', 'fine_name'], 'usage: sofia effects new NAME --kind'),
+    (['effects', 'new', 'fine_name', '--kind', 'gyro', '--dir', '/no/such/dir'], 'directory /no/such/dir does not exist'),
+])
+def test_effects_new_refuses_bad_input_with_one_line(capsys, argv, message):
+    from sofia_ros.cli import main
+
+    assert main(argv) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and message in error
+
+
+def test_effects_new_never_overwrites(tmp_path, capsys):
+    from sofia_ros.cli import main
+
+    (tmp_path / 'taken.py').write_text('# mine\n')
+    assert main(['effects', 'new', 'taken', '--kind', 'camera', '--dir', str(tmp_path)]) == 2
+    assert 'exists; choose another name or remove it' in capsys.readouterr().err
+    assert (tmp_path / 'taken.py').read_text() == '# mine\n'
+
+
+def test_empirical_names_resolve_to_hooked_effects_and_bad_ones_say_the_grammar():
+    from sofia_ros.effects import get_effect
+    from sofia_ros.effects.context import CameraContext
+    from sofia_ros.errors import UnknownEffectError
+
+    spec = get_effect('empirical:ffi.y:elevation:poly3@20..60')
+    assert [p.name for p in spec.params] == ['p0_arcsec', 'p1_arcsec', 'p2_arcsec', 'p3_arcsec']
+    context = CameraContext.at_rest('ffi', [20.0, 40.0, 60.0])
+    shift = spec.camera_shift_px({'p0_arcsec': 0.0, 'p1_arcsec': 4.07, 'p2_arcsec': 0.0, 'p3_arcsec': 0.0}, context)
+    # P1 of elevation mapped from 20..60 onto -1..1, 4.07" = 1 FFI pixel, along rows only.
+    np.testing.assert_allclose(shift, [[0.0, -1.0], [0.0, 0.0], [0.0, 1.0]], atol=1e-12)
+    assert get_effect('empirical:gyro.los:temperature:poly3').params[0].name == 'p1_deg_per_h'
+    assert [p.name for p in get_effect('empirical:hipo.x:time:period_95.5s').params] == ['sin_arcsec', 'cos_arcsec']
+    for name, message in (('empirical:ffi.y:slew:poly3', "variable 'slew' is not available"),
+                          ('empirical:gyro.el:detector_x:poly3', "variable 'detector_x' is not available"),
+                          ('empirical:ffi.y:elevation:poly3@60..20', 'HIGH > LOW'),
+                          ('empirical:ffi.y:elevation', 'empirical terms are named')):
+        with pytest.raises(UnknownEffectError, match=message):
+            get_effect(name)

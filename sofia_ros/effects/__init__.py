@@ -1,8 +1,10 @@
-"""The catalogue of physical effects (DESIGN.md section 5), one module per family, plus plug-ins.
+"""The catalogue of physical effects (docs/effects.md), one module per family, plus plug-ins and empirical terms.
 
 A plug-in is one importable module with an ``EFFECTS`` tuple of EffectSpec whose physics is
-in the spec's ``gyro_rate_offset`` or ``camera_rotation`` hook; name its modules in the
-environment variable SOFIA_EFFECT_MODULES (comma-separated, importable from PYTHONPATH).
+in the spec's hooks (``gyro_rate_offset``, ``camera_rotation``, ``camera_shift_px``; see
+effects.base and effects.context); name its modules in the environment variable
+SOFIA_EFFECT_MODULES (comma-separated, importable from PYTHONPATH). Empirical terms
+(effects.empirical) are effects named ``empirical:<observable>:<variable>:<shape>``, made on demand.
 """
 
 from __future__ import annotations
@@ -10,13 +12,17 @@ from __future__ import annotations
 import difflib
 import importlib
 import os
+from dataclasses import dataclass
+
+import numpy as np
 
 from sofia_ros.effects import gyro, pointing
-from sofia_ros.effects.base import EffectSpec, Parameter
+from sofia_ros.effects.base import HOOKS, EffectSpec, Parameter
+from sofia_ros.effects.empirical import empirical_spec, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
 
 __all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'PLUGIN_ENVIRONMENT_VARIABLE', 'get_effect', 'resolve_params',
-           'catalogue_as_json', 'load_catalogue', 'plugin_terms']
+           'catalogue_as_json', 'load_catalogue', 'plugin_terms', 'HookTerm', 'is_empirical']
 
 PLUGIN_ENVIRONMENT_VARIABLE = 'SOFIA_EFFECT_MODULES'
 
@@ -34,10 +40,12 @@ def _checked_plugin_specs(module_name, built_in):
     for spec in specs:
         if spec.name in built_in:
             raise ConfigError(f'effect plug-in {module_name!r}: {spec.name!r} is already in the catalogue; rename it')
-        hooks = [hook for hook in (spec.gyro_rate_offset, spec.camera_rotation) if hook is not None]
-        if len(hooks) != 1 or not callable(hooks[0]):
-            raise ConfigError(f'effect plug-in {module_name!r}: {spec.name!r} needs exactly one callable hook, '
-                              'gyro_rate_offset or camera_rotation')
+        if is_empirical(spec.name):
+            raise ConfigError(f'effect plug-in {module_name!r}: {spec.name!r} uses the reserved prefix "empirical:"; '
+                              'rename it')
+        if not spec.hooks or not all(callable(getattr(spec, hook)) for hook in spec.hooks):
+            raise ConfigError(f'effect plug-in {module_name!r}: {spec.name!r} needs a callable hook: '
+                              f'{", ".join(HOOKS)}')
     return specs
 
 
@@ -55,14 +63,50 @@ def load_catalogue(environ=os.environ):
 CATALOGUE = load_catalogue()
 
 
+@dataclass(frozen=True, repr=False, eq=False)
+class HookTerm:
+    """One plug-in hook with its effect's parameters; calling it checks what the hook returns."""
+
+    spec: EffectSpec
+    hook: str
+    params: dict
+
+    def __call__(self, context):
+        """The hook's (N, columns) result for a context of N rows; ConfigError names a failing plug-in."""
+        function = getattr(self.spec, self.hook)
+        columns = HOOKS[self.hook]
+        try:
+            result = np.asarray(function(self.params, context), dtype=float)
+        except Exception as err:  # a plug-in is user code: any failure becomes one line
+            raise ConfigError(f'effect {self.spec.name!r}: its {self.hook} hook raised '
+                              f'{type(err).__name__}: {err}; fix the plug-in') from err
+        if result.shape != (len(context), columns):
+            raise ConfigError(f'effect {self.spec.name!r}: its {self.hook} hook returned shape {result.shape} for '
+                              f'{len(context)} rows; it must return ({len(context)}, {columns})')
+        if not np.all(np.isfinite(result)):
+            raise ConfigError(f'effect {self.spec.name!r}: its {self.hook} hook returned NaN or inf '
+                              f'(parameters {self.params}); fix the plug-in')
+        return result
+
+    def __repr__(self):
+        return f'HookTerm({self.spec.name!r}, {self.hook!r}, {self.params!r})'
+
+
 def plugin_terms(effects, hook):
-    """(function, parameters) of every effect in ``effects`` whose spec brings ``hook`` (a plug-in's physics)."""
-    return tuple((getattr(CATALOGUE[name], hook), params) for name, params in effects.items()
-                 if name in CATALOGUE and getattr(CATALOGUE[name], hook) is not None)
+    """HookTerms of every effect in ``effects`` whose spec brings ``hook`` (plug-ins and empirical terms)."""
+    terms = []
+    for name, params in effects.items():
+        if name in CATALOGUE or is_empirical(name):
+            spec = get_effect(name)
+            if getattr(spec, hook) is not None:
+                terms.append(HookTerm(spec, hook, params))
+    return tuple(terms)
 
 
 def get_effect(name):
-    """The catalogue entry ``name``; UnknownEffectError naming the closest names otherwise."""
+    """The catalogue entry (or empirical term) ``name``; UnknownEffectError naming the closest names otherwise."""
+    if is_empirical(name):
+        return empirical_spec(name)
     try:
         return CATALOGUE[name]
     except KeyError as err:

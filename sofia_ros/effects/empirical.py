@@ -1,0 +1,173 @@
+"""Empirical terms: generic shapes of one recorded variable on one observable, like TPOINT's harmonic terms.
+
+When the residual of a comparison holds structure that no physical effect explains, a generic
+shape of the variable it follows can still be fitted, ranked by delta-BIC beside the physical
+candidates, and kept in a model (`sofia model add`) while the physics is worked out. An
+empirical term is an effect whose name says what it is:
+
+    empirical:<observable>:<variable>:<shape>
+
+- observable: a camera axis ``hipo.x``, ``fpi.y``, ... (pixel column X / row Y) or a gyro axis
+  ``gyro.el``, ``gyro.xel``, ``gyro.los`` (GYRF);
+- variable: see VARIABLES (cameras) and GYRO_VARIABLES (gyros);
+- shape: ``poly3@LOW..HIGH`` (Legendre polynomials P0..P3 of the variable mapped from LOW..HIGH
+  onto -1..1, the range the data covered; gyro terms leave out P0, which is gyro_bias), ``poly3``
+  (the same over the variable's nominal range, VARIABLES) or ``period_<P>s`` (a sinusoid of
+  period P seconds in time).
+
+Camera terms shift the centroids on the detector (arcsec along the pixel axis, through the
+camera's nominal scale); gyro terms add a rate (deg/h) to one gyro axis. Both are ordinary
+plug-in hooks (effects.context), so the truth simulator could carry them too.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+
+import numpy as np
+from numpy.polynomial import legendre
+
+from sofia_ros.effects.base import EffectSpec, Parameter
+from sofia_ros.errors import UnknownEffectError
+from sofia_ros.frames import FFI, FPI, HIPO_2004, WFI
+from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
+
+__all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_VARIABLES', 'POLY_DEGREE',
+           'empirical_spec', 'empirical_name', 'is_empirical', 'variable_values']
+
+PREFIX = 'empirical:'
+_DETECTORS = {'hipo': HIPO_2004, 'fpi': FPI, 'ffi': FFI, 'wfi': WFI}
+CAMERA_OBSERVABLES = tuple(f'{camera}.{axis}' for camera in _DETECTORS for axis in ('x', 'y'))
+GYRO_AXES = ('el', 'xel', 'los')
+GYRO_OBSERVABLES = tuple(f'gyro.{axis}' for axis in GYRO_AXES)
+POLY_DEGREE = 3
+_RAD_PER_S_PER_DEG_PER_H = RAD_PER_DEG / 3600.0
+
+
+def _force_g(axis):
+    return lambda context: context.specific_force_m_per_s2[:, axis] / STANDARD_GRAVITY_M_PER_S2
+
+
+#: Variable -> (value of a context, centre, half range, unit). The fixed ranges keep a fitted
+#: term meaningful in another campaign: the coarse drive's 16.5-68.5 deg, the fine drive's +-3 deg.
+VARIABLES = {
+    'elevation': (lambda c: c.elevation_deg, 42.5, 26.0, 'deg'),
+    'time': (lambda c: c.time_s, 0.0, 3600.0, 's'),
+    'temperature': (lambda c: c.temperature_c, 22.8, 10.0, 'C'),
+    'los_angle': (lambda c: c.los_angle_deg, 0.0, 3.0, 'deg'),
+    'specific_force_el': (_force_g(0), 0.0, 1.0, 'g'),
+    'specific_force_xel': (_force_g(1), 0.0, 1.0, 'g'),
+    'specific_force_los': (_force_g(2), 0.0, 1.0, 'g'),
+    'detector_x': (lambda c: c.detector_x_px, None, None, 'px'),
+    'detector_y': (lambda c: c.detector_y_px, None, None, 'px'),
+}
+GYRO_VARIABLES = ('time', 'temperature', 'specific_force_el', 'specific_force_xel', 'specific_force_los')
+_NUMBER = r'-?[0-9]+(?:\.[0-9]+)?(?:e-?[0-9]+)?'
+_NAME = re.compile(r'^empirical:(?P<observable>[a-z]+\.[a-z]+):(?P<variable>[a-z_]+):'
+                   rf'(?P<shape>poly3(?:@(?P<low>{_NUMBER})\.\.(?P<high>{_NUMBER}))?|period_(?P<period>{_NUMBER})s)$')
+
+
+def is_empirical(name):
+    """True for a name of the empirical form."""
+    return isinstance(name, str) and name.startswith(PREFIX)
+
+
+def empirical_name(observable, variable, period_s=None, range_=None):
+    """The effect name of a polynomial (over ``range_`` (low, high), or the nominal range) or periodic term."""
+    if period_s is not None:
+        shape = f'period_{period_s:.4g}s'
+    elif range_ is not None:
+        shape = f'poly{POLY_DEGREE}@{range_[0]:.4g}..{range_[1]:.4g}'
+    else:
+        shape = f'poly{POLY_DEGREE}'
+    return f'{PREFIX}{observable}:{variable}:{shape}'
+
+
+def _scaled(variable, camera, values, range_):
+    """The variable mapped onto [-1, 1] over the given range, else its nominal one (detector axes: the chip)."""
+    _, centre, half, _ = VARIABLES[variable]
+    if range_ is not None:
+        centre, half = (range_[0] + range_[1]) / 2.0, (range_[1] - range_[0]) / 2.0
+    elif centre is None:
+        detector = _DETECTORS[camera]
+        x_axis = variable == 'detector_x'
+        centre = detector.center_x_px if x_axis else detector.center_y_px
+        half = (detector.width_px if x_axis else detector.height_px) / 2.0
+    return (np.asarray(values, dtype=float) - centre) / half
+
+
+def variable_values(variable, context):
+    """The values of a variable in a hook context."""
+    return np.asarray(VARIABLES[variable][0](context), dtype=float)
+
+
+def _basis(variable, camera, context, degrees, period_s, range_):
+    """Shape columns (N, k): Legendre P_degrees of the scaled variable, or sin/cos of time."""
+    values = variable_values(variable, context)
+    if period_s is not None:
+        phase = 2.0 * np.pi * values / period_s
+        return np.column_stack([np.sin(phase), np.cos(phase)])
+    scaled = _scaled(variable, camera, values, range_)
+    return np.column_stack([legendre.legval(scaled, np.eye(POLY_DEGREE + 1)[degree]) for degree in degrees])
+
+
+@functools.lru_cache(maxsize=256)
+def empirical_spec(name):
+    """The EffectSpec of an empirical term name; UnknownEffectError explains the grammar otherwise."""
+    match = _NAME.match(name)
+    hint = ('empirical terms are named empirical:<observable>:<variable>:<poly3|period_<P>s>, e.g. '
+            'empirical:ffi.y:elevation:poly3 or empirical:hipo.x:time:period_95s (poly3@LOW..HIGH: over that range)')
+    if match is None:
+        raise UnknownEffectError(f'unknown effect {name!r}; {hint}')
+    observable, variable = match['observable'], match['variable']
+    period_s = float(match['period']) if match['period'] else None
+    range_ = (float(match['low']), float(match['high'])) if match['low'] else None
+    if range_ is not None and not range_[1] > range_[0]:
+        raise UnknownEffectError(f'{name!r}: the range must be LOW..HIGH with HIGH > LOW; {hint}')
+    gyro = observable in GYRO_OBSERVABLES
+    if observable not in CAMERA_OBSERVABLES and not gyro:
+        raise UnknownEffectError(f'{name!r}: unknown observable {observable!r} (known: '
+                                 f'{", ".join(CAMERA_OBSERVABLES + GYRO_OBSERVABLES)})')
+    allowed = ('time',) if period_s is not None else (GYRO_VARIABLES if gyro else tuple(VARIABLES))
+    if variable not in allowed:
+        raise UnknownEffectError(f'{name!r}: variable {variable!r} is not available here (known: {", ".join(allowed)})')
+    if period_s is not None and period_s <= 0.0:
+        raise UnknownEffectError(f'{name!r}: the period must be positive; {hint}')
+    unit = 'deg/h' if gyro else 'arcsec'
+    if period_s is not None:
+        labels, degrees = ('sin', 'cos'), None
+        what = f'a sinusoid of period {period_s:g} s'
+    else:
+        degrees = tuple(range(1 if gyro else 0, POLY_DEGREE + 1))
+        labels = tuple(f'p{degree}' for degree in degrees)
+        span = f'{range_[0]:g}..{range_[1]:g}' if range_ else 'its nominal range'
+        what = f'Legendre polynomials P{degrees[0]}-P{POLY_DEGREE} of {variable} over {span}'
+    params = tuple(Parameter(f'{label}_{"deg_per_h" if gyro else "arcsec"}', 0.0, unit,
+                             f'coefficient of {label} ({unit})') for label in labels)
+    if gyro:
+        axis = GYRO_AXES.index(observable.split('.')[1])
+
+        def rate_offset(values, context):
+            coefficients = np.array([values[param.name] for param in params])
+            offsets = np.zeros((len(context), 3))
+            offsets[:, axis] = _basis(variable, None, context, degrees, period_s, range_) @ coefficients
+            return offsets * _RAD_PER_S_PER_DEG_PER_H
+
+        hooks = {'gyro_rate_offset': rate_offset}
+    else:
+        camera, pixel_axis = observable.split('.')
+        column = ('x', 'y').index(pixel_axis)
+        scale_arcsec_per_px = _DETECTORS[camera].scale_arcsec_per_px
+
+        def shift_px(values, context):
+            shift = np.zeros((len(context), 2))
+            if context.camera == camera:
+                coefficients = np.array([values[param.name] for param in params])
+                shift[:, column] = _basis(variable, camera, context, degrees, period_s, range_) @ coefficients
+            return shift / scale_arcsec_per_px
+
+        hooks = {'camera_shift_px': shift_px}
+    return EffectSpec(name, 'empirical', 'empirical (no thesis section)',
+                      f'{what} added to {observable} ({unit}): a shape the residual followed, to be '
+                      'replaced by the physics behind it', params, **hooks)

@@ -1,0 +1,124 @@
+"""`sofia effects new NAME --kind KIND`: a plug-in module to fill in, one hook and its parameters.
+
+The template is a working effect (its default parameter is zero, so it changes nothing until
+given a value): the user replaces the one marked line with the physics the residual showed.
+"""
+
+from __future__ import annotations
+
+import keyword
+from pathlib import Path
+
+from sofia_ros.errors import ConfigError
+
+__all__ = ['KINDS', 'plugin_template', 'write_plugin_template']
+
+_HEADER = '''"""{name}: {summary}
+
+Written by `sofia effects new {name} --kind {kind}`. Use it with
+
+    SOFIA_EFFECT_MODULES={name} PYTHONPATH={folder} sofia compare BAG --model MODEL.yaml
+
+then `sofia model add {name} --model MODEL.yaml` makes it a fitted term; a truth file may
+carry it too (the simulator calls the same hook). The context's fields, frames and signs:
+docs/effects.md ("Plug-in hooks").
+"""
+
+import numpy as np
+
+from sofia_ros.effects import EffectSpec, Parameter
+'''
+
+#: kind -> (one-line summary, hook name, the hook's source, parameter line)
+KINDS = {
+    'camera': (
+        'a shift of one camera\'s centroids on its detector',
+        'camera_shift_px',
+        '''
+
+def {name}_shift_px(params, context):
+    """Pixels (X, Y) added to each centroid of the FFI: here proportional to the elevation above 40 deg."""
+    shift = np.zeros((len(context), 2))
+    if context.camera == 'ffi':  # hipo, fpi, ffi or wfi
+        # context: time_s, elevation_deg, temperature_c, specific_force_m_per_s2 (N, 3, TARF), los_angle_deg,
+        # detector_x_px, detector_y_px, hip. Replace this line with the physics:
+        shift[:, 1] = params['gain_arcsec_per_deg'] * (context.elevation_deg - 40.0) / 4.07  # FFI: 4.07"/px
+    return shift
+''',
+        "Parameter('gain_arcsec_per_deg', 0.0, 'arcsec/deg', 'shift along rows per degree of elevation above 40')",
+    ),
+    'camera-rotation': (
+        'a rotation of one camera\'s frame against TARF',
+        'camera_rotation',
+        '''
+
+def {name}_rotation_arcsec(params, context):
+    """Rotation (about EL, XEL, LOS) ["] of the FFI frame: here about XEL, with the temperature."""
+    rotation = np.zeros((len(context), 3))
+    if context.camera == 'ffi':  # hipo, fpi, ffi or wfi
+        # context: time_s, elevation_deg, temperature_c, specific_force_m_per_s2 (N, 3, TARF), los_angle_deg.
+        # +EL moves a star on the LOS to +Y rows, +XEL to -X columns. Replace this line with the physics:
+        rotation[:, 1] = params['xel_arcsec_per_c'] * (context.temperature_c - 22.8)
+    return rotation
+''',
+        "Parameter('xel_arcsec_per_c', 0.0, 'arcsec/C', 'rotation about XEL per degree C above 22.8')",
+    ),
+    'gyro': (
+        'a rate every gyro axis reads on top of the true one',
+        'gyro_rate_offset',
+        '''
+
+def {name}_rate_rad_per_s(params, context):
+    """Rate (GYRF EL, XEL, LOS) [rad/s] the gyros read in addition: here a LOS bias with the specific force."""
+    offsets = np.zeros((len(context), 3))
+    # context: time_s, temperature_c, specific_force_m_per_s2 (N, 3, TARF), rates_rad_per_s (N, 3, GYRF).
+    # Replace this line with the physics:
+    g_along_los = context.specific_force_m_per_s2[:, 2] / 9.80665
+    offsets[:, 2] = params['los_deg_per_h_per_g'] * g_along_los * np.pi / 180.0 / 3600.0
+    return offsets
+''',
+        "Parameter('los_deg_per_h_per_g', 0.0, 'deg/h/g', 'LOS bias per g of specific force along the LOS')",
+    ),
+}
+
+_FOOTER = '''
+
+EFFECTS = (
+    EffectSpec(
+        {name!r}, 'plug-in', 'user plug-in',
+        {summary!r},
+        ({parameter},),
+        {hook}={function},
+    ),
+)
+'''
+
+
+def plugin_template(name, kind, folder='.'):
+    """The source of a plug-in module NAME of KIND; ConfigError for a name or kind that cannot work."""
+    if kind not in KINDS:
+        raise ConfigError(f'unknown plug-in kind {kind!r}; choose one of {", ".join(KINDS)}')
+    if not name.isidentifier() or keyword.iskeyword(name) or not name.islower():
+        raise ConfigError(f'plug-in name {name!r} must be a lower-case Python identifier (e.g. ffi_thermal_shift)')
+    from sofia_ros.effects import CATALOGUE
+
+    if name in CATALOGUE:
+        raise ConfigError(f'{name!r} is already an effect; choose another name')
+    summary, hook, source, parameter = KINDS[kind]
+    function = {'camera_shift_px': f'{name}_shift_px', 'camera_rotation': f'{name}_rotation_arcsec',
+                'gyro_rate_offset': f'{name}_rate_rad_per_s'}[hook]
+    return (_HEADER.format(name=name, summary=summary, kind=kind, folder=folder) + source.format(name=name)
+            + _FOOTER.format(name=name, summary=summary, parameter=parameter, hook=hook, function=function))
+
+
+def write_plugin_template(name, kind, directory='.'):
+    """Write NAME.py into ``directory`` (which must exist; the file must not); return its path."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise ConfigError(f'directory {directory} does not exist; create it or give another --dir')
+    path = directory / f'{name}.py'
+    text = plugin_template(name, kind, str(directory))
+    if path.exists():
+        raise ConfigError(f'{path} exists; choose another name or remove it')
+    path.write_text(text)
+    return path

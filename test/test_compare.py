@@ -89,6 +89,7 @@ def test_null_truth_equals_model_no_candidate_and_rms_at_the_floor(null_bag, mod
         if term['effect'] == 'gyro_misalignment':
             assert abs(term['value'] - truth[term['param']]) <= 3.0 * term['sigma']
     assert {'heading_error', 'accelerometer_bias'} <= set(document['unobservable'])
+    assert document['verdict']['status'] == 'explained', document['verdict']['text']
 
 
 def test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scale_factor(tmp_path, model):
@@ -107,12 +108,13 @@ def test_cli_loop_compare_add_compare_shows_the_error_falling(tmp_path, capsys):
     assert main(['compare', str(bag), '--model', str(model_path), '--json', str(tmp_path / 'a.json'),
                  '--report', str(report)]) == 0
     first = capsys.readouterr().out
-    assert 'verdict: missing effect fpi_internal_flexure' in first
+    assert 'verdict: missing_effect: ' in first and 'missing effect fpi_internal_flexure' in first
+    assert 'with it every observable is explained' in first
     assert main(['model', 'add', 'fpi_internal_flexure', '--model', str(model_path)]) == 0
     assert 'fpi_internal_flexure' in load_effect_config(model_path).fitted
     assert main(['compare', str(bag), '--model', str(model_path), '--json', str(tmp_path / 'b.json'),
                  '--report', str(report)]) == 0
-    assert 'explains the data to the noise' in capsys.readouterr().out
+    assert 'verdict: explained: the model explains every observable' in capsys.readouterr().out
     import json
 
     before, after = (json.loads((tmp_path / name).read_text()) for name in ('a.json', 'b.json'))
@@ -120,8 +122,11 @@ def test_cli_loop_compare_add_compare_shows_the_error_falling(tmp_path, capsys):
     assert {'index.html', 'residuals.png', 'vectors.png', 'ledger.png', 'ledger.json'} <= {
         p.name for p in report.iterdir()}
     assert len(json.loads((report / 'ledger.json').read_text())) == 2
-    for key in ('residual_rms_arcsec', 'noise_floor_arcsec', 'candidates', 'degenerate'):
+    for key in ('residual_rms_arcsec', 'noise_floor_arcsec', 'candidates', 'degenerate', 'verdict', 'signature'):
         assert key in after
+    assert (before['verdict']['status'], after['verdict']['status']) == ('missing_effect', 'explained')
+    assert not before['verdict']['observables']['fpi.x']['explained']
+    assert all(entry['explained'] for entry in after['verdict']['observables'].values())
     assert {'total', 'hipo', 'fpi', 'ffi', 'wfi'} <= set(after['residual_rms_arcsec'])
 
 

@@ -14,6 +14,7 @@ whose explained signatures coincide are named degenerate instead of ranked as a 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,8 +37,8 @@ __all__ = [
 SIGNIFICANT_DELTA_BIC = 6.0
 #: Explained signatures this collinear (cosine) cannot be told apart by the data.
 DEGENERATE_COSINE = 0.98
-#: A candidate whose columns keep less than this fraction of their norm outside the base span is unobservable.
-UNOBSERVABLE_FRACTION = 1e-3
+#: Columns that keep less than this fraction of their norm outside the base span are the base's own (numerically).
+IN_BASE_SPAN_FRACTION = 1e-9
 
 
 def bic(rss, n, k):
@@ -137,13 +138,20 @@ def linear_fit(residual, jacobian, names):
 
 @dataclass(frozen=True)
 class CandidateTerm:
-    """A term not in the model: its parameter names, starting values, Jacobian columns and switch-on shift."""
+    """A term not in the model: its parameter names, starting values, Jacobian columns and switch-on shift.
+
+    ``reference`` is the size at which the effect is expected (e.g. the thesis' magnitudes), one
+    value per parameter (0 for a parameter that shapes rather than scales): a candidate that
+    could not reach significance even at that size is reported as not observable. None: no
+    expected size (every candidate that has columns outside the base span is observable).
+    """
 
     name: str
     param_names: tuple
     start: np.ndarray
     jacobian: np.ndarray
     shift: np.ndarray | None = None
+    reference: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -157,6 +165,9 @@ class RankedCandidate:
     delta_bic: float
     observable: bool = True
     degenerate_with: tuple = field(default_factory=tuple)
+    #: The chi-square drop the term would bring at its reference size, against the bound it must reach.
+    detectable_chi2: float | None = None
+    detection_bound_chi2: float | None = None
 
     @property
     def significant(self):
@@ -168,9 +179,13 @@ def rank_candidates(residual, base_jacobian, candidates):
     """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (DESIGN.md 6).
 
     ``residual`` is measured minus predicted by the fitted base model, ``base_jacobian`` its
-    columns (d prediction / d parameter), both already weighted. A candidate that the base terms
-    absorb completely is returned with ``observable=False`` and delta-BIC 0; candidates whose
-    explained signatures are collinear are listed in each other's ``degenerate_with``.
+    columns (d prediction / d parameter), both already weighted. Observability is a question of
+    significance, not of column norms: a candidate is observable when it lowers the BIC
+    significantly, or when it would at its reference size (the chi-square drop
+    |P_perp J_c reference|^2 reaching k ln n + SIGNIFICANT_DELTA_BIC); one that the base terms
+    absorb completely is returned with ``observable=False`` and delta-BIC 0. Parameters the data
+    do not determine get an infinite sigma while the others keep theirs (pseudo-inverse).
+    Candidates whose explained signatures are collinear are listed in each other's ``degenerate_with``.
     """
     residual, base_jacobian = _checked(residual, base_jacobian)
     n, k_base = base_jacobian.shape
@@ -189,19 +204,29 @@ def rank_candidates(residual, base_jacobian, candidates):
         target = residual if term.shift is None else residual - np.asarray(term.shift, dtype=float)
         columns_perp, target_perp = project_out(columns), project_out(target)
         outside = np.linalg.norm(columns_perp, axis=0) / np.maximum(np.linalg.norm(columns, axis=0), 1e-300)
-        if np.all(outside < UNOBSERVABLE_FRACTION):
+        bound = len(term.param_names) * np.log(n) + SIGNIFICANT_DELTA_BIC
+        if np.all(outside < IN_BASE_SPAN_FRACTION):
             ranked.append(RankedCandidate(term.name, dict(zip(term.param_names, map(float, term.start))),
                                           {name: float('inf') for name in term.param_names}, rss_base, 0.0,
-                                          observable=False))
+                                          observable=False, detectable_chi2=0.0, detection_bound_chi2=bound))
             continue
         fit = linear_fit(target_perp, columns_perp, term.param_names)
         explained = residual_perp - (target_perp - columns_perp @ fit.step)
         signatures[term.name] = explained
         values = np.asarray(term.start, dtype=float) + fit.step
         delta = bic_base - bic(fit.rss, n, k_base + len(term.param_names))
+        detectable = None
+        if term.reference is not None:
+            # In units of the fit's own scatter: the whitened rows are in units of their noise only when the model holds.
+            scatter = rss_base / max(n - k_base, 1)
+            signal = columns_perp @ np.asarray(term.reference, dtype=float)
+            detectable = float(signal @ signal) / scatter
+        observable = bool(np.any(np.isfinite(fit.sigma))) and (
+            delta >= SIGNIFICANT_DELTA_BIC or detectable is None or detectable >= bound)
         ranked.append(RankedCandidate(term.name, dict(zip(term.param_names, map(float, values))),
                                       dict(zip(term.param_names, map(float, fit.sigma))), fit.rss, delta,
-                                      observable=bool(np.all(np.isfinite(fit.sigma)))))
+                                      observable=observable, detectable_chi2=detectable,
+                                      detection_bound_chi2=bound))
     ranked = _with_degeneracies(ranked, signatures)
     return sorted(ranked, key=lambda candidate: (not candidate.observable, -candidate.delta_bic))
 
@@ -220,8 +245,7 @@ def _with_degeneracies(ranked, signatures):
             if abs(unit[first] @ unit[second]) >= DEGENERATE_COSINE:
                 pairs[first].append(second)
                 pairs[second].append(first)
-    return [RankedCandidate(c.name, c.params, c.sigma, c.rss_after, c.delta_bic, c.observable,
-                            tuple(pairs.get(c.name, ()))) for c in ranked]
+    return [dataclasses.replace(c, degenerate_with=tuple(pairs.get(c.name, ()))) for c in ranked]
 
 
 def degenerate_pairs(ranked, delta_bic_by_name=None):

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from sofia_ros.compare.diagnostics import distinct_findings
 from sofia_ros.errors import ConfigError
 
 __all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'write_text_atomically']
@@ -56,6 +57,8 @@ def _json_ready(value):
         return float(value) if np.isfinite(value) else None
     if isinstance(value, np.integer):
         return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
     return value
 
 
@@ -94,9 +97,9 @@ def print_comparison(document, out):
         rms = row['residual_rms_arcsec']
         name = row['term'] if row is document['ledger'][0] else '+ ' + row['term']
         print(f'  {name:<40} {rms["total"]:>7.3f}' + ''.join(f' {rms[camera]:>7.3f}' for camera in cameras), file=out)
-    print(f'candidates (catalogue effects not in the model), best first; significant at delta-BIC >= '
+    print(f'candidates (catalogue effects not in the model, empirical shapes), best first; significant at delta-BIC >= '
           f'{document["significant_delta_bic"]:g}:', file=out)
-    for candidate in [c for c in document['candidates'] if c['observable']][:6]:
+    for candidate in [c for c in document['candidates'] if c['detectable']][:6]:
         mark = '*' if candidate['delta_bic'] >= document['significant_delta_bic'] else ' '
         print(f' {mark}{candidate["effect"]:<28} dBIC {candidate["delta_bic"]:>10.1f}  RMS after '
               f'{candidate["rms_after_arcsec"]:.3f}"  {"refit" if candidate["refined"] else "linear"}', file=out)
@@ -109,6 +112,7 @@ def print_comparison(document, out):
               file=out)
     if 'star_hop' in document:
         _print_star_hop(document['star_hop'], out)
+    _print_diagnostics(document, out)
     _print_verdict(document, out)
 
 
@@ -169,32 +173,37 @@ def _spread(sigma, spec):
     return 'unconstrained' if sigma is None else f'+- {sigma:{spec}}'
 
 
-def _print_verdict(document, out):
-    significant = [c for c in document['candidates'] if c['observable']
-                   and c['delta_bic'] >= document['significant_delta_bic']]
-    floor = document['noise_floor_arcsec']
-    ratio = document['residual_rms_arcsec']['total'] / floor
-    if significant:
-        best = significant[0]
-        tied = [pair for pair in document['degenerate'] if best['effect'] in pair]
-        if tied:
-            print(f'verdict: the residual needs {" or ".join(tied[0])}; the data cannot choose', file=out)
+def _print_diagnostics(document, out):
+    """Every observable against its floor, then the strongest structure and the inconsistent terms."""
+    observables = document['verdict']['observables']
+    print('observables: residual RMS against its own floor (camera axes: centroid noise; gyro axes: the anchor '
+          'walk the gyro noise allows)', file=out)
+    cells = [f'{name} {entry["rms_arcsec"]:.3f}/{entry["floor_arcsec"]:.3f}"{"" if entry["explained"] else " !"}'
+             for name, entry in observables.items()]
+    for start in range(0, len(cells), 4):
+        print('  ' + '   '.join(f'{cell:<26}' for cell in cells[start:start + 4]).rstrip(), file=out)
+    signature = document['signature']
+    findings = distinct_findings([*signature['trends'], *signature['periods']])
+    if findings:
+        print(f'structure in the residual (family-wise significance over {signature["tests_run"]} tests; '
+              f'structure from {signature["detection_sigma"]:g} sigma):', file=out)
+    for finding in findings[:5]:
+        if 'period_s' in finding:
+            what = f'period {finding["period_s"]:.4g} s'
         else:
-            print(f'verdict: missing effect {best["effect"]} (RMS {document["residual_rms_arcsec"]["total"]:.3f}" -> '
-                  f'{best["rms_after_arcsec"]:.3f}", floor {floor:.3f}"); add it with '
-                  f'`sofia model add {best["effect"]} --model {document["model"]}`', file=out)
-        return
-    if ratio <= 1.2:
-        print(f'verdict: the model explains the data to the noise (RMS / floor = {ratio:.2f}); no candidate is needed',
+            same = finding['equivalent_variables']
+            what = f'follows {finding["variable"]}' + (f' (= {", ".join(same)} here)' if same else '')
+        print(f'  {finding["observable"]:<9} {what:<58} {finding["amplitude_arcsec"]:7.3f}" '
+              f'{finding["significance_sigma"]:5.1f} sigma', file=out)
+    for entry in document['consistency'][:3]:
+        print(f'  {entry["param"]} changes with {entry["split"]}: {entry["values"][0]:.4g} +- {entry["sigmas"][0]:.2g} '
+              f'against {entry["values"][1]:.4g} +- {entry["sigmas"][1]:.2g} ({entry["significance_sigma"]:.0f} sigma)',
               file=out)
-        return
-    print(f'verdict: RMS / floor = {ratio:.2f} and no catalogue effect explains it; where the model fails:', file=out)
-    for trend in document['signature']['trends'][:3]:
-        print(f'  {trend["observable"]} trends with {trend["variable"]}: {trend["change_over_range_arcsec"]:+.2f}" '
-              f'over its range ({trend["significance_sigma"]:.0f} sigma)', file=out)
-    for period in document['signature']['periods'][:2]:
-        print(f'  {period["observable"]}: period {period["period_s"]:.0f} s, amplitude {period["amplitude_arcsec"]:.2f}"',
-              file=out)
+
+
+def _print_verdict(document, out):
+    verdict = document['verdict']
+    print(f'verdict: {verdict["status"]}: {verdict["text"]}', file=out)
 
 
 def run_compare(args, out):

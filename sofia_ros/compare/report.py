@@ -1,7 +1,8 @@
 """The `sofia compare --report DIR` page: where the model fails, at a glance (PNG plots + HTML).
 
-Residuals against elevation, time, slew angle, LOS angle and temperature per camera, before
-and after the best candidate; residual vectors in each detector's pixel plane; the ledger of
+The verdict, every observable against its floor, the structure found (with a plot of the
+strongest findings) and the inconsistent terms; residuals against the frame variables per
+camera, before and after the best candidate; residual vectors in each detector's pixel plane; the ledger of
 this run and of every earlier run written to the same directory (ledger.json), so adding an
 effect and comparing again shows the error falling.
 """
@@ -21,7 +22,7 @@ import matplotlib.pyplot as plt  # noqa: E402  (the backend must be chosen first
 import numpy as np  # noqa: E402
 
 from sofia_ros.analysis.centroid_drift import line_and_sinusoid_px  # noqa: E402
-from sofia_ros.compare.scan import VARIABLES, row_variables  # noqa: E402
+from sofia_ros.compare.diagnostics import FRAME_VARIABLES, distinct_findings, row_variables  # noqa: E402
 from sofia_ros.compare.star_hop import hold_rows  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
 
@@ -45,11 +46,11 @@ def _residual_plot(result, fits, path):
     centroids = observations.centroids
     predictor_variables = [row_variables(observations, fit, result.predictor) for _, fit in fits]
     cameras = centroids.cameras
-    figure, axes = plt.subplots(len(cameras), len(VARIABLES), figsize=(3.2 * len(VARIABLES), 2.4 * len(cameras)),
+    figure, axes = plt.subplots(len(cameras), len(FRAME_VARIABLES), figsize=(3.2 * len(FRAME_VARIABLES), 2.4 * len(cameras)),
                                 squeeze=False, sharey='row')
     for row, camera in enumerate(cameras):
         rows = centroids.camera_index == row
-        for column, (key, label) in enumerate(VARIABLES.items()):
+        for column, key in enumerate(FRAME_VARIABLES):
             axis = axes[row, column]
             for (name, fit), variables, colour in zip(fits, predictor_variables, ('tab:red', 'tab:blue')):
                 # Every row is drawn: when one camera fails, all its rows are "outliers".
@@ -201,6 +202,56 @@ def _centroid_drift_plot(holds, centroids, path):
     plt.close(figure)
 
 
+def _signature_plot(result, document, path):
+    """The strongest findings: each camera finding over its rows (bin means and the fitted shape), gyro shapes."""
+    centroids = result.observations.centroids
+    variables = row_variables(result.observations, result.final_fit, result.predictor)
+    findings = distinct_findings([*document['signature']['trends'], *document['signature']['periods']])[:6]
+    figure, axes = plt.subplots(2, 3, figsize=(12, 6.4), squeeze=False)
+    for axis, finding in zip(axes.ravel(), findings):
+        observable = finding['observable']
+        source, component = observable.split('.')
+        title = f'{observable}: {finding["significance_sigma"]:.1f} sigma'
+        if source in centroids.cameras:
+            rows = centroids.camera_index == centroids.cameras.index(source)
+            residual = result.final_fit.residual_arcsec[rows, 'xy'.index(component)]
+            if 'period_s' in finding:
+                phase = np.mod(variables['time'][rows], finding['period_s']) / finding['period_s']
+                axis.plot(phase, residual, ',', color='tab:red', alpha=0.3)
+                centres, means = _binned_means(phase, residual)
+                axis.plot(centres, means, 'o-', color='k', ms=3)
+                axis.set_xlabel(f'phase of {finding["period_s"]:.4g} s')
+            else:
+                values = variables[finding['variable']][rows]
+                axis.plot(values, residual, ',', color='tab:red', alpha=0.3)
+                if np.ptp(values) > 0:
+                    centres, means = _binned_means(values, residual)
+                    axis.plot(centres, means, 'o', color='k', ms=3, label='bin means')
+                if finding['variable'] != 'star':
+                    shape = finding['shape']
+                    axis.plot(shape['centres'], np.array(shape['values_arcsec']) + np.mean(residual), '-',
+                              color='tab:blue', label='fitted shape (P0-P3)')
+                axis.set_xlabel(finding['variable'])
+        else:
+            if 'period_s' in finding:
+                axis.text(0.5, 0.5, f'period {finding["period_s"]:.4g} s\namplitude {finding["amplitude_arcsec"]:.3f}"',
+                          ha='center', va='center', transform=axis.transAxes)
+            else:
+                shape = finding['shape']
+                axis.plot(shape['centres'], shape['values_arcsec'], '-', color='tab:blue')
+                axis.set_xlabel(finding['variable'])
+            title += ' (anchor walk, studentized)'
+        axis.axhline(0.0, color='k', lw=0.5)
+        axis.set_ylabel('residual ["]')
+        axis.set_title(title, fontsize=9)
+    for axis in axes.ravel()[len(findings):]:
+        axis.set_visible(False)
+    figure.suptitle('Structure left in the residual, strongest first (every row drawn; none dropped)')
+    figure.tight_layout()
+    figure.savefig(path, dpi=90)
+    plt.close(figure)
+
+
 def _table(headers, rows):
     head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in headers)
     body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>' for row in rows)
@@ -216,13 +267,25 @@ def _page(document, runs):
                        ', '.join(f'{k} = {v:.4g} +- {c["sigma"][k] if c["sigma"][k] is not None else float("inf"):.2g} '
                                  f'{c["units"][k]}' for k, v in c['params'].items()),
                        'refit' if c['refined'] else 'linear']
-                      for c in document['candidates'] if c['observable']]
+                      for c in document['candidates'] if c['detectable']]
     term_rows = [[t['effect'], t['param'], f'{t["value"]:.4f}', 'unconstrained' if t['sigma'] is None else f'{t["sigma"]:.4f}',
                   t['unit']] for t in document['terms']]
     run_rows = [[index + 1, run['model'], run['last_term'], f'{run["residual_rms_arcsec"]["total"]:.3f}',
                  f'{run["noise_floor_arcsec"]:.3f}', run['top_candidate']] for index, run in enumerate(runs)]
     degenerate = ''.join(f'<li>{html.escape(a)} and {html.escape(b)} cannot be told apart by this campaign</li>'
                          for a, b in document['degenerate'])
+    verdict = document['verdict']
+    observable_rows = [[name, entry['kind'], f'{entry["rms_arcsec"]:.3f}', f'{entry["floor_arcsec"]:.3f}',
+                        f'{entry["ratio"]:.2f}', 'yes' if entry['explained'] else 'NO', ', '.join(entry['structure'])]
+                       for name, entry in verdict['observables'].items()]
+    finding_rows = [[f['observable'], f'period {f["period_s"]:.4g} s' if 'period_s' in f else f['variable'],
+                     ', '.join(f.get('equivalent_variables', [])), f'{f["amplitude_arcsec"]:.3f}',
+                     f'{f["significance_sigma"]:.1f}']
+                    for f in sorted([*document['signature']['trends'], *document['signature']['periods']],
+                                    key=lambda f: -f['significance_sigma'])]
+    consistency_rows = [[c['param'], c['split'], f'{c["values"][0]:.4g} +- {c["sigmas"][0]:.2g}',
+                         f'{c["values"][1]:.4g} +- {c["sigmas"][1]:.2g}', f'{c["significance_sigma"]:.1f}']
+                        for c in document['consistency']]
     return f'''<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>sofia compare: {html.escape(document["bag"])}</title>
 <style>body{{font-family:sans-serif;margin:2em}}table{{border-collapse:collapse;margin:1em 0}}
@@ -231,6 +294,15 @@ td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}</style></head><bod
 <p>Bag <code>{html.escape(document["bag"])}</code>, model <code>{html.escape(document["model"])}</code>.
 Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {document["residual_rms_arcsec"]["total"]:.3f}";
 {document["outliers"]} outliers flagged.</p>
+<h2>Verdict: {html.escape(verdict["status"])}</h2><p>{html.escape(verdict["text"])}</p>
+<h2>Every observable against its own floor</h2>
+{_table(["observable", "kind", "RMS [arcsec]", "floor [arcsec]", "ratio", "explained", "structure"], observable_rows)}
+<h2>Structure in the residual</h2><p>Family-wise significance over {document["signature"]["tests_run"]} tests
+(structure from {document["signature"]["detection_sigma"]:g} sigma; listed from 3).</p>
+{_table(["observable", "variable or period", "same as (here)", "amplitude [arcsec]", "sigma"], finding_rows)}
+{'<img src="signature.png" alt="strongest findings">' if finding_rows else ''}
+<h2>Fitted terms that change between halves of the data</h2>
+{_table(["term", "split", "one half", "other half", "sigma"], consistency_rows) if consistency_rows else '<p>none</p>'}
 <h2>Where the model fails</h2><img src="residuals.png" alt="residuals against variables">
 <img src="vectors.png" alt="residual vectors in the detector planes">
 {'<h2>Star hop (6.2, 6.3)</h2><img src="star_hop.png" alt="star hop">' if 'star_hop' in document else ''}
@@ -259,7 +331,7 @@ def write_report(result, document, directory):
         except json.JSONDecodeError as err:
             raise ConfigError(f'{ledger_path} is not a ledger written by sofia compare; remove it') from err
     top = next((c['effect'] for c in document['candidates']
-                if c['observable'] and c['delta_bic'] >= document['significant_delta_bic']), 'none')
+                if c['detectable'] and c['delta_bic'] >= document['significant_delta_bic']), 'none')
     runs.append({'model': document['model'], 'last_term': document['ledger'][-1]['term'],
                  'residual_rms_arcsec': document['residual_rms_arcsec'],
                  'noise_floor_arcsec': document['noise_floor_arcsec'], 'top_candidate': top})
@@ -271,6 +343,8 @@ def write_report(result, document, directory):
         staging = Path(staging)
         _residual_plot(result, fits, staging / 'residuals.png')
         _vector_plot(result, fits, staging / 'vectors.png')
+        if document['signature']['trends'] or document['signature']['periods']:
+            _signature_plot(result, document, staging / 'signature.png')
         _ledger_plot(runs, staging / 'ledger.png')
         if 'star_hop' in document:
             _star_hop_plot(document['star_hop'], staging / 'star_hop.png')

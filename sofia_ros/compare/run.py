@@ -3,10 +3,14 @@
 1. Read the observables (compare.observations) and the centroid noise floor (compare.floor).
 2. Fit the model: first with its fitted terms at their given values (anchors only), then adding
    each fitted term in turn - the ledger of residual RMS per camera, like a pointing-model fit.
-3. Candidates: every catalogue effect not in the model is linearized at its thesis defaults
-   and fitted jointly with the model (analysis.ranking); the best few are refitted in full.
-   Effects the campaign cannot see are listed as unobservable, collinear ones as degenerate.
-4. A signature scan of what is left (compare.scan) says where the model fails.
+3. Diagnostics (compare.diagnostics): every camera axis and gyro axis against its own noise,
+   trends and periods with family-wise significances, and the fitted terms refitted on halves
+   of the data (a term that changes between them absorbs something else).
+4. Candidates: every catalogue effect not in the model, and an empirical term for each shape
+   the diagnostics found (effects.empirical), is linearized where it vanishes and fitted
+   jointly with the model (analysis.ranking); the best few are refitted in full and judged
+   again. Effects the campaign cannot see are listed as unobservable, collinear ones as degenerate.
+5. The verdict (compare.verdict): explained only when every observable is.
 """
 
 from __future__ import annotations
@@ -21,14 +25,15 @@ from sofia_ros.compare.fit import WhitenedProblem, fit_model, free_parameters
 from sofia_ros.compare.floor import anchor_walk_sigma_rad, angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
-from sofia_ros.compare.scan import signature_scan
+from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
+from sofia_ros.compare.verdict import empirical_candidate_names, judge
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
-from sofia_ros.effects import CATALOGUE, resolve_params
+from sofia_ros.effects import CATALOGUE, get_effect, resolve_params
 from sofia_ros.errors import FitError
 from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
 from sofia_ros.units import ARCSEC_PER_RAD
 
-__all__ = ['CompareResult', 'compare_bag', 'NOISE_EFFECTS', 'REFINED_CANDIDATES']
+__all__ = ['CompareResult', 'compare_bag', 'compare_observations', 'NOISE_EFFECTS', 'REFINED_CANDIDATES']
 
 #: Random processes: they set the noise floor, they do not move a prediction.
 NOISE_EFFECTS = ('gyro_noise', 'seeing')
@@ -79,7 +84,7 @@ def _linearized_candidates(predictor, fit, noise_arcsec, walk_sigma_rad, names):
         free = free_parameters([name])
         if not free:
             continue
-        spec = CATALOGUE[name]
+        spec = get_effect(name)
         start = np.array([spec.parameter(p.name).default if spec.parameter(p.name).shape else 0.0 for p in free])
         switched = {**fit.effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
         at_start = predictor.predict_px(switched, fit.anchors_rad)
@@ -87,23 +92,42 @@ def _linearized_candidates(predictor, fit, noise_arcsec, walk_sigma_rad, names):
         shift = problem.scaled(at_start - base)
         # The anchors' prior rows do not depend on any effect: zeros there.
         prior_rows = len(fit.prior_residual)
+        # The size the effect is expected at: its thesis magnitudes (shaping parameters do not scale it).
+        reference = np.array([0.0 if spec.parameter(p.name).shape else float(spec.parameter(p.name).default)
+                              for p in free])
+        if not np.any(reference):
+            reference = None  # no expected size (empirical terms, plug-ins defaulting to zero)
         terms.append(CandidateTerm(name, tuple(p.name for p in free), start,
                                    np.vstack([columns, np.zeros((prior_rows, len(free)))]),
-                                   np.concatenate([shift, np.zeros(prior_rows)])))
+                                   np.concatenate([shift, np.zeros(prior_rows)]), reference))
     return terms
 
 
-def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, observable=True, refined=False, seconds=0.0):
-    units = {param.name: param.unit for param in CATALOGUE[name].params}
-    return {'effect': name, 'rms_after_arcsec': rms_after, 'delta_bic': delta_bic, 'params': params, 'sigma': sigma,
-            'units': {key: units[key] for key in params}, 'observable': observable, 'refined': refined,
-            'seconds': round(seconds, 3)}
+def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, detectable=True, refined=False, seconds=0.0):
+    """One candidate of the JSON (docs/compare.md); an empirical one names its observable, variable and period."""
+    spec = get_effect(name)
+    units = {param.name: param.unit for param in spec.params}
+    entry = {'effect': name, 'rms_after_arcsec': rms_after, 'delta_bic': delta_bic, 'params': params, 'sigma': sigma,
+             'units': {key: units[key] for key in params}, 'detectable': detectable, 'refined': refined,
+             'seconds': round(seconds, 3), 'empirical': spec.family == 'empirical', 'observable': None,
+             'variable': None, 'period_s': None}
+    if entry['empirical']:
+        _, observable, variable, shape = name.split(':')
+        entry.update(observable=observable, variable=variable,
+                     period_s=float(shape[len('period_'):-1]) if shape.startswith('period_') else None)
+    return entry
 
 
 def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None):
     """Compare ``model`` (an EffectConfig) with the bag; return the CompareResult."""
     started = time.perf_counter()
-    observations = read_observations(bag_path)
+    return compare_observations(read_observations(bag_path), model, anchor_spacing_s=anchor_spacing_s,
+                                candidate_names=candidate_names, started=started)
+
+
+def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidate_names=None, started=None):
+    """Compare ``model`` with observations already read (compare.observations); return the CompareResult."""
+    started = time.perf_counter() if started is None else started
     centroids = observations.centroids
     noise_arcsec = centroid_noise_arcsec(centroids)
     counts = np.bincount(centroids.camera_index, minlength=len(centroids.cameras))
@@ -134,7 +158,11 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
     final = fit
     rms = _rms_by_camera(final, centroids)
 
+    diagnostics = residual_diagnostics(observations, final, predictor, noise_arcsec, walk_sigma_rad)
+    consistency = split_consistency(observations, final, predictor)
     names = [name for name in (candidate_names or CATALOGUE) if name not in effects and name not in NOISE_EFFECTS]
+    names += [name for name in empirical_candidate_names(diagnostics, observations.centroids.cameras)
+              if name not in effects]
     linear_started = time.perf_counter()
     terms = _linearized_candidates(predictor, final, noise_arcsec, walk_sigma_rad, names)
     # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
@@ -146,9 +174,9 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
     for candidate in ranked:
         rms_after = rms['total'] * float(np.sqrt(candidate.rss_after / rss_base))
         entries[candidate.name] = _candidate_entry(candidate.name, candidate.params, candidate.sigma, rms_after,
-                                                   candidate.delta_bic, observable=candidate.observable,
+                                                   candidate.delta_bic, detectable=candidate.observable,
                                                    seconds=per_candidate_s)
-    best_fit, best_name = None, None
+    best_fit, best_name, refits = None, None, {}
     for candidate in [c for c in ranked if c.significant][:REFINED_CANDIDATES]:
         refine_started = time.perf_counter()
         trial_effects = {**final.effects, candidate.name: dict(resolve_params(candidate.name, {}), **candidate.params)}
@@ -163,10 +191,15 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
             {p.name: float(s) for p, s in zip(extra, trial.sigma[len(final.free):])},
             _rms_by_camera(trial, centroids)['total'], final.bic - trial.bic, refined=True,
             seconds=per_candidate_s + time.perf_counter() - refine_started)
+        refits[candidate.name] = trial
         if best_fit is None or trial.bic < best_fit.bic:
             best_fit, best_name = trial, candidate.name
-    candidates = sorted(entries.values(), key=lambda entry: (not entry['observable'], -entry['delta_bic']))
+    candidates = sorted(entries.values(), key=lambda entry: (not entry['detectable'], -entry['delta_bic']))
     degenerate = degenerate_pairs(ranked, {name: entry['delta_bic'] for name, entry in entries.items()})
+    after_best = None
+    if best_fit is not None:
+        after_best = (residual_diagnostics(observations, best_fit, predictor, noise_arcsec, walk_sigma_rad),
+                      split_consistency(observations, best_fit, predictor))
     document = {
         'bag': str(observations.bag_path),
         'model': model.source,
@@ -181,9 +214,12 @@ def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None)
         'ledger': ledger,
         'candidates': candidates,
         'degenerate': [list(pair) for pair in degenerate],
-        'unobservable': [c['effect'] for c in candidates if not c['observable']],
+        'unobservable': [c['effect'] for c in candidates if not c['detectable']],
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
-        'signature': signature_scan(observations, final, predictor),
+        'signature': diagnostics.as_document(),
+        'consistency': consistency,
+        'verdict': judge(diagnostics, consistency, candidates, degenerate, best_name, after_best,
+                         rms_arcsec=rms['total'], significant_delta_bic=SIGNIFICANT_DELTA_BIC, model_source=model.source),
         'anchor_spacing_s': anchor_spacing_s,
         'anchor_walk_sigma_arcsec': walk_sigma_rad * ARCSEC_PER_RAD,
         'angle_random_walk_arcsec_per_sqrt_s': arw * ARCSEC_PER_RAD,

@@ -1,0 +1,364 @@
+"""Where a model fails: every camera axis and every gyro axis judged against its own noise (docs/compare.md).
+
+Observables:
+
+- a camera axis (``hipo.x``, ``ffi.y``, ...): the residual of every centroid on that pixel axis,
+  judged against the camera's centroid noise (compare.floor). Trends are tested on frame means
+  (a frame's stars share its moment; weight = stars in the frame) against elevation, time,
+  temperature, specific force (TARF, in g), slew angle and fine-drive LOS angle, and on the
+  rows themselves against the detector position and the star; periods on the frame means,
+  from twice the frame spacing up to half the record.
+- a gyro axis (``gyro.el``, ``gyro.xel``, ``gyro.los``): what the attitude anchors had to add to
+  the model's gyro propagation over each anchor interval, turned into TARF axes and divided by
+  its expected scatter under the random-walk prior (studentized with the hat matrix of the
+  whole fit). A gyro error the model lacks makes the anchors walk systematically: too far, or
+  with elevation, temperature, specific force, time, or a period.
+
+Every test's p-value is corrected for the number of tests run (Bonferroni), so a finding's
+``significance_sigma`` already accounts for the look-elsewhere effect; findings at
+DETECTION_SIGMA or more are structure. An observable is not explained when it holds structure,
+or when its RMS exceeds RATIO_LIMIT times its floor and the excess is significant (chi-square of
+the rows in units of the floor, at DETECTION_SIGMA family-wise): a floor known to a few per cent
+never makes noise look like signal, and a handful of anchor intervals never cries wolf.
+Nothing is clipped or dropped.
+
+Consistency: every fitted term is refitted (one Gauss-Newton step from the converged fit) on
+complementary halves of the rows, split by elevation, time, temperature, specific force and
+camera; a parameter that differs between the halves beyond DETECTION_SIGMA (family-wise) is
+absorbing something it does not describe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2, norm
+
+from sofia_ros.analysis.structure import category_test, period_test, sigma_of_probability, trend_test
+from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
+from sofia_ros.units import ARCSEC_PER_RAD, STANDARD_GRAVITY_M_PER_S2
+
+__all__ = ['DETECTION_SIGMA', 'REPORT_SIGMA', 'RATIO_LIMIT', 'FRAME_VARIABLES', 'ROW_VARIABLES', 'GYRO_AXES',
+           'Diagnostics', 'NAMING_PREFERENCE', 'distinct_findings', 'row_variables', 'residual_diagnostics', 'split_consistency']
+
+#: Family-wise significance at which a finding is structure the model must explain.
+DETECTION_SIGMA = 5.0
+#: Findings from this family-wise significance on are listed (weaker hints).
+REPORT_SIGMA = 3.0
+#: An observable whose residual RMS exceeds its floor by more than this is not explained.
+RATIO_LIMIT = 1.2
+#: Variables tested on frame means (label -> unit).
+FRAME_VARIABLES = {'elevation': 'deg', 'time': 's', 'temperature': 'C', 'specific_force_el': 'g',
+                   'specific_force_xel': 'g', 'specific_force_los': 'g', 'slew_angle': 'deg', 'los_angle': 'deg'}
+#: Variables tested on the centroid rows themselves.
+ROW_VARIABLES = {'detector_x': 'px', 'detector_y': 'px', 'star': 'HIP'}
+#: Variables a gyro axis is tested against (the anchor intervals have no detector or star).
+GYRO_VARIABLES = ('elevation', 'time', 'temperature', 'specific_force_el', 'specific_force_xel',
+                  'specific_force_los')
+GYRO_AXES = ('el', 'xel', 'los')
+#: Two variables this correlated cannot be told apart by the data (e.g. elevation and the LOS load).
+_EQUIVALENT_CORRELATION = 0.95
+#: Anchor intervals whose increment the data determine less than this (a slew without stars) are not tested.
+_MIN_FREEDOM = 0.05
+_MIN_SPLIT_FRACTION = 0.1
+
+
+@dataclass(frozen=True, eq=False)
+class Diagnostics:
+    """Per-observable statistics, findings (trends, periods) and the gyro axes' studentized anchor walk."""
+
+    observables: dict
+    trends: list
+    periods: list
+    tests_run: int
+
+    def structured(self, observable, sigma=DETECTION_SIGMA):
+        """Findings of one observable at or above ``sigma``."""
+        return [finding for finding in (*self.trends, *self.periods)
+                if finding['observable'] == observable and finding['significance_sigma'] >= sigma]
+
+    def unexplained(self):
+        """Observables that are not explained: RMS beyond RATIO_LIMIT of their floor, or structure."""
+        return [name for name, entry in self.observables.items() if not entry['explained']]
+
+    def as_document(self):
+        """The `signature` block of the JSON (docs/compare.md)."""
+        return {'trends': self.trends, 'periods': self.periods, 'tests_run': self.tests_run,
+                'detection_sigma': DETECTION_SIGMA}
+
+
+def _slew_angle_deg(observations, fit, predictor, times):
+    """Rotation since the last move started, from the gyros (deg), per row."""
+    move_start = observations.move_start_s
+    if not len(move_start):
+        return np.zeros(len(times))
+    index = np.searchsorted(move_start, times, side='right') - 1
+    attitudes = predictor.attitudes(fit.effects, times)
+    before = predictor.attitudes(fit.effects, np.maximum(move_start[np.maximum(index, 0)], times.min()))
+    relative = np.einsum('nij,nkj->nik', attitudes, before)
+    angle = np.degrees(np.linalg.norm(Rotation.from_matrix(relative).as_rotvec(), axis=1))
+    return np.where(index >= 0, angle, 0.0)
+
+
+def row_variables(observations, fit, predictor):
+    """Per-row values of every tested variable (N,) each, for diagnostics and plots."""
+    centroids = observations.centroids
+    times = predictor.row_times_s(fit.effects)
+    force_g = np.empty((len(times), 3))
+    for index in range(len(centroids.cameras)):
+        rows = centroids.camera_index == index
+        force_g[rows] = predictor.camera_context(fit.effects, index, times).specific_force_m_per_s2
+    force_g /= STANDARD_GRAVITY_M_PER_S2
+    return {'elevation': centroids.elevation_deg, 'time': times, 'temperature': centroids.temperature_c,
+            'specific_force_el': force_g[:, 0], 'specific_force_xel': force_g[:, 1],
+            'specific_force_los': force_g[:, 2], 'slew_angle': _slew_angle_deg(observations, fit, predictor, times),
+            'los_angle': centroids.fd_los_deg, 'detector_x': centroids.measured_px[:, 0],
+            'detector_y': centroids.measured_px[:, 1], 'star': centroids.hip}
+
+
+def _frame_means(frame_index, columns):
+    """Means of each column per frame, and the number of rows in each frame."""
+    _, inverse, counts = np.unique(frame_index, return_inverse=True, return_counts=True)
+    return [np.bincount(inverse, column) / counts for column in columns], counts
+
+
+def _camera_series(observations, fit, noise_arcsec, variables):
+    """(observable, floor, residual rows, row variables, frame residual, frame weights, frame variables)."""
+    centroids = observations.centroids
+    for index, camera in enumerate(centroids.cameras):
+        rows = centroids.camera_index == index
+        if np.count_nonzero(rows) < 2:
+            continue
+        for axis_index, axis in enumerate(('x', 'y')):
+            residual = fit.residual_arcsec[rows, axis_index]
+            frame_values, counts = _frame_means(centroids.frame_index[rows],
+                                                [residual] + [variables[key][rows] for key in FRAME_VARIABLES])
+            yield (f'{camera}.{axis}', float(noise_arcsec[index]), residual,
+                   {key: variables[key][rows] for key in ROW_VARIABLES}, frame_values[0], counts.astype(float),
+                   dict(zip(FRAME_VARIABLES, frame_values[1:])))
+
+
+def _prior_freedom(fit, tarf_from_irf):
+    """Per anchor interval and TARF axis: the increment's variance under the null in units of the prior's,
+    diag(A (I - H_k) A^T) with H_k the interval's 3x3 block of the whole fit's hat matrix, (K-1, 3)."""
+    data_rows = len(fit.whitened)
+    jacobian = scipy.sparse.csr_matrix(fit.jacobian)
+    root = np.concatenate([np.sqrt(fit.weights), np.ones(jacobian.shape[0] - data_rows)])
+    weighted = scipy.sparse.diags(root) @ jacobian
+    inverse = np.linalg.pinv((weighted.T @ weighted).toarray(), hermitian=True)
+    prior = weighted[data_rows:].toarray().reshape(-1, 3, jacobian.shape[1])
+    hat_blocks = np.einsum('kip,pq,kjq->kij', prior, inverse, prior)
+    residual_blocks = np.eye(3) - hat_blocks
+    rotated = np.einsum('kia,kab,kjb->kij', tarf_from_irf, residual_blocks, tarf_from_irf)
+    return np.clip(np.diagonal(rotated, axis1=1, axis2=2), 0.0, 1.0)
+
+
+def _gyro_series(observations, fit, predictor, walk_sigma_rad):
+    """Per gyro axis: the anchors' increments in TARF (arcsec), studentized, with the variables at mid-interval."""
+    knots = predictor.anchor_knots_s
+    if len(knots) < 3 or len(fit.prior_residual) == 0:
+        return
+    anchors = np.asarray(fit.anchors_rad).reshape(-1, 3)
+    middle = (knots[:-1] + knots[1:]) / 2.0
+    attitude = predictor.attitudes(fit.effects, middle)
+    increments_tarf = np.einsum('nij,nj->ni', attitude, np.diff(anchors, axis=0)) * ARCSEC_PER_RAD
+    freedom = _prior_freedom(fit, attitude)
+    centroids, gyro = observations.centroids, observations.gyro
+    order = np.argsort(centroids.stamp_s)
+    force = np.column_stack([np.interp(middle, gyro.tick_mean_time_s, gyro.tick_mean_specific_force_m_per_s2[:, i])
+                             for i in range(3)])
+    force_g = force @ tarf_from_gyrf_dcm(fit.effects).T / STANDARD_GRAVITY_M_PER_S2
+    frame_variables = {
+        'elevation': np.interp(middle, centroids.stamp_s[order], centroids.elevation_deg[order]),
+        'time': middle, 'temperature': np.interp(middle, gyro.tick_end_s, gyro.tick_temperature_c),
+        'specific_force_el': force_g[:, 0], 'specific_force_xel': force_g[:, 1], 'specific_force_los': force_g[:, 2]}
+    walk_arcsec = walk_sigma_rad * ARCSEC_PER_RAD
+    for axis_index, axis in enumerate(GYRO_AXES):
+        informed = freedom[:, axis_index] >= _MIN_FREEDOM
+        if np.count_nonzero(informed) < 3:
+            continue
+        floor = walk_arcsec * float(np.sqrt(np.mean(freedom[informed, axis_index])))
+        studentized = increments_tarf[informed, axis_index] / np.sqrt(freedom[informed, axis_index]) * walk_arcsec
+        yield (f'gyro.{axis}', floor, studentized, {key: values[informed] for key, values in frame_variables.items()},
+               increments_tarf[informed, axis_index], walk_arcsec)
+
+
+def _ranges(values_by_variable, names):
+    """[min, max] of each named variable over the tested rows (an empirical term's polynomial spans it)."""
+    return {name: [float(np.min(values_by_variable[name])), float(np.max(values_by_variable[name]))] for name in names}
+
+
+def _equivalents(frame_variables, variable):
+    """Variables whose values are so correlated with ``variable`` here that no test can tell them apart."""
+    reference = frame_variables[variable]
+    same = []
+    for key, values in frame_variables.items():
+        if key == variable or np.ptp(values) == 0 or np.ptp(reference) == 0:
+            continue
+        if abs(np.corrcoef(reference, values)[0, 1]) >= _EQUIVALENT_CORRELATION:
+            same.append(key)
+    return same
+
+
+def residual_diagnostics(observations, fit, predictor, noise_arcsec, walk_sigma_rad):
+    """Judge every camera and gyro axis of a fit: RMS against floor, trends and periods (family-wise sigmas)."""
+    variables = row_variables(observations, fit, predictor)
+    tests, observables = [], {}
+    for name, floor, residual, row_values, frame_residual, weights, frame_variables in _camera_series(
+            observations, fit, noise_arcsec, variables):
+        rms = float(np.sqrt(np.mean(residual**2)))
+        observables[name] = {'kind': 'camera', 'rms_arcsec': rms, 'floor_arcsec': floor, 'ratio': rms / floor,
+                             'rows': int(len(residual)), 'chi2': float(np.sum((residual / floor) ** 2))}
+        for key, values in frame_variables.items():
+            tests.append(('trend', name, key, trend_test(values, frame_residual, weights), frame_variables, values))
+        for key, values in row_values.items():
+            test = category_test(values, residual) if key == 'star' else trend_test(values, residual)
+            tests.append(('trend', name, key, test, None, values))
+        tests.append(('period', name, 'time', period_test(frame_variables['time'], frame_residual, weights), None,
+                      None))
+    for name, floor, studentized, frame_variables, increments, walk_arcsec in _gyro_series(
+            observations, fit, predictor, walk_sigma_rad):
+        rms = float(np.sqrt(np.mean(increments**2)))
+        observables[name] = {'kind': 'gyro', 'rms_arcsec': rms, 'floor_arcsec': floor, 'ratio': rms / floor,
+                             'rows': int(len(increments)), 'chi2': float(np.sum((studentized / walk_arcsec) ** 2))}
+        for key, values in frame_variables.items():
+            tests.append(('trend', name, key, trend_test(values, studentized), frame_variables, values))
+        tests.append(('period', name, 'time', period_test(frame_variables['time'], studentized), None, None))
+    count = sum(1 for test in tests if test[3] is not None)
+    trends, periods = [], []
+    for kind, name, key, test, frame_variables, tested in tests:
+        if test is None:
+            continue
+        probability = test.false_alarm_probability if kind == 'period' else test.p_value
+        sigma = sigma_of_probability(min(1.0, probability * count))
+        if sigma < REPORT_SIGMA:
+            continue
+        if kind == 'period':
+            periods.append({'observable': name, 'period_s': test.period, 'amplitude_arcsec': test.amplitude,
+                            'significance_sigma': sigma, 'power': test.power})
+        else:
+            equivalents = _equivalents(frame_variables, key) if frame_variables else []
+            ranges = _ranges(frame_variables, [key, *equivalents]) if frame_variables else (
+                {} if key == 'star' else {key: [float(np.min(tested)), float(np.max(tested))]})
+            trends.append({'observable': name, 'variable': key, 'amplitude_arcsec': test.amplitude,
+                           'significance_sigma': sigma, 'equivalent_variables': equivalents, 'ranges': ranges,
+                           'shape': {'centres': test.centres.tolist(), 'values_arcsec': test.shape.tolist()}})
+    trends.sort(key=lambda finding: -finding['significance_sigma'])
+    periods.sort(key=lambda finding: -finding['significance_sigma'])
+    diagnostics = Diagnostics(observables, trends, periods, count)
+    for name, entry in observables.items():
+        # The excess over the floor: chi-square of the rows in units of the floor, family-wise over the observables.
+        probability = float(chi2.sf(entry.pop('chi2'), entry['rows'])) * len(observables)
+        entry['excess_sigma'] = float(max(norm.isf(min(probability, 1.0)), 0.0))
+        entry['structure'] = [_finding_label(finding) for finding in distinct_findings(diagnostics.structured(name))]
+        entry['explained'] = (not (entry['ratio'] > RATIO_LIMIT and entry['excess_sigma'] >= DETECTION_SIGMA)
+                              and not entry['structure'])
+    return diagnostics
+
+
+def _finding_label(finding):
+    if 'period_s' in finding:
+        return f'period {finding["period_s"]:.4g} s'
+    same = finding.get('equivalent_variables')
+    return finding['variable'] + (f' (= {"/".join(same)})' if same else '')
+
+
+#: Of variables the data cannot tell apart, the one named: the most direct physical quantity first.
+NAMING_PREFERENCE = ('elevation', 'time', 'temperature', 'los_angle', 'slew_angle', 'detector_x', 'detector_y',
+                     'specific_force_los', 'specific_force_xel', 'specific_force_el', 'star')
+
+
+def _preference(variable):
+    return NAMING_PREFERENCE.index(variable) if variable in NAMING_PREFERENCE else len(NAMING_PREFERENCE)
+
+
+def distinct_findings(findings):
+    """Findings strongest first, one per group of equivalent variables (named by NAMING_PREFERENCE).
+
+    The star comes last: a star sits at one elevation and detector position, so it stands in for
+    them; it is named only when nothing else explains the residual.
+    """
+    by_key = {(f['observable'], f.get('variable')): f for f in findings}
+    named, kept = set(), []
+    order = sorted(findings, key=lambda f: (f.get('variable') == 'star', -f['significance_sigma']))
+    for finding in order:
+        if 'period_s' in finding:
+            kept.append(finding)
+            continue
+        group = [finding['variable'], *finding.get('equivalent_variables', ())]
+        if (finding['observable'], finding['variable']) in named:
+            continue
+        named.update((finding['observable'], variable) for variable in group)
+        primary = min(group, key=_preference)
+        kept.append(by_key.get((finding['observable'], primary), finding))
+    return sorted(kept, key=lambda f: (f.get('variable') == 'star', -f['significance_sigma']))
+
+
+def _split_masks(variables, centroids):
+    """Complementary halves of the rows, by each variable's median and by camera; near-duplicates dropped."""
+    masks = {}
+    for key in ('elevation', 'time', 'temperature', 'specific_force_los'):
+        values = variables[key]
+        middle = np.median(values)
+        lower = values <= middle if np.mean(values <= middle) < 1.0 - _MIN_SPLIT_FRACTION else values < middle
+        if not _MIN_SPLIT_FRACTION <= np.mean(lower) <= 1.0 - _MIN_SPLIT_FRACTION:
+            continue
+        if any(abs(np.corrcoef(lower, other)[0, 1]) > 0.95 for other in masks.values()):
+            continue
+        masks[key] = lower
+    if len(centroids.cameras) > 2:
+        for index, camera in enumerate(centroids.cameras):
+            masks[f'camera {camera}'] = centroids.camera_index == index
+    return masks
+
+
+def _split_step(fit, keep_rows):
+    """One Gauss-Newton step on a subset of the rows (prior rows kept): parameter values and sigmas."""
+    data_rows = len(fit.whitened)
+    mask = np.repeat(keep_rows, 2).astype(float)
+    weights = np.concatenate([fit.weights * mask, np.ones(len(fit.prior_residual))])
+    residual = fit.augmented_residual
+    jacobian = scipy.sparse.csr_matrix(fit.jacobian)
+    weighted = scipy.sparse.diags(np.sqrt(weights)) @ jacobian
+    gram = (weighted.T @ weighted).toarray()
+    inverse = np.linalg.pinv(gram, hermitian=True)
+    step = inverse @ (weighted.T @ (np.sqrt(weights) * residual))
+    after = np.sqrt(weights) * residual - weighted @ step
+    used = int(mask.sum()) + len(fit.prior_residual)
+    variance = float(after @ after) / max(used - gram.shape[0], 1)
+    parameters = slice(jacobian.shape[1] - len(fit.free), None)
+    diagonal = np.diag(inverse)[parameters]
+    sigma = np.sqrt(np.where(diagonal > 0, diagonal, np.nan) * variance)
+    # A parameter the subset does not determine (another camera's term) gets no comparison.
+    determined = np.abs(np.asarray(weighted[:data_rows].T @ np.ones(data_rows)))[parameters] > 0
+    return fit.values + step[parameters], np.where(determined, sigma, np.nan)
+
+
+def split_consistency(observations, fit, predictor):
+    """Fitted terms that change between halves of the data: [{param, split, values, sigmas, significance_sigma}]."""
+    if not fit.free:
+        return []
+    variables = row_variables(observations, fit, predictor)
+    comparisons = []
+    for split, lower in _split_masks(variables, observations.centroids).items():
+        first, first_sigma = _split_step(fit, lower)
+        second, second_sigma = _split_step(fit, ~lower)
+        for index, parameter in enumerate(fit.free):
+            spread = np.hypot(first_sigma[index], second_sigma[index])
+            if np.isfinite(spread) and spread > 0:
+                comparisons.append((parameter.label, split, first[index], second[index], first_sigma[index],
+                                    second_sigma[index], abs(first[index] - second[index]) / spread))
+    count = len(comparisons)
+    found = []
+    for label, split, first, second, first_sigma, second_sigma, z in comparisons:
+        sigma = sigma_of_probability(min(1.0, 2.0 * float(norm.sf(z)) * count))
+        if sigma >= DETECTION_SIGMA:
+            halves = ('this camera', 'the others') if split.startswith('camera') else ('lower half', 'upper half')
+            found.append({'param': label, 'split': split, 'halves': halves, 'values': [float(first), float(second)],
+                          'sigmas': [float(first_sigma), float(second_sigma)], 'significance_sigma': sigma})
+    found.sort(key=lambda entry: -entry['significance_sigma'])
+    return found
+

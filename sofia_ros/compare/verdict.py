@@ -1,0 +1,139 @@
+"""The verdict of a comparison: explained only when every camera axis and every gyro axis is (docs/compare.md).
+
+- ``explained``: every observable's RMS is within RATIO_LIMIT of its floor, none holds structure
+  (a trend or period at DETECTION_SIGMA, family-wise), and no fitted term changes between
+  halves of the data.
+- ``missing_effect``: not explained, and a catalogue or plug-in effect lowers the BIC
+  significantly; the text says whether the comparison refitted with it is explained, or what
+  is still left (a term that absorbs physics must not close the loop).
+- ``unexplained``: not explained, and no physical effect helps, or only an empirical term
+  does: the text names the shape (observable, variable or period) and how to turn it into
+  physics (`sofia effects new`), or to keep the empirical term meanwhile (`sofia model add`).
+"""
+
+from __future__ import annotations
+
+from sofia_ros.compare.diagnostics import DETECTION_SIGMA, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
+from sofia_ros.effects.empirical import CAMERA_OBSERVABLES, GYRO_VARIABLES, VARIABLES, empirical_name
+
+__all__ = ['empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
+
+#: At most this many empirical terms are tried, the strongest findings first.
+MAX_EMPIRICAL_CANDIDATES = 8
+
+
+def _expressible(finding, gyro):
+    """The variable an empirical term can use for a trend finding (itself or an equivalent one), or None."""
+    allowed = GYRO_VARIABLES if gyro else tuple(VARIABLES)
+    group = sorted((finding['variable'], *finding.get('equivalent_variables', ())),
+                   key=lambda v: NAMING_PREFERENCE.index(v) if v in NAMING_PREFERENCE else len(NAMING_PREFERENCE))
+    return next((variable for variable in group if variable in allowed), None)
+
+
+def empirical_candidate_names(diagnostics, cameras):
+    """Empirical terms for the strongest shapes the diagnostics found: one per observable and kind of finding."""
+    names, seen = [], set()
+    for finding in distinct_findings([*diagnostics.trends, *diagnostics.periods]):
+        observable = finding['observable']
+        if finding['significance_sigma'] < DETECTION_SIGMA:
+            break
+        gyro = observable.startswith('gyro.')
+        if not gyro and (observable not in CAMERA_OBSERVABLES or observable.split('.')[0] not in cameras):
+            continue
+        if 'period_s' in finding:
+            key, name = (observable, 'period'), empirical_name(observable, 'time', finding['period_s'])
+        else:
+            variable = _expressible(finding, gyro)
+            if variable is None:
+                continue
+            key, name = (observable, 'trend'), empirical_name(observable, variable,
+                                                              range_=finding['ranges'].get(variable))
+        if key not in seen:
+            seen.add(key)
+            names.append(name)
+        if len(names) >= MAX_EMPIRICAL_CANDIDATES:
+            break
+    return names
+
+
+#: The verdict's text names this many unexplained observables and structures per observable; the JSON has all.
+_NAMED = 3
+
+
+def _observable_problem(name, entry):
+    reasons = []
+    if entry['ratio'] > RATIO_LIMIT and entry['excess_sigma'] >= DETECTION_SIGMA:
+        reasons.append(f'RMS {entry["rms_arcsec"]:.3f}" = {entry["ratio"]:.2f}x its floor')
+    if entry['structure']:
+        more = len(entry['structure']) - 2
+        reasons.append('follows ' + ', '.join(entry['structure'][:2]) + (f' (+{more} more)' if more > 0 else ''))
+    return f'{name} ' + ' and '.join(reasons)
+
+
+def _strength(diagnostics, name):
+    """How badly an observable fails: its strongest finding's significance, else its RMS excess."""
+    findings = diagnostics.structured(name)
+    return max((f['significance_sigma'] for f in findings), default=0.0), diagnostics.observables[name]['ratio']
+
+
+def _problems(diagnostics, consistency):
+    """One clause per unexplained observable (the strongest few) and per inconsistent term."""
+    failing = sorted(diagnostics.unexplained(), key=lambda name: _strength(diagnostics, name), reverse=True)
+    clauses = [_observable_problem(name, diagnostics.observables[name]) for name in failing[:_NAMED]]
+    if len(failing) > _NAMED:
+        clauses.append(f'{len(failing) - _NAMED} more observables')
+    for entry in consistency[:2]:
+        split = entry['split']
+        clauses.append(f'{entry["param"]} changes with {split} ({entry["halves"][0]} {entry["values"][0]:.4g} +- '
+                       f'{entry["sigmas"][0]:.2g}, {entry["halves"][1]} {entry["values"][1]:.4g} +- '
+                       f'{entry["sigmas"][1]:.2g}; {entry["significance_sigma"]:.0f} sigma)')
+    return clauses
+
+
+def _plugin_kind(candidate):
+    return 'gyro' if candidate['observable'].startswith('gyro.') else 'camera'
+
+
+def judge(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
+          significant_delta_bic, model_source):
+    """The verdict block: status, text, per-observable judgement, and what is left after the best candidate."""
+    observables = {name: {key: entry[key] for key in ('rms_arcsec', 'floor_arcsec', 'ratio', 'excess_sigma',
+                                                      'explained', 'structure', 'kind')}
+                   for name, entry in diagnostics.observables.items()}
+    verdict = {'observables': observables, 'inconsistent_terms': [entry['param'] for entry in consistency],
+               'after_best': None}
+    problems = _problems(diagnostics, consistency)
+    if not problems:
+        worst = max(observables.items(), key=lambda item: item[1]['ratio'], default=None)
+        detail = f'; the largest RMS / floor is {worst[1]["ratio"]:.2f} ({worst[0]})' if worst else ''
+        verdict.update(status='explained', text=f'the model explains every observable to its noise, with no '
+                                                f'structure left and consistent terms{detail}')
+        return verdict
+    best = next((c for c in candidates if c['effect'] == best_name), None)
+    left = []
+    if best is not None and after_best is not None:
+        left_diagnostics, left_consistency = after_best
+        left = _problems(left_diagnostics, left_consistency)
+        verdict['after_best'] = {'effect': best_name, 'unexplained': left_diagnostics.unexplained(),
+                                 'inconsistent_terms': [entry['param'] for entry in left_consistency]}
+    where = '; '.join(problems)
+    if best is None or best['delta_bic'] < significant_delta_bic:
+        verdict.update(status='unexplained', text=f'not explained: {where}; no catalogue effect explains it, and no '
+                                                  'empirical shape either: look at the report\'s residual plots')
+        return verdict
+    gain = f'RMS {rms_arcsec:.3f}" -> {best["rms_after_arcsec"]:.3f}"'
+    remaining = ('; with it every observable is explained' if not left else
+                 f'; it does not close the loop: with it, {"; ".join(left)}')
+    if best['empirical']:
+        kind = _plugin_kind(best)
+        verdict.update(status='unexplained', text=(
+            f'not explained: {where}; no catalogue effect explains it, the empirical shape {best["effect"]} does '
+            f'({gain}){remaining}. Turn it into physics: `sofia effects new NAME --kind {kind}` writes a plug-in '
+            f'template; or keep the shape meanwhile: `sofia model add {best["effect"]} --model {model_source}`'))
+        return verdict
+    tied = [pair for pair in degenerate if best['effect'] in pair]
+    choice = (f'the residual needs {" or ".join(tied[0])}; the data cannot choose' if tied else
+              f'missing effect {best["effect"]} ({gain})')
+    advice = '' if left else f'; add it with `sofia model add {best["effect"]} --model {model_source}`'
+    verdict.update(status='missing_effect', text=f'not explained: {where}; {choice}{remaining}{advice}')
+    return verdict

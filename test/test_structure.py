@@ -1,0 +1,78 @@
+"""Structure tests (analysis.structure): false-alarm rates on white noise, and known shapes found.
+
+The false-alarm probabilities must mean what they say, or a compare verdict would cry wolf on
+untouched data (or miss real structure): on white noise with the gaps of a campaign, the
+fraction of trials below a probability p must be about p. Expected rates are binomial: the
+tolerances are 4 standard deviations of the trial count.
+"""
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from sofia_ros.analysis.structure import category_test, period_test, sigma_of_probability, trend_test
+
+#: A campaign-like time axis: 1 s frames with a 300 s gap (a slew without stars).
+TIMES_S = np.concatenate([np.arange(0.0, 600.0, 1.0), np.arange(900.0, 1800.0, 1.0)])
+TRIALS = 300
+
+
+def _rate_tolerance(p):
+    return 4.0 * np.sqrt(p * (1.0 - p) / TRIALS)
+
+
+@pytest.mark.parametrize('times_s', [TIMES_S, np.arange(0.0, 1800.0, 2.0),
+                                     np.sort(np.random.default_rng(7).uniform(0.0, 1800.0, 400))],
+                         ids=['gapped', 'regular', 'irregular'])
+def test_period_false_alarm_probability_is_calibrated_on_white_noise(times_s):
+    rng = np.random.default_rng(11)
+    probabilities = np.array([period_test(times_s, rng.normal(0.0, 0.3, len(times_s))).false_alarm_probability
+                              for _ in range(TRIALS)])
+    for p in (0.05, 0.2):
+        assert abs(np.mean(probabilities < p) - p) <= _rate_tolerance(p), (p, np.mean(probabilities < p))
+
+
+def test_trend_and_category_p_values_are_uniform_on_white_noise():
+    rng = np.random.default_rng(12)
+    trend = [trend_test(TIMES_S, rng.normal(0.0, 0.3, len(TIMES_S))).p_value for _ in range(TRIALS)]
+    stars = rng.integers(0, 12, len(TIMES_S))
+    category = [category_test(stars, rng.normal(0.0, 0.3, len(TIMES_S))).p_value for _ in range(TRIALS)]
+    for values in (trend, category):
+        # Kolmogorov-Smirnov against the uniform distribution (p-values of a calibrated test).
+        assert stats.kstest(values, 'uniform').pvalue > 1e-3
+
+
+@pytest.mark.parametrize('period_s', [22.0, 95.0, 400.0])
+def test_a_weak_sinusoid_is_found_at_its_period_within_three_sigma(period_s):
+    rng = np.random.default_rng(13)
+    values = rng.normal(0.0, 0.3, len(TIMES_S)) + 0.08 * np.sin(2.0 * np.pi * TIMES_S / period_s + 0.4)
+    found = period_test(TIMES_S, values)
+    # Frequency precision of a sinusoid fit: sigma_f = sqrt(12) sigma_phase / (2 pi T), sigma_phase = noise / (A sqrt(N/2)).
+    span_s = TIMES_S[-1] - TIMES_S[0]
+    sigma_relative = period_s * np.sqrt(12.0) * 0.3 / (0.08 * np.sqrt(len(TIMES_S) / 2.0)) / (2.0 * np.pi * span_s)
+    assert abs(found.period / period_s - 1.0) <= 3.0 * sigma_relative, (found.period, sigma_relative)
+    assert abs(found.amplitude - 0.08) <= 0.03
+    assert sigma_of_probability(found.false_alarm_probability) >= 5.0
+
+
+def test_a_smooth_trend_is_found_and_its_shape_measured():
+    rng = np.random.default_rng(14)
+    elevation_deg = rng.choice([23.0, 31.7, 40.0, 50.0, 59.0], len(TIMES_S))
+    shape = 0.5 * np.cos(np.radians(elevation_deg)) ** 4
+    found = trend_test(elevation_deg, rng.normal(0.0, 0.3, len(TIMES_S)) + shape)
+    assert sigma_of_probability(found.p_value) >= 5.0
+    # Half the range of the true shape over 23-59 deg: 0.5 (cos^4 23 - cos^4 59) / 2.
+    assert abs(found.amplitude - 0.25 * (np.cos(np.radians(23.0)) ** 4 - np.cos(np.radians(59.0)) ** 4)) <= 0.03
+
+
+def test_sigma_of_probability_is_the_two_sided_gaussian():
+    assert sigma_of_probability(0.0455) == pytest.approx(2.0, abs=1e-3)
+    assert sigma_of_probability(5.733e-7) == pytest.approx(5.0, abs=1e-3)
+    assert sigma_of_probability(1.0) == 0.0
+
+
+def test_too_little_data_is_not_tested():
+    assert trend_test(np.arange(5.0), np.zeros(5)) is None
+    assert trend_test(np.full(50, 3.0), np.zeros(50)) is None
+    assert category_test(np.zeros(50), np.ones(50)) is None
+    assert period_test(np.arange(5.0), np.zeros(5)) is None

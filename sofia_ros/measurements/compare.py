@@ -27,6 +27,7 @@ from sofia_ros.analysis.ranking import (
     linear_fit,
     rank_candidates,
 )
+from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
 from sofia_ros.compare.fit import free_parameters
 from sofia_ros.effects import CATALOGUE, resolve_params
 from sofia_ros.errors import FitError
@@ -193,6 +194,38 @@ def _linearized_candidates(problem, fit, names):
     return terms, vanished
 
 
+def _absorbing_terms(fit, candidates):
+    """Candidate -> the single fitted effect whose columns alone absorb the candidate's (analysis.ranking's test)."""
+    out = {}
+    groups = {}
+    for index, parameter in enumerate(fit.free):
+        groups.setdefault(parameter.effect, []).append(index)
+    for name, term in candidates.items():
+        columns = np.asarray(term.jacobian)
+        for effect, indices in groups.items():
+            base = fit.jacobian[:, indices]
+            coefficients, *_ = np.linalg.lstsq(base, columns, rcond=None)
+            outside = np.linalg.norm(columns - base @ coefficients, axis=0) / np.maximum(
+                np.linalg.norm(columns, axis=0), 1e-300)
+            if np.all(outside < 1e-3):
+                out[name] = effect
+                break
+    return out
+
+
+def _earth_rate_tables(measurement_set):
+    """Table 5.7 of each earth_rate table: theory at the stated heading and at the least-squares heading (5.2.4)."""
+    out = {}
+    for table in measurement_set.tables:
+        if table.kind != 'earth_rate':
+            continue
+        mean = np.mean([row.rate_tarf_deg_per_h for row in table.rows], axis=0)
+        summary = earth_rate_table(mean, table.latitude_deg, table.heading_deg, table.elevation_deg)
+        summary['degenerate_pair'] = list(DEGENERATE_PAIR)
+        out[table.name] = summary
+    return out
+
+
 def _candidate_entry(name, params, sigma, rms_after, rms_after_rate, delta_bic, *, observable=True, refined=False,
                      reason=None):
     units = {param.name: param.unit for param in CATALOGUE[name].params}
@@ -281,8 +314,13 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
     def scaled(total, rss_after):
         return None if total is None else total * float(np.sqrt(rss_after / rss_base))
 
+    absorbed = _absorbing_terms(final, {term.name: term for term, _, _ in terms})
     for candidate in ranked:
-        reason = None if candidate.observable else "absorbed by the model's fitted terms in this set"
+        reason = None
+        if not candidate.observable:
+            by = absorbed.get(candidate.name)
+            reason = (f'absorbed by {by}: this set cannot tell them apart' if by
+                      else "absorbed by the model's fitted terms in this set")
         entries[candidate.name] = _candidate_entry(candidate.name, candidate.params, candidate.sigma,
                                                    scaled(angle.get('total'), candidate.rss_after),
                                                    scaled(rate.get('total'), candidate.rss_after),
@@ -310,6 +348,9 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
     candidates = sorted(entries.values(), key=lambda entry: (not entry['observable'], -entry['delta_bic']))
     degenerate = degenerate_pairs(ranked, {name: entry['delta_bic'] for name, entry in entries.items()
                                            if name in {c.name for c in ranked}})
+    # A candidate one fitted term absorbs alone is degenerate with it (e.g. heading_error ~ gyro_bias, 5.2.4).
+    degenerate = sorted(set(degenerate) | {tuple(sorted((name, by))) for name, by in absorbed.items()
+                                           if name in {c.name for c in ranked if not c.observable}})
     significant = [c for c in candidates if c['observable'] and c['delta_bic'] >= SIGNIFICANT_DELTA_BIC]
     floors = _rms_table(problem, np.ones(len(problem.sigma)))
     document = {
@@ -331,6 +372,7 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
         'verdict': _verdict(problem, final.whitened, significant, degenerate, model.source),
         'rows': _rows(problem, final, best_fit),
+        'earth_rate': _earth_rate_tables(measurement_set),
         'seconds': {'total': 0.0},
     }
     if rate:

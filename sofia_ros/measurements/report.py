@@ -70,6 +70,8 @@ def print_set_comparison(document, out):
         print(f'  degenerate: {first} and {second} explain the same residual; this set cannot tell them apart',
               file=out)
     _print_rows(document, out)
+    for name, table in document.get('earth_rate', {}).items():
+        _print_earth_rate(name, table, out)
     verdict = document['verdict']
     print(f'verdict: {verdict["status"]}: {verdict["text"]}', file=out)
     for name, entry in verdict['observables'].items():
@@ -77,6 +79,23 @@ def print_set_comparison(document, out):
         mark = '"/s' if unit == 'arcsec_per_s' else '"'
         print(f'  {name:<24} RMS {entry[f"rms_{unit}"]:.4g}{mark} floor {entry[f"floor_{unit}"]:.4g}{mark} '
               f'ratio {entry["ratio"]:.2f} {"explained" if entry["explained"] else "NOT explained"}', file=out)
+
+
+def _print_earth_rate(name, table, out):
+    """Table 5.7 of the set's mean rates: theory and apparent biases at the stated and the least-squares heading."""
+    def row(label, values):
+        print(f'  {label:<44} ' + ' '.join(f'{values[axis]:>9.4f}' for axis in ('el', 'xel', 'los')), file=out)
+
+    print(f'earth rate ({name}): mean of the rows in TARF against eqs. 4.1-4.3 [deg/h]      EL       XEL       LOS',
+          file=out)
+    row('measured (TARF)', table['measured'])
+    row(f'theory at the stated heading {table["heading_deg"]:.2f} deg', table['theoretical'])
+    row('apparent biases at the stated heading', table['deviation'])
+    row(f'theory at the least-squares heading {table["best_fit_heading_deg"]:.2f} deg',
+        table['theoretical_at_best_fit_heading'])
+    row('apparent biases at the least-squares heading', table['deviation_at_best_fit_heading'])
+    print(f'  a heading error and constant biases are degenerate on a braked telescope ({" ~ ".join(table["degenerate_pair"])}, '
+          '5.2.4): any heading explains the means with other biases', file=out)
 
 
 def _print_rows(document, out):

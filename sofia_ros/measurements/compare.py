@@ -41,7 +41,8 @@ NOISE_EFFECTS = ('gyro_noise', 'seeing')
 REFINED_CANDIDATES = 3
 #: An observable is explained when its chi-square (RMS/floor)^2 n lies below this quantile.
 EXPLAINED_QUANTILE = 0.99
-#: A candidate parameter whose column is below this fraction of the candidate's strongest is not determined.
+#: A candidate parameter whose effect at its thesis magnitude is below this fraction of the candidate's strongest
+#: parameter's is not determined by the set (e.g. a LOS scale factor from moves about EL).
 WEAK_COLUMN_FRACTION = 1e-2
 #: Rate kinds: their residuals are in arcsec/s (= deg/h), the others in arcsec.
 _RATE_KINDS = ('earth_rate',)
@@ -184,10 +185,21 @@ def _linearized_candidates(problem, fit, names):
         at_start = problem.whitened(switched)
         columns = problem.columns(switched, free, start, at_start)
         norms = np.linalg.norm(columns, axis=0)
-        live = norms > max(WEAK_COLUMN_FRACTION * norms.max(initial=0.0), 1e-9 * np.sqrt(len(at_start)))
+        # Compared at the thesis' magnitude of each parameter (its default), so that units do not matter.
+        magnitude = np.array([abs(spec.parameter(p.name).default) or 1e3 * p.step for p in free])
+        effect = norms * magnitude
+        live = (effect > WEAK_COLUMN_FRACTION * effect.max(initial=0.0)) & (norms > 1e-9 * np.sqrt(len(at_start)))
         if not np.any(live):
             vanished[name] = 'no prediction of this set changes with it'
             continue
+        # A parameter the model's fitted terms absorb alone (e.g. the swap's bias difference against gyro_bias)
+        # is left at its start; the rest of the effect is still ranked.
+        if fit.jacobian.shape[1]:
+            coefficients, *_ = np.linalg.lstsq(fit.jacobian, columns, rcond=None)
+            outside = np.linalg.norm(columns - fit.jacobian @ coefficients, axis=0) / np.maximum(norms, 1e-300)
+            absorbed = live & (outside < 1e-3)
+            if np.any(absorbed) and not np.all(absorbed == live):
+                live = live & ~absorbed
         kept = [p for p, keep in zip(free, live) if keep]
         terms.append((CandidateTerm(name, tuple(p.name for p in kept), start[live], columns[:, live],
                                     fit.whitened - at_start), kept, switched))

@@ -25,7 +25,6 @@ from scipy.spatial.transform import Rotation
 from sofia_ros.earth_rate import earth_rate_tarf_deg_per_h
 from sofia_ros.errors import ConfigError, InvalidArgumentError
 from sofia_ros.frames import HIPO_2004, vector_to_pixel
-from sofia_ros.measurements.format import DRIFT_EFFECTS
 from sofia_ros.mount import hrf_from_irf_dcm
 from sofia_ros.sensors.gyro_errors import (
     gyro_effect_names,
@@ -125,7 +124,7 @@ def predict_star_distance_arcsec(measurement_set, table, geometry, effects):
     # The gyros' angle over the move: the mean reading times the interval (the reduction reads GYRF as TARF).
     believed = readings.reshape(len(interval_s), MOVE_TIME_SAMPLES, 3).mean(axis=1) * interval_s[:, None]
     second_believed = Rotation.from_rotvec(-believed).as_matrix() @ first
-    euler = np.array([attitude_change_euler_arcsec(a, b) for a, b in zip(first, second_believed)])
+    euler = attitude_change_euler_arcsec(first, second_believed)
     return spherical_sum_arcsec(euler[:, 0], euler[:, 1])
 
 

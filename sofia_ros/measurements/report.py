@@ -130,7 +130,7 @@ def write_set_report(result, document, directory):
             line = np.polyfit(x, residual, 1)
             grid = np.linspace(0.0, x.max() * 1.05, 50)
             axis.plot(grid, np.polyval(line, grid), color='tab:red', lw=0.8,
-                      label=f'line: {line[0]:+.2f}"/deg ({line[0] / 3.6:+.0f} ppm)')
+                      label=f'line: {line[0]:+.2f}"/deg ({line[0] / 3600.0 * 1e6:+.0f} ppm)')
             if after[0] is not None:
                 axis.plot(x, after, 's', color='tab:blue', label=f'after {result.best_name}')
             axis.set_xlabel('distance between the stars [deg]')

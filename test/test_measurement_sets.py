@@ -95,6 +95,14 @@ def test_rates_in_the_wrong_unit():
         parse_measurement_set(_edited(edit, DATA / 'edwards-earth-rate-2007.yaml'), 'set.yaml')
 
 
+def test_euler_angles_inconsistent_with_the_distance():
+    def edit(document):
+        document['tables'][0]['rows'][0][7] += 10.0  # EL of move 2-3 (Table D.6) off by 10"
+
+    with pytest.raises(ConfigError, match=r'row 1: el_arcsec and xel_arcsec give 101246.0" by eq. 4.38'):
+        parse_measurement_set(_edited(edit, DATA / 'star-hop-2004-09-03-short-moves.yaml'), 'set.yaml')
+
+
 def test_empty_table():
     def edit(document):
         document['tables'][0]['rows'] = []

@@ -20,6 +20,7 @@ from sofia_ros.measurements.format import (
     TurningPoint,
 )
 from sofia_ros.sky.catalogue import find_star
+from sofia_ros.sky.distances import spherical_sum_arcsec
 from sofia_ros.sky.places import Site, Weather
 
 __all__ = ['load_measurement_set', 'parse_measurement_set', 'is_measurement_set_path']
@@ -27,6 +28,8 @@ __all__ = ['load_measurement_set', 'parse_measurement_set', 'is_measurement_set_
 _TOP_KEYS = {'measurement_set', 'title', 'source', 'site', 'epoch_utc', 'night_utc', 'weather', 'heading_deg',
              'gyro_temperature_c', 'matrices', 'tables'}
 _TABLE_KEYS = {'name', 'kind', 'provenance', 'columns', 'rows'}
+#: Eq. 4.38 of a move's printed Euler angles against its printed distance (Table D.6 agrees to 0.1").
+_EULER_TOLERANCE_ARCSEC = 0.5
 _UNIT_SUFFIXES = ('_arcsec', '_arcmin', '_deg', '_rad', '_px', '_deg_per_h', '_rad_per_s', '_arcsec_per_s', '_mas',
                   '_utc', '_cdt', '_s', '_h', '_min')
 
@@ -80,7 +83,6 @@ def _matrix(value, where, source):
 def _check_columns(kind, columns, where, source):
     spec = KINDS[kind]
     allowed = dict(spec.required) | dict(spec.optional)
-    stems = {name.split('_')[0] for name in allowed}
     for column in columns:
         if column in allowed:
             continue
@@ -90,7 +92,7 @@ def _check_columns(kind, columns, where, source):
             raise ConfigError(f'{source}: {where}: column {column!r} has inconsistent units; {kind} takes '
                               f'{expected[0]!r} ({allowed[expected[0]]})')
         raise ConfigError(f'{source}: {where}: unknown column {column!r} for kind {kind} '
-                          f'(known: {", ".join(allowed)})' + ('' if column.split('_')[0] in stems else ''))
+                          f'(known: {", ".join(allowed)})')
     missing = [name for name, _ in spec.required if name not in columns]
     if missing:
         raise ConfigError(f'{source}: {where}: missing column {missing[0]!r} ({dict(spec.required)[missing[0]]}) '
@@ -256,6 +258,12 @@ def _star_distance(values, context, where, source):
     distance = _number(values['distance_arcsec'], f'{where} distance_arcsec', source)
     if not 0.0 < distance < 180.0 * 3600.0:
         raise ConfigError(f'{source}: {where}: distance_arcsec {distance:g} is not an angle between stars in arcsec')
+    if euler is not None:
+        # A gyro Euler-angle move: EL, XEL (corrected by the pixels, 6.7-6.8) must give the distance (4.38).
+        summed = float(spherical_sum_arcsec(euler[0], euler[1]))
+        if abs(summed - distance) > _EULER_TOLERANCE_ARCSEC:
+            raise ConfigError(f'{source}: {where}: el_arcsec and xel_arcsec give {summed:.1f}" by eq. 4.38, not '
+                              f'distance_arcsec {distance:.1f}"; give the Euler angles corrected by the pixels')
     return StarDistance(str(values.get('move', '')), stars[0], times[0], stars[1], times[1], distance,
                         _sigma(values['sigma_arcsec'], f'{where} sigma_arcsec', source), euler, pixels,
                         str(values.get('source', '')))

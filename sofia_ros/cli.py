@@ -234,6 +234,15 @@ def _model(args):
     return run_model_add(args, sys.stdout)
 
 
+def _import(args):
+    from sofia_ros.bag.csv_logs import import_csv_logs
+
+    bag = import_csv_logs(args.logs, args.bag)
+    print(f'bag: {bag} (from the CSV logs of {args.logs})')
+    print(f'analyze it: sofia compare {bag} --model config/model/nominal.yaml')
+    return 0
+
+
 def _add_noise_arguments(parser):
     from sofia_ros.analysis.noise_cli import add_noise_arguments
 
@@ -296,6 +305,12 @@ def build_parser():
     model = verbs.add_parser('model', help='edit a model file: `sofia model add EFFECT --model M.yaml`')
     add_model_arguments(model)
     model.set_defaults(handler=_model)
+
+    imported = verbs.add_parser('import', help='turn plain CSV logs (gyro, encoders, centroids, logbook) into a bag')
+    imported.add_argument('logs', help='directory of CSV logs (gyro.csv, gyro_temperature.csv, joints.csv, attitude.csv, '
+                                       'centroids.csv, [motion_status.csv], scenario.yaml; README)')
+    imported.add_argument('--bag', required=True, help='output bag directory (must not exist)')
+    imported.set_defaults(handler=_import)
 
     demo = verbs.add_parser('demo', help='worked demonstration of the science core against the thesis tables')
     demo.set_defaults(handler=_run_demo)

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.errors import InvalidArgumentError, NotOrthonormalError
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar, unit_vector
 
@@ -51,6 +51,7 @@ __all__ = [
     'quaternion_difference',
     'dcm_from_euler123',
     'euler123_from_dcm',
+    'euler123_from_dcms',
     'euler123_from_quaternion',
     'euler123_from_axis_angle',
     'axis_angle_from_quaternion',
@@ -124,6 +125,16 @@ def dcm_from_euler123(angles_rad):
 def euler123_from_dcm(a):
     """Euler 1-2-3 angles (alpha, beta, gamma) in rad of an attitude DCM (inverse of eq. B.4)."""
     return _rotation_from_dcm(a).as_euler('XYZ')
+
+
+def euler123_from_dcms(a):
+    """Euler 1-2-3 angles (N, 3) in rad of a stack of attitude DCMs (N, 3, 3) (inverse of eq. B.4)."""
+    stack = finite_array('dcms', a)
+    if stack.ndim != 3 or stack.shape[1:] != (3, 3):
+        raise InvalidArgumentError(f'dcms must have shape Nx3x3, got {stack.shape}')
+    if np.max(np.abs(stack @ np.swapaxes(stack, -1, -2) - np.eye(3)), initial=0.0) > 1e-6:
+        raise NotOrthonormalError('dcms must be orthonormal to 1e-6')
+    return Rotation.from_matrix(np.swapaxes(stack, -1, -2)).as_euler('XYZ')
 
 
 def euler123_from_quaternion(q):

@@ -143,3 +143,16 @@ def test_bad_input_raises():
         short_move_euler_arcsec(0.0, 0.0, (1.0, 2.0), (1.0, 2.0, 3.0))
     with pytest.raises(InvalidArgumentError, match='scale_arcsec_per_px must be > 0'):
         short_move_euler_arcsec(0.0, 0.0, (1.0, 2.0), (1.0, 2.0), scale_arcsec_per_px=0.0)
+
+
+def test_attitude_change_euler_of_a_stack_is_row_by_row():
+    """attitude_change_euler_arcsec on (N, 3, 3) stacks gives each pair's angles (4.3.3), to 1e-9"."""
+    from scipy.spatial.transform import Rotation
+
+    from sofia_ros.sky.distances import attitude_change_euler_arcsec as change
+
+    first = Rotation.random(5, random_state=1).as_matrix()
+    second = Rotation.random(5, random_state=2).as_matrix()
+    stacked = change(first, second)
+    for index in range(5):
+        np.testing.assert_allclose(stacked[index], change(first[index], second[index]), atol=1e-9)

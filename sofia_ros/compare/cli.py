@@ -18,7 +18,8 @@ __all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_m
 
 def add_compare_arguments(parser):
     """Arguments of `sofia compare`."""
-    parser.add_argument('bag', help='bag directory of a campaign (sofia run alignment)')
+    parser.add_argument('bag', help='bag directory of a campaign (sofia run alignment), or a measurement set '
+                                    '(a .yaml/.yml file, docs/measurement-sets.md)')
     parser.add_argument('--model', required=True, help='model YAML (effects: ..., fit: true for fitted terms)')
     parser.add_argument('--json', help='write the comparison as JSON (DESIGN.md section 6)')
     parser.add_argument('--report', help='write an HTML report with plots to this directory (ledger kept across runs)')
@@ -219,6 +220,10 @@ def run_compare(args, out):
             raise ConfigError(f'the directory of {target} does not exist; create it first')
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f'--report {args.report} is a file; give a directory')
+    if str(args.bag).lower().endswith(('.yaml', '.yml')):
+        from sofia_ros.measurements.report import run_set_compare
+
+        return run_set_compare(args, out, model)
     result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
     document = _json_ready(result.document)
     print_comparison(document, out)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sofia_ros.frames import euler123_from_dcm
+from sofia_ros.frames import euler123_from_dcm, euler123_from_dcms
 from sofia_ros.sky.refraction import apparent_altitude_deg
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import finite_array, positive_scalar
@@ -64,7 +64,11 @@ def angular_distance_cosine_rule_arcsec(altitude1_deg, azimuth1_deg, altitude2_d
 def attitude_change_euler_arcsec(first_dcm, second_dcm):
     """EL, XEL, LOS ["] of the attitude change from A1 to A2, LOS the last rotation (4.3.3: B.24, B.11-B.13)."""
     # DCM(dq) = A2 A1^T (B.24); Euler 1-2-3 = EL, XEL, LOS about the axes of the first attitude.
-    return euler123_from_dcm(np.asarray(second_dcm) @ np.asarray(first_dcm).T) * ARCSEC_PER_RAD
+    first, second = np.asarray(first_dcm, dtype=float), np.asarray(second_dcm, dtype=float)
+    if first.ndim == 3 or second.ndim == 3:
+        # A stack of attitude pairs (N, 3, 3): the same angles, row by row.
+        return euler123_from_dcms(second @ np.swapaxes(first, -1, -2)) * ARCSEC_PER_RAD
+    return euler123_from_dcm(second @ first.T) * ARCSEC_PER_RAD
 
 
 def spherical_sum_arcsec(el_arcsec, xel_arcsec):

@@ -1,0 +1,239 @@
+"""Measurement sets: the records of reduced observables a user fills from their own logs (docs/measurement-sets.md).
+
+A measurement set is one YAML file: the site, time origin, night, weather and heading of the
+logbook, the implemented alignment matrices it refers to, and tables of one *kind* each. The
+kinds, their columns (units in the names) and the effects each can see are declared here; the
+parser is measurements.validate, the physics measurements.predict.
+
+Two families of kinds. *Reduced* kinds (star_distance, earth_rate) hold observables after the
+TASCU's alignment matrix and the stated reductions: a model's gyro terms there are the errors the
+reduction left in, so their fitted terms start at zero. *Alignment* kinds (turning_point,
+misalignment_angle) hold the result of an alignment maneuver under a named implemented matrix: the
+model's gyro_misalignment there is the mounting itself, fitted from the model's values. One file
+holds one family.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ['FORMAT_VERSION', 'KINDS', 'KindSpec', 'StarDistance', 'EarthRateMean', 'TurningPoint',
+           'MisalignmentAngle', 'Table', 'MeasurementSet', 'REDUCED', 'ALIGNMENT']
+
+FORMAT_VERSION = 1
+REDUCED = 'reduced'
+ALIGNMENT = 'alignment'
+
+
+@dataclass(frozen=True)
+class KindSpec:
+    """One observable kind: its columns (name -> unit), optional columns, table keys, what it sees."""
+
+    name: str
+    family: str
+    description: str
+    required: tuple
+    optional: tuple
+    table_keys: tuple
+    #: effect -> why this kind's predictions depend on it
+    sees: dict
+    #: effect -> why not (the default reason covers the rest of the catalogue)
+    blind: dict
+    default_blind_reason: str
+    #: observables (suffixes) each row yields
+    axes: tuple = ('',)
+
+
+_DISTANCE_BLIND = {
+    'gyro_misalignment': 'a turn of the gyro axes keeps the rotation angle: a distance sees a residual misalignment '
+                         'only through the LOS share of a move, at second order (the TASCU matrix and 6.5 removed it)',
+    'imager_boresight_offset': 'both stars are on the same boresight: an imager offset cancels in the distance',
+    'imager_rotation_of_field': 'both stars are on the same boresight: a field rotation cancels in the distance',
+    'imager_scale_error': 'both stars are on the same boresight: an image scale cancels in the distance',
+    'hipo_fiducial_error': 'the reduction refers both stars to one detector point: a fiducial error cancels',
+    'focal_plane_flexure': 'a reduced distance carries no boresight position per elevation (6.2: < 1.1" over 23-60 deg)',
+    'imager_flexure': 'a reduced distance carries no boresight position per elevation (6.2: < 1.1" over 23-60 deg)',
+    'fpi_internal_flexure': 'a reduced distance carries no boresight position per elevation (6.2: < 1.1" over 23-60 deg)',
+    'timestamp_offset': 'the telescope is held still at both times: a clock offset moves no star',
+    'seeing': 'noise, averaged in the reduction; it sets the sigma column',
+    'gyro_noise': 'noise; it sets the sigma column',
+    'vibration_lines': 'lines average out over a move',
+    'accelerometer_bias': 'no accelerometer data in a distance',
+    'accelerometer_misalignment': 'no accelerometer data in a distance',
+    'heading_error': 'the attitude at each star comes from the star itself, not from the heading',
+}
+
+#: Rate offsets that a drift correction (6.3-6.4: the drift measured on the held star) removes.
+DRIFT_EFFECTS = ('gyro_bias', 'gyro_bias_drift', 'tracker_drift', 'los_oscillation')
+
+KINDS = {
+    'star_distance': KindSpec(
+        'star_distance', REDUCED,
+        'angular distance of two stars measured with the gyros between two holds (6.3, Table 6.7)',
+        required=(('star_1', 'name'), ('time_1', 'ISO 8601 with offset'), ('star_2', 'name'),
+                  ('time_2', 'ISO 8601 with offset'), ('distance_arcsec', 'arcsec'), ('sigma_arcsec', 'arcsec')),
+        optional=(('move', 'label'), ('el_arcsec', 'arcsec'), ('xel_arcsec', 'arcsec'), ('los_arcsec', 'arcsec'),
+                  ('x1_px', 'px'), ('y1_px', 'px'), ('x2_px', 'px'), ('y2_px', 'px'), ('source', 'text')),
+        table_keys=('drift_removed',),
+        sees={'gyro_scale_factor': 'scales the measured rotation (2.4.1)',
+              'gyro_axis_swap': 'the swapped calibrations scale EL and XEL oppositely (6.3)',
+              'earth_rotation': 'the gyros measure the move in inertial space (4.1)',
+              'atmospheric_refraction': 'raises each star by its refraction at its time (6.2)',
+              'gyro_bias': 'integrates over the time between the holds unless the drift is removed',
+              'gyro_bias_drift': 'integrates over the time between the holds unless the drift is removed',
+              'tracker_drift': 'integrates over the time between the holds unless the drift is removed',
+              'los_oscillation': 'integrates over the time between the holds unless the drift is removed'},
+        blind=_DISTANCE_BLIND,
+        default_blind_reason='star_distance predictions do not depend on it'),
+    'earth_rate': KindSpec(
+        'earth_rate', REDUCED,
+        'mean gyro rates of a braked telescope at a stated site, heading and elevation (5.2.4, Table 5.7)',
+        required=(('label', 'name'), ('el_deg_per_h', 'deg/h'), ('xel_deg_per_h', 'deg/h'),
+                  ('los_deg_per_h', 'deg/h'), ('sigma_deg_per_h', 'deg/h')),
+        optional=(('source', 'text'),),
+        table_keys=('latitude_deg', 'heading_deg', 'elevation_deg', 'gyro_frame', 'tarf_from_gyrf'),
+        sees={'gyro_bias': 'adds to each axis (5.2.4)',
+              'heading_error': 'turns Earth rate between EL, XEL and LOS (4.1-4.3)',
+              'gyro_scale_factor': 'scales the Earth rate each axis senses',
+              'gyro_axis_swap': 'scales and biases EL and XEL oppositely',
+              'gyro_misalignment': 'turns the Earth rate between the axes',
+              'earth_rotation': 'is the measured rate (4.1)'},
+        blind={'gyro_bias_drift': 'a mean rate does not show a ramp',
+               'los_oscillation': 'a mean over many periods does not show it',
+               'vibration_lines': 'a mean does not show lines',
+               'gyro_noise': 'noise; it sets the sigma column'},
+        default_blind_reason='a braked telescope\'s mean rate does not depend on it',
+        axes=('el', 'xel', 'los')),
+    'turning_point': KindSpec(
+        'turning_point', ALIGNMENT,
+        'LOS turning point on HIPO against the TARF origin under an implemented matrix (3.10, Tables 6.1, 6.2)',
+        required=(('matrix', 'name'), ('dx_arcsec', 'arcsec'), ('dy_arcsec', 'arcsec'), ('sigma_arcsec', 'arcsec')),
+        optional=(('x_px', 'px'), ('y_px', 'px'), ('maneuvers', 'count'), ('source', 'text')),
+        table_keys=(),
+        sees={'gyro_misalignment': 'the LOS tilt left by the implemented matrix puts the turning point off the origin (3.10)'},
+        blind={'hipo_fiducial_error': 'the reduction measured against the 2004 fiducials it names; not modelled here'},
+        default_blind_reason='an alignment result under a known matrix depends only on the gyro mounting',
+        axes=('x', 'y')),
+    'misalignment_angle': KindSpec(
+        'misalignment_angle', ALIGNMENT,
+        'EL/XEL misalignment angle beta under an implemented matrix (3.16-3.19, Table 6.4)',
+        required=(('matrix', 'name'), ('axis', 'u|v'), ('angle_arcmin', 'arcmin'), ('sigma_arcmin', 'arcmin')),
+        optional=(('source', 'text'),),
+        table_keys=(),
+        sees={'gyro_misalignment': 'the turn about LOS left by the implemented matrix is beta (3.18-3.19)'},
+        blind={},
+        default_blind_reason='an alignment result under a known matrix depends only on the gyro mounting'),
+}
+
+
+@dataclass(frozen=True)
+class StarDistance:
+    """One move: two stars at their times and the measured distance with its sigma (Table 6.7, D.3, D.6)."""
+
+    move: str
+    star_1: str
+    time_1_utc: dt.datetime
+    star_2: str
+    time_2_utc: dt.datetime
+    distance_arcsec: float
+    sigma_arcsec: float
+    euler_arcsec: tuple | None = None
+    pixels_px: tuple | None = None
+    source: str = ''
+
+
+@dataclass(frozen=True)
+class EarthRateMean:
+    """Mean EL, XEL, LOS rates in TARF of one record (Table 5.7), sigma per axis."""
+
+    label: str
+    rate_tarf_deg_per_h: tuple
+    sigma_deg_per_h: float
+    source: str = ''
+
+
+@dataclass(frozen=True)
+class TurningPoint:
+    """LOS turning point against the TARF origin along HIPO X, Y under an implemented matrix (Tables 6.1, 6.2)."""
+
+    matrix: str
+    offset_arcsec: tuple
+    sigma_arcsec: float
+    source: str = ''
+
+
+@dataclass(frozen=True)
+class MisalignmentAngle:
+    """Misalignment angle beta from the U or V maneuvers under an implemented matrix (Table 6.4)."""
+
+    matrix: str
+    axis: str
+    angle_arcmin: float
+    sigma_arcmin: float
+    source: str = ''
+
+
+@dataclass(frozen=True)
+class Table:
+    """One table of a set: its name, kind, reduction flags and geometry, provenance, and rows."""
+
+    name: str
+    kind: str
+    rows: tuple
+    provenance: str
+    drift_removed: bool = False
+    latitude_deg: float | None = None
+    heading_deg: float | None = None
+    elevation_deg: float | None = None
+
+    @property
+    def spec(self):
+        """The KindSpec of this table."""
+        return KINDS[self.kind]
+
+    def measured(self):
+        """The measured values (one per observable of each row), in the kind's units."""
+        if self.kind == 'star_distance':
+            return np.array([row.distance_arcsec for row in self.rows])
+        if self.kind == 'earth_rate':
+            return np.array([row.rate_tarf_deg_per_h for row in self.rows]).ravel()
+        if self.kind == 'turning_point':
+            return np.array([row.offset_arcsec for row in self.rows]).ravel()
+        return np.array([row.angle_arcmin for row in self.rows])
+
+    def sigma(self):
+        """The stated 1-sigma of each measured value, same order and units as measured()."""
+        if self.kind == 'star_distance':
+            return np.array([row.sigma_arcsec for row in self.rows])
+        if self.kind == 'earth_rate':
+            return np.repeat([row.sigma_deg_per_h for row in self.rows], 3)
+        if self.kind == 'turning_point':
+            return np.repeat([row.sigma_arcsec for row in self.rows], 2)
+        return np.array([row.sigma_arcmin for row in self.rows])
+
+    def observable_names(self):
+        """'<kind>' or '<kind>.<axis>' of each measured value."""
+        axes = self.spec.axes
+        if self.kind == 'misalignment_angle':
+            return [f'{self.kind}.{row.axis}' for row in self.rows]
+        return [self.kind if axis == '' else f'{self.kind}.{axis}' for _ in self.rows for axis in axes]
+
+
+@dataclass(frozen=True)
+class MeasurementSet:
+    """A parsed measurement set: logbook (site, time origin, night, weather, heading), matrices, tables."""
+
+    source: str
+    title: str
+    family: str
+    site: object
+    epoch_utc: dt.datetime
+    night_utc: tuple | None
+    weather: object | None
+    heading_deg: float | None
+    gyro_temperature_c: float
+    matrices: dict
+    tables: tuple

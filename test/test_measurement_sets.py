@@ -196,7 +196,7 @@ def star_hop():
 
 def test_star_hop_names_the_swapped_calibrations_and_the_degenerate_scale_factor(star_hop):
     """6.3: the deviation grows with distance; the missing effect is the axis swap or a scale factor (degenerate)."""
-    significant = [c['effect'] for c in star_hop['candidates'] if c['observable'] and c['delta_bic'] >= 6.0]
+    significant = [c['effect'] for c in star_hop['candidates'] if c['detectable'] and c['delta_bic'] >= 6.0]
     assert set(significant[:2]) == {'gyro_axis_swap', 'gyro_scale_factor'}
     assert ['gyro_axis_swap', 'gyro_scale_factor'] in star_hop['degenerate']
     assert star_hop['verdict']['status'] == 'missing_effect'
@@ -219,7 +219,7 @@ def test_star_hop_says_what_a_distance_cannot_see(star_hop):
     """Fitted misalignment and biases of the nominal model are not observable in drift-corrected distances."""
     blind = star_hop['not_observable_fitted_terms']
     assert 'rotation angle' in blind['gyro_misalignment'] and 'drift correction' in blind['gyro_bias']
-    reasons = {c['effect']: c.get('reason', '') for c in star_hop['candidates'] if not c['observable']}
+    reasons = {c['effect']: c.get('reason', '') for c in star_hop['candidates'] if not c['detectable']}
     assert 'cancels' in reasons['imager_rotation_of_field'] and 'heading_error' in reasons
     assert star_hop['terms'] == []
 

@@ -238,11 +238,12 @@ def _earth_rate_tables(measurement_set):
     return out
 
 
-def _candidate_entry(name, params, sigma, rms_after, rms_after_rate, delta_bic, *, observable=True, refined=False,
+def _candidate_entry(name, params, sigma, rms_after, rms_after_rate, delta_bic, *, detectable=True, refined=False,
                      reason=None):
     units = {param.name: param.unit for param in CATALOGUE[name].params}
     entry = {'effect': name, 'rms_after_arcsec': rms_after, 'delta_bic': delta_bic, 'params': params, 'sigma': sigma,
-             'units': {key: units[key] for key in params}, 'observable': observable, 'refined': refined}
+             'units': {key: units[key] for key in params}, 'detectable': detectable, 'refined': refined,
+             'empirical': False, 'observable': None, 'variable': None, 'period_s': None}
     if rms_after_rate is not None:
         entry['rms_after_arcsec_per_s'] = rms_after_rate
     if reason:
@@ -336,7 +337,7 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
         entries[candidate.name] = _candidate_entry(candidate.name, candidate.params, candidate.sigma,
                                                    scaled(angle.get('total'), candidate.rss_after),
                                                    scaled(rate.get('total'), candidate.rss_after),
-                                                   candidate.delta_bic, observable=candidate.observable,
+                                                   candidate.delta_bic, detectable=candidate.observable,
                                                    reason=reason)
     by_name = {term.name: (kept, switched) for term, kept, switched in terms}
     best_fit, best_name = None, None
@@ -356,14 +357,14 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
         if best_fit is None or trial.bic < best_fit.bic:
             best_fit, best_name = trial, candidate.name
     for name, reason in {**{n: r for n, r in blind.items() if r}, **vanished}.items():
-        entries[name] = _candidate_entry(name, {}, {}, None, None, 0.0, observable=False, reason=reason)
-    candidates = sorted(entries.values(), key=lambda entry: (not entry['observable'], -entry['delta_bic']))
+        entries[name] = _candidate_entry(name, {}, {}, None, None, 0.0, detectable=False, reason=reason)
+    candidates = sorted(entries.values(), key=lambda entry: (not entry['detectable'], -entry['delta_bic']))
     degenerate = degenerate_pairs(ranked, {name: entry['delta_bic'] for name, entry in entries.items()
                                            if name in {c.name for c in ranked}})
     # A candidate one fitted term absorbs alone is degenerate with it (e.g. heading_error ~ gyro_bias, 5.2.4).
     degenerate = sorted(set(degenerate) | {tuple(sorted((name, by))) for name, by in absorbed.items()
                                            if name in {c.name for c in ranked if not c.observable}})
-    significant = [c for c in candidates if c['observable'] and c['delta_bic'] >= SIGNIFICANT_DELTA_BIC]
+    significant = [c for c in candidates if c['detectable'] and c['delta_bic'] >= SIGNIFICANT_DELTA_BIC]
     floors = _rms_table(problem, np.ones(len(problem.sigma)))
     document = {
         'measurement_set': measurement_set.source,
@@ -379,7 +380,7 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
         'ledger': ledger,
         'candidates': candidates,
         'degenerate': [list(pair) for pair in degenerate],
-        'unobservable': [c['effect'] for c in candidates if not c['observable']],
+        'unobservable': [c['effect'] for c in candidates if not c['detectable']],
         'not_observable_fitted_terms': blind_fitted,
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
         'verdict': _verdict(problem, final.whitened, significant, degenerate, model.source),

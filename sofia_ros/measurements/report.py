@@ -48,7 +48,7 @@ def print_set_comparison(document, out):
         print(f'  {name:<48} {"  ".join(part for part in parts if part)}', file=out)
     print(f'candidates (catalogue effects not in the model), best first; significant at delta-BIC >= '
           f'{document["significant_delta_bic"]:g}:', file=out)
-    for candidate in [c for c in document['candidates'] if c['observable']][:6]:
+    for candidate in [c for c in document['candidates'] if c['detectable']][:6]:
         mark = '*' if candidate['delta_bic'] >= document['significant_delta_bic'] else ' '
         after = candidate['rms_after_arcsec']
         after_text = f'{after:.3f}"' if after is not None else f'{candidate["rms_after_arcsec_per_s"]:.4f} "/s'
@@ -58,7 +58,7 @@ def print_set_comparison(document, out):
             params = ', '.join(f'{key} = {value:.4g} {_spread(candidate["sigma"].get(key))} {candidate["units"][key]}'
                                for key, value in candidate['params'].items())
             print(f'      {params}', file=out)
-    hidden = [c for c in document['candidates'] if not c['observable']]
+    hidden = [c for c in document['candidates'] if not c['detectable']]
     if hidden:
         print('  not observable in this set:', file=out)
         reasons = {}

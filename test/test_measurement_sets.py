@@ -293,3 +293,10 @@ def test_cli_json_and_report(tmp_path, capsys):
                                               'observable'}
     assert (tmp_path / 'report' / 'index.html').exists()
     assert (tmp_path / 'report' / 'misalignment_and_drift_corrected.png').stat().st_size > 10000
+
+
+def test_the_2004_star_hop_residual_follows_distance_as_fig_6_11_shows(capsys):
+    # Fig. 6.11: the deviation grows with the distance; the nominal model leaves that trend as structure.
+    assert main(['compare', str(STAR_HOP), '--model', str(NOMINAL)]) == 0
+    out = capsys.readouterr().out
+    assert 'star_distance follows distance' in out

@@ -27,7 +27,9 @@ from sofia_ros.analysis.ranking import (
     linear_fit,
     rank_candidates,
 )
+from sofia_ros.analysis.structure import sigma_of_probability, trend_test
 from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
+from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA
 from sofia_ros.compare.fit import free_parameters
 from sofia_ros.effects import CATALOGUE, resolve_params
 from sofia_ros.errors import FitError
@@ -257,7 +259,34 @@ def _term_table(fit):
             for p, v, s in zip(fit.free, fit.values, fit.sigma)]
 
 
-def _verdict(problem, whitened, significant, degenerate, model_source):
+def _signature(problem, whitened):
+    """Trends of each observable's whitened residual against its own measured value (e.g. distance, Fig. 6.11).
+
+    The same F-test and family-wise significance as a bag comparison (compare.diagnostics);
+    with fewer than 30 rows only a straight line is tested (three cubic terms would eat the power).
+    """
+    observables = np.array(problem.observables)
+    tests = []
+    for name in dict.fromkeys(problem.observables):
+        mask = observables == name
+        degree = 1 if mask.sum() < 30 else 3
+        tests.append((name, trend_test(problem.measured[mask], whitened[mask], degree=degree),
+                      float(np.mean((problem.sigma * problem.to_arcsec)[mask]))))
+    count = sum(1 for _, test, _ in tests if test is not None)
+    trends = []
+    for name, test, scale in tests:
+        if test is None:
+            continue
+        sigma = sigma_of_probability(min(1.0, test.p_value * count))
+        if sigma >= REPORT_SIGMA:
+            variable = 'distance' if name.startswith('star_distance') else 'measured value'
+            trends.append({'observable': name, 'variable': variable, 'amplitude_arcsec': test.amplitude * scale,
+                           'significance_sigma': sigma, 'equivalent_variables': []})
+    return {'trends': sorted(trends, key=lambda t: -t['significance_sigma']), 'periods': [], 'tests_run': count,
+            'detection_sigma': DETECTION_SIGMA}
+
+
+def _verdict(problem, whitened, significant, degenerate, model_source, signature):
     observables = {}
     for name in dict.fromkeys(problem.observables):
         mask = np.array(problem.observables) == name
@@ -267,10 +296,12 @@ def _verdict(problem, whitened, significant, degenerate, model_source):
         rms = float(np.sqrt(np.mean((whitened[mask] * scale) ** 2)))
         floor = float(np.sqrt(np.mean(scale ** 2)))
         ratio = rms / floor
-        explained = bool(ratio ** 2 * n <= chi2.ppf(EXPLAINED_QUANTILE, n))
+        structure = [f'{t["variable"]}' for t in signature['trends']
+                     if t['observable'] == name and t['significance_sigma'] >= DETECTION_SIGMA]
+        explained = bool(ratio ** 2 * n <= chi2.ppf(EXPLAINED_QUANTILE, n)) and not structure
         suffix = 'arcsec_per_s' if kind in _RATE_KINDS else 'arcsec'
         observables[name] = {f'rms_{suffix}': rms, f'floor_{suffix}': floor, 'ratio': ratio, 'explained': explained,
-                             'rows': n}
+                             'rows': n, 'structure': structure}
     failing = [name for name, entry in observables.items() if not entry['explained']]
     if not failing:
         return {'status': 'explained', 'observables': observables,
@@ -279,7 +310,10 @@ def _verdict(problem, whitened, significant, degenerate, model_source):
         best = significant[0]
         tied = [pair for pair in degenerate if best['effect'] in pair]
         choice = ' or '.join(tied[0]) if tied else best['effect']
-        text = (f'missing effect {choice} ({", ".join(failing)} beyond the stated sigma); '
+        follows = [f'{name} follows {", ".join(observables[name]["structure"])}' for name in failing
+                   if observables[name]['structure']]
+        text = (f'missing effect {choice} ({", ".join(failing)} beyond the stated sigma'
+                + ''.join(f'; {clause}' for clause in follows) + '); '
                 + ('the data cannot choose between them' if tied else
                    f'add it with `sofia model add {best["effect"]} --model {model_source}`'))
         return {'status': 'missing_effect', 'observables': observables, 'text': text}
@@ -366,6 +400,7 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
                                            if name in {c.name for c in ranked if not c.observable}})
     significant = [c for c in candidates if c['detectable'] and c['delta_bic'] >= SIGNIFICANT_DELTA_BIC]
     floors = _rms_table(problem, np.ones(len(problem.sigma)))
+    signature = _signature(problem, final.whitened)
     document = {
         'measurement_set': measurement_set.source,
         'title': measurement_set.title,
@@ -383,7 +418,8 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
         'unobservable': [c['effect'] for c in candidates if not c['detectable']],
         'not_observable_fitted_terms': blind_fitted,
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
-        'verdict': _verdict(problem, final.whitened, significant, degenerate, model.source),
+        'signature': signature,
+        'verdict': _verdict(problem, final.whitened, significant, degenerate, model.source, signature),
         'rows': _rows(problem, final, best_fit),
         'earth_rate': _earth_rate_tables(measurement_set),
         'seconds': {'total': 0.0},

@@ -4,6 +4,9 @@ import os
 import random
 
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+# As sofia_ros/__init__.py does, before any test module imports numpy: small BLAS problems, few cores.
+for _variable in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
+    os.environ.setdefault(_variable, '1')
 os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
 
 

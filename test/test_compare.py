@@ -198,3 +198,18 @@ def test_bad_anchor_spacing_and_missing_output_directory_are_refused(tmp_path, c
     line = _error_line(capsys, ['compare', str(null_bag), '--model', str(NOMINAL_MODEL), '--json',
                                 str(tmp_path / 'no' / 'such' / 'out.json')])
     assert 'does not exist' in line
+
+
+def test_tick_attitudes_are_the_sequential_product_of_the_tick_rotations():
+    # 3.20 / B.23: A_k = R(phi_k)^T A_k-1; the scan groups the products differently, nothing else.
+    from scipy.spatial.transform import Rotation
+
+    from sofia_ros.compare.predict import propagate_tick_attitudes
+
+    rng = np.random.default_rng(5)
+    increments = rng.normal(0.0, 1e-3, (1000, 3))
+    start = Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix()
+    expected = [start]
+    for rotation_vector in increments:
+        expected.append(Rotation.from_rotvec(rotation_vector).as_matrix().T @ expected[-1])
+    np.testing.assert_allclose(propagate_tick_attitudes(increments, start), np.array(expected), atol=1e-13)

@@ -159,3 +159,24 @@ def test_untouched_bags_are_explained_no_false_alarm(nominal_alignment_bags, see
     document = compare_bag(nominal_alignment_bags[seed], _model()).document
     assert document['verdict']['status'] == 'explained', document['verdict']['text']
     assert all(entry['explained'] for entry in document['verdict']['observables'].values())
+
+
+@pytest.mark.parametrize('body, message', [
+    ("raise KeyError('table')", "its camera_shift_px hook raised KeyError"),
+    ("shift = np.zeros((3, 2))", r"returned shape \(3, 2\) for \d+ rows"),
+    ("shift[:, 0] = np.nan", 'returned NaN or inf'),
+])
+def test_a_failing_plugin_in_a_compare_is_one_line_and_exit_2(untouched, tmp_path, monkeypatch, capsys, body, message):
+    from sofia_ros.cli import main
+
+    case = Case('ffi.x', '', 'arcsec', (), None, 'camera_shift_px', body, 0.0)
+    name = f'broken_{abs(hash(body))}'
+    _plugin(tmp_path, monkeypatch, name, case)
+    model = tmp_path / 'model.yaml'
+    model.write_text(yaml.safe_dump({'effects': {**NOMINAL_MODEL['effects'], name: {'k': 1.0}}}))
+    out = tmp_path / 'out.json'
+    assert main(['compare', str(untouched), '--model', str(model), '--json', str(out)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert len(error.splitlines()) == 1 and f"effect '{name}'" in error
+    assert __import__('re').search(message, error), error
+    assert not out.exists()

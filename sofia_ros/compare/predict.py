@@ -55,13 +55,17 @@ def _dcms_from_rotvecs(rotvecs):
 
 
 def propagate_tick_attitudes(increments_rad, initial_dcm):
-    """A_TARF,IRF at every tick end from per-tick body rotation vectors, A_k = R(phi_k)^T A_k-1 (3.20, B.23)."""
-    steps = _dcms_from_rotvecs(increments_rad)
-    attitudes = np.empty((len(steps) + 1, 3, 3))
-    attitudes[0] = initial_dcm
-    for index, step in enumerate(steps):
-        attitudes[index + 1] = step @ attitudes[index]
-    return attitudes
+    """A_TARF,IRF at every tick end from per-tick body rotation vectors, A_k = R(phi_k)^T A_k-1 (3.20, B.23).
+
+    The running product is an inclusive scan (Hillis-Steele): log2(N) rounds of batched 3x3
+    products instead of N sequential ones; the same products, grouped differently (rounding ~1e-15).
+    """
+    prefix = _dcms_from_rotvecs(increments_rad)
+    shift = 1
+    while shift < len(prefix):
+        prefix[shift:] = prefix[shift:] @ prefix[:-shift]
+        shift *= 2
+    return np.concatenate([np.asarray(initial_dcm)[None], prefix @ initial_dcm])
 
 
 def attitudes_at(times_s, tick_end_s, tick_attitudes, increments_rad):

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from sofia_ros.compare.diagnostics import distinct_findings
 from sofia_ros.errors import ConfigError
 
 __all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'write_text_atomically']
@@ -176,6 +175,8 @@ def _spread(sigma, spec):
 
 def _print_diagnostics(document, out):
     """Every observable against its floor, then the strongest structure and the inconsistent terms."""
+    from sofia_ros.compare.diagnostics import distinct_findings
+
     observables = document['verdict']['observables']
     print('observables: residual RMS against its own floor (camera axes: centroid noise; gyro axes: the anchor '
           'walk the gyro noise allows)', file=out)

@@ -17,7 +17,6 @@ import sys
 import zlib
 from pathlib import Path
 
-import lz4.frame
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
@@ -27,10 +26,10 @@ if sys.version_info >= (3, 14):
 else:
     from backports import zstd
 
-__all__ = ['chunk_records', 'indexed_records', 'INDEX_DAMAGE_ERRORS']
+__all__ = ['indexed_records', 'INDEX_DAMAGE_ERRORS']
 
 #: What a damaged file raises here: summary parsing, record layout, zstd, the CRC check.
-INDEX_DAMAGE_ERRORS = (McapError, struct.error, zstd.ZstdError, RuntimeError, ValueError, IndexError)
+INDEX_DAMAGE_ERRORS = (McapError, struct.error, zstd.ZstdError, ValueError, IndexError)
 
 _CHUNK_OPCODE = 0x06
 _MESSAGE_INDEX_OPCODE = 0x07
@@ -59,7 +58,7 @@ def indexed_records(mcap_path, topics, packed=()):
             wanted = [channel for channel in chunk.message_index_offsets if channel in channel_topic]
             if not wanted:
                 continue
-            records = chunk_records(data, chunk)
+            records = _chunk_records(data, chunk)
             for channel in wanted:
                 topic = channel_topic[channel]
                 log_ns, starts, ends = _channel_messages(data, chunk.message_index_offsets[channel], channel, records)
@@ -72,8 +71,8 @@ def indexed_records(mcap_path, topics, packed=()):
     return {**{topic: _in_time_order(stamps, payloads) for topic, (stamps, payloads) in found.items()}, **blocks}
 
 
-def chunk_records(data, chunk):
-    """The decompressed, CRC-checked records of one Chunk record (``chunk``: its ChunkIndex) of the file ``data``."""
+def _chunk_records(data, chunk):
+    """The decompressed, CRC-checked records of one Chunk record."""
     start = chunk.chunk_start_offset
     if data[start] != _CHUNK_OPCODE:
         raise ValueError(f'no chunk record at byte {start}')
@@ -84,8 +83,6 @@ def chunk_records(data, chunk):
     compressed = data[body + 8:body + 8 + length]
     if chunk.compression == 'zstd':
         records = zstd.decompress(compressed)
-    elif chunk.compression == 'lz4':
-        records = lz4.frame.decompress(compressed)
     elif chunk.compression == '':
         records = bytes(compressed)
     else:

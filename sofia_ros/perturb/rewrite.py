@@ -217,7 +217,10 @@ def _channel_messages(records: bytes, channel_id: int) -> Iterator[tuple[int, in
 
 def _decompressed(chunk: Chunk, position: int) -> bytes:
     """A chunk's records, size- and CRC-checked."""
-    records = _DECOMPRESS[chunk.compression](chunk.data)
+    try:
+        records = _DECOMPRESS[chunk.compression](chunk.data)
+    except RuntimeError as err:  # what lz4.frame raises on damaged data
+        raise ValueError(f'chunk at byte {position} does not decompress: {err}') from err
     if len(records) != chunk.uncompressed_size or (chunk.uncompressed_crc and
                                                    zlib.crc32(records) != chunk.uncompressed_crc):
         raise ValueError(f'chunk at byte {position} fails its size or CRC check')

@@ -25,6 +25,7 @@ import zlib
 from typing import TYPE_CHECKING
 
 import lz4.frame
+import numpy as np
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
@@ -54,7 +55,6 @@ _RECORD_HEAD = struct.Struct('<BQ')
 #: channel id, sequence, log time, publish time
 _MESSAGE_HEAD = struct.Struct('<HIQQ')
 _CHANNEL_ID = struct.Struct('<H')
-_CHUNK_FIXED = struct.Struct('<QQQI')
 _COMPRESS = {'zstd': zstd.compress, 'lz4': lz4.frame.compress, '': bytes}
 _DECOMPRESS = {'zstd': zstd.decompress, 'lz4': lz4.frame.decompress, '': bytes}
 _DAMAGE = (*INDEX_DAMAGE_ERRORS, KeyError)
@@ -89,13 +89,14 @@ def channel_payloads(mcap_path: Path, summary: Summary, channel_id: int) -> Iter
             if channel_id in chunk.message_index_offsets:
                 start = chunk.chunk_start_offset
                 records = _decompressed(_read(Chunk, data, start), start)
-                yield [records[head + _MESSAGE_HEAD.size:end]
-                       for head, end in _channel_messages(records, channel_id)]
+                spans = _channel_messages(data, chunk.message_index_offsets[channel_id], channel_id, records)
+                yield [records[head + _MESSAGE_HEAD.size:end] for head, end in spans]
 
 
 def copy_mcap(source: Path, target: Path, summary: Summary, channel_id: int, replace: Replace) -> None:
     """Write ``target`` as ``source`` with each chunk's payloads of ``channel_id`` replaced by equal-length ones."""
-    holding = {chunk.chunk_start_offset for chunk in summary.chunk_indexes if channel_id in chunk.message_index_offsets}
+    holding = {chunk.chunk_start_offset: chunk.message_index_offsets[channel_id] for chunk in summary.chunk_indexes
+               if channel_id in chunk.message_index_offsets}
     with open(source, 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data, \
             open(target, 'wb') as out:
         try:
@@ -108,9 +109,11 @@ def copy_mcap(source: Path, target: Path, summary: Summary, channel_id: int, rep
 class _Copy:
     """One pass over the source's records, writing the target and remembering where each record moved."""
 
-    def __init__(self, data: mmap.mmap, out: io.BufferedWriter, holding: set[int], channel_id: int,
+    def __init__(self, data: mmap.mmap, out: io.BufferedWriter, holding: dict[int, int], channel_id: int,
                  replace: Replace) -> None:
-        self.data, self.out, self.holding, self.channel_id, self.replace = data, out, holding, channel_id, replace
+        self.data, self.out, self.channel_id, self.replace = data, out, channel_id, replace
+        #: source offset of each chunk holding the channel -> offset of the channel's MessageIndex record
+        self.holding = holding
         #: source offset -> target offset of every top-level record
         self.moved: dict[int, int] = {}
         #: source offset of each rebuilt chunk -> (record length, compressed size) in the target
@@ -174,7 +177,7 @@ class _Copy:
         """
         chunk = _read(Chunk, self.data, position)
         records = bytearray(_decompressed(chunk, position))
-        spans = list(_channel_messages(records, self.channel_id))
+        spans = _channel_messages(self.data, self.holding[position], self.channel_id, records)
         view = memoryview(records)
         bodies = self.replace([view[head + _MESSAGE_HEAD.size:end] for head, end in spans])
         if len(bodies) != len(spans):
@@ -202,17 +205,23 @@ class _Copy:
         self.out.write(_encoded(footer))
 
 
-def _channel_messages(records: bytes, channel_id: int) -> Iterator[tuple[int, int]]:
-    """(message head offset, payload end) of the channel's Message records in decompressed chunk ``records``."""
-    position, end = 0, len(records)
-    while position < end:
-        opcode, length = _RECORD_HEAD.unpack_from(records, position)
-        body = position + _RECORD_HEAD.size
-        if opcode == Opcode.MESSAGE and _CHANNEL_ID.unpack_from(records, body)[0] == channel_id:
-            yield body, body + length
-        position = body + length
-    if position != end:
-        raise ValueError('the last record of a chunk runs past its end')
+def _channel_messages(data: mmap.mmap, index_offset: int, channel_id: int, records: bytes) -> list[tuple[int, int]]:
+    """(message head offset, payload end) of the channel's Message records in a chunk's decompressed ``records``,
+    in record order, from the channel's MessageIndex record at ``index_offset`` of the file ``data``."""
+    opcode, length = _RECORD_HEAD.unpack_from(data, index_offset)
+    indexed_channel, pairs_bytes = struct.unpack_from('<HI', data, index_offset + _RECORD_HEAD.size)
+    if opcode != Opcode.MESSAGE_INDEX or indexed_channel != channel_id or pairs_bytes + 6 != length:
+        raise ValueError(f'no message index of channel {channel_id} at byte {index_offset}')
+    pairs = np.frombuffer(data, dtype='<u8', count=pairs_bytes // 8, offset=index_offset + _RECORD_HEAD.size + 6)
+    spans = []
+    for offset in np.sort(pairs[1::2]).tolist():
+        opcode, length = _RECORD_HEAD.unpack_from(records, offset)
+        head = offset + _RECORD_HEAD.size
+        if opcode != Opcode.MESSAGE or _CHANNEL_ID.unpack_from(records, head)[0] != channel_id \
+                or head + length > len(records):
+            raise ValueError(f'the message index at byte {index_offset} points at no message of its channel')
+        spans.append((head, head + length))
+    return spans
 
 
 def _decompressed(chunk: Chunk, position: int) -> bytes:

@@ -57,7 +57,7 @@ def row_variables(bag: BagReader, rows: Rows, names: Iterable[str]) -> dict[str,
         values['time_s'] = _seconds(rows.stamp_ns, _first_clock_ns(bag))
     if names & {'elevation_deg', 'los_angle_deg'}:
         stamps_ns, joints = _stamped(bag, _JOINT_TOPIC, 'elevation_deg / los_angle_deg',
-                                     lambda msg: m.joint_positions_of(msg))
+                                     m.joint_positions_of)
         joint_s = _seconds(stamps_ns, origin_ns)
         for name, joint in (('elevation_deg', CD_JOINT), ('los_angle_deg', FD_JOINTS[2])):
             if name in names:
@@ -87,10 +87,10 @@ def _seconds(stamp_ns: np.ndarray, origin_ns: int) -> np.ndarray:
 def _first_clock_ns(bag: BagReader) -> int:
     """The time the first /clock message carries (the campaign start)."""
     _require(bag, CLOCK_TOPIC, 'time_s')
-    _, messages = bag.messages_by_topic(CLOCK_TOPIC)[CLOCK_TOPIC]
-    if not messages:
+    first = next(bag.messages(CLOCK_TOPIC), None)
+    if first is None:
         raise BagError(f'{CLOCK_TOPIC} in bag {bag.path} is empty; time_s counts from its first message')
-    return m.stamp_ns_of(messages[0].clock)
+    return m.stamp_ns_of(first[2].clock)
 
 
 def _stamped(bag: BagReader, topic: str, variable: str, value_of) -> tuple[np.ndarray, list]:

@@ -228,6 +228,12 @@ def _compare(args):
     return run_compare(args, sys.stdout)
 
 
+def _perturb(args):
+    from sofia_ros.perturb.cli import run_perturb
+
+    return run_perturb(args, sys.stdout)
+
+
 def _model(args):
     from sofia_ros.compare.cli import run_model_add
 
@@ -301,6 +307,12 @@ def build_parser():
     compare = verbs.add_parser('compare', help='fit a model to a campaign bag and rank the effects it lacks')
     add_compare_arguments(compare)
     compare.set_defaults(handler=_compare)
+
+    from sofia_ros.perturb.cli import add_perturb_arguments
+
+    perturb = verbs.add_parser('perturb', help='copy a bag with a what-if shape added to one camera or gyro axis')
+    add_perturb_arguments(perturb)
+    perturb.set_defaults(handler=_perturb)
 
     model = verbs.add_parser('model', help='edit a model file: `sofia model add EFFECT --model M.yaml`')
     add_model_arguments(model)

@@ -14,6 +14,7 @@ __all__ = [
     'UnknownStarError',
     'BelowHorizonError',
     'ConfigError',
+    'PerturbationError',
     'UnknownEffectError',
     'CommandRefusedError',
     'BagError',
@@ -43,6 +44,10 @@ class BelowHorizonError(SofiaError):
 
 class ConfigError(SofiaError):
     """A truth, model or node configuration is malformed or out of range."""
+
+
+class PerturbationError(ConfigError):
+    """A `sofia perturb` request is malformed: observable, unit, shape expression or output path."""
 
 
 class UnknownEffectError(ConfigError):

@@ -24,7 +24,7 @@ def test_readme_opens_with_the_two_commands():
 
 def test_every_documented_verb_exists():
     verbs = build_parser()._subparsers._group_actions[0].choices
-    for verb in ('run', 'replay', 'effects', 'demo', 'compare', 'noise', 'model', 'import'):
+    for verb in ('run', 'replay', 'effects', 'demo', 'compare', 'noise', 'model', 'import', 'perturb'):
         assert verb in verbs and f'sofia {verb}' in README
 
 

@@ -21,7 +21,7 @@ from sofia_ros.errors import InvalidArgumentError
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['ImuArrays', 'decode_imu_cdr', 'decode_imu_blocks']
+__all__ = ['ImuArrays', 'decode_imu_cdr', 'decode_imu_blocks', 'decode_imu_rows', 'with_angular_velocity']
 
 _ENCAPSULATION_CDR_LE = (0, 1)
 _DOUBLES_BYTES = 37 * 8
@@ -64,7 +64,7 @@ def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArr
 
 def decode_imu_blocks(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> ImuArrays:
     """Decode (log stamps ns, 2-D uint8 rows of equal-length Imu CDR) blocks into ImuArrays in log-time order."""
-    decoded = [(stamps, *_decode_block(rows)) for stamps, rows in blocks if len(stamps)]
+    decoded = [(stamps, *decode_imu_rows(rows)) for stamps, rows in blocks if len(stamps)]
     if not decoded:
         empty = np.empty((0, 3))
         return ImuArrays(np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), empty, empty.copy())
@@ -78,8 +78,31 @@ def decode_imu_blocks(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> ImuArr
     )
 
 
-def _decode_block(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Decode header stamps (ns), angular velocities, linear accelerations of equal-length rows."""
+def with_angular_velocity(block: np.ndarray, angular_velocity_rad_per_s: np.ndarray) -> np.ndarray:
+    """Equal-length Imu CDR rows (2-D uint8) with angular_velocity set to the (rows, 3) values, every other byte kept."""
+    start = _doubles_start(block) + _ANGULAR_VELOCITY_OFFSET
+    rates = np.ascontiguousarray(angular_velocity_rad_per_s, dtype='<f8')
+    if rates.shape != (block.shape[0], 3):
+        raise InvalidArgumentError(f'need {block.shape[0]} x 3 angular velocities, got {rates.shape}')
+    rows = block.copy()
+    rows[:, start:start + 24] = rates.view(np.uint8).reshape(-1, 24)
+    return rows
+
+
+def decode_imu_rows(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Header stamps (ns), angular velocities (N x 3), linear accelerations (N x 3) of equal-length rows, in row order."""
+    start = _doubles_start(block)
+    sec = _column(block, 4, '<i4')[:, 0].astype(np.int64)
+    nanosec = _column(block, 8, '<u4')[:, 0].astype(np.int64)
+    return (
+        sec * 1_000_000_000 + nanosec,
+        _column(block, start + _ANGULAR_VELOCITY_OFFSET, '<f8', 3),
+        _column(block, start + _LINEAR_ACCELERATION_OFFSET, '<f8', 3),
+    )
+
+
+def _doubles_start(block: np.ndarray) -> int:
+    """Byte offset of the 37 doubles in equal-length Imu rows; InvalidArgumentError if they are not Imu CDR."""
     if block.shape[1] < _MIN_BYTES:
         raise InvalidArgumentError(
             f'Imu payload of {block.shape[1]} bytes is shorter than the sensor_msgs/msg/Imu layout'
@@ -88,8 +111,6 @@ def _decode_block(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         raise InvalidArgumentError(
             'Imu payloads are not little-endian CDR; read them with messages()'
         )
-    sec = _column(block, 4, '<i4')[:, 0].astype(np.int64)
-    nanosec = _column(block, 8, '<u4')[:, 0].astype(np.int64)
     frame_id_bytes = _column(block, 12, '<u4')[:, 0].astype(np.int64)
     # Doubles align to 8 bytes counted from the end of the encapsulation header.
     doubles_at = 4 + (12 + frame_id_bytes + 7) // 8 * 8
@@ -97,12 +118,7 @@ def _decode_block(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         raise InvalidArgumentError(
             'Imu payload length does not match the sensor_msgs/msg/Imu layout'
         )
-    start = int(doubles_at[0])
-    return (
-        sec * 1_000_000_000 + nanosec,
-        _column(block, start + _ANGULAR_VELOCITY_OFFSET, '<f8', 3),
-        _column(block, start + _LINEAR_ACCELERATION_OFFSET, '<f8', 3),
-    )
+    return int(doubles_at[0])
 
 
 def _column(block: np.ndarray, offset: int, dtype: str, count: int = 1) -> np.ndarray:

@@ -21,7 +21,7 @@ Written by `sofia effects new {name} --kind {kind}`. Use it with
 
 then `sofia model add {name} --model MODEL.yaml` makes it a fitted term; a truth file may
 carry it too (the simulator calls the same hook). The context's fields, frames and signs:
-docs/effects.md ("Plug-in hooks").
+docs/discovery.md ("Plug-in hooks").
 """
 
 import numpy as np

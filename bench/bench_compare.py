@@ -2,16 +2,18 @@
 
 The bag is the default campaign of `scripts/run-main` (nominal truth, seed 1, 6 repetitions,
 direct mode), made in a temporary directory unless a bag is given. Printed: wall time of the
-comparison (reading the bag, the ledger fits, every candidate, the refits), its parts, and the
-time per candidate. Target: <= 10 s wall on the 2-core machine. Beside it, the same topics
-read record by record through rosbags (what `read_observations` did before it read through
-the MCAP message indexes).
+comparison (reading the bag, the ledger fits, the diagnostics of every observable, every
+candidate, the refits), its parts, and the time per candidate, with the machine's load beside
+it. Target: <= 10 s wall on the 2-core machine. Beside it, the same topics read record by
+record through rosbags (what `read_observations` did before it read through the MCAP message
+indexes).
 
 Run: .venv/bin/python bench/bench_compare.py [BAG]
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import time
@@ -67,8 +69,9 @@ def main():
     print(f'centroids: {sum(document["observations"].values())}, gyro samples: {len(observations.gyro.time_s)}')
     print(f'reading the bag alone: {read_s:.2f} s through the message indexes; the same topics record by record '
           f'through rosbags: {rosbags_s:.2f} s ({rosbags_s / read_s:.1f}x)')
-    print(f'sofia compare, whole: {total_s:.2f} s wall (target <= 10 s); {len(candidates)} candidates, '
-          f'{document["seconds"]["per_candidate"] * 1000:.0f} ms each linearized')
+    print(f'sofia compare, whole: {total_s:.2f} s wall (target <= 10 s; load average {os.getloadavg()[0]:.2f} on '
+          f'{os.cpu_count()} cores); diagnostics {document["seconds"]["diagnostics"]:.2f} s; {len(candidates)} '
+          f'candidates, {document["seconds"]["per_candidate"] * 1000:.0f} ms each linearized')
     for candidate in candidates:
         print(f'  {candidate["effect"]:<28} {candidate["seconds"]:6.3f} s  '
               f'{"refit" if candidate["refined"] else "linear"}  dBIC {candidate["delta_bic"]:9.1f}')

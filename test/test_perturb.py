@@ -208,6 +208,7 @@ BAD = [
     ('fpi.x', '(lambda: 1)()', None, PerturbationError, 'calls something other'),
     ('fpi.x', 'clip(time_s, a_min=0, a_max=1)', None, PerturbationError, 'keyword or starred'),
     ('fpi.x', 'sin', None, PerturbationError, 'without calling it'),
+    ('fpi.x', 'heaviside(time_s)', None, PerturbationError, r'heaviside\(\) takes 2 argument'),
     ('fpi.x', '1' + '+1' * 300, None, PerturbationError, 'more than 500'),
     ('fpi.x', '1.0', 'deg_per_h', PerturbationError, r"unit 'deg_per_h' is not accepted for fpi.x; use one of arcsec, px"),
     ('gyro.los', '1.0', 'px', PerturbationError, 'use one of deg_per_h, arcsec_per_s'),

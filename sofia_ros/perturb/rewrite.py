@@ -213,15 +213,20 @@ def _channel_messages(data: mmap.mmap, index_offset: int, channel_id: int, recor
     if opcode != Opcode.MESSAGE_INDEX or indexed_channel != channel_id or pairs_bytes + 6 != length:
         raise ValueError(f'no message index of channel {channel_id} at byte {index_offset}')
     pairs = np.frombuffer(data, dtype='<u8', count=pairs_bytes // 8, offset=index_offset + _RECORD_HEAD.size + 6)
-    spans = []
-    for offset in np.sort(pairs[1::2]).tolist():
-        opcode, length = _RECORD_HEAD.unpack_from(records, offset)
-        head = offset + _RECORD_HEAD.size
-        if opcode != Opcode.MESSAGE or _CHANNEL_ID.unpack_from(records, head)[0] != channel_id \
-                or head + length > len(records):
-            raise ValueError(f'the message index at byte {index_offset} points at no message of its channel')
-        spans.append((head, head + length))
-    return spans
+    offsets = np.sort(pairs[1::2].astype(np.int64))
+    raw = np.frombuffer(records, dtype=np.uint8)
+    if len(offsets) == 0:
+        return []
+    if offsets.max() + _RECORD_HEAD.size + _CHANNEL_ID.size > len(raw):
+        raise ValueError(f'the message index at byte {index_offset} points past the end of its chunk')
+    # Each record's length and channel id, gathered for all records at once.
+    lengths = raw[offsets[:, None] + np.arange(1, _RECORD_HEAD.size)].copy().view('<u8')[:, 0].astype(np.int64)
+    channels = raw[offsets[:, None] + np.arange(_RECORD_HEAD.size, _RECORD_HEAD.size + 2)].copy().view('<u2')[:, 0]
+    heads = offsets + _RECORD_HEAD.size
+    ends = heads + lengths
+    if np.any(raw[offsets] != Opcode.MESSAGE) or np.any(channels != channel_id) or ends.max() > len(raw):
+        raise ValueError(f'the message index at byte {index_offset} points at no message of its channel')
+    return list(zip(heads.tolist(), ends.tolist()))
 
 
 def _decompressed(chunk: Chunk, position: int) -> bytes:

@@ -30,7 +30,7 @@ import numpy as np
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import AttachmentIndex, Chunk, ChunkIndex, Footer, MessageIndex, MetadataIndex, SummaryOffset
+from mcap.records import AttachmentIndex, Chunk, ChunkIndex, Footer, MetadataIndex, SummaryOffset
 
 from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS
 from sofia_ros.errors import BagError

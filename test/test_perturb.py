@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 import yaml
 from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.stream_reader import StreamReader
 
 from sofia_ros.bag import BagReader, BagWriter
 from sofia_ros.bag.msgtypes import decode_cdr
@@ -181,6 +183,9 @@ def test_the_copy_reads_like_the_source_in_bagreader_and_compare(bag, tmp_path):
         summary = make_reader(file).get_summary()
         assert summary.statistics.chunk_count == len(summary.chunk_indexes) > 1
         assert {chunk.compression for chunk in summary.chunk_indexes} == {'zstd'}
+        file.seek(0)
+        chunks = [record for record in StreamReader(file, emit_chunks=True).records if isinstance(record, Chunk)]
+        assert len(chunks) == len(summary.chunk_indexes) and all(chunk.uncompressed_crc for chunk in chunks)
     old, new = read_observations(bag), read_observations(out)
     ffi = old.centroids.camera_index == old.centroids.cameras.index('ffi')
     changed = np.any(new.centroids.measured_px != old.centroids.measured_px, axis=1)
@@ -208,6 +213,7 @@ BAD = [
     ('fpi.x', '(lambda: 1)()', None, PerturbationError, 'calls something other'),
     ('fpi.x', 'clip(time_s, a_min=0, a_max=1)', None, PerturbationError, 'keyword or starred'),
     ('fpi.x', 'sin', None, PerturbationError, 'without calling it'),
+    ('fpi.x', 'heaviside(time_s)', None, PerturbationError, r'heaviside\(\) takes 2 argument'),
     ('fpi.x', '1' + '+1' * 300, None, PerturbationError, 'more than 500'),
     ('fpi.x', '1.0', 'deg_per_h', PerturbationError, r"unit 'deg_per_h' is not accepted for fpi.x; use one of arcsec, px"),
     ('gyro.los', '1.0', 'px', PerturbationError, 'use one of deg_per_h, arcsec_per_s'),

@@ -1,18 +1,19 @@
-"""Copy an MCAP file record for record, replacing the payloads of one channel; every other byte is kept.
+"""Copy an MCAP file record for record, replacing the payloads of one channel; every other record is kept.
 
-The source's top-level records are walked in file order. A chunk without the channel, and its
-message indexes, are copied as they are (compressed bytes and CRC included). A chunk with it is
-decompressed and CRC-checked, its records are rebuilt with the new payloads (every other record of
-the chunk, and each message's channel, sequence, log time and publish time, kept), compressed like
-the source and written as a new Chunk record with its CRC; its MessageIndex records get the new
-offsets. The summary (schemas, channels, statistics, chunk, metadata and attachment indexes,
+The source's top-level records are walked in file order. A chunk holding the channel is
+decompressed and checked, the channel's payloads (found through its MessageIndex record) are
+replaced in place by new ones of the same length, and the chunk is compressed like the source and
+written as a new Chunk record with its CRC; every other record of the chunk, and each message's
+channel, sequence, log time and publish time, stay as they were, and so do its MessageIndex
+records (no offset moves). A chunk without the channel keeps its compressed bytes; a CRC is added
+if it had none. The summary (schemas, channels, statistics, chunk, metadata and attachment indexes,
 summary offsets) and the footer follow with the moved offsets and a new summary CRC, so BagReader's
 indexed read, rosbags and the mcap tools read the copy. Records are encoded by the ``mcap`` package
 (mcap.records).
 
 The ``mcap`` package's Writer would re-encode all 0.8 M messages of an alignment bag one Python call
-at a time (about 10 s); copying untouched chunks and records as bytes keeps a camera perturbation
-at a few seconds and leaves the file's chunk layout (one chunk per flush of the recorder) as it was.
+at a time (about 10 s); copying records as bytes keeps a camera perturbation at 1-2 s and leaves
+the file's chunk layout (one chunk per flush of the recorder) as it was.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 from mcap.data_stream import ReadDataStream, RecordBuilder
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import AttachmentIndex, Chunk, ChunkIndex, Footer, MessageIndex, MetadataIndex, SummaryOffset
+from mcap.records import AttachmentIndex, Chunk, ChunkIndex, Footer, MetadataIndex, SummaryOffset
 
 from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS
 from sofia_ros.errors import BagError
@@ -55,6 +56,8 @@ _RECORD_HEAD = struct.Struct('<BQ')
 #: channel id, sequence, log time, publish time
 _MESSAGE_HEAD = struct.Struct('<HIQQ')
 _CHANNEL_ID = struct.Struct('<H')
+#: Offset of uncompressed_crc in a Chunk record: after its head, start and end times and uncompressed size.
+_CHUNK_CRC_AT = _RECORD_HEAD.size + 24
 _COMPRESS = {'zstd': zstd.compress, 'lz4': lz4.frame.compress, '': bytes}
 _DECOMPRESS = {'zstd': zstd.decompress, 'lz4': lz4.frame.decompress, '': bytes}
 _DAMAGE = (*INDEX_DAMAGE_ERRORS, KeyError)
@@ -147,8 +150,8 @@ class _Copy:
 
     def _record(self, opcode: int, position: int, end: int) -> bytes | memoryview:
         """The target bytes of the top-level record at ``position``."""
-        if opcode == Opcode.CHUNK and position in self.holding:
-            return self._chunk(position)
+        if opcode == Opcode.CHUNK:
+            return self._chunk(position) if position in self.holding else self._with_crc(position, end)
         if opcode == Opcode.DATA_END and struct.unpack_from('<I', self.data, position + _RECORD_HEAD.size)[0]:
             raise ValueError('data-section CRCs are not supported; rebuild the bag with sofia_ros.bag.recover_bag')
         if opcode == Opcode.CHUNK_INDEX:
@@ -168,6 +171,16 @@ class _Copy:
             summary_offset.group_start = self.moved[summary_offset.group_start]
             return _encoded(summary_offset)
         return memoryview(self.data)[position:end]
+
+    def _with_crc(self, position: int, end: int) -> bytes | memoryview:
+        """The chunk at ``position`` as it is, its CRC filled in if the source left it 0."""
+        raw = memoryview(self.data)[position:end]
+        if struct.unpack_from('<I', raw, _CHUNK_CRC_AT)[0]:
+            return raw
+        record = bytearray(raw)
+        struct.pack_into('<I', record, _CHUNK_CRC_AT, zlib.crc32(_decompressed(_read(Chunk, self.data, position),
+                                                                             position)))
+        return record
 
     def _chunk(self, position: int) -> bytes:
         """The chunk at ``position`` with the new payloads, compressed like the source, with its CRC.
@@ -213,15 +226,20 @@ def _channel_messages(data: mmap.mmap, index_offset: int, channel_id: int, recor
     if opcode != Opcode.MESSAGE_INDEX or indexed_channel != channel_id or pairs_bytes + 6 != length:
         raise ValueError(f'no message index of channel {channel_id} at byte {index_offset}')
     pairs = np.frombuffer(data, dtype='<u8', count=pairs_bytes // 8, offset=index_offset + _RECORD_HEAD.size + 6)
-    spans = []
-    for offset in np.sort(pairs[1::2]).tolist():
-        opcode, length = _RECORD_HEAD.unpack_from(records, offset)
-        head = offset + _RECORD_HEAD.size
-        if opcode != Opcode.MESSAGE or _CHANNEL_ID.unpack_from(records, head)[0] != channel_id \
-                or head + length > len(records):
-            raise ValueError(f'the message index at byte {index_offset} points at no message of its channel')
-        spans.append((head, head + length))
-    return spans
+    offsets = np.sort(pairs[1::2].astype(np.int64))
+    raw = np.frombuffer(records, dtype=np.uint8)
+    if len(offsets) == 0:
+        return []
+    if offsets.max() + _RECORD_HEAD.size + _CHANNEL_ID.size > len(raw):
+        raise ValueError(f'the message index at byte {index_offset} points past the end of its chunk')
+    # Each record's length and channel id, gathered for all records at once.
+    lengths = raw[offsets[:, None] + np.arange(1, _RECORD_HEAD.size)].copy().view('<u8')[:, 0].astype(np.int64)
+    channels = raw[offsets[:, None] + np.arange(_RECORD_HEAD.size, _RECORD_HEAD.size + 2)].copy().view('<u2')[:, 0]
+    heads = offsets + _RECORD_HEAD.size
+    ends = heads + lengths
+    if np.any(raw[offsets] != Opcode.MESSAGE) or np.any(channels != channel_id) or ends.max() > len(raw):
+        raise ValueError(f'the message index at byte {index_offset} points at no message of its channel')
+    return list(zip(heads.tolist(), ends.tolist()))
 
 
 def _decompressed(chunk: Chunk, position: int) -> bytes:

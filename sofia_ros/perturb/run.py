@@ -100,7 +100,8 @@ def perturb_bag(bag_path: str | PathLike[str], out_path: str | PathLike[str], ob
 
 def _camera(payloads: Iterator[list[memoryview]], target: Observable) -> _Recorded:
     """Centroid rows (every star of every frame, file order) and the PoseArray re-serializer."""
-    messages = [decode_cdr(payload, _POSE_ARRAY) for chunk in payloads for payload in chunk]
+    cdr = [payload for chunk in payloads for payload in chunk]
+    messages = [decode_cdr(payload, _POSE_ARRAY) for payload in cdr]
     poses = [(m.stamp_ns_of(message.header.stamp), pose.position) for message in messages for pose in message.poses]
     stamps = np.array([stamp for stamp, _ in poses], dtype=np.int64)
     xyz = np.array([(p.x, p.y, p.z) for _, p in poses], dtype=float).reshape(-1, 3)
@@ -112,16 +113,20 @@ def _camera(payloads: Iterator[list[memoryview]], target: Observable) -> _Record
         for message in messages:
             for pose in message.poses:
                 setattr(pose.position, field, next(values))
-        bodies = iter([bytes(TYPESTORE.serialize_cdr(message, _POSE_ARRAY, little_endian=True))
-                       for message in messages])
-        return lambda chunk: [next(bodies) for _ in chunk]
+        bodies = [bytes(TYPESTORE.serialize_cdr(message, _POSE_ARRAY, little_endian=True)) for message in messages]
+        for body, original in zip(bodies, cdr):
+            if len(body) != len(original):
+                raise BagError(f'a {len(original)}-byte message of {target.topic} re-serializes to {len(body)} bytes '
+                               '(trailing bytes?); sofia perturb needs CDR as a raw subscription delivers it')
+        next_body = iter(bodies)
+        return lambda chunk: [next(next_body) for _ in chunk]
 
     return _Recorded(rows, xyz[:, target.axis], writer)
 
 
 def _gyro(payloads: Iterator[list[memoryview]], target: Observable) -> _Recorded:
     """Imu sample rows (file order) with their specific force, and the angular-velocity patcher."""
-    stamps, rates, forces = [], [], []
+    stamps, rates, forces = [np.empty(0, np.int64)], [np.empty((0, 3))], [np.empty((0, 3))]
     for chunk in payloads:
         chunk_stamps, chunk_rates, chunk_forces = np.empty(len(chunk), np.int64), np.empty((len(chunk), 3)), \
             np.empty((len(chunk), 3))
@@ -130,9 +135,8 @@ def _gyro(payloads: Iterator[list[memoryview]], target: Observable) -> _Recorded
         stamps.append(chunk_stamps)
         rates.append(chunk_rates)
         forces.append(chunk_forces)
-    stamps, rates, forces = (np.concatenate(parts) if parts else np.empty((0, 3)) for parts in (stamps, rates, forces))
-    rows = Rows(stamps.astype(np.int64), {f'specific_force_{axis}_m_per_s2': forces[:, k]
-                                          for k, axis in enumerate('xyz')})
+    stamps, rates, forces = (np.concatenate(parts) for parts in (stamps, rates, forces))
+    rows = Rows(stamps, {f'specific_force_{axis}_m_per_s2': forces[:, k] for k, axis in enumerate('xyz')})
 
     def writer(new_values: np.ndarray) -> Callable[[list[memoryview]], list[bytes]]:
         new_rates = rates.copy()

@@ -19,7 +19,7 @@ from sofia_ros.errors import PerturbationError
 if TYPE_CHECKING:
     from collections.abc import Callable, Mapping
 
-__all__ = ['CONSTANTS', 'FUNCTIONS', 'MAX_EXPRESSION_CHARS', 'evaluate_shape', 'parse_shape', 'shape_names']
+__all__ = ['ARITY', 'CONSTANTS', 'FUNCTIONS', 'MAX_EXPRESSION_CHARS', 'evaluate_shape', 'parse_shape', 'shape_names']
 
 #: Longest expression accepted, in characters.
 MAX_EXPRESSION_CHARS = 500
@@ -31,6 +31,10 @@ FUNCTIONS: Mapping[str, Callable[..., np.ndarray]] = {
         'sign', 'radians', 'degrees', 'minimum', 'maximum', 'where', 'clip', 'floor', 'heaviside',
     )
 }
+_TWO_ARGUMENTS = ('arctan2', 'minimum', 'maximum', 'heaviside')
+#: How many positional arguments each function takes.
+ARITY: Mapping[str, int] = {name: 3 if name in ('where', 'clip') else 2 if name in _TWO_ARGUMENTS else 1
+                            for name in FUNCTIONS}
 #: Names that are numbers in every expression.
 CONSTANTS: Mapping[str, float] = {'pi': float(np.pi), 'e': float(np.e)}
 
@@ -87,6 +91,9 @@ def _check_node(node: ast.AST, expression: str, variables: tuple[str, ...], call
         if node.keywords or any(isinstance(arg, ast.Starred) for arg in node.args):
             raise PerturbationError(f'the shape {expression!r} passes keyword or starred arguments; '
                                     'pass each argument by position')
+        if len(node.args) != ARITY[node.func.id]:
+            raise PerturbationError(f'{node.func.id}() takes {ARITY[node.func.id]} argument(s), the shape '
+                                    f'{expression!r} gives it {len(node.args)}')
         return
     allowed = (ast.Expression, ast.Constant, ast.BinOp, ast.UnaryOp, ast.Compare, ast.Load,
                *_BINARY, *_UNARY, *_COMPARE)

@@ -27,6 +27,8 @@ from sofia_ros.config import parse_effect_config
 from sofia_ros.effects import CATALOGUE, PLUGIN_ENVIRONMENT_VARIABLE, load_catalogue
 from sofia_ros.perturb import perturb_bag
 
+#: The first test pays for the session's five untouched campaigns (about 1.5 min on two idle cores).
+pytestmark = pytest.mark.timeout(1800)
 NOMINAL_MODEL = yaml.safe_load(open(__file__.rsplit('/test/', 1)[0] + '/config/model/nominal.yaml').read())
 
 

@@ -38,7 +38,7 @@ _FREQUENCIES_PER_RESOLUTION = 3.0
 
 @dataclass(frozen=True)
 class TrendTest:
-    """A dependence of the residual on a variable: p-value, the fitted shape's half range, the shape itself."""
+    """A dependence of the residual on a variable: p-value, the fitted shape's half range, the shape on a grid."""
 
     p_value: float
     amplitude: float
@@ -88,7 +88,7 @@ def trend_test(variable, values, weights=None, degree=TREND_DEGREE):
     f_value = (rss_constant - rss_shape) / degree / (rss_shape / dof)
     centres = np.linspace(low, high, 25)
     grid = 2.0 * (centres - low) / (high - low) - 1.0
-    shape = legendre.legval(grid, coefficients) - coefficients[0]
+    shape = legendre.legval(grid, coefficients)
     fitted = design @ coefficients
     return TrendTest(float(stats.f.sf(max(f_value, 0.0), degree, dof)), float(np.ptp(fitted) / 2.0), centres, shape)
 

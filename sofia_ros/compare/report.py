@@ -229,8 +229,8 @@ def _signature_plot(result, document, path):
                     axis.plot(centres, means, 'o', color='k', ms=3, label='bin means')
                 if finding['variable'] != 'star':
                     shape = finding['shape']
-                    axis.plot(shape['centres'], np.array(shape['values_arcsec']) + np.mean(residual), '-',
-                              color='tab:blue', label='fitted shape (P0-P3)')
+                    axis.plot(shape['centres'], shape['values_arcsec'], '-', color='tab:blue',
+                              label='fitted shape (P0-P3)')
                 axis.set_xlabel(finding['variable'])
         else:
             if 'period_s' in finding:

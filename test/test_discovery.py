@@ -59,10 +59,12 @@ CASES = {
     # The FPI column follows the structure temperature (a thermal bracket).
     'temperature': Case('fpi.x', '3.0*(temperature_c - 22.5)', 'arcsec', ('temperature',), None, 'camera_shift_px',
                         "shift[:, 0] = params['k'] * (context.temperature_c - 22.5) / 0.55", 3.0),
-    # A g-sensitive LOS gyro: a bias proportional to the specific force along the LOS.
-    'gyro_g_sensitivity': Case('gyro.los', '0.05*specific_force_z_m_per_s2/9.80665', 'deg_per_h',
+    # A g-sensitive EL gyro: a bias proportional to the specific force along the LOS, 0.05 deg/h/g.
+    # (The same on the LOS gyro is a field rotation: 0.07" at the WFI's edge, below this campaign's
+    # reach; the EL gyro's turns the whole field.)
+    'gyro_g_sensitivity': Case('gyro.el', '0.05*specific_force_z_m_per_s2/9.80665', 'deg_per_h',
                                ('specific_force_los', 'elevation'), None, 'gyro_rate_offset',
-                               "offsets[:, 2] = params['k'] * context.specific_force_m_per_s2[:, 2] / 9.80665"
+                               "offsets[:, 0] = params['k'] * context.specific_force_m_per_s2[:, 2] / 9.80665"
                                " * np.pi / 180.0 / 3600.0", 0.05),
     # A WFI distortion: rows bend with the square of the column offset (1" at the chip's edges).
     'detector': Case('wfi.y', '2e-7*(detector_x_px - 511.5)**2 * 20.36', 'arcsec', ('detector_x',), None,

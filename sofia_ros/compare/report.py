@@ -84,7 +84,8 @@ def _vector_plot(result, fits, path):
     for row, (name, fit) in enumerate(fits):
         for column, camera in enumerate(cameras):
             axis = axes[row, column]
-            keep = (centroids.camera_index == column) & ~fit.outlier
+            # Every row, outliers included: the camera that fails worst is the one to see.
+            keep = centroids.camera_index == column
             pixels = centroids.measured_px[keep]
             residual = fit.residual_arcsec[keep]
             if len(pixels) == 0:

@@ -2,7 +2,7 @@
 
 import pytest
 
-from sofia_ros.bag.csv_logs import export_csv_logs, import_csv_logs
+from sofia_ros.bag.csv_logs import export_csv_logs
 from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.cli import main
 from sofia_ros.compare.run import compare_bag

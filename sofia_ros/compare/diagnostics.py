@@ -33,6 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
@@ -141,6 +142,14 @@ def _camera_series(observations, fit, noise_arcsec, variables):
                    dict(zip(FRAME_VARIABLES, frame_values[1:])))
 
 
+def _normal_inverse(gram):
+    """Inverse of a normal matrix: Cholesky where it is positive definite (a few times cheaper), else the pseudo-inverse."""
+    try:
+        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(gram), np.eye(len(gram)))
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(gram, hermitian=True)
+
+
 def _prior_freedom(fit, tarf_from_irf):
     """Per anchor interval and TARF axis: the increment's variance under the null in units of the prior's,
     diag(A (I - H_k) A^T) with H_k the interval's 3x3 block of the whole fit's hat matrix, (K-1, 3)."""
@@ -148,7 +157,7 @@ def _prior_freedom(fit, tarf_from_irf):
     jacobian = scipy.sparse.csr_matrix(fit.jacobian)
     root = np.concatenate([np.sqrt(fit.weights), np.ones(jacobian.shape[0] - data_rows)])
     weighted = scipy.sparse.diags(root) @ jacobian
-    inverse = np.linalg.pinv((weighted.T @ weighted).toarray(), hermitian=True)
+    inverse = _normal_inverse((weighted.T @ weighted).toarray())
     prior = weighted[data_rows:].toarray().reshape(-1, 3, jacobian.shape[1])
     hat_blocks = np.einsum('kip,pq,kjq->kij', prior, inverse, prior)
     residual_blocks = np.eye(3) - hat_blocks
@@ -317,14 +326,16 @@ def _split_masks(variables, centroids):
 
 def _split_step(fit, keep_rows):
     """One Gauss-Newton step on a subset of the rows (prior rows kept): parameter values and sigmas."""
-    data_rows = len(fit.whitened)
     mask = np.repeat(keep_rows, 2).astype(float)
     weights = np.concatenate([fit.weights * mask, np.ones(len(fit.prior_residual))])
     residual = fit.augmented_residual
     jacobian = scipy.sparse.csr_matrix(fit.jacobian)
     weighted = scipy.sparse.diags(np.sqrt(weights)) @ jacobian
     gram = (weighted.T @ weighted).toarray()
-    inverse = np.linalg.pinv(gram, hermitian=True)
+    # A parameter the subset does not touch (another camera's term) is decoupled and gets no comparison.
+    determined = np.diag(gram) > 0
+    gram[~determined, ~determined] = 1.0
+    inverse = _normal_inverse(gram)
     step = inverse @ (weighted.T @ (np.sqrt(weights) * residual))
     after = np.sqrt(weights) * residual - weighted @ step
     used = int(mask.sum()) + len(fit.prior_residual)
@@ -332,9 +343,7 @@ def _split_step(fit, keep_rows):
     parameters = slice(jacobian.shape[1] - len(fit.free), None)
     diagonal = np.diag(inverse)[parameters]
     sigma = np.sqrt(np.where(diagonal > 0, diagonal, np.nan) * variance)
-    # A parameter the subset does not determine (another camera's term) gets no comparison.
-    determined = np.abs(np.asarray(weighted[:data_rows].T @ np.ones(data_rows)))[parameters] > 0
-    return fit.values + step[parameters], np.where(determined, sigma, np.nan)
+    return fit.values + step[parameters], np.where(determined[parameters], sigma, np.nan)
 
 
 def split_consistency(observations, fit, predictor):

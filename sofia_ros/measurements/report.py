@@ -75,7 +75,7 @@ def print_set_comparison(document, out):
     verdict = document['verdict']
     print(f'verdict: {verdict["status"]}: {verdict["text"]}', file=out)
     for name, entry in verdict['observables'].items():
-        unit = 'arcsec_per_s' if f'rms_arcsec_per_s' in entry else 'arcsec'
+        unit = 'arcsec_per_s' if 'rms_arcsec_per_s' in entry else 'arcsec'
         mark = '"/s' if unit == 'arcsec_per_s' else '"'
         print(f'  {name:<24} RMS {entry[f"rms_{unit}"]:.4g}{mark} floor {entry[f"floor_{unit}"]:.4g}{mark} '
               f'ratio {entry["ratio"]:.2f} {"explained" if entry["explained"] else "NOT explained"}', file=out)

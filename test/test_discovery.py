@@ -123,13 +123,21 @@ def perturbed(untouched, tmp_path_factory):
 
 
 def _named(document, case):
-    """True when the verdict names the case's observable with its variable (or its period within 5 %)."""
+    """True when the comparison names the case's observable with its variable (or its period within 5 %):
+    as structure of the observable, as a fitted term of its axis that changes with the variable, or as
+    the significant empirical term of that observable and variable."""
     observable = document['verdict']['observables'][case.observable]
     if case.period_s is not None:
         return any(finding['observable'] == case.observable and abs(finding['period_s'] / case.period_s - 1) <= 0.05
                    and finding['significance_sigma'] >= document['signature']['detection_sigma']
                    for finding in document['signature']['periods'])
-    return any(variable in label for label in observable['structure'] for variable in case.variables)
+    axis = case.observable.split('.')[1]
+    as_structure = any(variable in label for label in observable['structure'] for variable in case.variables)
+    as_inconsistent_term = any(entry['split'] in case.variables and entry['param'].split('.')[1].startswith(f'{axis}_')
+                               for entry in document['consistency'])
+    as_empirical_term = any(c['empirical'] and c['observable'] == case.observable and c['variable'] in case.variables
+                            and c['delta_bic'] >= document['significant_delta_bic'] for c in document['candidates'])
+    return as_structure or as_inconsistent_term or as_empirical_term
 
 
 @pytest.mark.parametrize('name', sorted(CASES))

@@ -190,7 +190,8 @@ def _gyro_series(observations, fit, predictor, walk_sigma_rad):
         if np.count_nonzero(informed) < 3:
             continue
         floor = walk_arcsec * float(np.sqrt(np.mean(freedom[informed, axis_index])))
-        studentized = increments_tarf[informed, axis_index] / np.sqrt(freedom[informed, axis_index]) * walk_arcsec
+        # In arcsec, with the prior's scatter walk_arcsec under the null whatever the interval's freedom.
+        studentized = increments_tarf[informed, axis_index] / np.sqrt(freedom[informed, axis_index])
         yield (f'gyro.{axis}', floor, studentized, {key: values[informed] for key, values in frame_variables.items()},
                increments_tarf[informed, axis_index], walk_arcsec)
 

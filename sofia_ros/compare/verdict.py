@@ -31,12 +31,18 @@ def _expressible(finding, gyro):
 
 
 def empirical_candidate_names(diagnostics, cameras):
-    """Empirical terms for the strongest shapes the diagnostics found: one per observable and kind of finding."""
+    """Empirical terms for the strongest shapes the diagnostics found: one per observable and kind of finding.
+
+    A shape is structure from DETECTION_SIGMA on; on an observable already known to be wrong (its
+    RMS is beyond its floor) a listed finding (from REPORT_SIGMA) is the best hint of its shape,
+    and is tried too: the ranking's delta-BIC then decides whether it explains anything.
+    """
     names, seen = [], set()
     for finding in distinct_findings([*diagnostics.trends, *diagnostics.periods]):
         observable = finding['observable']
-        if finding['significance_sigma'] < DETECTION_SIGMA:
-            break
+        entry = diagnostics.observables.get(observable, {})
+        if finding['significance_sigma'] < DETECTION_SIGMA and entry.get('explained', True):
+            continue
         gyro = observable.startswith('gyro.')
         if not gyro and (observable not in CAMERA_OBSERVABLES or observable.split('.')[0] not in cameras):
             continue

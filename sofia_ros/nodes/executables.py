@@ -4,12 +4,14 @@ imager (fpi/ffi/wfi by the ``camera`` parameter), hipo, tascu, calibration, reco
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
+import sofia_ros
 from sofia_ros.errors import SofiaError
 from sofia_ros.nodes.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
 
@@ -67,6 +69,9 @@ def main(executable=None, argv=None):
     node = None
     try:
         node = _build(executable, _read_parameters(executable))
+        # Which install runs is worth a line: a workspace can hold more than one sofia_ros.
+        package_dir = Path(sofia_ros.__file__).parent
+        node.get_logger().info(f'started from {package_dir}; waiting for the other nodes of the graph')
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor.
         executor = EventsExecutor()
         executor.add_node(node)

@@ -165,7 +165,7 @@ class RankedCandidate:
 
 
 def rank_candidates(residual, base_jacobian, candidates):
-    """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (DESIGN.md 6).
+    """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (docs/compare.md, docs/noise.md).
 
     ``residual`` is measured minus predicted by the fitted base model, ``base_jacobian`` its
     columns (d prediction / d parameter), both already weighted. A candidate that the base terms

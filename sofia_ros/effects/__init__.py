@@ -1,4 +1,4 @@
-"""The catalogue of physical effects (DESIGN.md section 5), one module per family, plus plug-ins.
+"""The catalogue of physical effects (docs/effects.md), one module per family, plus plug-ins.
 
 A plug-in is one importable module with an ``EFFECTS`` tuple of EffectSpec whose physics is
 in the spec's ``gyro_rate_offset`` or ``camera_rotation`` hook; name its modules in the
@@ -116,7 +116,7 @@ def _checked_value(effect_name, param, value):
 
 
 def catalogue_as_json():
-    """The catalogue in the contract form of DESIGN.md section 6 (`sofia effects --json`)."""
+    """The catalogue in the contract form of `sofia effects --json` (docs/effects.md)."""
     return [
         {
             'name': spec.name,

@@ -50,6 +50,8 @@ TOPIC = '/gyro_box/imu'
 PERIOD_NS = 2_500_000  # 400 Hz
 # Distinct message objects built up front; the object benchmark cycles through them.
 OBJECT_POOL_SIZE = 20_000
+#: 2004-09-03T04:32:51Z, the default alignment campaign's start: BagWriter adds it to every stamp.
+WACO_2004_EPOCH_NS = 1_094_185_971 * 1_000_000_000
 
 
 def imu_messages(count: int, seed: int) -> list[Imu]:
@@ -93,8 +95,8 @@ def write_before(path: Path, payloads: list[bytes], compress: bool) -> None:
 
 
 def write_after(path: Path, payloads: list[bytes], compress: bool) -> None:
-    """BagWriter: CRC-checked MCAP storage, chunks in log-time order."""
-    with BagWriter(path, compress=compress) as bag:
+    """BagWriter as a campaign uses it: CRC-checked chunks in log-time order, stamps moved to the campaign's UTC."""
+    with BagWriter(path, compress=compress, epoch_ns=WACO_2004_EPOCH_NS) as bag:
         bag.add_topic(TOPIC, 'sensor_msgs/msg/Imu')
         for i, payload in enumerate(payloads):
             bag.write_raw(TOPIC, payload, i * PERIOD_NS)

@@ -305,6 +305,10 @@ def test_a_flipped_byte_in_a_chunk_names_the_chunk(tmp_path):
                                            r'log times \d+ to \d+ ns\) fails its CRC check\)') as caught:
             bag.imu_arrays('/gyro_box/imu')
     assert '\n' not in str(caught.value)
+    # Recovery copies the three chunks before the damaged one and says why it stopped.
+    report = recover_bag(path)
+    assert report.message_count == 300
+    assert report.stop_reason.startswith('CRCValidationError crc validation failed in Chunk')
 
 
 def test_every_crc_of_the_file_is_written_and_right(round_trip):

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import ReaderError
 
 from sofia_ros.bag.imu import ImuArrays, decode_imu_blocks, decode_imu_cdr
@@ -42,7 +43,8 @@ if TYPE_CHECKING:
 
 __all__ = ['BagReader', 'SCENARIO_TOPIC']
 
-#: The logbook of a campaign's bag: where and when (start_utc) it happened, YAML (sofia_ros.sim.scenario).
+#: Topic of the scenario document in a bag: where and when (start_utc) the campaign happened, as a logbook
+#: would record it (YAML, sofia_ros.sim.scenario); BagReader(campaign_time=True) counts time from its start.
 SCENARIO_TOPIC = '/config/scenario'
 
 # What reading a damaged MCAP file raises inside rosbags and decode_cdr: chunk and
@@ -132,6 +134,15 @@ class BagReader:
         return tuple(
             TopicInfo(name, info.msgtype or '', info.msgcount)
             for name, info in sorted(self._reader.topics.items())
+        )
+
+    def latched_topics(self) -> frozenset[str]:
+        """Topics whose recorded offered QoS is transient-local (documents, /clock): a replay re-latches them."""
+        return frozenset(
+            name for name, info in self._reader.topics.items()
+            for connection in info.connections
+            if any(qos.durability == QosDurability.TRANSIENT_LOCAL
+                   for qos in getattr(connection.ext, 'offered_qos_profiles', ()))
         )
 
     def topic(self, name: str) -> TopicInfo:

@@ -41,6 +41,7 @@ def shift_stamp(data: bytes | memoryview, offset_ns: int) -> bytes:
     """CDR ``data`` whose leading stamp is moved by ``offset_ns``; the rest byte for byte."""
     stamp = _STAMP[data[1]]
     sec, nanosec = stamp.unpack_from(data, 4)
-    shifted = bytearray(data)
-    stamp.pack_into(shifted, 4, *divmod(sec * NS_PER_S + nanosec + offset_ns, NS_PER_S))
-    return bytes(shifted)
+    offset_s, offset_nanosec = divmod(offset_ns, NS_PER_S)
+    carry_s, nanosec = divmod(nanosec + offset_nanosec, NS_PER_S)
+    # Slices and concatenation: about half the time of a bytearray copy (400 Hz samples pass here).
+    return bytes(data[:4]) + stamp.pack(sec + offset_s + carry_s, nanosec) + bytes(data[12:])

@@ -34,6 +34,7 @@ def _read_parameters(executable):
 
 
 def _build(executable, values):
+    from sofia_ros.bag.timebase import epoch_ns_of
     from sofia_ros.campaigns.recording import graph_documents
     from sofia_ros.config import load_effect_config
     from sofia_ros.nodes.clock_node import ClockNode
@@ -53,7 +54,7 @@ def _build(executable, values):
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
         model_text = load_effect_config(values['model_file']).text if values['model_file'] else None
         return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns,
-                            documents=graph_documents(config, model_text))
+                            epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=graph_documents(config, model_text))
     name = values['camera'] if executable == 'imager' else executable
     if executable == 'imager' and name not in ('fpi', 'ffi', 'wfi'):
         raise SofiaError(f"imager needs -p camera:=fpi|ffi|wfi, got {name!r}")

@@ -73,8 +73,7 @@ class BagReader:
         _check_layout(self.path)
         self._reader = AnyReader([self.path], default_typestore=TYPESTORE)
         self._campaign_time = campaign_time
-        #: ns subtracted from the bag's times: the campaign's start with campaign_time, else 0.
-        self.origin_ns = 0
+        self._origin_ns: int | None = None if campaign_time else 0
         self._is_open = False
 
     def open(self) -> None:
@@ -87,11 +86,20 @@ class BagReader:
         except _DAMAGE_ERRORS as err:
             raise _damaged(self.path, err) from err
         self._is_open = True
-        if self._campaign_time:
-            self.origin_ns = self.campaign_epoch_ns()
+
+    @property
+    def origin_ns(self) -> int:
+        """ns subtracted from the bag's times: the campaign's start with campaign_time, else 0.
+
+        Looked up when first needed, so that a bag lacking /config/scenario can still be listed.
+        """
+        if self._origin_ns is None:
+            self._origin_ns = self.campaign_epoch_ns()
+        return self._origin_ns
 
     def campaign_epoch_ns(self) -> int:
         """The campaign's start (start_utc of /config/scenario) in ns since the Unix epoch."""
+        self._require_open()
         if SCENARIO_TOPIC not in self._reader.topics:
             raise BagError(f'bag {self.path} has no {SCENARIO_TOPIC} to take the campaign start from; '
                            'record it with `sofia run`')
@@ -216,7 +224,13 @@ class BagReader:
                 f'topic {topic} in bag {self.path} holds {msgtype}, '
                 f'not a {DOCUMENT_MSGTYPE} document'
             )
-        texts = [message.data for _, _, message in self.messages(topic)]
+        # Read without times, so that campaign_epoch_ns can read the scenario before the origin is known.
+        self._require_open()
+        records = self._guarded(self._reader.messages(self._connections(topic)), 0)
+        try:
+            texts = [decode_cdr(data, DOCUMENT_MSGTYPE).data for _, _, data in records]
+        except _DAMAGE_ERRORS as err:
+            raise _damaged(self.path, err) from err
         if not texts:
             raise BagError(f'topic {topic} in bag {self.path} holds no document')
         return texts[-1]
@@ -262,13 +276,13 @@ class BagReader:
         self._require_open()
         names = topics or tuple(info.name for info in self.topics)
         connections = [conn for name in names for conn in self._connections(name)]
-        start_ns = None if start_ns is None else start_ns + self.origin_ns
-        stop_ns = None if stop_ns is None else stop_ns + self.origin_ns
-        return self._guarded(self._reader.messages(connections, start=start_ns, stop=stop_ns))
-
-    def _guarded(self, records: RawRecords) -> RawRecords:
-        """Pass ``records`` through in campaign time, turning damage found while reading into BagError."""
         origin_ns = self.origin_ns
+        start_ns = None if start_ns is None else start_ns + origin_ns
+        stop_ns = None if stop_ns is None else stop_ns + origin_ns
+        return self._guarded(self._reader.messages(connections, start=start_ns, stop=stop_ns), origin_ns)
+
+    def _guarded(self, records: RawRecords, origin_ns: int) -> RawRecords:
+        """Pass ``records`` through moved back by ``origin_ns``, turning damage found while reading into BagError."""
         try:
             for connection, stamp_ns, data in records:
                 if origin_ns and has_leading_stamp(connection.msgtype):

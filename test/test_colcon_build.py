@@ -2,7 +2,6 @@
 
 import importlib.metadata
 import json
-import os
 import random
 import re
 import select

@@ -188,7 +188,8 @@ def test_a_replay_re_latches_the_documents_for_a_late_subscriber(direct_run):
         ticks = []
         node.create_subscription(Clock, '/clock', ticks.append, DATA_QOS)
         replay = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'replay', str(direct_run.bag_path),
-                                   '--topics', '/config/truth', '/clock'], stdout=subprocess.PIPE, text=True)
+                                   '--topics', '/config/truth', '/clock'], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 60.0
         # The documents are logged at the start: once ten ticks of /clock have arrived they were published.
         while len(ticks) < 10:
@@ -201,9 +202,12 @@ def test_a_replay_re_latches_the_documents_for_a_late_subscriber(direct_run):
             rclpy.spin_once(node, timeout_sec=0.05)
         assert [message.data for message in documents] == [truth_text]
         assert 1_094_185_971 <= ticks[0].clock.sec < 1_094_185_971 + 60  # replayed on the campaign's UTC time
+        # Stopped mid-replay, it says so in one line, without a traceback.
+        replay.terminate()
+        output, errors = replay.communicate(timeout=20)
+        assert 'stopped after' in output and 'Traceback' not in errors
     finally:
-        if replay is not None:
-            replay.terminate()
-            replay.wait(timeout=10)
-            replay.stdout.close()
+        if replay is not None and replay.poll() is None:
+            replay.kill()
+            replay.communicate(timeout=10)
         rclpy.try_shutdown()

@@ -89,6 +89,7 @@ class BagWriter:
     ``epoch_ns`` (ns since the Unix epoch; the scenario's start) is added to every log
     time and every leading message stamp written (sofia_ros.bag.timebase): callers write
     campaign time, the bag holds UTC.
+
     Only :meth:`close` writes ``metadata.yaml``; leaving the ``with`` block by an
     exception aborts instead, so a bag that was not closed never looks complete.
     Not thread-safe: call it from one thread (or under one lock).

@@ -51,9 +51,9 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
                     delay = (stamp_ns - first_ns) / 1e9 / rate - (time.monotonic() - start_wall)
                     if delay > 0:
                         time.sleep(delay)
-                if topic != '/clock' and '/clock' not in publishers:
-                    clock.publish(m.clock_msg(stamp_ns))
                 try:
+                    if topic != '/clock' and '/clock' not in publishers:
+                        clock.publish(m.clock_msg(stamp_ns))
                     publishers[topic].publish(bytes(data))
                 except RCLError:
                     if rclpy.ok():

@@ -713,6 +713,17 @@ def test_campaign_time_needs_the_scenario_start(tmp_path):
             bag.messages_by_topic('/config/scenario')
 
 
+def test_campaign_time_refuses_a_bag_recorded_from_time_zero(tmp_path):
+    path = tmp_path / 'from_zero'
+    with BagWriter(path) as bag:  # no epoch: times from 0, as bags were written before they carried UTC
+        bag.write_document('/config/scenario', SCENARIO, 0)
+    with BagReader(path, campaign_time=True) as bag:
+        with pytest.raises(BagError, match=r'from_zero starts 1094185336 s before its campaign start '
+                                           r'\(/config/scenario\): it was recorded with times from 0, not in UTC; '
+                                           r're-record it with `sofia run`'):
+            bag.messages('/config/scenario')
+
+
 def test_the_writer_refuses_a_negative_epoch(tmp_path):
     with pytest.raises(InvalidArgumentError, match='epoch_ns must be >= 0, got -1'):
         BagWriter(tmp_path / 'bag', epoch_ns=-1)

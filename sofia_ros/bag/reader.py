@@ -94,7 +94,14 @@ class BagReader:
         Looked up when first needed, so that a bag lacking /config/scenario can still be listed.
         """
         if self._origin_ns is None:
-            self._origin_ns = self.campaign_epoch_ns()
+            epoch_ns = self.campaign_epoch_ns()
+            if self._reader.start_time < epoch_ns:
+                raise BagError(
+                    f'bag {self.path} starts {(epoch_ns - self._reader.start_time) / 1e9:.0f} s before its campaign '
+                    f'start ({SCENARIO_TOPIC}): it was recorded with times from 0, not in UTC; '
+                    're-record it with `sofia run`'
+                )
+            self._origin_ns = epoch_ns
         return self._origin_ns
 
     def campaign_epoch_ns(self) -> int:

@@ -28,8 +28,6 @@ setup(
     name=PACKAGE_NAME,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*', 'bench']),
-    include_package_data=True,
-    package_data={PACKAGE_NAME: ['presets/*.yaml', 'presets/*/*.yaml']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE_NAME}']),
         (f'share/{PACKAGE_NAME}', ['package.xml']),

@@ -1,22 +1,35 @@
-"""Bag I/O throughput for 400 Hz sensor_msgs/Imu: writes (raw CDR, message objects), reads, size.
+"""Bag I/O throughput for 400 Hz sensor_msgs/Imu: writes (raw CDR, message objects), reads, size;
+before (rosbags' own MCAP writer: no CRCs, records in write order) and after (BagWriter: chunk, data and
+summary CRCs, each chunk in log-time order, CRCs checked on reading), side by side in one run.
 
 Run: .venv/bin/python bench/bench_bag.py [--count N]
 
-Recorded on the 2-core development VM (Python 3.11, rosbags 0.11.9, rclpy 9.1.2):
+Recorded on the 2-core development VM (Python 3.11, rosbags 0.11.9, rclpy 9.1.2), shared with other
+work (load 4-12 during the run), one run:
 
-    sensor_msgs/Imu: 200,000 messages (8.3 min at 400 Hz), 324 B CDR
-    write raw CDR (zstd)                    346,949 msg/s  bag 14.6 MB, 72.9 B/msg
-    write raw CDR (uncompressed)            364,676 msg/s  bag 74.3 MB, 371.4 B/msg
-    write Imu objects (zstd_objects)         50,405 msg/s
-    read raw CDR (zstd)                     516,492 msg/s
-    read messages (zstd)                    125,712 msg/s
-    read imu_arrays (zstd)                  220,093 msg/s
-    read raw CDR (uncompressed)             514,368 msg/s
-    read messages (uncompressed)            125,590 msg/s
-    read imu_arrays (uncompressed)          346,290 msg/s
+    sensor_msgs/Imu: 200,000 messages (8.3 min at 400 Hz), 324 B CDR; best of 3, before and after alternating
+    write raw CDR (before, zstd)                  111,528 msg/s  bag 14.6 MB, 72.9 B/msg
+    write raw CDR (after, zstd)                   109,498 msg/s  bag 14.6 MB, 72.9 B/msg
+    write raw CDR (before, uncompressed)          177,042 msg/s  bag 74.3 MB, 371.4 B/msg
+    write raw CDR (after, uncompressed)           200,598 msg/s  bag 74.3 MB, 371.4 B/msg
+    write Imu objects (after, zstd)                14,773 msg/s
+    read raw CDR (before, zstd)                   176,815 msg/s
+    read raw CDR (after, zstd)                    182,020 msg/s
+    read messages (before, zstd)                   53,860 msg/s
+    read messages (after, zstd)                    73,072 msg/s
+    read imu_arrays (before, zstd)              1,089,846 msg/s
+    read imu_arrays (after, zstd)                 982,749 msg/s
+    read raw CDR (before, uncompressed)           318,719 msg/s
+    read raw CDR (after, uncompressed)            311,499 msg/s
+    read messages (before, uncompressed)           68,706 msg/s
+    read messages (after, uncompressed)            69,627 msg/s
+    read imu_arrays (before, uncompressed)        812,686 msg/s
+    read imu_arrays (after, uncompressed)       1,194,007 msg/s
 
-Runs vary by about 20 %. Writing message objects costs serialize_message plus the
-typestore round trip of wire_cdr (about 15 us per Imu).
+The new writer also moves every stamp to the campaign's UTC time (about 1 us per message) and
+sorts each chunk; its bulk packing pays for that and the CRCs. Reading checks every chunk's CRC.
+On a machine this loaded single runs vary by 20-50 %: the fastest of alternating repeats is kept.
+Writing message objects costs serialize_message plus the typestore round trip of wire_cdr.
 """
 
 from __future__ import annotations
@@ -30,12 +43,18 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import Imu
 
-from sofia_ros.bag import BagReader, BagWriter, wire_cdr
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
+
+from sofia_ros.bag import TYPESTORE, BagReader, BagWriter, wire_cdr
+from sofia_ros.bag.writer import ROSBAG2_VERSION
 
 TOPIC = '/gyro_box/imu'
 PERIOD_NS = 2_500_000  # 400 Hz
 # Distinct message objects built up front; the object benchmark cycles through them.
 OBJECT_POOL_SIZE = 20_000
+#: 2004-09-03T04:32:51Z, the default alignment campaign's start: BagWriter adds it to every stamp.
+WACO_2004_EPOCH_NS = 1_094_185_971 * 1_000_000_000
 
 
 def imu_messages(count: int, seed: int) -> list[Imu]:
@@ -59,62 +78,103 @@ def imu_messages(count: int, seed: int) -> list[Imu]:
 
 def report(what: str, count: int, seconds: float, extra: str = '') -> None:
     """Print one result line in messages per second."""
-    print(f'{what:36s} {count / seconds:>10,.0f} msg/s  {extra}')
+    print(f'{what:42s} {count / seconds:>10,.0f} msg/s  {extra}'.rstrip())
 
 
-def bench_raw_writes(path: Path, payloads: list[bytes], compress: bool) -> None:
-    """Write ``payloads`` as raw CDR into a new bag at ``path``; print rate and size."""
-    start = time.perf_counter()
-    with BagWriter(path, compress=compress) as bag:
+def best_seconds(run, repeats: int) -> float:
+    """The shortest wall time of ``repeats`` calls of ``run(i)`` (the machine is shared: the fastest is the least disturbed)."""
+    times = []
+    for i in range(repeats):
+        start = time.perf_counter()
+        run(i)
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def write_before(path: Path, payloads: list[bytes], compress: bool) -> None:
+    """The writer this package used before: rosbags' MCAP storage, its chunk closed every 1 s of log time."""
+    writer = Writer(path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
+    if compress:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    with writer:
+        connection = writer.add_connection(TOPIC, 'sensor_msgs/msg/Imu', typestore=TYPESTORE)
+        due_ns = 0
+        for i, payload in enumerate(payloads):
+            writer.write(connection, i * PERIOD_NS, payload)
+            if i * PERIOD_NS >= due_ns:
+                writer.storage.close_chunk()
+                writer.storage.bio.flush()
+                due_ns = i * PERIOD_NS + 1_000_000_000
+
+
+def write_after(path: Path, payloads: list[bytes], compress: bool) -> None:
+    """BagWriter as a campaign uses it: CRC-checked chunks in log-time order, stamps moved to the campaign's UTC."""
+    with BagWriter(path, compress=compress, epoch_ns=WACO_2004_EPOCH_NS) as bag:
         bag.add_topic(TOPIC, 'sensor_msgs/msg/Imu')
         for i, payload in enumerate(payloads):
             bag.write_raw(TOPIC, payload, i * PERIOD_NS)
-    seconds = time.perf_counter() - start
-    size_bytes = sum(item.stat().st_size for item in path.iterdir())
-    size = f'bag {size_bytes / 1e6:.1f} MB, {size_bytes / len(payloads):.1f} B/msg'
-    report(f'write raw CDR ({path.name})', len(payloads), seconds, size)
 
 
-def bench_object_writes(path: Path, pool: list[Imu], count: int) -> None:
-    """Write ``count`` Imu message objects into a new bag at ``path``; print the rate."""
-    start = time.perf_counter()
-    with BagWriter(path) as bag:
-        bag.add_topic(TOPIC, 'sensor_msgs/msg/Imu')
-        for i in range(count):
-            bag.write_message(TOPIC, pool[i % len(pool)], i * PERIOD_NS)
-    report(f'write Imu objects ({path.name})', count, time.perf_counter() - start)
+def bench_writes(root: Path, payloads: list[bytes], compress: bool, repeats: int) -> dict[str, Path]:
+    """Write ``payloads`` as raw CDR with the old and the new writer, alternating; print rates and sizes."""
+    kind = 'zstd' if compress else 'uncompressed'
+    seconds, paths = {}, {}
+    for i in range(repeats):
+        for name, writer in (('before', write_before), ('after', write_after)):
+            paths[name] = root / f'{name}_{kind}_{i}'
+            start = time.perf_counter()
+            writer(paths[name], payloads, compress)
+            seconds[name] = min(seconds.get(name, float('inf')), time.perf_counter() - start)
+    for name in ('before', 'after'):
+        size_bytes = sum(item.stat().st_size for item in paths[name].iterdir())
+        size = f'bag {size_bytes / 1e6:.1f} MB, {size_bytes / len(payloads):.1f} B/msg'
+        report(f'write raw CDR ({name}, {kind})', len(payloads), seconds[name], size)
+    return paths
 
 
-def bench_reads(path: Path) -> None:
-    """Read the Imu topic of bag ``path`` three ways; print the rates."""
-    with BagReader(path) as bag:
-        start = time.perf_counter()
-        count = sum(1 for _ in bag.raw_messages(TOPIC))
-        report(f'read raw CDR ({path.name})', count, time.perf_counter() - start)
-        start = time.perf_counter()
-        count = sum(1 for _ in bag.messages(TOPIC))
-        report(f'read messages ({path.name})', count, time.perf_counter() - start)
-        start = time.perf_counter()
-        count = len(bag.imu_arrays(TOPIC).stamp_ns)
-        report(f'read imu_arrays ({path.name})', count, time.perf_counter() - start)
+def bench_object_writes(root: Path, pool: list[Imu], count: int, repeats: int) -> None:
+    """Write ``count`` Imu message objects into new bags; print the best rate."""
+    def write(i):
+        with BagWriter(root / f'objects_{i}', epoch_ns=WACO_2004_EPOCH_NS) as bag:
+            bag.add_topic(TOPIC, 'sensor_msgs/msg/Imu')
+            for k in range(count):
+                bag.write_message(TOPIC, pool[k % len(pool)], k * PERIOD_NS)
+    report('write Imu objects (after, zstd)', count, best_seconds(write, repeats))
+
+
+def bench_reads(paths: dict[str, Path], kind: str, repeats: int) -> None:
+    """Read the Imu topic of the old and the new writer's bag three ways, alternating; print the best rates."""
+    ways = {
+        'read raw CDR': lambda bag: sum(1 for _ in bag.raw_messages(TOPIC)),
+        'read messages': lambda bag: sum(1 for _ in bag.messages(TOPIC)),
+        'read imu_arrays': lambda bag: len(bag.imu_arrays(TOPIC).stamp_ns),
+    }
+    for way, read in ways.items():
+        for name in ('before', 'after'):
+            with BagReader(paths[name]) as bag:
+                count = read(bag)
+                seconds = best_seconds(lambda _: read(bag), repeats)
+            report(f'{way} ({name}, {kind})', count, seconds)
 
 
 def main() -> None:
-    """Print write and read throughput and bag sizes."""
+    """Print write and read throughput and bag sizes, before and after."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--count', type=int, default=200_000, help='Imu messages per bag')
-    count = parser.parse_args().count
+    parser.add_argument('--repeats', type=int, default=3, help='runs of each measurement; the fastest is kept')
+    args = parser.parse_args()
+    count, repeats = args.count, args.repeats
     pool = imu_messages(OBJECT_POOL_SIZE, seed=1)
     payloads = [bytes(wire_cdr(pool[i % OBJECT_POOL_SIZE])) for i in range(count)]
     minutes = count * PERIOD_NS / 60e9
-    print(f'sensor_msgs/Imu: {count:,} messages ({minutes:.1f} min at 400 Hz), {len(payloads[0])} B CDR')
+    print(f'sensor_msgs/Imu: {count:,} messages ({minutes:.1f} min at 400 Hz), {len(payloads[0])} B CDR; '
+          f'best of {repeats}, before and after alternating')
     with tempfile.TemporaryDirectory() as tmp:
-        zstd, plain = Path(tmp) / 'zstd', Path(tmp) / 'uncompressed'
-        bench_raw_writes(zstd, payloads, compress=True)
-        bench_raw_writes(plain, payloads, compress=False)
-        bench_object_writes(Path(tmp) / 'zstd_objects', pool, count)
-        bench_reads(zstd)
-        bench_reads(plain)
+        written = {kind: bench_writes(Path(tmp), payloads, compress, repeats)
+                   for kind, compress in (('zstd', True), ('uncompressed', False))}
+        bench_object_writes(Path(tmp), pool, min(count, 50_000), repeats)
+        for kind, paths in written.items():
+            bench_reads(paths, kind, repeats)
 
 
 if __name__ == '__main__':

@@ -1,4 +1,4 @@
-"""The ``sofia`` command (DESIGN.md section 6).
+"""The ``sofia`` command (docs/cli.md).
 
 Exit codes: 0 success, 2 bad input (one line on stderr), 1 bug (traceback).
 """

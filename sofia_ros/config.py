@@ -1,4 +1,4 @@
-"""Truth and model configuration files: ``effects:`` (DESIGN.md section 5) and an optional ``scenario:``."""
+"""Truth and model configuration files: ``effects:`` (docs/effects.md) and an optional ``scenario:``."""
 
 from __future__ import annotations
 

@@ -84,7 +84,7 @@ def _alignment_rows():
                         sigma_beta * ARCSEC_PER_RAD / 60.0, 0.05, 'arcmin'))
     angles_arcsec = rotation_angles_from_dcm(EQ_6_1) * ARCSEC_PER_RAD
     for axis, design_arcsec, ours in zip(('EL', 'XEL', 'LOS'), (1030.0, 730.0, 3590.0), angles_arcsec):
-        rows.append(Row(f'eq. 6.1 rotation about {axis} (DESIGN.md 8)', design_arcsec, float(ours), 10.0, 'arcsec'))
+        rows.append(Row(f'eq. 6.1 rotation about {axis} (docs/conventions.md)', design_arcsec, float(ours), 10.0, 'arcsec'))
     return rows
 
 

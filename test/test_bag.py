@@ -10,7 +10,9 @@ import shutil
 import signal
 import subprocess
 import sys
+import struct
 import textwrap
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +30,8 @@ from geometry_msgs.msg import (
     Vector3Stamped,
 )
 from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
@@ -265,16 +269,92 @@ def test_a_chunk_that_fails_its_crc_raises_bag_error(round_trip, tmp_path):
     damaged = shutil.copytree(path, tmp_path / 'crc')
     mcap_file = damaged / 'round_trip.mcap'
     with mcap_file.open('rb') as stream:
-        last_chunk = make_reader(stream).get_summary().chunk_indexes[-1]
+        chunks = make_reader(stream).get_summary().chunk_indexes
     # The chunk record's uncompressed_crc field follows its opcode, length, two times and size.
-    crc_at = last_chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8
+    crc_at = chunks[-1].chunk_start_offset + 1 + 8 + 8 + 8 + 8
     data = bytearray(mcap_file.read_bytes())
     data[crc_at:crc_at + 4] = bytes(a ^ 0xFF for a in data[crc_at:crc_at + 4])
     mcap_file.write_bytes(bytes(data))
+    named = (rf'is truncated or corrupt \(ValueError: chunk {len(chunks)} of {len(chunks)} \(byte '
+             rf'{chunks[-1].chunk_start_offset}, log times \d+ to \d+ ns\) fails its CRC check\); salvage')
     with BagReader(damaged) as bag:
-        with pytest.raises(BagError, match=r'is truncated or corrupt \(ValueError: chunk at byte \d+ fails its size '
-                                           r'or CRC check\); salvage'):
+        with pytest.raises(BagError, match=named):
             bag.messages_by_topic(*(info.name for info in bag.topics))
+        # Record by record (rosbags checks the CRC too), the error names the same chunk.
+        with pytest.raises(BagError, match=named):
+            list(bag.messages())
+
+
+def test_a_flipped_byte_in_a_chunk_names_the_chunk(tmp_path):
+    path = tmp_path / 'flip'
+    with BagWriter(path, compress=False, flush_period_ns=IMU_PERIOD_NS * 100) as bag:
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        for i in range(1000):
+            bag.write_message('/gyro_box/imu', imu(i), STAMP0_NS + IMU_PERIOD_NS * i)
+    mcap_file = path / 'flip.mcap'
+    with mcap_file.open('rb') as stream:
+        chunks = make_reader(stream).get_summary().chunk_indexes
+    assert len(chunks) == 10
+    # One bit of an angular velocity inside the fourth chunk's (uncompressed) records.
+    flip_at = chunks[3].chunk_start_offset + chunks[3].chunk_length - 100
+    data = bytearray(mcap_file.read_bytes())
+    data[flip_at] ^= 0x01
+    mcap_file.write_bytes(bytes(data))
+    with BagReader(path) as bag:
+        with pytest.raises(BagError, match=rf'\(ValueError: chunk 4 of 10 \(byte {chunks[3].chunk_start_offset}, '
+                                           r'log times \d+ to \d+ ns\) fails its CRC check\)') as caught:
+            bag.imu_arrays('/gyro_box/imu')
+    assert '\n' not in str(caught.value)
+    # Recovery copies the three chunks before the damaged one and says why it stopped.
+    report = recover_bag(path)
+    assert report.message_count == 300
+    assert report.stop_reason.startswith('CRCValidationError crc validation failed in Chunk')
+
+
+def test_every_crc_of_the_file_is_written_and_right(round_trip):
+    path, _, _ = round_trip
+    data = (path / 'round_trip.mcap').read_bytes()
+    footer_at = len(data) - 8 - (1 + 8 + 20)
+    assert data[footer_at] == 0x02
+    summary_start, summary_offset_start, summary_crc = struct.unpack_from('<QQI', data, footer_at + 9)
+    assert summary_crc == zlib.crc32(data[summary_start:footer_at + 9 + 16])
+    # DataEnd is the data section's last record; its CRC covers every byte before it.
+    data_end_at = summary_start - (1 + 8 + 4)
+    assert data[data_end_at] == 0x0F
+    (data_crc,) = struct.unpack_from('<I', data, data_end_at + 9)
+    assert data_crc == zlib.crc32(data[:data_end_at])
+    with (path / 'round_trip.mcap').open('rb') as stream:
+        records = list(StreamReader(stream, validate_crcs=True, emit_chunks=True).records)
+    chunks = [record for record in records if isinstance(record, Chunk)]
+    assert chunks and all(chunk.uncompressed_crc != 0 for chunk in chunks)
+
+
+def test_records_are_in_log_time_order_within_and_across_chunks(round_trip):
+    path, written, _ = round_trip
+    with (path / 'round_trip.mcap').open('rb') as stream:
+        records = list(StreamReader(stream, validate_crcs=True).records)
+    log_ns = [record.log_time for record in records if isinstance(record, Message)]
+    # The fixture writes the object path backwards within each round.
+    assert len(log_ns) == sum(map(len, written.values()))
+    assert log_ns == sorted(log_ns)
+
+
+def test_a_periodic_flush_keeps_later_messages_for_the_next_chunk(tmp_path):
+    # A lock-step tick writes its latest stamp first and its earlier samples after it (the clock, then the
+    # 400 Hz gyro samples): the chunks still follow each other in time.
+    path = tmp_path / 'ticks'
+    tick_ns = 200_000_000
+    with BagWriter(path, flush_period_ns=tick_ns) as bag:
+        bag.add_topic('/clock', 'rosgraph_msgs/msg/Clock')
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        for tick in range(1, 11):
+            bag.write_message('/clock', sample('rosgraph_msgs/msg/Clock', tick), tick * tick_ns)
+            for k in range(79, -1, -1):  # the samples of (previous tick, tick]
+                bag.write_message('/gyro_box/imu', imu(k), tick * tick_ns - k * IMU_PERIOD_NS)
+    with (path / 'ticks.mcap').open('rb') as stream:
+        chunks = make_reader(stream).get_summary().chunk_indexes
+    assert len(chunks) == 10
+    assert all(before.message_end_time < after.message_start_time for before, after in zip(chunks, chunks[1:]))
 
 
 def test_anyreader_and_mcap_ros2_decode_the_same_values(round_trip):
@@ -339,7 +419,14 @@ def test_documents_are_latched_strings_read_back_by_topic(tmp_path):
     assert topics['/config/truth']['topic_metadata']['offered_qos_profiles'][0]['durability'] == (
         'transient_local'
     )
-    assert topics['/clock']['topic_metadata']['offered_qos_profiles'] == []
+    clock_qos = topics['/clock']['topic_metadata']['offered_qos_profiles']
+    assert [(qos['durability'], qos['reliability']) for qos in clock_qos] == [('volatile', 'reliable')]
+    # The MCAP channels carry the same profiles, as ros2 bag play reads them.
+    with (path / 'docs.mcap').open('rb') as stream:
+        channels = {channel.topic: channel for channel in make_reader(stream).get_summary().channels.values()}
+    for topic in ('/config/truth', '/result/summary', '/clock'):
+        qos = yaml.safe_load(channels[topic].metadata['offered_qos_profiles'])
+        assert qos == topics[topic]['topic_metadata']['offered_qos_profiles']
     with BagReader(path) as bag:
         assert bag.document('/config/truth') == 'effects:\n  gyro_bias: {}\n'
         assert bag.document('/result/summary') == 'accepted: true\n'
@@ -410,10 +497,11 @@ def test_corrupt_chunk_raises_bag_error(round_trip, tmp_path):
     data = bytearray(mcap_file.read_bytes())
     data[data_at:data_at + 8] = bytes(8)
     mcap_file.write_bytes(bytes(data))
-    with pytest.raises(BagError, match=r'is truncated or corrupt \(ZstdError'):
+    named = r'is truncated or corrupt \(ValueError: chunk 1 of 1 \(byte \d+, log times \d+ to \d+ ns\) fails to decompress'
+    with pytest.raises(BagError, match=named):
         with BagReader(damaged) as bag:
             list(bag.messages())
-    with pytest.raises(BagError, match=r'is truncated or corrupt \(ZstdError'):
+    with pytest.raises(BagError, match=named):
         with BagReader(damaged) as bag:
             bag.messages_by_topic(*(info.name for info in bag.topics))
 
@@ -543,8 +631,99 @@ def test_sigkilled_writer_leaves_an_unclosed_bag_that_recovers_up_to_the_last_fl
         summary = make_reader(stream, decoder_factories=[DecoderFactory()]).get_summary()
     assert summary.statistics.message_count == flushed + 1
 
-    # Flushes at log times 0, 1, 2, 3 and 4 s: the messages up to 4 s (index 1600) survive.
+    # Flushes at log times 0, 1, 2, 3 and 4 s, each writing what was logged before it: the messages
+    # before 4 s (1600) survive.
     periodic = recover_bag(tmp_path / 'periodic', tmp_path / 'periodic_fixed')
     assert periodic.bag == tmp_path / 'periodic_fixed'
-    assert periodic.message_count == 1601
-    assert periodic.last_stamp_ns == 4_000_000_000
+    assert periodic.message_count == 1600
+    assert periodic.last_stamp_ns == 4_000_000_000 - IMU_PERIOD_NS
+
+
+def test_a_damaged_summary_fails_its_crc_on_opening(round_trip, tmp_path):
+    path, _, _ = round_trip
+    damaged = shutil.copytree(path, tmp_path / 'summary')
+    mcap_file = damaged / 'round_trip.mcap'
+    data = bytearray(mcap_file.read_bytes())
+    # The footer (opcode, length, summary start, ...) ends 8 bytes of magic before the end.
+    (summary_start,) = struct.unpack_from('<Q', data, len(data) - 8 - 29 + 9)
+    # The first summary record is a schema: one byte of its name changes.
+    data[summary_start + 1 + 8 + 2 + 4] ^= 0x20
+    mcap_file.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=rf'\(ValueError: the summary section \(byte {summary_start} on\) fails its '
+                                       r'CRC check\); salvage'):
+        BagReader(damaged).open()
+
+
+SCENARIO = 'latitude_deg: 31.638\nstart_utc: 2004-09-03T04:22:16+00:00\nheading_deg: 0.0\n'
+# 2004-09-03T04:22:16Z in ns since the Unix epoch.
+START_NS = 1_094_185_336 * 1_000_000_000
+
+
+def test_a_campaign_bag_holds_utc_and_reads_back_in_campaign_time(tmp_path):
+    path = tmp_path / 'utc'
+    with BagWriter(path, epoch_ns=START_NS) as bag:
+        bag.write_document('/config/scenario', SCENARIO, 0)
+        bag.add_topic('/clock', 'rosgraph_msgs/msg/Clock')
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        bag.add_topic('/status', 'diagnostic_msgs/msg/DiagnosticStatus')
+        for i in range(3):
+            bag.write_message('/clock', Clock(clock=Time(sec=i, nanosec=200_000_000)), i * 10**9 + 200_000_000)
+            bag.write_message('/gyro_box/imu', imu(i), (1000 + i) * 10**9 + 123 + i)
+            bag.write_message('/status', sample('diagnostic_msgs/msg/DiagnosticStatus', i), i * 10**9)
+    info = yaml.safe_load((path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['starting_time']['nanoseconds_since_epoch'] == START_NS
+    assert info['duration']['nanoseconds'] == 1002 * 10**9 + 125
+    with BagReader(path) as bag:
+        clock = [(stamp_ns, message.clock.sec, message.clock.nanosec) for _, stamp_ns, message in bag.messages('/clock')]
+        utc = bag.imu_arrays('/gyro_box/imu')
+    assert clock[1] == (START_NS + 1_200_000_000, 1_094_185_337, 200_000_000)
+    np.testing.assert_array_equal(utc.header_stamp_ns, START_NS + np.array([1000, 1001, 1002]) * 10**9
+                                  + np.array([123, 124, 125]))
+    with BagReader(path, campaign_time=True) as bag:
+        assert bag.origin_ns == START_NS
+        clock = [(stamp_ns, message.clock.sec, message.clock.nanosec) for _, stamp_ns, message in bag.messages('/clock')]
+        by_topic = bag.messages_by_topic('/clock', '/status', '/gyro_box/imu', raw=('/status',), imu=('/gyro_box/imu',))
+        window = [stamp_ns for _, stamp_ns, _ in bag.messages('/clock', start_ns=10**9, stop_ns=2 * 10**9)]
+    assert clock == [(i * 10**9 + 200_000_000, i, 200_000_000) for i in range(3)]
+    assert by_topic['/clock'][0] == [i * 10**9 + 200_000_000 for i in range(3)]
+    assert [message.clock.sec for message in by_topic['/clock'][1]] == [0, 1, 2]
+    assert by_topic['/status'][0] == [0, 10**9, 2 * 10**9]
+    assert [bytes(data) for data in by_topic['/status'][1]] == [
+        bytes(wire_cdr(sample('diagnostic_msgs/msg/DiagnosticStatus', i))) for i in range(3)]
+    imu_arrays = by_topic['/gyro_box/imu']
+    np.testing.assert_array_equal(imu_arrays.stamp_ns, imu_arrays.header_stamp_ns)
+    np.testing.assert_array_equal(imu_arrays.header_stamp_ns, [1000 * 10**9 + 123, 1001 * 10**9 + 124, 1002 * 10**9 + 125])
+    assert window == [1_200_000_000]
+
+
+def test_campaign_time_needs_the_scenario_start(tmp_path):
+    path = tmp_path / 'no_scenario'
+    with BagWriter(path) as bag:
+        bag.write_document('/config/truth', 'effects: {}\n', 0)
+    with BagReader(path, campaign_time=True) as bag:
+        # Listing and documents need no time axis; times do.
+        assert bag.document('/config/truth') == 'effects: {}\n'
+        with pytest.raises(BagError, match=r'no_scenario has no /config/scenario to take the campaign start from; '
+                                           r'record it with `sofia run`'):
+            bag.messages('/config/truth')
+    with BagWriter(tmp_path / 'naive') as bag:
+        bag.write_document('/config/scenario', 'start_utc: 2004-09-03T04:22:16\n', 0)
+    with BagReader(tmp_path / 'naive', campaign_time=True) as bag:
+        with pytest.raises(BagError, match=r'has no campaign start .*ValueError start_utc has no timezone'):
+            bag.messages_by_topic('/config/scenario')
+
+
+def test_campaign_time_refuses_a_bag_recorded_from_time_zero(tmp_path):
+    path = tmp_path / 'from_zero'
+    with BagWriter(path) as bag:  # no epoch: times from 0, as bags were written before they carried UTC
+        bag.write_document('/config/scenario', SCENARIO, 0)
+    with BagReader(path, campaign_time=True) as bag:
+        with pytest.raises(BagError, match=r'from_zero starts 1094185336 s before its campaign start '
+                                           r'\(/config/scenario\): it was recorded with times from 0, not in UTC; '
+                                           r're-record it with `sofia run`'):
+            bag.messages('/config/scenario')
+
+
+def test_the_writer_refuses_a_negative_epoch(tmp_path):
+    with pytest.raises(InvalidArgumentError, match='epoch_ns must be >= 0, got -1'):
+        BagWriter(tmp_path / 'bag', epoch_ns=-1)

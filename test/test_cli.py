@@ -106,3 +106,30 @@ def test_gyro_stability_refuses_a_graph_mode(tmp_path, mode):
                        '--bag', str(tmp_path / 'b'), mode)
     assert result.returncode == 2 and 'without a node graph; drop --processes / --direct' in result.stderr
     assert not (tmp_path / 'b').exists()
+
+
+def test_a_flipped_byte_in_a_bag_is_one_line_naming_the_chunk(tmp_path):
+    from mcap.reader import make_reader
+    from sensor_msgs.msg import Imu
+
+    from sofia_ros.bag import BagWriter
+
+    bag = tmp_path / 'flipped'
+    with BagWriter(bag, compress=False, flush_period_ns=250_000_000) as writer:
+        writer.write_document('/config/case', 'case: TC-1\nheading_deg: 324.0\n', 0)
+        writer.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        for i in range(4000):
+            writer.write_message('/gyro_box/imu', Imu(), 2_500_000 * i)
+    mcap_file = bag / 'flipped.mcap'
+    with mcap_file.open('rb') as stream:
+        chunks = make_reader(stream).get_summary().chunk_indexes
+    data = bytearray(mcap_file.read_bytes())
+    data[chunks[5].chunk_start_offset + chunks[5].chunk_length - 50] ^= 0x40
+    mcap_file.write_bytes(bytes(data))
+    result = run_sofia('noise', str(bag))
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'Traceback' not in result.stderr
+    assert f'chunk 6 of {len(chunks)} (byte {chunks[5].chunk_start_offset},' in lines[0]
+    assert lines[0].endswith(f"fails its CRC check); salvage its complete chunks with "
+                             f"sofia_ros.bag.recover_bag('{bag}')")

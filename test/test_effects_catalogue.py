@@ -5,7 +5,7 @@ import pytest
 from sofia_ros.effects import CATALOGUE, catalogue_as_json, get_effect, resolve_params
 from sofia_ros.errors import ConfigError, UnknownEffectError
 
-# DESIGN.md section 5: names other tools rely on.
+# docs/effects.md: names other tools rely on.
 CONTRACT_NAMES = {
     'gyro_misalignment', 'gyro_bias', 'gyro_bias_drift', 'gyro_scale_factor', 'gyro_axis_swap', 'gyro_noise',
     'los_oscillation', 'vibration_lines', 'earth_rotation', 'heading_error', 'focal_plane_flexure',
@@ -33,7 +33,7 @@ def test_every_parameter_name_carries_its_unit_or_is_dimensionless():
 
 
 def test_gyro_misalignment_defaults_are_the_eq_6_1_rotations():
-    # DESIGN.md section 8: eq. 6.1 turns about EL ~1030", XEL ~730", LOS ~3590"
+    # docs/conventions.md: eq. 6.1 turns about EL ~1030", XEL ~730", LOS ~3590"
     assert resolve_params('gyro_misalignment', {}) == {
         'about_el_arcsec': 1030.0, 'about_xel_arcsec': 730.0, 'about_los_arcsec': 3590.0,
     }
@@ -72,3 +72,12 @@ def test_parameters_must_be_a_mapping():
 def test_fit_flag_must_be_boolean():
     with pytest.raises(ConfigError, match='fit must be true or false'):
         resolve_params('seeing', {'fit': 'yes'})
+
+
+def test_docs_effects_lists_the_catalogue_as_sofia_effects_prints_it():
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / 'docs' / 'effects.md').read_text()
+    for entry in catalogue_as_json():
+        params = ', '.join(f"{name} ({param['unit']}, {param['default']})" for name, param in entry['params'].items())
+        assert f"| `{entry['name']}` | {entry['thesis']} | {entry['description']} | {params} |" in page

@@ -43,7 +43,7 @@ def test_table_d2_matrix_2_is_matrix_1_inverted():
 
 
 def test_eq_6_1_small_rotation_angles():
-    """Eq. 6.1 read as A ~= I - [theta x]: about EL ~1035", XEL ~718", LOS ~3595" (DESIGN 8: 1030/730/3590)."""
+    """Eq. 6.1 read as A ~= I - [theta x]: about EL ~1035", XEL ~718", LOS ~3595" (docs/conventions.md: 1030/730/3590)."""
     # Single elements (A23 = +theta_u, A13 = -theta_v, A12 = +theta_w) include second-order terms.
     assert arcsec(A_EQ_6_1[1, 2]) == pytest.approx(1035.1, abs=0.1)
     assert arcsec(-A_EQ_6_1[0, 2]) == pytest.approx(718.5, abs=0.1)

@@ -111,7 +111,9 @@ def test_the_case_configuration_of_table_5_2_is_recorded_as_a_diagnostic_status(
         assert reader.topic(SUBSYSTEM_TOPIC).msgtype == 'diagnostic_msgs/msg/DiagnosticStatus'
         (_, stamp_ns, status), = reader.messages(SUBSYSTEM_TOPIC)
     states = {value.key: value.value for value in status.values}
-    assert (stamp_ns, status.hardware_id, status.message) == (0, 'TA', 'TC-3: ' + CASES['TC-3'].description)
+    # Logged at the campaign's start, 2007-06-21T18:00:00Z (the bag is on the campaign's UTC time).
+    assert (stamp_ns, status.hardware_id, status.message) == (
+        1_182_448_800 * 10**9, 'TA', 'TC-3: ' + CASES['TC-3'].description)
     assert states == dict(CASES['TC-3'].subsystems)
     assert (states['ris'], states['fd'], states['vis'], states['main_oil_pump']) == (
         'activated', 'braked', 'uncaged (axial air springs evacuated)', 'on, high rate')

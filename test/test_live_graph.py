@@ -143,3 +143,71 @@ def test_replay_publishes_a_bag_into_a_live_graph(direct_run):
         assert len(received) == expected
     finally:
         rclpy.try_shutdown()
+
+
+def test_a_campaign_bag_runs_on_the_campaigns_utc_time(direct_run):
+    # Polaris from Waco, 2004-09-02 23:32:51 CDT (Table D.3 observation 2): the bag is on that time axis.
+    start_ns = 1_094_185_971 * 10**9
+    with BagReader(direct_run.bag_path) as bag:
+        assert bag.campaign_epoch_ns() == start_ns
+        clock = [(stamp_ns, message.clock.sec * 10**9 + message.clock.nanosec)
+                 for _, stamp_ns, message in bag.messages('/clock')]
+        attitude = [(stamp_ns, message.header.stamp.sec) for _, stamp_ns, message in bag.messages('/tascu/attitude')]
+        imu = bag.imu_arrays('/gyro_box/imu')
+    assert clock[0] == (start_ns + DEFAULT_TICK_NS, start_ns + DEFAULT_TICK_NS)
+    assert all(log_ns == stamp_ns for log_ns, stamp_ns in clock)
+    assert attitude[0][1] == (start_ns + DEFAULT_TICK_NS) // 10**9
+    assert imu.header_stamp_ns[0] == start_ns + 2_500_000
+    sim_ns = round(direct_run.summary['sim_seconds'] * 1e9)
+    assert clock[-1][0] == start_ns + sim_ns
+    info = yaml.safe_load((direct_run.bag_path / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['starting_time']['nanoseconds_since_epoch'] == start_ns  # the documents, at the start
+    assert info['duration']['nanoseconds'] == sim_ns
+    # Read for analysis, the same bag counts from the campaign's start.
+    with BagReader(direct_run.bag_path, campaign_time=True) as bag:
+        assert [stamp_ns for _, stamp_ns, _ in bag.messages('/clock')][:2] == [DEFAULT_TICK_NS, 2 * DEFAULT_TICK_NS]
+
+
+@pytest.mark.timeout(120)
+def test_a_replay_re_latches_the_documents_for_a_late_subscriber(direct_run):
+    import subprocess
+    import sys
+
+    import rclpy
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import String
+
+    from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS
+
+    with BagReader(direct_run.bag_path) as bag:
+        truth_text = bag.document('/config/truth')
+    rclpy.init()
+    replay = None
+    try:
+        node = rclpy.create_node('late_listener')
+        ticks = []
+        node.create_subscription(Clock, '/clock', ticks.append, DATA_QOS)
+        replay = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'replay', str(direct_run.bag_path),
+                                   '--topics', '/config/truth', '/clock'], stdout=subprocess.PIPE,
+                                  stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 60.0
+        # The documents are logged at the start: once ten ticks of /clock have arrived they were published.
+        while len(ticks) < 10:
+            assert time.monotonic() < deadline and replay.poll() is None, 'the replay did not start'
+            rclpy.spin_once(node, timeout_sec=0.05)
+        documents = []
+        node.create_subscription(String, '/config/truth', documents.append, SYNC_QOS)
+        while not documents:
+            assert time.monotonic() < deadline and replay.poll() is None, 'the late subscriber got no document'
+            rclpy.spin_once(node, timeout_sec=0.05)
+        assert [message.data for message in documents] == [truth_text]
+        assert 1_094_185_971 <= ticks[0].clock.sec < 1_094_185_971 + 60  # replayed on the campaign's UTC time
+        # Stopped mid-replay, it says so in one line, without a traceback.
+        replay.terminate()
+        output, errors = replay.communicate(timeout=20)
+        assert 'stopped after' in output and 'Traceback' not in errors
+    finally:
+        if replay is not None and replay.poll() is None:
+            replay.kill()
+            replay.communicate(timeout=10)
+        rclpy.try_shutdown()

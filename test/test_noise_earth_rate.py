@@ -30,7 +30,7 @@ def _row(table, key):
 
 def _table(heading_deg):
     # "corrected for its known misalignment using the latest gyro alignment matrix": Table D.2 #5,
-    # orthonormal to 9e-6 only, so re-orthonormalized with a warning (DESIGN.md 8).
+    # orthonormal to 9e-6 only, so re-orthonormalized with a warning (docs/conventions.md).
     with pytest.warns(UserWarning, match='re-orthonormalized'):
         return earth_rate_table(AVERAGE_OF_ALL_CASES, LATITUDE_DEG, heading_deg, ELEVATION_DEG, TABLE_D2_A5)
 

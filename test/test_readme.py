@@ -8,12 +8,23 @@ from sofia_ros.config import load_effect_config
 from sofia_ros.sim.graph import topic_table_markdown
 from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 
-README = (Path(__file__).resolve().parents[1] / 'README.md').read_text()
+REPO = Path(__file__).resolve().parents[1]
+README = (REPO / 'README.md').read_text()
 
 
 def test_topic_table_is_the_graphs():
     table = topic_table_markdown(graph_config(load_effect_config('config/truth/nominal.yaml'), 0))
     assert table in README
+    assert table in (REPO / 'docs' / 'topics.md').read_text()
+
+
+def test_every_document_the_readme_links_exists():
+    import re
+
+    linked = set(re.findall(r'\]\((docs/[^)#]+)\)', README))
+    assert {'docs/cli.md', 'docs/compare.md', 'docs/noise.md', 'docs/effects.md', 'docs/topics.md', 'docs/bag.md',
+            'docs/conventions.md'} <= linked
+    assert all((REPO / path).is_file() for path in linked)
 
 
 def test_readme_opens_with_the_two_commands():

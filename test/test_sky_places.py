@@ -74,7 +74,7 @@ def _deviations(place_function, site=WACO_2004_SITE):
 
 
 def test_table_d_3_reproduced_by_the_astrometric_place():
-    # Table D.3 with the DESIGN.md 7 site and weather and Stone's refraction. Measured maxima:
+    # Table D.3 with the docs/conventions.md site and weather and Stone's refraction. Measured maxima:
     # altitude 0.023 deg, azimuth 0.14 deg, refraction 0.13", distance 0.06", adjusted 0.08".
     # The table rounds to 0.01 deg and 0.1"; see the next test for the altitude/azimuth offset.
     altitude, azimuth, refraction, distance, adjusted = _deviations(astrometric_observed_place)

@@ -15,7 +15,7 @@ from sofia_ros.sky.refraction import (
     stone_refraction_from_topocentric_arcsec,
 )
 
-# Reference conditions of 4.3.2 and 6.3 (Waco, 2004-09-02 24:00 CDT, NCDC), site of DESIGN.md 7.
+# Reference conditions of 4.3.2 and 6.3 (Waco, 2004-09-02 24:00 CDT, NCDC), site of docs/conventions.md (Data).
 WACO = dict(temperature_c=22.8, pressure_hpa=996.3, relative_humidity=0.74, wavelength_um=0.55)
 WACO_SITE = dict(latitude_deg=31.638, height_m=144.0)
 

@@ -1,4 +1,4 @@
-"""The `sofia noise` command: arguments, tables on stdout, JSON file, HTML report (DESIGN.md section 6, thesis 5.2)."""
+"""The `sofia noise` command: arguments, tables on stdout, JSON file, HTML report (docs/noise.md, thesis 5.2)."""
 
 from __future__ import annotations
 

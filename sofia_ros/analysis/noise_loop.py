@@ -1,6 +1,6 @@
-"""The noise-model loop (DESIGN.md 6, thesis 4.2, 5.2): a noise model against a record, missing terms ranked.
+"""The noise-model loop (docs/noise.md, thesis 4.2, 5.2): a noise model against a record, missing terms ranked.
 
-A noise model is an effects file with the schema of a truth (DESIGN.md 5). Per gyro axis it predicts
+A noise model is an effects file with the schema of a truth (docs/effects.md). Per gyro axis it predicts
 the Allan variance and the Welch PSD of the mean-removed rate:
 
 - ``gyro_noise``: quantization 4.13 / 4.11, ARW 4.16 / 4.14, bias instability 4.18 (corrected, see
@@ -605,7 +605,7 @@ def _coefficient_proposal(measured, base, label, effect, term, axis, rows, shape
 
 
 def rank_missing_terms(measured, base, effects, silent=frozenset()):
-    """Candidates (DESIGN.md 6 `candidates`), best first, by ranking.rank_candidates; silent sources not named."""
+    """Candidates (docs/noise.md `candidates`), best first, by ranking.rank_candidates; silent sources not named."""
     proposals = (_line_proposals(measured, base, effects, silent)
                  + _slow_sinusoid_proposals(measured, base, effects, silent)
                  + _noise_term_proposals(measured, base, effects))

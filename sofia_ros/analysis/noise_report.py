@@ -12,7 +12,7 @@ One record of `sofia run gyro-stability` is read once (load_noise_record) and an
   integrated angle (Figs. 5.8-5.9);
 - the noise-model loop (noise_loop): the model's residual and the missing terms ranked.
 
-The document is the `sofia noise --json` contract (docs/noise.md, DESIGN.md 6).
+The document is the `sofia noise --json` contract (docs/noise.md).
 """
 
 from __future__ import annotations
@@ -228,5 +228,5 @@ def analyze_record(record, *, model=None, decimate=1):
 
 
 def analyze_noise(bag_path, *, model=None, decimate=1, imu_topic=IMU_TOPIC):
-    """The `sofia noise --json` document of a bag (DESIGN.md section 6, docs/noise.md)."""
+    """The `sofia noise --json` document of a bag (docs/noise.md)."""
     return analyze_record(load_noise_record(bag_path, imu_topic), model=model, decimate=decimate).document

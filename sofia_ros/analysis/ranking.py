@@ -176,7 +176,7 @@ class RankedCandidate:
 
 
 def rank_candidates(residual, base_jacobian, candidates):
-    """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (DESIGN.md 6).
+    """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (docs/compare.md, docs/noise.md).
 
     ``residual`` is measured minus predicted by the fitted base model, ``base_jacobian`` its
     columns (d prediction / d parameter), both already weighted. Observability is a question of

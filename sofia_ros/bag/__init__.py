@@ -3,11 +3,15 @@
 A bag is a directory ``DIR/`` holding ``DIR.mcap`` (zstd-compressed chunks, the
 ROS 2 Kilted message definitions as ``ros2msg`` schemas) and ``metadata.yaml``
 (rosbag2 version 9, ``storage_identifier: mcap``), as ``ros2 bag``, rosbags,
-the mcap tools and Foxglove expect.
+the mcap tools and Foxglove expect. Every chunk, the data section and the
+summary carry their CRC-32 (mcap_storage), checked on reading; each chunk's
+records are in log-time order; every topic records its offered QoS. A
+campaign's bag is on the campaign's UTC time axis (timebase). docs/bag.md is
+the contract.
 
 Writing::
 
-    with BagWriter('bags/run1') as bag:
+    with BagWriter('bags/run1', epoch_ns=start_ns) as bag:   # callers write campaign time
         bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
         bag.write_raw('/gyro_box/imu', cdr_bytes, stamp_ns)    # from a raw subscription
         bag.write_message('/gyro_box/imu', imu_msg, stamp_ns)  # rclpy message object
@@ -29,15 +33,16 @@ Crash safety: like ``ros2 bag record``, the writer writes ``metadata.yaml``
 (atomically, tmp + rename) only in ``close()``; a bag without it was not
 finished, and BagReader refuses it, naming the fix. An exception inside the
 ``with`` block aborts the same way: a failed run never looks complete. Complete
-MCAP chunks reach the OS at every ``flush()`` and whenever a message's log time
-is ``flush_period_ns`` (default 1 s) past the previous flush, so a process that
-is killed loses only the messages after the last flush (rosbags also closes a
-chunk at 1 MiB). ``recover_bag(DIR)`` copies every complete chunk into a new,
-closed bag ``DIR_recovered`` and leaves ``DIR`` untouched.
+MCAP chunks (at most about 1 MiB each) reach the OS at every ``flush()`` and
+whenever a message's log time is ``flush_period_ns`` (default 1 s) past the
+previous flush (then with every message logged before that one), so a process
+that is killed loses only the messages after the last flush.
+``recover_bag(DIR)`` copies every complete chunk into a new, closed bag
+``DIR_recovered`` and leaves ``DIR`` untouched.
 
 Reading::
 
-    with BagReader('bags/run1') as bag:
+    with BagReader('bags/run1', campaign_time=True) as bag:  # times from the start again
         bag.topics                                  # (TopicInfo(name, msgtype, count), ...)
         for topic, stamp_ns, msg in bag.messages('/tascu/attitude', '/clock'):
             ...

@@ -26,7 +26,7 @@ if sys.version_info >= (3, 14):
 else:
     from backports import zstd
 
-__all__ = ['indexed_records', 'INDEX_DAMAGE_ERRORS']
+__all__ = ['INDEX_DAMAGE_ERRORS', 'check_summary_crc', 'first_damaged_chunk', 'indexed_records']
 
 #: What a damaged file raises here: summary parsing, record layout, zstd, the CRC check.
 INDEX_DAMAGE_ERRORS = (McapError, struct.error, zstd.ZstdError, ValueError, IndexError)
@@ -38,6 +38,10 @@ _MESSAGE_OPCODE = 0x05
 _RECORD_HEAD = 9
 #: channel id (2) + sequence (4) + log time (8) + publish time (8) before a message's data.
 _MESSAGE_HEAD = 22
+_FOOTER_OPCODE = 0x02
+#: Footer record: opcode, length, summary start, summary offset start, summary CRC.
+_FOOTER = struct.Struct('<BQQQI')
+_MAGIC = b'\x89MCAP0\r\n'
 
 
 def indexed_records(mcap_path, topics, packed=()):
@@ -54,11 +58,11 @@ def indexed_records(mcap_path, topics, packed=()):
                          if channel.topic in topics}
         found = {topic: ([], []) for topic in topics if topic not in packed}
         blocks = {topic: [] for topic in packed}
-        for chunk in summary.chunk_indexes:
+        for number, chunk in enumerate(summary.chunk_indexes, 1):
             wanted = [channel for channel in chunk.message_index_offsets if channel in channel_topic]
             if not wanted:
                 continue
-            records = _chunk_records(data, chunk)
+            records = _chunk_records(data, chunk, f'{number} of {len(summary.chunk_indexes)}')
             for channel in wanted:
                 topic = channel_topic[channel]
                 log_ns, starts, ends = _channel_messages(data, chunk.message_index_offsets[channel], channel, records)
@@ -71,24 +75,54 @@ def indexed_records(mcap_path, topics, packed=()):
     return {**{topic: _in_time_order(stamps, payloads) for topic, (stamps, payloads) in found.items()}, **blocks}
 
 
-def _chunk_records(data, chunk):
-    """The decompressed, CRC-checked records of one Chunk record."""
+def first_damaged_chunk(mcap_path):
+    """'chunk N of M (...) fails ...' for the first chunk whose size, zstd frame or CRC is wrong; None if all pass."""
+    with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        chunks = make_reader(file).get_summary().chunk_indexes
+        for number, chunk in enumerate(chunks, 1):
+            try:
+                _chunk_records(data, chunk, f'{number} of {len(chunks)}')
+            except ValueError as err:
+                return str(err)
+    return None
+
+
+def check_summary_crc(mcap_path):
+    """Raise ValueError if the file's footer carries a summary CRC that its summary section fails."""
+    with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        footer = len(data) - len(_MAGIC) - _FOOTER.size
+        if footer < 0 or data[footer] != _FOOTER_OPCODE:
+            raise ValueError('no MCAP footer at the end of the file')
+        _, _, summary_start, _, crc = _FOOTER.unpack_from(data, footer)
+        if crc and summary_start and zlib.crc32(data[summary_start:footer + _FOOTER.size - 4]) != crc:
+            raise ValueError(f'the summary section (byte {summary_start} on) fails its CRC check')
+
+
+def _chunk_records(data, chunk, name):
+    """The decompressed, CRC-checked records of one Chunk record; ``name`` ('3 of 17') for the error."""
     start = chunk.chunk_start_offset
+    where = (f'chunk {name} (byte {start}, log times {chunk.message_start_time} to '
+             f'{chunk.message_end_time} ns)')
     if data[start] != _CHUNK_OPCODE:
-        raise ValueError(f'no chunk record at byte {start}')
+        raise ValueError(f'{where}: no chunk record there')
     head = start + _RECORD_HEAD
     uncompressed_size, crc, name_length = struct.unpack_from('<QII', data, head + 16)
     body = head + 32 + name_length
     (length,) = struct.unpack_from('<Q', data, body)
     compressed = data[body + 8:body + 8 + length]
     if chunk.compression == 'zstd':
-        records = zstd.decompress(compressed)
+        try:
+            records = zstd.decompress(compressed)
+        except zstd.ZstdError as err:
+            raise ValueError(f'{where} fails to decompress ({err})') from err
     elif chunk.compression == '':
         records = bytes(compressed)
     else:
-        raise ValueError(f'chunk compression {chunk.compression!r} is not supported')
-    if len(records) != uncompressed_size or (crc and zlib.crc32(records) != crc):
-        raise ValueError(f'chunk at byte {start} fails its size or CRC check')
+        raise ValueError(f'{where}: compression {chunk.compression!r} is not supported')
+    if len(records) != uncompressed_size:
+        raise ValueError(f'{where} decompresses to {len(records)} bytes, not {uncompressed_size}')
+    if crc and zlib.crc32(records) != crc:
+        raise ValueError(f'{where} fails its CRC check')
     return records
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import struct
 import sys
 from pathlib import Path
@@ -10,10 +11,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import yaml
 from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import ReaderError
 
 from sofia_ros.bag.imu import ImuArrays, decode_imu_blocks, decode_imu_cdr
-from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, indexed_records
+from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, check_summary_crc, first_damaged_chunk, indexed_records
 from sofia_ros.bag.msgtypes import (
     DOCUMENT_MSGTYPE,
     IMU_MSGTYPE,
@@ -21,6 +23,7 @@ from sofia_ros.bag.msgtypes import (
     TopicInfo,
     decode_cdr,
 )
+from sofia_ros.bag.timebase import epoch_ns_of, has_leading_stamp, shift_stamp
 from sofia_ros.errors import BagError, InvalidArgumentError
 
 # The zstd module rosbags decompresses chunks with.
@@ -38,7 +41,11 @@ if TYPE_CHECKING:
 
     RawRecords = Iterator[tuple[Connection, int, bytes]]
 
-__all__ = ['BagReader']
+__all__ = ['BagReader', 'SCENARIO_TOPIC']
+
+#: Topic of the scenario document in a bag: where and when (start_utc) the campaign happened, as a logbook
+#: would record it (YAML, sofia_ros.sim.scenario); BagReader(campaign_time=True) counts time from its start.
+SCENARIO_TOPIC = '/config/scenario'
 
 # What reading a damaged MCAP file raises inside rosbags and decode_cdr: chunk and
 # record parsing, zstd, CDR decoding.
@@ -50,23 +57,70 @@ class BagReader:
 
     Messages come back as rosbags dataclasses with the ROS field names
     (``msg.angular_velocity.x``), decoded with the definitions stored in the
-    bag, which AnyReader checks against their RIHS01 hashes.
+    bag, which AnyReader checks against their RIHS01 hashes. Chunks are read
+    only after their CRC passes; the summary's CRC is checked on opening.
+
+    Times are the bag's own (UTC ns for a campaign's bag) unless ``campaign_time``:
+    then log times, ``start_ns``/``stop_ns`` and every leading message stamp
+    (a Header or a Time first in the message) count ns from the campaign's start,
+    the ``start_utc`` of its /config/scenario, as the cores and the analysis do
+    (sofia_ros.bag.timebase).
     """
 
-    def __init__(self, path: str | PathLike[str]) -> None:
+    def __init__(self, path: str | PathLike[str], *, campaign_time: bool = False) -> None:
         """Check that ``path`` is a closed rosbag2 bag directory in MCAP storage."""
         self.path = Path(path)
         _check_layout(self.path)
         self._reader = AnyReader([self.path], default_typestore=TYPESTORE)
+        self._campaign_time = campaign_time
+        self._origin_ns: int | None = None if campaign_time else 0
         self._is_open = False
 
     def open(self) -> None:
         """Open the bag and read its index."""
+        files = list(self.path.glob('*.mcap'))
         try:
+            if len(files) == 1:
+                check_summary_crc(files[0])
             self._reader.open()
         except _DAMAGE_ERRORS as err:
             raise _damaged(self.path, err) from err
         self._is_open = True
+
+    @property
+    def origin_ns(self) -> int:
+        """ns subtracted from the bag's times: the campaign's start with campaign_time, else 0.
+
+        Looked up when first needed, so that a bag lacking /config/scenario can still be listed.
+        """
+        if self._origin_ns is None:
+            epoch_ns = self.campaign_epoch_ns()
+            if self._reader.start_time < epoch_ns:
+                raise BagError(
+                    f'bag {self.path} starts {(epoch_ns - self._reader.start_time) / 1e9:.0f} s before its campaign '
+                    f'start ({SCENARIO_TOPIC}): it was recorded with times from 0, not in UTC; '
+                    're-record it with `sofia run`'
+                )
+            self._origin_ns = epoch_ns
+        return self._origin_ns
+
+    def campaign_epoch_ns(self) -> int:
+        """The campaign's start (start_utc of /config/scenario) in ns since the Unix epoch."""
+        self._require_open()
+        if SCENARIO_TOPIC not in self._reader.topics:
+            raise BagError(f'bag {self.path} has no {SCENARIO_TOPIC} to take the campaign start from; '
+                           'record it with `sofia run`')
+        text = self.document(SCENARIO_TOPIC)
+        try:
+            start_utc = dt.datetime.fromisoformat(str(yaml.safe_load(text)['start_utc']))
+            if start_utc.tzinfo is None:
+                raise ValueError('start_utc has no timezone')
+        except (yaml.YAMLError, TypeError, KeyError, ValueError) as err:
+            raise BagError(
+                f'bag {self.path} has no campaign start ({SCENARIO_TOPIC} with an aware start_utc: '
+                f'{type(err).__name__} {err}); record it with `sofia run`'
+            ) from err
+        return epoch_ns_of(start_utc)
 
     def close(self) -> None:
         """Close the bag."""
@@ -95,6 +149,15 @@ class BagReader:
         return tuple(
             TopicInfo(name, info.msgtype or '', info.msgcount)
             for name, info in sorted(self._reader.topics.items())
+        )
+
+    def latched_topics(self) -> frozenset[str]:
+        """Topics whose recorded offered QoS is transient-local (documents, /clock): a replay re-latches them."""
+        return frozenset(
+            name for name, info in self._reader.topics.items()
+            for connection in info.connections
+            if any(qos.durability == QosDurability.TRANSIENT_LOCAL
+                   for qos in getattr(connection.ext, 'offered_qos_profiles', ()))
         )
 
     def topic(self, name: str) -> TopicInfo:
@@ -131,17 +194,26 @@ class BagReader:
                 raise BagError(f'topic {topic} in bag {self.path} holds {msgtype}, not {IMU_MSGTYPE}')
         collected = self._indexed(topics, imu)
         if collected is None:
+            # _raw gives campaign time already.
             collected = {topic: ([], []) for topic in topics}
             for connection, stamp_ns, data in self._raw(topics, None, None):
                 collected[connection.topic][0].append(stamp_ns)
                 collected[connection.topic][1].append(data)
+        else:
+            for topic in topics:
+                if topic not in imu:
+                    collected[topic] = self._to_campaign_time(self.topic(topic).msgtype, *collected[topic])
         typestore = self._reader.typestore
         for topic in topics:
             try:
                 if topic in imu:
                     records = collected[topic]
-                    collected[topic] = (decode_imu_blocks(records) if isinstance(records, list)
-                                        else decode_imu_cdr(*records))
+                    arrays = (decode_imu_blocks(records) if isinstance(records, list)
+                              else decode_imu_cdr(*records))
+                    collected[topic] = ImuArrays(arrays.stamp_ns - self.origin_ns,
+                                                 arrays.header_stamp_ns - self.origin_ns,
+                                                 arrays.angular_velocity_rad_per_s,
+                                                 arrays.linear_acceleration_m_per_s2)
                 elif topic not in raw:
                     msgtype = self.topic(topic).msgtype
                     collected[topic] = (collected[topic][0],
@@ -159,7 +231,13 @@ class BagReader:
                 f'topic {topic} in bag {self.path} holds {msgtype}, '
                 f'not a {DOCUMENT_MSGTYPE} document'
             )
-        texts = [message.data for _, _, message in self.messages(topic)]
+        # Read without times, so that campaign_epoch_ns can read the scenario before the origin is known.
+        self._require_open()
+        records = self._guarded(self._reader.messages(self._connections(topic)), 0)
+        try:
+            texts = [decode_cdr(data, DOCUMENT_MSGTYPE).data for _, _, data in records]
+        except _DAMAGE_ERRORS as err:
+            raise _damaged(self.path, err) from err
         if not texts:
             raise BagError(f'topic {topic} in bag {self.path} holds no document')
         return texts[-1]
@@ -205,14 +283,28 @@ class BagReader:
         self._require_open()
         names = topics or tuple(info.name for info in self.topics)
         connections = [conn for name in names for conn in self._connections(name)]
-        return self._guarded(self._reader.messages(connections, start=start_ns, stop=stop_ns))
+        origin_ns = self.origin_ns
+        start_ns = None if start_ns is None else start_ns + origin_ns
+        stop_ns = None if stop_ns is None else stop_ns + origin_ns
+        return self._guarded(self._reader.messages(connections, start=start_ns, stop=stop_ns), origin_ns)
 
-    def _guarded(self, records: RawRecords) -> RawRecords:
-        """Pass ``records`` through, turning damage found while reading into BagError."""
+    def _guarded(self, records: RawRecords, origin_ns: int) -> RawRecords:
+        """Pass ``records`` through moved back by ``origin_ns``, turning damage found while reading into BagError."""
         try:
-            yield from records
+            for connection, stamp_ns, data in records:
+                if origin_ns and has_leading_stamp(connection.msgtype):
+                    data = shift_stamp(data, -origin_ns)
+                yield connection, stamp_ns - origin_ns, data
         except _DAMAGE_ERRORS as err:
             raise _damaged(self.path, err) from err
+
+    def _to_campaign_time(self, msgtype: str, stamps_ns: list[int], payloads: list) -> tuple[list[int], list]:
+        """Log times and CDR payloads of one topic moved to campaign time."""
+        if not self.origin_ns:
+            return stamps_ns, payloads
+        if has_leading_stamp(msgtype):
+            payloads = [shift_stamp(data, -self.origin_ns) for data in payloads]
+        return [stamp_ns - self.origin_ns for stamp_ns in stamps_ns], payloads
 
     def _decoded(self, records: RawRecords) -> Iterator[tuple[str, int, Any]]:
         """Decode ``records`` into (topic, stamp_ns, message)."""
@@ -268,7 +360,15 @@ def _check_layout(path: Path) -> None:
 
 
 def _damaged(path: Path, err: BaseException) -> BagError:
-    """The BagError for a bag whose MCAP file is truncated or corrupt."""
+    """The BagError for a bag whose MCAP file is truncated or corrupt, naming the first damaged chunk if any."""
+    files = list(path.glob('*.mcap'))
+    if len(files) == 1 and 'chunk' not in str(err):
+        try:
+            chunk = first_damaged_chunk(files[0])
+        except (*INDEX_DAMAGE_ERRORS, OSError):
+            chunk = None
+        if chunk is not None:
+            err = ValueError(chunk)
     return BagError(
         f'bag {path} is truncated or corrupt ({type(err).__name__}: {err}); '
         f'salvage its complete chunks with sofia_ros.bag.recover_bag({str(path)!r})'

@@ -11,7 +11,7 @@ import yaml
 import zstandard
 from mcap.exceptions import McapError
 from mcap.records import Channel, Footer, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import CRCValidationError, StreamReader
 
 from sofia_ros.bag.writer import BagWriter
 from sofia_ros.errors import BagError
@@ -28,8 +28,8 @@ __all__ = ['RECOVERED_SUFFIX', 'RecoveryReport', 'recover_bag']
 #: Appended to the damaged bag's name to name the rebuilt bag by default.
 RECOVERED_SUFFIX = '_recovered'
 _MCAP_MAGIC = b'\x89MCAP0\r\n'
-# What a cut or damaged record raises inside the mcap stream reader.
-_DAMAGE_ERRORS = (McapError, zstandard.ZstdError, struct.error, UnicodeDecodeError)
+# What a cut or damaged record, or a chunk or data section failing its CRC, raises inside the mcap stream reader.
+_DAMAGE_ERRORS = (McapError, CRCValidationError, zstandard.ZstdError, struct.error, UnicodeDecodeError)
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ def recover_bag(
     with mcap_path.open('rb') as stream, BagWriter(destination) as writer:
         copier = _Copier(writer)
         try:
-            for record in StreamReader(stream).records:
+            for record in StreamReader(stream, validate_crcs=True).records:
                 copier.copy(record)
         except _DAMAGE_ERRORS as err:
             # Everything before the first cut or damaged record has been copied.

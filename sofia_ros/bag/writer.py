@@ -18,6 +18,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from std_msgs.msg import String
 
+from sofia_ros.bag.mcap_storage import CheckedMcapStorage
 from sofia_ros.bag.msgtypes import (
     DOCUMENT_MSGTYPE,
     TYPESTORE,
@@ -26,6 +27,7 @@ from sofia_ros.bag.msgtypes import (
     msgtype_of,
     wire_cdr,
 )
+from sofia_ros.bag.timebase import has_leading_stamp, shift_stamp
 from sofia_ros.errors import BagError, InvalidArgumentError
 
 if TYPE_CHECKING:
@@ -34,14 +36,14 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-__all__ = ['BagWriter', 'ROSBAG2_VERSION']
+__all__ = ['BagWriter', 'LATCHED_QOS', 'ROSBAG2_VERSION', 'STREAM_QOS']
 
 #: rosbag2 metadata version written (the one Jazzy and later read natively).
 ROSBAG2_VERSION = 9
 _NO_TIME = QosTime(0, 0)
-# Offered QoS of latched topics: `ros2 bag play` re-offers them transient-local, so
-# a node that starts late still receives the configuration documents.
-_LATCHED_QOS = Qos(
+#: Offered QoS of latched topics (the documents, /clock, a case's subsystem status): `ros2 bag play`
+#: re-offers them transient-local, so a node that starts late still receives the last one.
+LATCHED_QOS = Qos(
     history=QosHistory.KEEP_LAST,
     depth=1,
     reliability=QosReliability.RELIABLE,
@@ -52,16 +54,42 @@ _LATCHED_QOS = Qos(
     liveliness_lease_duration=_NO_TIME,
     avoid_ros_namespace_conventions=False,
 )
+#: Offered QoS of every other topic: what the graph's data publishers offer (nodes.sync.DATA_QOS).
+STREAM_QOS = Qos(
+    history=QosHistory.KEEP_ALL,
+    depth=1000,
+    reliability=QosReliability.RELIABLE,
+    durability=QosDurability.VOLATILE,
+    deadline=_NO_TIME,
+    lifespan=_NO_TIME,
+    liveliness=QosLiveliness.AUTOMATIC,
+    liveliness_lease_duration=_NO_TIME,
+    avoid_ros_namespace_conventions=False,
+)
+
+
+class _Rosbag2Writer(Writer):
+    """rosbags' rosbag2 writer (metadata.yaml, connections, QoS) over the CRC-checked MCAP storage."""
+
+    STORAGE_PLUGINS = {StoragePlugin.MCAP: CheckedMcapStorage}
 
 
 class BagWriter:
     """Write one new bag directory; use as a context manager.
 
-    Messages are buffered in MCAP chunks; :meth:`flush` hands them to the OS, so a
-    killed process loses only what was written after the last flush. The writer
-    flushes by itself whenever a message's log time passes the previous flush by
-    ``flush_period_ns``; counting log time, not wall time, keeps the chunk layout,
-    and so the bag's bytes, the same each time a seeded run is repeated.
+    Messages are buffered; :meth:`flush` writes them as MCAP chunks, each sorted by log
+    time, and hands them to the OS, so a killed process loses only what was written
+    after the last flush. The writer flushes by itself whenever a message's log time
+    passes the previous flush by ``flush_period_ns``: then every buffered message
+    logged before that message goes out, and that message and any later one wait, so
+    that the chunks of a lock-step run (whose ticks write their own stamps only) follow
+    each other in time without overlap. Counting log time, not wall time, keeps the
+    chunk layout, and so the bag's bytes, the same each time a seeded run is repeated.
+
+    ``epoch_ns`` (ns since the Unix epoch; the scenario's start) is added to every log
+    time and every leading message stamp written (sofia_ros.bag.timebase): callers write
+    campaign time, the bag holds UTC.
+
     Only :meth:`close` writes ``metadata.yaml``; leaving the ``with`` block by an
     exception aborts instead, so a bag that was not closed never looks complete.
     Not thread-safe: call it from one thread (or under one lock).
@@ -73,12 +101,14 @@ class BagWriter:
         *,
         compress: bool = True,
         flush_period_ns: int = 1_000_000_000,
+        epoch_ns: int = 0,
     ) -> None:
         """Prepare a writer for the new bag directory ``path`` (zstd chunks if ``compress``)."""
         self.path = Path(path)
         self._flush_period_ns = _checked_ns('flush_period_ns', flush_period_ns, minimum=1)
+        self.epoch_ns = _checked_ns('epoch_ns', epoch_ns)
         try:
-            self._writer = Writer(
+            self._writer = _Rosbag2Writer(
                 self.path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP
             )
         except WriterError as err:
@@ -88,7 +118,7 @@ class BagWriter:
         if compress:
             self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._connections: dict[str, Connection] = {}
-        self._flush_due_ns = 0
+        self._flush_due_ns = self.epoch_ns
         self._is_open = False
 
     def open(self) -> None:
@@ -103,7 +133,7 @@ class BagWriter:
         self.flush()
 
     def add_topic(self, topic: str, msgtype: str, *, latched: bool = False) -> None:
-        """Register ``topic`` of type ``msgtype`` ('pkg/msg/Name'); latched: transient-local."""
+        """Register ``topic`` of type ``msgtype`` ('pkg/msg/Name') with its offered QoS: LATCHED_QOS or STREAM_QOS."""
         self._require_open()
         if not isinstance(topic, str) or not topic.startswith('/'):
             raise InvalidArgumentError(
@@ -115,7 +145,7 @@ class BagWriter:
             topic,
             checked_msgtype(msgtype),
             typestore=TYPESTORE,
-            offered_qos_profiles=(_LATCHED_QOS,) if latched else (),
+            offered_qos_profiles=(LATCHED_QOS if latched else STREAM_QOS,),
         )
 
     def write_raw(self, topic: str, data: bytes | bytearray | memoryview, stamp_ns: int) -> None:
@@ -154,12 +184,7 @@ class BagWriter:
     def flush(self) -> None:
         """Hand every message written so far to the OS (survives the process being killed)."""
         self._require_open()
-        # rosbags keeps the open chunk in memory until it reaches 1 MiB; closing it
-        # early is what bounds the loss on a crash.
-        storage = self._writer.storage
-        if storage.chunk.msgs:
-            storage.close_chunk()
-        storage.bio.flush()
+        self._writer.storage.write_chunks()
 
     def close(self) -> None:
         """Finish the MCAP summary and write metadata.yaml; the bag is then complete."""
@@ -217,10 +242,12 @@ class BagWriter:
 
     def _write(self, connection: Connection, data: bytes | memoryview, stamp_ns: int) -> None:
         """Write one message and flush when its log time reaches the next flush."""
-        stamp_ns = _checked_ns('stamp_ns', stamp_ns)
+        stamp_ns = _checked_ns('stamp_ns', stamp_ns) + self.epoch_ns
+        if self.epoch_ns and has_leading_stamp(connection.msgtype):
+            data = shift_stamp(data, self.epoch_ns)
         self._writer.write(connection, stamp_ns, data)
         if stamp_ns >= self._flush_due_ns:
-            self.flush()
+            self._writer.storage.write_chunks(before_ns=stamp_ns)
             self._flush_due_ns = stamp_ns + self._flush_period_ns
 
 

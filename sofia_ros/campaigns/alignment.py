@@ -34,7 +34,7 @@ TARGET_STAR = 'Polaris'
 
 @dataclass(frozen=True)
 class AlignmentRun:
-    """What a finished run reports (summary.json, DESIGN.md section 6)."""
+    """What a finished run reports (summary.json, docs/cli.md)."""
 
     summary: dict
     result_yaml: str
@@ -110,8 +110,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
 
 
 def result_from_bag(bag_path):
-    """The calibration node's last /calibration/result and the last /clock time, read back from the bag."""
-    with BagReader(bag_path) as bag:
+    """The calibration node's last /calibration/result and the last /clock time (s since the start), from the bag."""
+    with BagReader(bag_path, campaign_time=True) as bag:
         names = {topic.name for topic in bag.topics}
         result = None
         if '/calibration/result' in names:

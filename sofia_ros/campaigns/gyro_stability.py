@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import yaml
 
 from sofia_ros.bag import BagWriter
+from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.campaigns.recording import new_bag_path
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
@@ -28,7 +29,7 @@ from sofia_ros.sim.gyro_box import GyroBoxCore
 from sofia_ros.sim.plant import PlantCore
 from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 from sofia_ros.sim.runner import LockstepRunner
-from sofia_ros.sim.scenario import Scenario
+from sofia_ros.sim.scenario import SCENARIO_TOPIC, Scenario, scenario_document
 from sofia_ros.sky import EDWARDS_2007_SITE
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
 
@@ -120,11 +121,12 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
                                 'heading_deg': scenario.heading_deg, 'elevation_deg': scenario.start_elevation_deg,
                                 'latitude_deg': scenario.latitude_deg, 'effects': effects}, sort_keys=False)
     wall_start = time.perf_counter()
-    bag = BagWriter(bag_path)
+    bag = BagWriter(bag_path, epoch_ns=epoch_ns_of(scenario.start_utc))
     bag.open()
     try:
         bag.write_document('/config/truth', truth.text, 0)
         bag.write_document('/config/case', case_text, 0)
+        bag.write_document(SCENARIO_TOPIC, scenario_document(scenario), 0)
         bag.add_topic(SUBSYSTEM_TOPIC, 'diagnostic_msgs/msg/DiagnosticStatus', latched=True)
         bag.write_message(SUBSYSTEM_TOPIC, m.status_msg('ta_subsystems', f'{case}: {test_case.description}',
                                                         dict(test_case.subsystems), hardware_id='TA'), 0)

@@ -10,6 +10,7 @@ from pathlib import Path
 import yaml
 
 from sofia_ros.bag import BagWriter
+from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.errors import ConfigError
 from sofia_ros.sim.graph import build_cores
 from sofia_ros.sim.runner import LockstepRunner
@@ -74,7 +75,7 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
 def _run_direct(config, bag_path, documents, max_sim_s, progress):
     cores = build_cores(config)
     calibration = cores[-1]
-    bag = BagWriter(bag_path)
+    bag = BagWriter(bag_path, epoch_ns=epoch_ns_of(config.scenario.start_utc))
     bag.open()
     try:
         for topic, text in documents:

@@ -20,7 +20,7 @@ def add_compare_arguments(parser):
     parser.add_argument('bag', help='bag directory of a campaign (sofia run alignment), or a measurement set '
                                     '(a .yaml/.yml file, docs/measurement-sets.md)')
     parser.add_argument('--model', required=True, help='model YAML (effects: ..., fit: true for fitted terms)')
-    parser.add_argument('--json', help='write the comparison as JSON (DESIGN.md section 6)')
+    parser.add_argument('--json', help='write the comparison as JSON (docs/compare.md)')
     parser.add_argument('--report', help='write an HTML report with plots to this directory (ledger kept across runs)')
     parser.add_argument('--anchor-s', type=float, default=30.0,
                         help='spacing of the attitude anchors in s (default 30; they absorb the gyro random walk)')

@@ -153,7 +153,8 @@ def read_observations(bag_path):
     """The observables of a campaign bag; BagError names a missing topic and how to get it."""
     bag_path = Path(bag_path)
     try:
-        with BagReader(bag_path) as bag:
+        # Campaign time: stamps in s since the scenario's start (float64 keeps them exact to the ns).
+        with BagReader(bag_path, campaign_time=True) as bag:
             names = {topic.name for topic in bag.topics}
             missing = [topic for topic in REQUIRED_TOPICS if topic not in names]
             if missing:

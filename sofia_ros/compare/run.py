@@ -1,4 +1,4 @@
-"""`sofia compare`: fit a model to a bag, keep the ledger, rank the missing effects (DESIGN.md 6).
+"""`sofia compare`: fit a model to a bag, keep the ledger, rank the missing effects (docs/compare.md).
 
 1. Read the observables (compare.observations) and the centroid noise floor (compare.floor).
 2. Fit the model: first with its fitted terms at their given values (anchors only), then adding
@@ -43,7 +43,7 @@ REFINED_CANDIDATES = 3
 
 @dataclass(frozen=True, eq=False)
 class CompareResult:
-    """The comparison: the JSON document of DESIGN.md 6 plus what plots and tables need."""
+    """The comparison: the JSON document of docs/compare.md plus what plots and tables need."""
 
     document: dict
     observations: object

@@ -160,7 +160,7 @@ def _checked_value(effect_name, param, value):
 
 
 def catalogue_as_json():
-    """The catalogue in the contract form of DESIGN.md section 6 (`sofia effects --json`)."""
+    """The catalogue in the contract form of `sofia effects --json` (docs/effects.md)."""
     return [
         {
             'name': spec.name,

@@ -1,4 +1,4 @@
-"""Records that describe a physical effect and its parameters (DESIGN.md section 5)."""
+"""Records that describe a physical effect and its parameters (docs/effects.md)."""
 
 from __future__ import annotations
 

@@ -4,12 +4,14 @@ imager (fpi/ffi/wfi by the ``camera`` parameter), hipo, tascu, calibration, reco
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
+import sofia_ros
 from sofia_ros.errors import SofiaError
 from sofia_ros.nodes.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
 
@@ -32,6 +34,7 @@ def _read_parameters(executable):
 
 
 def _build(executable, values):
+    from sofia_ros.bag.timebase import epoch_ns_of
     from sofia_ros.campaigns.recording import graph_documents
     from sofia_ros.config import load_effect_config
     from sofia_ros.nodes.clock_node import ClockNode
@@ -51,7 +54,7 @@ def _build(executable, values):
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
         model_text = load_effect_config(values['model_file']).text if values['model_file'] else None
         return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns,
-                            documents=graph_documents(config, model_text))
+                            epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=graph_documents(config, model_text))
     name = values['camera'] if executable == 'imager' else executable
     if executable == 'imager' and name not in ('fpi', 'ffi', 'wfi'):
         raise SofiaError(f"imager needs -p camera:=fpi|ffi|wfi, got {name!r}")
@@ -67,6 +70,9 @@ def main(executable=None, argv=None):
     node = None
     try:
         node = _build(executable, _read_parameters(executable))
+        # Which install runs is worth a line: a workspace can hold more than one sofia_ros.
+        package_dir = Path(sofia_ros.__file__).parent
+        node.get_logger().info(f'started from {package_dir}; waiting for the other nodes of the graph')
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor.
         executor = EventsExecutor()
         executor.add_node(node)

@@ -17,6 +17,7 @@ import rclpy
 from rclpy.logging import LoggingSeverity
 from rclpy.experimental import EventsExecutor
 
+from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.errors import SofiaError
 from sofia_ros.nodes.clock_node import ClockNode
 from sofia_ros.nodes.graph_params import graph_parameters, write_params_file
@@ -57,7 +58,7 @@ def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=7200.0, ti
         clock = ClockNode([*_participants(cores), 'recorder'], tick_ns=config.tick_ns, max_sim_s=max_sim_s,
                           subscribers=clock_subscribers)
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,
-                                documents=documents)
+                                epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents)
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor with this many entities.
         executor = EventsExecutor()
         for node in (*nodes, clock, recorder):

@@ -18,16 +18,18 @@ PARAMETER_EVENTS = '/parameter_events'
 class RecorderNode(LockstepNode):
     """Records; reports done(k) once everything counted for tick k is in the bag."""
 
-    def __init__(self, bag_path, graph_topics, participants, *, tick_ns, documents=()):
+    def __init__(self, bag_path, graph_topics, participants, *, tick_ns, epoch_ns, documents=()):
+        """Record into a new bag at ``bag_path``; ``epoch_ns``: the campaign's start in UTC ns (BagWriter)."""
         topics = {name: msgtype for name, (msgtype, publisher, _) in graph_topics.items() if publisher}
         super().__init__('recorder', upstream=[(name, 0) for name in participants], tick_ns=tick_ns,
                          expected_inputs=list(topics))
-        self.bag = BagWriter(bag_path)
+        self.bag = BagWriter(bag_path, epoch_ns=epoch_ns)
         self.bag.open()
         self.msgtypes = dict(topics)
         self.msgtypes[PARAMETER_EVENTS] = 'rcl_interfaces/msg/ParameterEvent'
         for topic, msgtype in sorted(self.msgtypes.items()):
-            self.bag.add_topic(topic, msgtype)
+            # /clock is offered transient-local (nodes.sync.SYNC_QOS), the rest as DATA_QOS.
+            self.bag.add_topic(topic, msgtype, latched=msgtype == 'rosgraph_msgs/msg/Clock')
         for topic, text in documents:
             self.bag.write_document(topic, text, 0)
         self.clock_ns = 0

@@ -6,6 +6,7 @@ import time
 
 import rclpy
 import rclpy.duration
+from rclpy._rclpy_pybind11 import RCLError
 from rosgraph_msgs.msg import Clock
 
 from sofia_ros.bag import BagReader
@@ -19,8 +20,11 @@ __all__ = ['replay_bag']
 def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
     """Publish every recorded message at its log time, scaled by ``rate`` (0: as fast as possible).
 
-    Publishing starts once every replayed data topic has a subscriber, or after ``wait_s`` of wall
-    time: a volatile topic drops what is published before discovery has matched its subscribers.
+    Each topic is offered with the QoS it was recorded with: transient-local topics (the /config/*
+    documents, /result/*, /clock) are re-latched, so a subscriber that joins later still gets their
+    last message while the replay runs. Publishing starts once every replayed volatile topic has a
+    subscriber, or after ``wait_s`` of wall time: a volatile topic drops what is published before
+    discovery has matched its subscribers.
     """
     from rclpy.node import Node
 
@@ -30,24 +34,36 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
         try:
             node = Node('replay')
             publishers = {}
+            latched = bag.latched_topics()
             for info in infos:
-                qos = SYNC_QOS if info.msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
+                qos = SYNC_QOS if info.name in latched else DATA_QOS
                 publishers[info.name] = node.create_publisher(message_class(info.msgtype), info.name, qos)
             clock = publishers.get('/clock') or node.create_publisher(Clock, '/clock', SYNC_QOS)
-            waiting = _wait_for_subscribers(node, [p for name, p in publishers.items() if name != '/clock'], wait_s)
+            waiting = _wait_for_subscribers(node, [p for name, p in publishers.items() if name not in latched], wait_s)
             if waiting and out is not None:
                 out.write(f'no subscriber after {wait_s:g} s on {", ".join(waiting)}; replaying anyway\n')
             start_wall, first_ns, count = time.monotonic(), None, 0
             for topic, stamp_ns, data in bag.raw_messages(*publishers):
+                if not rclpy.ok():
+                    break  # SIGINT or SIGTERM: rclpy has shut the context down
                 first_ns = stamp_ns if first_ns is None else first_ns
                 if rate > 0:
                     delay = (stamp_ns - first_ns) / 1e9 / rate - (time.monotonic() - start_wall)
                     if delay > 0:
                         time.sleep(delay)
-                if topic != '/clock' and '/clock' not in publishers:
-                    clock.publish(m.clock_msg(stamp_ns))
-                publishers[topic].publish(bytes(data))
+                try:
+                    if topic != '/clock' and '/clock' not in publishers:
+                        clock.publish(m.clock_msg(stamp_ns))
+                    publishers[topic].publish(bytes(data))
+                except RCLError:
+                    if rclpy.ok():
+                        raise
+                    break  # the context went down between the check and the publish
                 count += 1
+            if not rclpy.ok():
+                if out is not None:
+                    out.write(f'stopped after {count} messages\n')
+                return count
             for publisher in publishers.values():
                 # Reliable delivery: do not exit before subscribers have every message.
                 publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=10.0))

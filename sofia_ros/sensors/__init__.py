@@ -1,3 +1,3 @@
-"""Sensor error models: truth to measurement for the gyro box, imagers and HIPO (DESIGN section 2)."""
+"""Sensor error models: truth to measurement for the gyro box, imagers and HIPO."""
 
 __all__ = []

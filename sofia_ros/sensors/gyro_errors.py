@@ -1,6 +1,6 @@
 """Deterministic gyro errors: true TARF rates to GYRF measurements and back (2.4.1, 5.2, 6.1, 6.3).
 
-One error model serves both sides of an effect (DESIGN.md 5): the gyro box of the truth
+One error model serves both sides of an effect (docs/effects.md): the gyro box of the truth
 simulator turns true rates into measurements with it, and `sofia compare` inverts it with
 the model's parameters to turn recorded measurements into the rates the model believes.
 
@@ -75,7 +75,7 @@ class GyroErrorModel:
 
 
 def gyro_error_model(effects):
-    """The GyroErrorModel of an effect set (resolved parameters, DESIGN.md 5)."""
+    """The GyroErrorModel of an effect set (resolved parameters, docs/effects.md)."""
     return GyroErrorModel(
         tarf_from_gyrf=tarf_from_gyrf_dcm(effects),
         scale_error=_per_axis(effects.get('gyro_scale_factor'), 'ppm', 1e-6),

@@ -197,7 +197,7 @@ class CameraErrors:
 
 
 def camera_errors(camera, effects):
-    """The errors an effect set gives one camera; unknown effects or parameters raise (DESIGN.md 5)."""
+    """The errors an effect set gives one camera; unknown effects or parameters raise (docs/effects.md)."""
     camera = _checked_camera(camera)
     if not isinstance(effects, dict):
         raise ConfigError(f'effects must map effect names to parameters, got {type(effects).__name__}')

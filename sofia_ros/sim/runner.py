@@ -58,7 +58,8 @@ class LockstepRunner:
         self.msgtypes[PARAMETER_EVENTS] = 'rcl_interfaces/msg/ParameterEvent'
         if bag is not None:
             for topic, msgtype in sorted(self.msgtypes.items()):
-                bag.add_topic(topic, msgtype)
+                # As over DDS: /clock is offered transient-local, the rest reliable and volatile.
+                bag.add_topic(topic, msgtype, latched=msgtype == 'rosgraph_msgs/msg/Clock')
 
     def step(self):
         """Advance one tick; return its stamp in ns."""

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import yaml
 
+from sofia_ros.bag.reader import SCENARIO_TOPIC
 from sofia_ros.errors import ConfigError
 from sofia_ros.sky import Site
 
@@ -63,8 +64,6 @@ def scenario_from_mapping(defaults, overrides):
                     numbers['start_temperature_c'], numbers['temperature_slope_c_per_h'])
 
 
-#: Topic of the scenario document in a bag: where and when the campaign happened, as a logbook would record it.
-SCENARIO_TOPIC = '/config/scenario'
 
 
 def scenario_document(scenario):

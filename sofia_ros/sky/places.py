@@ -123,7 +123,7 @@ class VisibleStar:
     observed: ObservedPlace
 
 
-#: TSTC Waco airport, TX, site of the 2004 on-sky tests (DESIGN.md section 7).
+#: TSTC Waco airport, TX, site of the 2004 on-sky tests (docs/conventions.md, Data).
 WACO_2004_SITE = Site(latitude_deg=31.638, longitude_deg=-97.074, height_m=144.0)
 #: Waco Regional Airport, 2004-09-02 24:00 CDT (NCDC, thesis 6.3), at 550 nm.
 WACO_2004_WEATHER = Weather(temperature_c=22.8, pressure_hpa=996.3, relative_humidity=0.74,

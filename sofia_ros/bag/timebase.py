@@ -1,0 +1,47 @@
+"""The time axis of a bag: campaign time (ns since the scenario's start) in the cores, UTC in the bag.
+
+The node cores and the analysis count time from the campaign's start (sim ns from 0: exact in
+int64, and small enough for float64 seconds in fits and periodograms). A bag carries the
+campaign's own UTC time, as a recording of the real campaign would: BagWriter(epoch_ns=...) adds
+the scenario's start to every log time and to every message stamp that leads its CDR (a Header
+or a builtin_interfaces/Time first: Imu, PoseArray, JointState, Clock, ParameterEvent, ...), and
+BagReader(campaign_time=True) takes it off again. These two are the only places that convert.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import struct
+from functools import cache
+
+from sofia_ros.bag.msgtypes import TYPESTORE
+
+__all__ = ['NS_PER_S', 'epoch_ns_of', 'has_leading_stamp', 'shift_stamp']
+
+NS_PER_S = 1_000_000_000
+_STAMP_TYPES = ('builtin_interfaces/msg/Time', 'std_msgs/msg/Header')
+_STAMP = {0: struct.Struct('>iI'), 1: struct.Struct('<iI')}  # by the CDR encapsulation's endianness byte
+_EPOCH = dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc)
+
+
+def epoch_ns_of(utc: dt.datetime) -> int:
+    """ns since the Unix epoch of an aware datetime, exact to the microsecond it carries."""
+    delta = utc - _EPOCH
+    return (delta.days * 86_400 + delta.seconds) * NS_PER_S + delta.microseconds * 1_000
+
+
+@cache
+def has_leading_stamp(msgtype: str) -> bool:
+    """Whether ``msgtype``'s CDR starts with a stamp (sec int32, nanosec uint32 at bytes 4-12)."""
+    _, fields = TYPESTORE.fielddefs[msgtype]
+    return bool(fields) and fields[0][1][1] in _STAMP_TYPES
+
+
+def shift_stamp(data: bytes | memoryview, offset_ns: int) -> bytes:
+    """CDR ``data`` whose leading stamp is moved by ``offset_ns``; the rest byte for byte."""
+    stamp = _STAMP[data[1]]
+    sec, nanosec = stamp.unpack_from(data, 4)
+    offset_s, offset_nanosec = divmod(offset_ns, NS_PER_S)
+    carry_s, nanosec = divmod(nanosec + offset_nanosec, NS_PER_S)
+    # Slices and concatenation: about half the time of a bytearray copy (400 Hz samples pass here).
+    return bytes(data[:4]) + stamp.pack(sec + offset_s + carry_s, nanosec) + bytes(data[12:])

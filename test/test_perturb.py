@@ -135,7 +135,7 @@ def test_a_constant_and_a_step_in_time(bag, tmp_path):
     constant = perturb_bag(bag, tmp_path / 'constant', 'gyro.xel', '1.5', unit='arcsec_per_s')
     with BagReader(bag) as source, BagReader(tmp_path / 'constant') as copy:
         before, after = source.imu_arrays(IMU), copy.imu_arrays(IMU)
-        first_clock_ns = m.stamp_ns_of(next(source.messages('/clock'))[2].clock)
+        campaign_start_ns = source.campaign_epoch_ns()
     np.testing.assert_allclose(after.angular_velocity_rad_per_s[:, 1] - before.angular_velocity_rad_per_s[:, 1],
                                1.5 * RAD_PER_ARCSEC, rtol=1e-6)
     assert (constant.rows_changed, constant.rms, constant.min, constant.max) == (len(before.stamp_ns), 1.5, 1.5, 1.5)
@@ -143,12 +143,13 @@ def test_a_constant_and_a_step_in_time(bag, tmp_path):
     step = perturb_bag(bag, tmp_path / 'step', 'hipo.x', '2.0*(time_s > 200)', unit='px')
     old, new = read_observations(bag).centroids, read_observations(tmp_path / 'step').centroids
     hipo = old.camera_index == old.cameras.index('hipo')
-    time_s = old.stamp_s - first_clock_ns / 1e9
+    # read_observations gives seconds from the campaign start, as time_s counts.
+    time_s = old.stamp_s
     expected = np.where(hipo & (time_s > 200.0), 2.0, 0.0)
     np.testing.assert_allclose(new.measured_px[:, 0] - old.measured_px[:, 0], expected, atol=1e-9)
     assert np.array_equal(new.measured_px[:, 1], old.measured_px[:, 1])
     with BagReader(bag) as source:
-        pose_time_s = np.array([(m.stamp_ns_of(msg.header.stamp) - first_clock_ns) / 1e9
+        pose_time_s = np.array([(m.stamp_ns_of(msg.header.stamp) - campaign_start_ns) / 1e9
                                 for _, _, msg in source.messages('/hipo/centroids') for _ in msg.poses])
     after_step = np.count_nonzero(pose_time_s > 200.0)
     assert 0 < after_step < len(pose_time_s)
@@ -165,10 +166,13 @@ def test_variables_match_what_compare_reads_and_the_temperature_holds_its_last_v
     np.testing.assert_allclose((el.centroids.measured_px - old.centroids.measured_px)[wfi, 0],
                                old.centroids.elevation_deg[wfi], rtol=1e-9)
     with BagReader(bag) as source:
-        temps = [(m.stamp_ns_of(msg.header.stamp) / 1e9, msg.temperature)
+        # In seconds from the campaign start, as read_observations gives the centroid stamps.
+        campaign_start_ns = source.campaign_epoch_ns()
+        temps = [((m.stamp_ns_of(msg.header.stamp) - campaign_start_ns) / 1e9, msg.temperature)
                  for _, _, msg in source.messages('/gyro_box/temperature')]
     stamps, values = np.array(temps).T
-    last = values[np.clip(np.searchsorted(stamps, old.centroids.stamp_s[wfi], side='right') - 1, 0, None)]
+    # At or before, to 1 us: a frame stamped on a tick reads that tick's value, whatever the float rounding.
+    last = values[np.clip(np.searchsorted(stamps, old.centroids.stamp_s[wfi] + 1e-6, side='right') - 1, 0, None)]
     np.testing.assert_allclose((los.centroids.measured_px - old.centroids.measured_px)[wfi, 1],
                                old.centroids.fd_los_deg[wfi] + 100.0 * last, rtol=1e-9)
 

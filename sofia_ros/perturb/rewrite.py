@@ -6,7 +6,8 @@ replaced in place by new ones of the same length, and the chunk is compressed li
 written as a new Chunk record with its CRC; every other record of the chunk, and each message's
 channel, sequence, log time and publish time, stay as they were, and so do its MessageIndex
 records (no offset moves). A chunk without the channel keeps its compressed bytes; a CRC is added
-if it had none. The summary (schemas, channels, statistics, chunk, metadata and attachment indexes,
+if it had none. The data section's CRC is computed anew over the bytes written (the magic
+included, as the mcap writer does). The summary (schemas, channels, statistics, chunk, metadata and attachment indexes,
 summary offsets) and the footer follow with the moved offsets and a new summary CRC, so BagReader's
 indexed read, rosbags and the mcap tools read the copy. Records are encoded by the ``mcap`` package
 (mcap.records).
@@ -123,6 +124,8 @@ class _Copy:
         self.rebuilt: dict[int, tuple[int, int]] = {}
         #: CRC of the summary section written so far
         self.summary_crc = 0
+        #: CRC of the data section (the leading magic and every record before DataEnd) written so far
+        self.data_crc = zlib.crc32(_MAGIC)
 
     def run(self) -> None:
         """Copy every record, then the closing magic."""
@@ -139,9 +142,12 @@ class _Copy:
                 break
             record = self._record(opcode, position, end)
             if summary_start is None and opcode == Opcode.DATA_END:
+                record = _RECORD_HEAD.pack(opcode, 4) + struct.pack('<I', self.data_crc)
                 summary_start = end
             elif summary_start is not None:
                 self.summary_crc = zlib.crc32(record, self.summary_crc)
+            else:
+                self.data_crc = zlib.crc32(record, self.data_crc)
             self.out.write(record)
             position = end
         if self.data[end:] != _MAGIC:
@@ -152,8 +158,6 @@ class _Copy:
         """The target bytes of the top-level record at ``position``."""
         if opcode == Opcode.CHUNK:
             return self._chunk(position) if position in self.holding else self._with_crc(position, end)
-        if opcode == Opcode.DATA_END and struct.unpack_from('<I', self.data, position + _RECORD_HEAD.size)[0]:
-            raise ValueError('data-section CRCs are not supported; rebuild the bag with sofia_ros.bag.recover_bag')
         if opcode == Opcode.CHUNK_INDEX:
             index = _read(ChunkIndex, self.data, position)
             if index.chunk_start_offset in self.rebuilt:

@@ -4,7 +4,8 @@ Rows are the centroids of a camera (every star of every frame, at the frame's he
 Imu samples of the gyro box (at their header stamps). Each variable is read from the bag only when
 the shape uses it: the encoders (/ta/joint_states, interpolated), the gyro-box temperature (the last
 /gyro_box/temperature at or before the row), the accelerometers (the Imu sample itself for gyro
-rows, interpolated for camera rows) and the time since the first /clock message.
+rows, interpolated for camera rows) and the time since the campaign's start (start_utc of /config/scenario),
+the time base `sofia compare` uses.
 """
 
 from __future__ import annotations
@@ -26,9 +27,8 @@ if TYPE_CHECKING:
 
     from sofia_ros.bag import BagReader
 
-__all__ = ['CAMERA_VARIABLES', 'CLOCK_TOPIC', 'GYRO_VARIABLES', 'Rows', 'row_variables']
+__all__ = ['CAMERA_VARIABLES', 'GYRO_VARIABLES', 'Rows', 'row_variables']
 
-CLOCK_TOPIC = '/clock'
 SPECIFIC_FORCE_VARIABLES = ('specific_force_x_m_per_s2', 'specific_force_y_m_per_s2', 'specific_force_z_m_per_s2')
 #: The variables of gyro rows (Imu samples).
 GYRO_VARIABLES = ('time_s', 'elevation_deg', 'los_angle_deg', 'temperature_c', *SPECIFIC_FORCE_VARIABLES)
@@ -54,7 +54,7 @@ def row_variables(bag: BagReader, rows: Rows, names: Iterable[str]) -> dict[str,
     origin_ns = int(rows.stamp_ns[0]) if len(rows.stamp_ns) else 0
     row_s = _seconds(rows.stamp_ns, origin_ns)
     if 'time_s' in names:
-        values['time_s'] = _seconds(rows.stamp_ns, _first_clock_ns(bag))
+        values['time_s'] = _seconds(rows.stamp_ns, bag.campaign_epoch_ns())
     if names & {'elevation_deg', 'los_angle_deg'}:
         stamps_ns, joints = _stamped(bag, _JOINT_TOPIC, 'elevation_deg / los_angle_deg',
                                      m.joint_positions_of)
@@ -82,15 +82,6 @@ def row_variables(bag: BagReader, rows: Rows, names: Iterable[str]) -> dict[str,
 def _seconds(stamp_ns: np.ndarray, origin_ns: int) -> np.ndarray:
     """Seconds from ``origin_ns``, the difference taken in integer ns (exact for absolute UTC stamps)."""
     return (np.asarray(stamp_ns, dtype=np.int64) - np.int64(origin_ns)) / m.NS_PER_S
-
-
-def _first_clock_ns(bag: BagReader) -> int:
-    """The time the first /clock message carries (the campaign start)."""
-    _require(bag, CLOCK_TOPIC, 'time_s')
-    first = next(bag.messages(CLOCK_TOPIC), None)
-    if first is None:
-        raise BagError(f'{CLOCK_TOPIC} in bag {bag.path} is empty; time_s counts from its first message')
-    return m.stamp_ns_of(first[2].clock)
 
 
 def _stamped(bag: BagReader, topic: str, variable: str, value_of) -> tuple[np.ndarray, list]:

@@ -331,8 +331,9 @@ def build_parser():
 
 def main(argv=None):
     """Entry point of the ``sofia`` console script."""
-    args = build_parser().parse_args(argv)
     try:
+        # Building the parser may load the effect catalogue (and the plug-ins it names).
+        args = build_parser().parse_args(argv)
         return args.handler(args)
     except SofiaError as err:
         print(f'sofia: error: {err}', file=sys.stderr)

@@ -1,0 +1,178 @@
+"""Two graphs on one machine, signals in every mode, SIGKILL and `sofia recover` (issue 13)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from sofia_ros.bag import BagReader
+from sofia_ros.cli import main
+from sofia_ros.errors import ConfigError, DomainBusyError
+from sofia_ros.nodes.domain import claim_ros_domain, domain_lock_path, release_ros_domain
+
+ROOT = Path(__file__).resolve().parents[1]
+TRUTH = str(ROOT / 'config' / 'truth' / 'nominal.yaml')
+SOFIA = [sys.executable, '-m', 'sofia_ros.cli']
+HOLD_LOCK = ('import sys, time; from sofia_ros.nodes.domain import claim_ros_domain; '
+             'claim = claim_ros_domain(); print(claim.domain_id, flush=True); time.sleep(float(sys.argv[1]))')
+
+
+@pytest.fixture
+def held_domain():
+    """Another process holding the domain lock of this session's ROS_DOMAIN_ID, as a running graph does."""
+    holder = subprocess.Popen([sys.executable, '-c', HOLD_LOCK, '60'], stdout=subprocess.PIPE, text=True)
+    try:
+        domain_id = int(holder.stdout.readline())
+        yield domain_id
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_a_second_run_in_a_held_exported_domain_is_refused_at_once(held_domain, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(held_domain))
+    start = time.monotonic()
+    code = main(['run', 'alignment', '--truth', TRUTH, '--bag', str(tmp_path / 'bag'), '--max-sim-s', '10'])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert time.monotonic() - start < 10.0
+    assert err.count('\n') == 1 and f'ROS_DOMAIN_ID={held_domain} is in use' in err and 'Traceback' not in err
+    assert not (tmp_path / 'bag').exists()
+
+
+def test_claiming_a_held_domain_raises_domain_busy(held_domain, monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(held_domain))
+    with pytest.raises(DomainBusyError, match=f'ROS_DOMAIN_ID={held_domain} is in use by another sofia run'):
+        claim_ros_domain()
+
+
+def test_without_a_domain_a_free_one_is_picked_and_given_back(held_domain, monkeypatch):
+    monkeypatch.delenv('ROS_DOMAIN_ID')
+    claim = claim_ros_domain()
+    try:
+        assert claim.domain_id != held_domain
+        assert os.environ['ROS_DOMAIN_ID'] == str(claim.domain_id)
+        assert domain_lock_path(claim.domain_id).exists()
+    finally:
+        release_ros_domain(claim)
+    assert 'ROS_DOMAIN_ID' not in os.environ
+
+
+def test_a_malformed_domain_id_is_a_config_error(monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', 'seven')
+    with pytest.raises(ConfigError, match="ROS_DOMAIN_ID must be an integer 0-232, got 'seven'"):
+        claim_ros_domain()
+
+
+def _children(pid):
+    """Every descendant pid of ``pid`` (Linux /proc)."""
+    found, queue = [], [pid]
+    while queue:
+        parent = queue.pop()
+        for task in Path(f'/proc/{parent}/task').glob('*'):
+            try:
+                kids = [int(k) for k in (task / 'children').read_text().split()]
+            except OSError:
+                continue
+            found += kids
+            queue += kids
+    return found
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0] if Path(f'/proc/{pid}').exists() else 'X'
+    return state not in ('Z', 'X')
+
+
+def _start_run(tmp_path, campaign_args):
+    bag = tmp_path / 'bag'
+    process = subprocess.Popen([*SOFIA, 'run', *campaign_args, '--truth', TRUTH, '--bag', str(bag)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    deadline = time.monotonic() + 150.0
+    # Started: the recorder has written the bag's first chunk of sim time.
+    while not (list(bag.glob('*.mcap')) and bag.joinpath(next(bag.glob('*.mcap')).name).stat().st_size > 4096):
+        assert process.poll() is None, process.communicate()
+        assert time.monotonic() < deadline, 'the run did not start recording'
+        time.sleep(0.2)
+    time.sleep(1.0)
+    return process, bag
+
+
+MODES = {
+    'direct': ['alignment', '--direct', '--max-sim-s', '3000'],
+    'executor': ['alignment', '--max-sim-s', '3000'],
+    'processes': ['alignment', '--processes', '--max-sim-s', '3000'],
+    'gyro-stability': ['gyro-stability', '--case', 'TC-1', '--hours', '2'],
+}
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM], ids=['SIGINT', 'SIGTERM'])
+@pytest.mark.parametrize('mode', list(MODES))
+def test_a_signal_closes_the_bag_writes_the_summary_and_exits_128_plus_signal(mode, signum, tmp_path):
+    process, bag = _start_run(tmp_path, MODES[mode])
+    children = _children(process.pid)
+    process.send_signal(signum)
+    out, err = process.communicate(timeout=120)
+    name = signal.Signals(signum).name
+    assert process.returncode == 128 + signum, err
+    assert 'Traceback' not in err
+    assert [line for line in err.splitlines() if not line.startswith(('sim ', 'running:'))] == [
+        line for line in err.splitlines() if line.startswith(f'sofia: interrupted by {name}')]
+    summary = json.loads((bag / 'summary.json').read_text())
+    assert summary['stopped'] == 'interrupted' and summary['reason'] == f'interrupted by {name}'
+    assert (bag / 'metadata.yaml').exists()
+    with BagReader(bag) as reader:
+        assert reader.topic('/gyro_box/imu').count > 400
+    time.sleep(0.5)
+    assert not [pid for pid in children if _alive(pid)], 'a node outlived the run'
+    if mode == 'processes':
+        assert not [line for line in err.splitlines() if 'sofia_graph_' in line]
+
+
+@pytest.mark.timeout(120)
+def test_sigkill_leaves_a_bag_that_sofia_recover_restores(tmp_path, capsys):
+    process, bag = _start_run(tmp_path, MODES['direct'])
+    time.sleep(3.0)
+    process.kill()
+    process.wait(timeout=30)
+    assert not (bag / 'metadata.yaml').exists()
+    code = main(['recover', str(bag)])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    recovered = tmp_path / 'bag_recovered'
+    assert f'into {recovered}' in out
+    with BagReader(recovered) as reader:
+        clock_s = reader.topic('/clock').count * 0.2
+        assert reader.topic('/gyro_box/imu').count >= 400 * (clock_s - 1.0)
+        assert clock_s > 1.0
+
+
+def test_recover_of_a_folder_without_a_bag_is_one_line(tmp_path, capsys):
+    assert main(['recover', str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'holds 0 .mcap files' in err
+
+
+@pytest.mark.timeout(240)
+def test_a_killed_recorder_is_named_and_the_run_exits_3(tmp_path):
+    process, bag = _start_run(tmp_path, MODES['processes'])
+    recorder = [pid for pid in _children(process.pid)
+                if b'recorder' in Path(f'/proc/{pid}/cmdline').read_bytes()]
+    assert len(recorder) == 1
+    os.kill(recorder[0], signal.SIGKILL)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 3, err
+    assert 'Traceback' not in err
+    assert 'the recorder node was killed by SIGKILL' in err and f'sofia recover {bag}' in err
+    summary = json.loads((bag / 'summary.json').read_text())
+    assert summary['stopped'] == 'fault' and 'recorder node was killed' in summary['reason']

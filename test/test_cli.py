@@ -47,7 +47,7 @@ def test_demo_reproduces_the_thesis_tables():
 BAD_TRUTHS = {
     'broken.yaml': ('effects:\n  earth_rotation: {\n', 'not valid YAML'),
     'unknown.yaml': ('effects:\n  gyro_wobble: {}\n', "unknown effect 'gyro_wobble'; did you mean"),
-    'badparam.yaml': ('effects:\n  seeing: {rms_arcsec: fast}\n', 'rms_arcsec must be a number in arcsec'),
+    'badparam.yaml': ('effects:\n  seeing: {rms_arcsec: fast}\n', 'rms_arcsec must be a number in [0, 10] arcsec'),
     'lowstar.yaml': ('effects:\n  earth_rotation: {}\nscenario:\n  latitude_deg: 12.0\n', 'below the limit of 20 deg'),
     'highcd.yaml': ('effects:\n  earth_rotation: {}\nscenario:\n  start_elevation_deg: 70.0\n',
                     'coarse drive elevation 70.000 deg is outside 16.5-68.5 deg'),

@@ -207,6 +207,9 @@ def _recover(args):
 
     report = recover_bag(args.bag, args.out)
     ending = 'the file ends cleanly' if report.reached_footer else f'reading stopped: {report.stop_reason}'
+    if report.skipped_offsets:
+        ending += (f'; skipped {len(report.skipped_offsets)} damaged record(s) at byte(s) '
+                   f'{", ".join(str(offset) for offset in report.skipped_offsets[:5])}')
     last = 'no message' if report.last_stamp_ns is None else f'last message at {report.last_stamp_ns / 1e9:.3f} s'
     print(f'recovered {report.message_count} messages on {len(report.topics)} topics into {report.bag} '
           f'({last}; {ending})')

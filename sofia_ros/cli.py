@@ -250,9 +250,11 @@ def build_parser():
     effects.set_defaults(handler=_print_effects)
 
     run = verbs.add_parser('run', help='run a campaign of the node graph and record it to a bag')
-    run.add_argument('campaign', help='alignment (Table 3.4, 6.1), star-hop (6.2-6.3, Table D.3) or gyro-stability (5.2)')
+    run.add_argument('campaign',
+                     help='alignment (Table 3.4, 6.1), star-hop (6.2-6.3, Table D.3) or gyro-stability (5.2)')
     run.add_argument('--case', choices=('TC-1', 'TC-2', 'TC-3', 'TC-4'), help='gyro-stability: the test case')
-    run.add_argument('--hours', type=number(0.0, 24.0, 'h', low_open=True), help='gyro-stability: record length (default: the case\'s, 4 h or 25 min)')
+    run.add_argument('--hours', type=number(0.0, 24.0, 'h', low_open=True),
+                     help='gyro-stability: record length (default: the case\'s, 4 h or 25 min)')
     run.add_argument('--truth', required=True, help='truth YAML (effects: ...), e.g. config/truth/nominal.yaml')
     run.add_argument('--model', help='model YAML stored with the run (default: no effects)')
     run.add_argument('--seed', type=integer(0, 2**32 - 1, 'a numpy seed'), default=0, help='run seed (default 0)')
@@ -260,11 +262,16 @@ def build_parser():
     where = run.add_mutually_exclusive_group()
     where.add_argument('--processes', action='store_true', help='each node in its own process')
     where.add_argument('--direct', action='store_true', help='cores in one loop without DDS (fastest)')
-    run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'), default=6, help='maneuvers per axis (default 6, as in 6.1)')
-    run.add_argument('--verification-repetitions', type=integer(1, 100, 'maneuvers per axis'), default=2, help='verification maneuvers per axis')
-    run.add_argument('--drift-track-s', type=number(1.0, 3600.0, 's'), default=60.0, help='drift estimation on the star, s')
-    run.add_argument('--max-sim-s', type=number(0.0, 172800.0, 's', low_open=True), default=7200.0, help='stop after this much sim time')
-    run.add_argument('--hold-s', type=number(0.0, 7200.0, 's', low_open=True), default=60.0, help='star-hop: seconds each star is held and recorded')
+    run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'), default=6,
+                     help='maneuvers per axis (default 6, as in 6.1)')
+    run.add_argument('--verification-repetitions', type=integer(1, 100, 'maneuvers per axis'), default=2,
+                     help='verification maneuvers per axis')
+    run.add_argument('--drift-track-s', type=number(1.0, 3600.0, 's'), default=60.0,
+                     help='drift estimation on the star, s')
+    run.add_argument('--max-sim-s', type=number(0.0, 172800.0, 's', low_open=True), default=7200.0,
+                     help='stop after this much sim time')
+    run.add_argument('--hold-s', type=number(0.0, 7200.0, 's', low_open=True), default=60.0,
+                     help='star-hop: seconds each star is held and recorded')
     run.add_argument('--no-follow-times', action='store_true',
                      help='star-hop: go to the next star at once instead of at its Table D.3 time')
     run.add_argument('--observations', help='star-hop: only observations FIRST-LAST of Table D.3 (e.g. 4-9)')
@@ -272,13 +279,15 @@ def build_parser():
 
     replay = verbs.add_parser('replay', help='re-publish a bag on its topics, with /clock, into a live graph')
     replay.add_argument('bag', help='bag directory')
-    replay.add_argument('--rate', type=number(0.0, 1e6, 'x real time'), default=1.0, help='speed-up against the recorded time (0: unpaced)')
+    replay.add_argument('--rate', type=number(0.0, 1e6, 'x real time'), default=1.0,
+                        help='speed-up against the recorded time (0: unpaced)')
     replay.add_argument('--topics', nargs='*', help='only these topics')
     replay.add_argument('--wait-s', type=number(0.0, 3600.0, 's'), default=5.0,
                         help='wait this long (wall s) for a subscriber on every replayed topic before publishing')
     replay.set_defaults(handler=_replay)
 
-    recover = verbs.add_parser('recover', help='rebuild a closed bag from one whose writer was killed (SIGKILL, a cut file)')
+    recover = verbs.add_parser('recover',
+                               help='rebuild a closed bag from one whose writer was killed (SIGKILL, a cut file)')
     recover.add_argument('bag', help='bag directory holding the damaged .mcap')
     recover.add_argument('--out', help='new bag directory (default: BAG_recovered; must not exist)')
     recover.set_defaults(handler=_recover)

@@ -250,7 +250,8 @@ def run_compare(args, out):
         if target and not Path(target).resolve().parent.exists():
             raise ConfigError(f'the directory of {target} does not exist; create it first')
     if args.json and Path(args.json).is_dir():
-        raise ConfigError(f'--json {args.json} is a directory; give a file name, e.g. {Path(args.json) / "compare.json"}')
+        raise ConfigError(f'--json {args.json} is a directory; give a file name, '
+                          f'e.g. {Path(args.json) / "compare.json"}')
     _check_anchor_memory(args.bag, args.anchor_s)
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f'--report {args.report} is a file; give a directory')

@@ -141,7 +141,8 @@ def _checked_value(effect_name, param, value):
     default = param.default
     if isinstance(default, list):
         if not isinstance(value, list):
-            raise ConfigError(f'effect {effect_name!r}: {param.name} must be a list ({param.unit}), got {_shown(value)}')
+            raise ConfigError(f'effect {effect_name!r}: {param.name} must be a list ({param.unit}), '
+                              f'got {_shown(value)}')
         if len(value) > MAX_LIST_ENTRIES:
             raise ConfigError(f'effect {effect_name!r}: {param.name} has {len(value)} entries '
                               f'(at most {MAX_LIST_ENTRIES})')

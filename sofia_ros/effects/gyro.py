@@ -17,9 +17,12 @@ EFFECTS = (
         'GYRF rotated against TARF by small angles about the EL, XEL and LOS axes; defaults are the '
         'rotations in the matrix of eq. 6.1 (the as-mounted gyro box of 2004).',
         (
-            Parameter('about_el_arcsec', 1030.0, 'arcsec', 'rotation of GYRF about the TARF EL axis', minimum=-36000.0, maximum=36000.0),
-            Parameter('about_xel_arcsec', 730.0, 'arcsec', 'rotation of GYRF about the TARF XEL axis', minimum=-36000.0, maximum=36000.0),
-            Parameter('about_los_arcsec', 3590.0, 'arcsec', 'rotation of GYRF about the TARF LOS axis', minimum=-36000.0, maximum=36000.0),
+            Parameter('about_el_arcsec', 1030.0, 'arcsec', 'rotation of GYRF about the TARF EL axis',
+                      minimum=-36000.0, maximum=36000.0),
+            Parameter('about_xel_arcsec', 730.0, 'arcsec', 'rotation of GYRF about the TARF XEL axis',
+                      minimum=-36000.0, maximum=36000.0),
+            Parameter('about_los_arcsec', 3590.0, 'arcsec', 'rotation of GYRF about the TARF LOS axis',
+                      minimum=-36000.0, maximum=36000.0),
         ),
     ),
     EffectSpec(
@@ -58,11 +61,15 @@ EFFECTS = (
         'found after the 2004 tests: each swapped axis gets the other gyro\'s scale factor and bias '
         'model, an error that changes with temperature.',
         (
-            Parameter('swapped_axes', 'el-xel', 'axis pair', 'the two gyro axes whose calibrations are exchanged', choices=('el-xel', 'el-los', 'xel-los', 'xel-el', 'los-el', 'los-xel')),
-            Parameter('scale_difference_ppm', 400.0, 'ppm', 'scale factor difference of the two calibrations', minimum=-10000.0, maximum=10000.0),
+            Parameter('swapped_axes', 'el-xel', 'axis pair', 'the two gyro axes whose calibrations are exchanged',
+                      choices=('el-xel', 'el-los', 'xel-los', 'xel-el', 'los-el', 'los-xel')),
+            Parameter('scale_difference_ppm', 400.0, 'ppm', 'scale factor difference of the two calibrations',
+                      minimum=-10000.0, maximum=10000.0),
             Parameter('scale_temperature_coefficient_ppm_per_c', 20.0, 'ppm/C',
-                      'temperature slope of that difference (illustrative; the polynomials are not printed)', minimum=-1000.0, maximum=1000.0),
-            Parameter('bias_difference_deg_per_h', 0.05, 'deg/h', 'bias difference of the two calibrations', minimum=-10.0, maximum=10.0),
+                      'temperature slope of that difference (illustrative; the polynomials are not printed)',
+                                                             minimum=-1000.0, maximum=1000.0),
+            Parameter('bias_difference_deg_per_h', 0.05, 'deg/h', 'bias difference of the two calibrations',
+                      minimum=-10.0, maximum=10.0),
         ),
     ),
     EffectSpec(
@@ -71,11 +78,16 @@ EFFECTS = (
         'defaults are gyro 002 (2008) of Table 5.1 with K read as printed / 60 (the printed K cannot '
         'reproduce the table\'s own in-run bias stability) and no bias instability (5.1: no plateau).',
         (
-            Parameter('quantization_arcsec', 0.000767, 'arcsec', 'angular increment (scale factor) per count', minimum=0.0, maximum=1.0),
-            Parameter('arw_deg_per_sqrt_h', 0.00022, 'deg/sqrt(h)', 'angle random walk coefficient N', minimum=0.0, maximum=1.0),
-            Parameter('bias_instability_deg_per_h', 0.0, 'deg/h', 'bias instability coefficient B', minimum=0.0, maximum=10.0),
-            Parameter('bias_instability_cutoff_hz', 10.0, 'Hz', '3-dB cut-off f0 of the 1/f noise', shape=True, minimum=0.001, maximum=200.0),
-            Parameter('rrw_deg_per_h_sqrt_h', 0.00216, 'deg/h^1.5', 'rate random walk coefficient K', minimum=0.0, maximum=1.0),
+            Parameter('quantization_arcsec', 0.000767, 'arcsec', 'angular increment (scale factor) per count',
+                      minimum=0.0, maximum=1.0),
+            Parameter('arw_deg_per_sqrt_h', 0.00022, 'deg/sqrt(h)', 'angle random walk coefficient N',
+                      minimum=0.0, maximum=1.0),
+            Parameter('bias_instability_deg_per_h', 0.0, 'deg/h', 'bias instability coefficient B',
+                      minimum=0.0, maximum=10.0),
+            Parameter('bias_instability_cutoff_hz', 10.0, 'Hz', '3-dB cut-off f0 of the 1/f noise', shape=True,
+                      minimum=0.001, maximum=200.0),
+            Parameter('rrw_deg_per_h_sqrt_h', 0.00216, 'deg/h^1.5', 'rate random walk coefficient K',
+                      minimum=0.0, maximum=1.0),
         ),
     ),
     EffectSpec(
@@ -83,8 +95,10 @@ EFFECTS = (
         'Slow sinusoid on the LOS gyro, period about 20 min, documented since [Moik 2000].',
         (
             Parameter('period_s', 1200.0, 's', 'period of the oscillation', shape=True, minimum=1.0, maximum=86400.0),
-            Parameter('amplitude_arcsec', 5.0, 'arcsec', 'amplitude of the integrated angle', minimum=0.0, maximum=3600.0),
-            Parameter('phase_deg', 0.0, 'deg', 'phase of the integrated angle at the start of the record', shape=True, minimum=-360.0, maximum=360.0),
+            Parameter('amplitude_arcsec', 5.0, 'arcsec', 'amplitude of the integrated angle',
+                      minimum=0.0, maximum=3600.0),
+            Parameter('phase_deg', 0.0, 'deg', 'phase of the integrated angle at the start of the record', shape=True,
+                      minimum=-360.0, maximum=360.0),
         ),
     ),
     EffectSpec(
@@ -92,8 +106,10 @@ EFFECTS = (
         'Sinusoidal rate lines from ground equipment and TA subsystems (0.7/1.3 Hz always, VIS 2.3 Hz '
         'uncaged, main oil pump 30 Hz, cooling carts, fans), aliased by the 400 Hz sampling.',
         (
-            Parameter('frequencies_hz', [0.7, 1.3], 'Hz', 'line frequencies (before aliasing)', minimum=0.0, maximum=1000.0),
-            Parameter('amplitudes_arcsec_per_s', [0.05, 0.05], 'arcsec/s', 'rate amplitude of each line', minimum=0.0, maximum=100.0),
+            Parameter('frequencies_hz', [0.7, 1.3], 'Hz', 'line frequencies (before aliasing)',
+                      minimum=0.0, maximum=1000.0),
+            Parameter('amplitudes_arcsec_per_s', [0.05, 0.05], 'arcsec/s', 'rate amplitude of each line',
+                      minimum=0.0, maximum=100.0),
             Parameter('axes', ['el', 'el'], 'axis', 'gyro axis each line appears on', choices=('el', 'xel', 'los')),
         ),
         check=_equal_line_lists,

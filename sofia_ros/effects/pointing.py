@@ -33,8 +33,10 @@ EFFECTS = (
         'FPI boresight motion relative to HIPO beyond the FEM prediction: 1.1" in XEL and < 0.27" in '
         'EL between 23 and 60 deg elevation (FEM: about 0.1"). Proportional to the LOS load, sin(el).',
         (
-            Parameter('xel_arcsec_per_g', 2.32, 'arcsec/g', 'XEL boresight shift per 1 g load along -LOS', minimum=-100.0, maximum=100.0),
-            Parameter('el_arcsec_per_g', 0.4, 'arcsec/g', 'EL boresight shift per 1 g load along -LOS', minimum=-100.0, maximum=100.0),
+            Parameter('xel_arcsec_per_g', 2.32, 'arcsec/g', 'XEL boresight shift per 1 g load along -LOS',
+                      minimum=-100.0, maximum=100.0),
+            Parameter('el_arcsec_per_g', 0.4, 'arcsec/g', 'EL boresight shift per 1 g load along -LOS',
+                      minimum=-100.0, maximum=100.0),
         ),
     ),
     EffectSpec(
@@ -62,9 +64,11 @@ EFFECTS = (
         'True image scale against the one the software assumes (Table 2.6, measured); defaults make '
         'the truth the design scales of 3.3.1 (WFI 21.39 vs 20.36"/px, FPI 0.554 vs 0.55"/px).',
         (
-            Parameter('fpi_ppm', 7273.0, 'ppm', 'FPI true scale / assumed scale - 1', minimum=-100000.0, maximum=100000.0),
+            Parameter('fpi_ppm', 7273.0, 'ppm', 'FPI true scale / assumed scale - 1',
+                      minimum=-100000.0, maximum=100000.0),
             Parameter('ffi_ppm', 0.0, 'ppm', 'FFI true scale / assumed scale - 1', minimum=-100000.0, maximum=100000.0),
-            Parameter('wfi_ppm', 50589.0, 'ppm', 'WFI true scale / assumed scale - 1', minimum=-100000.0, maximum=100000.0),
+            Parameter('wfi_ppm', 50589.0, 'ppm', 'WFI true scale / assumed scale - 1',
+                      minimum=-100000.0, maximum=100000.0),
         ),
     ),
     EffectSpec(
@@ -97,10 +101,13 @@ EFFECTS = (
         'Residual centroid drift after drift estimation: linear plus sinusoid in FPI rows '
         '(1.4 px/min, 2.2 px amplitude, 5.2 min period).',
         (
-            Parameter('linear_px_per_min', 1.4, 'px/min', 'linear drift of the FPI row centroid', minimum=-100.0, maximum=100.0),
+            Parameter('linear_px_per_min', 1.4, 'px/min', 'linear drift of the FPI row centroid',
+                      minimum=-100.0, maximum=100.0),
             Parameter('sine_amplitude_px', 2.2, 'px', 'amplitude of the sinusoidal drift', minimum=0.0, maximum=100.0),
-            Parameter('sine_period_min', 5.2, 'min', 'period of the sinusoidal drift', shape=True, minimum=0.1, maximum=1000.0),
-            Parameter('sine_phase_deg', 0.0, 'deg', 'phase of the sinusoidal drift rate at the start of the record', shape=True, minimum=-360.0, maximum=360.0),
+            Parameter('sine_period_min', 5.2, 'min', 'period of the sinusoidal drift', shape=True,
+                      minimum=0.1, maximum=1000.0),
+            Parameter('sine_phase_deg', 0.0, 'deg', 'phase of the sinusoidal drift rate at the start of the record', shape=True,
+                      minimum=-360.0, maximum=360.0),
         ),
     ),
     EffectSpec(

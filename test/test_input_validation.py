@@ -153,3 +153,36 @@ def test_compare_json_into_a_directory_is_one_line(short_bag, tmp_path, capsys):
                  '--json', str(tmp_path)])
     err = capsys.readouterr().err
     assert code == 2 and err.count('\n') == 1 and 'is a directory; give a file name' in err
+
+
+def _without(bag, topic, folder):
+    from sofia_ros.bag import BagReader, BagWriter
+
+    thinned = folder / 'thinned'
+    with BagReader(bag) as source, BagWriter(thinned) as target:
+        keep = [info for info in source.topics if info.name != topic]
+        for info in keep:
+            target.add_topic(info.name, info.msgtype)
+        for name, stamp_ns, data in source.raw_messages(*(info.name for info in keep)):
+            target.write_raw(name, bytes(data), stamp_ns)
+    return thinned
+
+
+@pytest.mark.timeout(300)
+def test_compare_warns_when_the_reference_camera_is_missing(short_bag, tmp_path, capsys):
+    bag, _ = short_bag
+    thinned = _without(bag, '/hipo/centroids', tmp_path)
+    main(['compare', str(thinned), '--model', str(ROOT / 'config' / 'model' / 'nominal.yaml')])
+    err = capsys.readouterr().err
+    assert f'sofia compare: warning: {thinned} has no /hipo/centroids: the reference camera is missing' in err
+
+
+def test_an_anchor_spacing_beyond_this_machines_memory_is_refused(short_bag, capsys, monkeypatch):
+    import sofia_ros.compare.cli as compare_cli
+
+    bag, _ = short_bag
+    monkeypatch.setattr(compare_cli, '_MEMORY_SHARE', 1e-9)
+    assert main(['compare', str(bag), '--model', str(ROOT / 'config' / 'model' / 'nominal.yaml'),
+                 '--anchor-s', '2']) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and '--anchor-s 2 needs about' in err and 'choose a larger --anchor-s' in err

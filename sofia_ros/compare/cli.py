@@ -6,6 +6,7 @@ import fcntl
 import io
 import json
 import os
+import sys
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -28,6 +29,8 @@ _DENSE_COPIES = 4
 _TERM_COLUMNS = 100
 #: Refuse a comparison whose design matrix would not fit in this share of the machine's memory.
 _MEMORY_SHARE = 0.5
+#: The reference camera every imager is compared against (6.2).
+HIPO_CENTROIDS = '/hipo/centroids'
 
 
 def add_compare_arguments(parser):
@@ -252,7 +255,7 @@ def run_compare(args, out):
     if args.json and Path(args.json).is_dir():
         raise ConfigError(f'--json {args.json} is a directory; give a file name, '
                           f'e.g. {Path(args.json) / "compare.json"}')
-    _check_anchor_memory(args.bag, args.anchor_s)
+    _check_bag_arguments(args.bag, args.anchor_s, lambda line: print(line, file=sys.stderr))
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f'--report {args.report} is a file; give a directory')
     result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
@@ -274,14 +277,16 @@ def anchor_memory_bytes(duration_s, anchor_s):
     return _DENSE_COPIES * 8 * columns ** 2
 
 
-def _check_anchor_memory(bag, anchor_s):
-    """Refuse an --anchor-s whose dense fit matrices would not fit in half of this machine's memory."""
+def _check_bag_arguments(bag, anchor_s, warn):
+    """Refuse an --anchor-s whose dense fit matrices would not fit in half of this machine's memory;
+    warn when the bag has no HIPO centroids (the imagers are then fitted without their reference)."""
     from sofia_ros.bag import BagReader
     from sofia_ros.errors import BagError
     from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 
     try:
         with BagReader(bag) as reader:
+            names = {info.name for info in reader.topics}
             duration_s = reader.topic('/clock').count * DEFAULT_TICK_NS / 1e9
     except BagError:
         return  # compare_bag names what is wrong with the bag itself
@@ -290,6 +295,9 @@ def _check_anchor_memory(bag, anchor_s):
     if needed > available:
         raise ConfigError(f'--anchor-s {anchor_s:g} needs about {needed / 2**30:.1f} GiB for {duration_s:.0f} s of '
                           f'record (usable here: {available / 2**30:.1f} GiB); choose a larger --anchor-s')
+    if HIPO_CENTROIDS not in names and any(name.endswith('/centroids') for name in names):
+        warn(f'sofia compare: warning: {bag} has no {HIPO_CENTROIDS}: the reference camera is missing, so the '
+             'imagers are fitted against the gyros alone and HIPO-relative terms are not observable')
 
 
 @contextmanager

@@ -186,3 +186,21 @@ def test_an_anchor_spacing_beyond_this_machines_memory_is_refused(short_bag, cap
                  '--anchor-s', '2']) == 2
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and '--anchor-s 2 needs about' in err and 'choose a larger --anchor-s' in err
+
+
+@pytest.mark.timeout(120)
+def test_replay_interrupted_by_sigint_is_one_line_and_130(short_bag):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    bag, _ = short_bag
+    replay = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'replay', str(bag), '--rate', '0.01',
+                               '--wait-s', '0'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(8.0)
+    assert replay.poll() is None
+    replay.send_signal(signal.SIGINT)
+    _, err = replay.communicate(timeout=60)
+    assert replay.returncode == 130
+    assert err == 'sofia: interrupted by SIGINT\n'

@@ -6,6 +6,7 @@ import time
 
 import rclpy
 import rclpy.duration
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
 from sofia_ros.bag import BagReader
@@ -31,7 +32,8 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
         if missing:
             raise BagError(f'{", ".join(missing)} not in bag {bag_path}; it records {", ".join(sorted(recorded))}')
         infos = [info for info in bag.topics if topics is None or info.name in topics]
-        rclpy.init()
+        # SIGINT/SIGTERM stay with sofia_ros.interrupts: one line and exit 130/143, not an RCLError.
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         try:
             node = Node('replay')
             publishers = {}

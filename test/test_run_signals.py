@@ -45,6 +45,22 @@ def test_a_second_run_in_a_held_exported_domain_is_refused_at_once(held_domain, 
     assert not (tmp_path / 'bag').exists()
 
 
+@pytest.mark.timeout(240)
+def test_two_concurrent_runs_in_one_exported_domain_the_second_is_refused(tmp_path, capsys):
+    first, first_bag = _start_run(tmp_path, MODES['executor'])
+    try:
+        start = time.monotonic()
+        code = main(['run', 'alignment', '--truth', TRUTH, '--bag', str(tmp_path / 'second'), '--max-sim-s', '10'])
+        err = capsys.readouterr().err
+        assert code == 2 and time.monotonic() - start < 10.0
+        assert err.count('\n') == 1 and f'ROS_DOMAIN_ID={os.environ["ROS_DOMAIN_ID"]} is in use' in err
+        assert not (tmp_path / 'second').exists()
+    finally:
+        first.send_signal(signal.SIGTERM)
+        first.communicate(timeout=120)
+    assert first.returncode == 143 and (first_bag / 'metadata.yaml').exists()
+
+
 def test_claiming_a_held_domain_raises_domain_busy(held_domain, monkeypatch):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(held_domain))
     with pytest.raises(DomainBusyError, match=f'ROS_DOMAIN_ID={held_domain} is in use by another sofia run'):

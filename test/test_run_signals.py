@@ -128,6 +128,7 @@ MODES = {
     'executor': ['alignment', '--max-sim-s', '3000'],
     'processes': ['alignment', '--processes', '--max-sim-s', '3000'],
     'gyro-stability': ['gyro-stability', '--case', 'TC-1', '--hours', '2'],
+    'star-hop direct': ['star-hop', '--direct', '--observations', '1-2', '--hold-s', '600'],
 }
 
 
@@ -142,8 +143,10 @@ def test_a_signal_closes_the_bag_writes_the_summary_and_exits_128_plus_signal(mo
     name = signal.Signals(signum).name
     assert process.returncode == 128 + signum, err
     assert 'Traceback' not in err
-    assert [line for line in err.splitlines() if not line.startswith(('sim ', 'running:'))] == [
-        line for line in err.splitlines() if line.startswith(f'sofia: interrupted by {name}')]
+    # stderr also holds the progress lines (and the star hop's re-orthonormalization warning)
+    sofia_lines = [line for line in err.splitlines() if line.startswith('sofia')]
+    assert len(sofia_lines) == 1 and sofia_lines[0].startswith(f'sofia: interrupted by {name} at sim ')
+    assert err.splitlines()[-1] == sofia_lines[0]
     summary = json.loads((bag / 'summary.json').read_text())
     assert summary['stopped'] == 'interrupted' and summary['reason'] == f'interrupted by {name}'
     assert (bag / 'metadata.yaml').exists()
@@ -192,3 +195,25 @@ def test_a_killed_recorder_is_named_and_the_run_exits_3(tmp_path):
     assert 'the recorder node was killed by SIGKILL' in err and f'sofia recover {bag}' in err
     summary = json.loads((bag / 'summary.json').read_text())
     assert summary['stopped'] == 'fault' and 'recorder node was killed' in summary['reason']
+
+
+@pytest.mark.timeout(120)
+def test_a_run_that_crashes_mid_way_closes_its_bag_and_keeps_the_reason(tmp_path, monkeypatch):
+    from sofia_ros.sim.runner import LockstepRunner
+
+    step = LockstepRunner.step
+
+    def failing_step(runner):
+        if runner.stamp_ns >= 10 * 10**9:
+            raise RuntimeError('simulated bug at sim 10 s')
+        return step(runner)
+
+    monkeypatch.setattr(LockstepRunner, 'step', failing_step)
+    bag = tmp_path / 'bag'
+    with pytest.raises(RuntimeError, match='simulated bug at sim 10 s'):
+        main(['run', 'alignment', '--direct', '--truth', TRUTH, '--bag', str(bag), '--max-sim-s', '60'])
+    assert (bag / 'metadata.yaml').exists()
+    summary = json.loads((bag / 'summary.json').read_text())
+    assert summary['stopped'] == 'fault' and summary['reason'] == 'RuntimeError: simulated bug at sim 10 s'
+    with BagReader(bag) as reader:
+        assert reader.topic('/clock').count >= 50

@@ -204,3 +204,17 @@ def test_replay_interrupted_by_sigint_is_one_line_and_130(short_bag):
     _, err = replay.communicate(timeout=60)
     assert replay.returncode == 130
     assert err == 'sofia: interrupted by SIGINT\n'
+
+
+def test_a_number_too_large_for_a_float_is_refused():
+    with pytest.raises(ConfigError, match=r'rms_arcsec must be finite, in \[0, 10\] arcsec'):
+        parse_effect_config('effects: {seeing: {rms_arcsec: 1' + '0' * 400 + '}}')
+
+
+def test_a_list_with_too_many_entries_is_refused():
+    from sofia_ros.effects import MAX_LIST_ENTRIES
+
+    entries = ', '.join(['1.0'] * (MAX_LIST_ENTRIES + 1))
+    with pytest.raises(ConfigError, match=f'frequencies_hz has {MAX_LIST_ENTRIES + 1} entries '
+                                          rf'\(at most {MAX_LIST_ENTRIES}\)'):
+        parse_effect_config(f'effects: {{vibration_lines: {{frequencies_hz: [{entries}]}}}}')

@@ -110,3 +110,13 @@ def test_writing_onto_a_directory_is_refused(tmp_path):
 def test_a_missing_directory_is_refused(tmp_path):
     with pytest.raises(ConfigError, match='does not exist; create it'):
         write_text_atomically(Path(tmp_path, 'no', 'out.json'), '{}\n')
+
+
+def test_a_duplicate_key_is_refused_without_touching_the_file(tmp_path, capsys):
+    model = tmp_path / 'm.yaml'
+    text = MODEL + 'effects: {}\n'
+    model.write_text(text)
+    assert main(['model', 'add', 'seeing', '--model', str(model)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and f'{model}: not valid YAML' in err
+    assert model.read_text() == text

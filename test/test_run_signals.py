@@ -217,3 +217,19 @@ def test_a_run_that_crashes_mid_way_closes_its_bag_and_keeps_the_reason(tmp_path
     assert summary['stopped'] == 'fault' and summary['reason'] == 'RuntimeError: simulated bug at sim 10 s'
     with BagReader(bag) as reader:
         assert reader.topic('/clock').count >= 50
+
+
+def test_a_domain_outside_0_232_is_a_config_error(monkeypatch):
+    monkeypatch.setenv('ROS_DOMAIN_ID', '233')
+    with pytest.raises(ConfigError, match='ROS_DOMAIN_ID must be an integer 0-232, got 233'):
+        claim_ros_domain()
+
+
+def test_when_every_domain_is_held_the_run_is_told_to_wait(held_domain, monkeypatch):
+    import sofia_ros.nodes.domain as domain
+
+    monkeypatch.delenv('ROS_DOMAIN_ID')
+    monkeypatch.setattr(domain, 'DOMAIN_IDS', range(held_domain, held_domain + 1))
+    with pytest.raises(DomainBusyError, match=f'every ROS domain {held_domain}-{held_domain} is in use'):
+        claim_ros_domain()
+    assert 'ROS_DOMAIN_ID' not in os.environ

@@ -13,9 +13,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.recording import (MODES, finish_run, new_bag_path, record_graph, summary_of_failed_run,
-                                           write_summary)
-from sofia_ros.errors import RunFaultError
+from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
@@ -97,18 +95,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     bag_path = new_bag_path(bag_path)
     config = graph_config(truth, seed, plan)
     wall_start = time.perf_counter()
-    try:
-        fault = record_graph(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
-                             timeout_s=timeout_s, progress=progress)
-    except RunFaultError as err:
-        finish_run(bag_path, summary_of_failed_run(bag_path, time.perf_counter() - wall_start, str(err)), str(err))
-        raise
-    except Exception as err:
-        # A bug: the bag is closed (record_graph); summary.json keeps the reason, the traceback follows.
-        if bag_path.is_dir():
-            write_summary(bag_path, {**summary_of_failed_run(bag_path, time.perf_counter() - wall_start,
-                                                             f'{type(err).__name__}: {err}'), 'stopped': 'fault'})
-        raise
+    fault = record_campaign(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
+                            timeout_s=timeout_s, progress=progress)
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)
     summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import signal
 import tempfile
+import time
 from pathlib import Path
 
 import yaml
@@ -18,7 +19,7 @@ from sofia_ros.sim.graph import build_cores
 from sofia_ros.sim.runner import LockstepRunner
 from sofia_ros.sim.scenario import SCENARIO_TOPIC, scenario_document
 
-__all__ = ['MODES', 'graph_documents', 'record_graph', 'new_bag_path', 'write_summary', 'finish_run',
+__all__ = ['MODES', 'graph_documents', 'record_campaign', 'record_graph', 'new_bag_path', 'write_summary', 'finish_run',
            'summary_of_failed_run']
 
 #: 'executor': every node in this process under one executor, over DDS; 'processes': each node its
@@ -80,6 +81,22 @@ def finish_run(bag_path, summary, fault=None):
                                      '(summary.json: "stopped": "interrupted")')
     if fault:
         raise RunFaultError(f'run stopped{sim}: {summary["reason"]} (summary.json: "stopped": "fault")')
+
+
+def record_campaign(config, bag_path, **options):
+    """record_graph(config, bag_path, **options); when it fails after the start, summary.json gets the
+    reason (``"stopped": "fault"``) before the error propagates: RunFaultError (exit 3) or a bug."""
+    wall_start = time.perf_counter()
+    try:
+        return record_graph(config, bag_path, **options)
+    except RunFaultError as err:
+        finish_run(bag_path, summary_of_failed_run(bag_path, time.perf_counter() - wall_start, str(err)), str(err))
+        raise
+    except Exception as err:
+        if Path(bag_path).is_dir():
+            write_summary(bag_path, {**summary_of_failed_run(bag_path, time.perf_counter() - wall_start,
+                                                             f'{type(err).__name__}: {err}'), 'stopped': 'fault'})
+        raise
 
 
 def record_graph(config, bag_path, *, model_text, mode, max_sim_s, timeout_s, progress=None):

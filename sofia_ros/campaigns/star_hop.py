@@ -13,9 +13,7 @@ import time
 import yaml
 
 from sofia_ros.campaigns.alignment import result_from_bag
-from sofia_ros.campaigns.recording import (finish_run, new_bag_path, record_graph, summary_of_failed_run,
-                                           write_summary)
-from sofia_ros.errors import RunFaultError
+from sofia_ros.campaigns.recording import finish_run, new_bag_path, record_campaign
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sim.graph import GraphConfig
 from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
@@ -59,18 +57,8 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
     last_offset_s = config.plan.observations[-1][1]
     max_sim_s = last_offset_s - config.plan.observations[0][1] + 20.0 * config.plan.timeout_s + config.plan.hold_s
     wall_start = time.perf_counter()
-    try:
-        fault = record_graph(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
-                             timeout_s=timeout_s, progress=progress)
-    except RunFaultError as err:
-        finish_run(bag_path, summary_of_failed_run(bag_path, time.perf_counter() - wall_start, str(err)), str(err))
-        raise
-    except Exception as err:
-        # A bug: the bag is closed (record_graph); summary.json keeps the reason, the traceback follows.
-        if bag_path.is_dir():
-            write_summary(bag_path, {**summary_of_failed_run(bag_path, time.perf_counter() - wall_start,
-                                                             f'{type(err).__name__}: {err}'), 'stopped': 'fault'})
-        raise
+    fault = record_campaign(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
+                            timeout_s=timeout_s, progress=progress)
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)
     result = yaml.safe_load(result_yaml)

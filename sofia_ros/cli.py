@@ -1,18 +1,21 @@
 """The ``sofia`` command (docs/cli.md).
 
-Exit codes: 0 success, 2 bad input (one line on stderr), 1 bug (traceback).
+Exit codes: 0 the command ran (a campaign accepted or not: summary.json says which), 2 bad input
+(one line on stderr), 3 a run stopped by a fault after it started (bag closed, summary.json has the
+reason), 130 / 143 interrupted by SIGINT / SIGTERM (bag closed, one line), 1 a bug (traceback).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 
 import yaml
 
-from sofia_ros.errors import ConfigError, SofiaError
+from sofia_ros import interrupts
+from sofia_ros.cli_args import OneLineParser, integer, number
+from sofia_ros.errors import ConfigError, RunFaultError, RunInterrupted, SofiaError
 
 __all__ = ['main', 'build_parser']
 
@@ -106,7 +109,7 @@ def _run_campaign(args):
     finally:
         progress.close()
     _print_alignment_summary(run)
-    return 0 if run.summary['accepted'] else 1
+    return 0
 
 
 def _mode(args):
@@ -208,11 +211,21 @@ def _print_flexure_series(flexure_record):
 def _replay(args):
     from sofia_ros.nodes.replay import replay_bag
 
-    if args.rate < 0:
-        raise ConfigError(f'--rate must be >= 0 (0 = as fast as possible), got {args.rate}')
-    if args.wait_s < 0:
-        raise ConfigError(f'--wait-s must be >= 0 (0 = publish at once), got {args.wait_s}')
     replay_bag(args.bag, rate=args.rate, topics=args.topics or None, out=sys.stdout, wait_s=args.wait_s)
+    return 0
+
+
+def _recover(args):
+    from sofia_ros.bag.recovery import recover_bag
+
+    report = recover_bag(args.bag, args.out)
+    ending = 'the file ends cleanly' if report.reached_footer else f'reading stopped: {report.stop_reason}'
+    if report.skipped_offsets:
+        ending += (f'; skipped {len(report.skipped_offsets)} damaged record(s) at byte(s) '
+                   f'{", ".join(str(offset) for offset in report.skipped_offsets[:5])}')
+    last = 'no message' if report.last_stamp_ns is None else f'last message at {report.last_stamp_ns / 1e9:.3f} s'
+    print(f'recovered {report.message_count} messages on {len(report.topics)} topics into {report.bag} '
+          f'({last}; {ending})')
     return 0
 
 
@@ -257,7 +270,7 @@ def _add_noise_arguments(parser):
 
 def build_parser():
     """The argument parser with one sub-command per verb."""
-    parser = argparse.ArgumentParser(prog='sofia', description=__doc__.splitlines()[0])
+    parser = OneLineParser(prog='sofia', description=__doc__.splitlines()[0])
     verbs = parser.add_subparsers(dest='verb', required=True, metavar='COMMAND')
 
     effects = verbs.add_parser('effects', help='list the catalogue of physical effects, or write a plug-in template')
@@ -270,21 +283,28 @@ def build_parser():
     effects.set_defaults(handler=_print_effects)
 
     run = verbs.add_parser('run', help='run a campaign of the node graph and record it to a bag')
-    run.add_argument('campaign', help='alignment (Table 3.4, 6.1), star-hop (6.2-6.3, Table D.3) or gyro-stability (5.2)')
+    run.add_argument('campaign',
+                     help='alignment (Table 3.4, 6.1), star-hop (6.2-6.3, Table D.3) or gyro-stability (5.2)')
     run.add_argument('--case', choices=('TC-1', 'TC-2', 'TC-3', 'TC-4'), help='gyro-stability: the test case')
-    run.add_argument('--hours', type=float, help='gyro-stability: record length (default: the case\'s, 4 h or 25 min)')
+    run.add_argument('--hours', type=number(0.0, 24.0, 'h', low_open=True),
+                     help='gyro-stability: record length (default: the case\'s, 4 h or 25 min)')
     run.add_argument('--truth', required=True, help='truth YAML (effects: ...), e.g. config/truth/nominal.yaml')
     run.add_argument('--model', help='model YAML stored with the run (default: no effects)')
-    run.add_argument('--seed', type=int, default=0, help='run seed (default 0)')
+    run.add_argument('--seed', type=integer(0, 2**32 - 1, 'a numpy seed'), default=0, help='run seed (default 0)')
     run.add_argument('--bag', required=True, help='output bag directory (must not exist)')
     where = run.add_mutually_exclusive_group()
     where.add_argument('--processes', action='store_true', help='each node in its own process')
     where.add_argument('--direct', action='store_true', help='cores in one loop without DDS (fastest)')
-    run.add_argument('--repetitions', type=int, default=6, help='maneuvers per axis (default 6, as in 6.1)')
-    run.add_argument('--verification-repetitions', type=int, default=2, help='verification maneuvers per axis')
-    run.add_argument('--drift-track-s', type=float, default=60.0, help='drift estimation on the star, s')
-    run.add_argument('--max-sim-s', type=float, default=7200.0, help='stop after this much sim time')
-    run.add_argument('--hold-s', type=float, default=60.0, help='star-hop: seconds each star is held and recorded')
+    run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'), default=6,
+                     help='maneuvers per axis (default 6, as in 6.1)')
+    run.add_argument('--verification-repetitions', type=integer(1, 100, 'maneuvers per axis'), default=2,
+                     help='verification maneuvers per axis')
+    run.add_argument('--drift-track-s', type=number(1.0, 3600.0, 's'), default=60.0,
+                     help='drift estimation on the star, s')
+    run.add_argument('--max-sim-s', type=number(0.0, 172800.0, 's', low_open=True), default=7200.0,
+                     help='stop after this much sim time')
+    run.add_argument('--hold-s', type=number(0.0, 7200.0, 's', low_open=True), default=60.0,
+                     help='star-hop: seconds each star is held and recorded')
     run.add_argument('--no-follow-times', action='store_true',
                      help='star-hop: go to the next star at once instead of at its Table D.3 time')
     run.add_argument('--observations', help='star-hop: only observations FIRST-LAST of Table D.3 (e.g. 4-9)')
@@ -292,11 +312,18 @@ def build_parser():
 
     replay = verbs.add_parser('replay', help='re-publish a bag on its topics, with /clock, into a live graph')
     replay.add_argument('bag', help='bag directory')
-    replay.add_argument('--rate', type=float, default=1.0, help='speed-up against the recorded time (0: unpaced)')
+    replay.add_argument('--rate', type=number(0.0, 1e6, 'x real time'), default=1.0,
+                        help='speed-up against the recorded time (0: unpaced)')
     replay.add_argument('--topics', nargs='*', help='only these topics')
-    replay.add_argument('--wait-s', type=float, default=5.0,
+    replay.add_argument('--wait-s', type=number(0.0, 3600.0, 's'), default=5.0,
                         help='wait this long (wall s) for a subscriber on every replayed topic before publishing')
     replay.set_defaults(handler=_replay)
+
+    recover = verbs.add_parser('recover',
+                               help='rebuild a closed bag from one whose writer was killed (SIGKILL, a cut file)')
+    recover.add_argument('bag', help='bag directory holding the damaged .mcap')
+    recover.add_argument('--out', help='new bag directory (default: BAG_recovered; must not exist)')
+    recover.set_defaults(handler=_recover)
 
     noise = verbs.add_parser('noise', help='noise analysis of a gyro-stability bag (5.2): Earth rate, Allan, lines')
     _add_noise_arguments(noise)
@@ -330,16 +357,29 @@ def build_parser():
 
 
 def main(argv=None):
-    """Entry point of the ``sofia`` console script."""
+    """Entry point of the ``sofia`` console script; returns the exit code (module docstring)."""
+    interrupts.reset()
+    previous = interrupts.install()
     try:
         # Building the parser may load the effect catalogue (and the plug-ins it names).
         args = build_parser().parse_args(argv)
         return args.handler(args)
+    except SystemExit as done:  # argparse: --help, or a usage error (exit 2 with its usage line)
+        return done.code
+    except RunInterrupted as err:
+        print(f'sofia: {err}', file=sys.stderr)
+        return interrupts.EXIT_CODES.get(err.signum, 128 + err.signum)
+    except RunFaultError as err:
+        print(f'sofia: error: {err}', file=sys.stderr)
+        return 3
     except SofiaError as err:
         print(f'sofia: error: {err}', file=sys.stderr)
         return 2
     except BrokenPipeError:
         return 0
+    finally:
+        interrupts.restore(previous)
+        interrupts.reset()
 
 
 if __name__ == '__main__':

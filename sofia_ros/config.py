@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,9 +11,73 @@ import yaml
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
 
-__all__ = ['EffectConfig', 'load_effect_config', 'parse_effect_config']
+__all__ = ['EffectConfig', 'load_effect_config', 'parse_effect_config', 'safe_load_limited', 'MAX_CONFIG_BYTES',
+           'MAX_YAML_NODES', 'MAX_YAML_ALIASES', 'MAX_YAML_DEPTH']
 
 _TOP_LEVEL_KEYS = {'effects', 'scenario', 'description'}
+
+#: A truth or model file is a few kB; these caps stop alias bombs and huge files before they are built.
+MAX_CONFIG_BYTES = 1 << 20
+MAX_YAML_NODES = 100_000
+MAX_YAML_ALIASES = 100
+MAX_YAML_DEPTH = 50
+
+
+#: Any valid epoch: the scenario keys are checked at load against a placeholder default.
+_CHECK_EPOCH = dt.datetime(2004, 9, 3, tzinfo=dt.timezone.utc)
+
+
+class _LimitedLoader(yaml.SafeLoader):
+    """SafeLoader that counts nodes as they would be expanded (aliases included), aliases and depth."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._expanded = {}
+        self._aliases = 0
+        self._depth = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            self._aliases += 1
+            if self._aliases > MAX_YAML_ALIASES:
+                raise ConfigError(f'more than {MAX_YAML_ALIASES} YAML aliases (*name); write the values out')
+        self._depth += 1
+        if self._depth > MAX_YAML_DEPTH:
+            raise ConfigError(f'YAML nested deeper than {MAX_YAML_DEPTH} levels')
+        try:
+            node = super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+        if id(node) not in self._expanded:
+            if isinstance(node, yaml.MappingNode):
+                children = [child for pair in node.value for child in pair]
+            elif isinstance(node, yaml.SequenceNode):
+                children = node.value
+            else:
+                children = []
+            self._expanded[id(node)] = 1 + sum(self._expanded.get(id(child), 1) for child in children)
+        if self._expanded[id(node)] > MAX_YAML_NODES:
+            raise ConfigError(f'the YAML expands to more than {MAX_YAML_NODES} values (aliases counted as '
+                              'often as they are used); a truth or model file is far smaller')
+        return node
+
+
+def safe_load_limited(text, source='<text>'):
+    """yaml.safe_load with caps on size, expansion, aliases and depth; ConfigError naming ``source``."""
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f'{source}: {len(text)} characters, more than the {MAX_CONFIG_BYTES} a config may have')
+    loader = _LimitedLoader(text)
+    try:
+        return loader.get_single_data()
+    except ConfigError as err:
+        raise ConfigError(f'{source}: {err}') from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f'{source}: not valid YAML ({str(err).splitlines()[0]}); fix the syntax') from err
+    except (ValueError, TypeError, OverflowError) as err:
+        # PyYAML builds timestamps and numbers itself: 2004-13-45T99:00:00 raises ValueError.
+        raise ConfigError(f'{source}: a value cannot be read ({err}); quote dates as "2004-09-03T04:32:51Z"') from err
+    finally:
+        loader.dispose()
 
 
 @dataclass(frozen=True)
@@ -28,10 +93,7 @@ class EffectConfig:
 
 def parse_effect_config(text, source='<text>'):
     """Parse and validate a truth/model YAML document; ConfigError names the problem and the fix."""
-    try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise ConfigError(f'{source}: not valid YAML ({str(err).splitlines()[0]}); fix the syntax') from err
+    document = safe_load_limited(text, source)
     if document is None:
         document = {}
     if not isinstance(document, dict):
@@ -45,6 +107,8 @@ def parse_effect_config(text, source='<text>'):
         raise ConfigError(f'{source}: effects must be a mapping of effect name to parameters')
     effects, fitted = {}, set()
     for name, params in raw_effects.items():
+        if not isinstance(name, str):
+            raise ConfigError(f'{source}: effect names are text, got {str(name)[:40]!r}')
         try:
             effects[name] = resolve_params(name, params)
         except ConfigError as err:
@@ -54,14 +118,29 @@ def parse_effect_config(text, source='<text>'):
     scenario = document.get('scenario')
     if scenario is not None and not isinstance(scenario, dict):
         raise ConfigError(f'{source}: scenario must be a mapping')
+    if scenario:
+        from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
+        from sofia_ros.sky import WACO_2004_SITE
+
+        try:
+            scenario_from_mapping(Scenario(WACO_2004_SITE, _CHECK_EPOCH, 0.0, 40.0), scenario)
+        except ConfigError as err:
+            raise ConfigError(f'{source}: {err}') from err
     return EffectConfig(effects, frozenset(fitted), scenario, text, source)
 
 
 def load_effect_config(path):
-    """Read and parse a truth/model file."""
+    """Read (at most MAX_CONFIG_BYTES) and parse a truth/model file."""
     path = Path(path)
     try:
-        text = path.read_text()
+        with path.open('rb') as stream:
+            data = stream.read(MAX_CONFIG_BYTES + 1)
     except OSError as err:
         raise ConfigError(f'cannot read {path}: {err.strerror}; check the path') from err
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(f'{path}: larger than {MAX_CONFIG_BYTES} bytes; a truth or model file is a few kB')
+    try:
+        text = data.decode('utf-8')
+    except UnicodeDecodeError as err:
+        raise ConfigError(f'{path}: not UTF-8 text (byte {err.start}); is it a YAML file?') from err
     return parse_effect_config(text, str(path))

@@ -19,6 +19,9 @@ __all__ = [
     'CommandRefusedError',
     'BagError',
     'FitError',
+    'DomainBusyError',
+    'RunFaultError',
+    'RunInterrupted',
 ]
 
 
@@ -64,3 +67,22 @@ class BagError(SofiaError):
 
 class FitError(SofiaError):
     """A model cannot be fitted to a bag's measurements (it sends stars off their detectors)."""
+
+
+class DomainBusyError(ConfigError):
+    """Another run on this machine holds the ROS domain (its lock file); two graphs in one domain corrupt each other."""
+
+
+class RunFaultError(SofiaError):
+    """A campaign stopped by a fault after it started (a node died, the graph stalled); its bag is closed."""
+
+
+class RunInterrupted(BaseException):
+    """SIGINT or SIGTERM stopped a run; BaseException like KeyboardInterrupt, so no ``except Exception`` swallows it."""
+
+    def __init__(self, signum, message=''):
+        import signal
+
+        self.signum = int(signum)
+        self.signal_name = signal.Signals(self.signum).name
+        super().__init__(message or f'interrupted by {self.signal_name}')

@@ -1,13 +1,18 @@
-"""Test isolation: DDS stays on this machine, in a random domain of its own per session."""
+"""Test isolation: DDS stays on this machine, in a random domain of its own per session.
+
+The domain is one no sofia run holds at the start (nodes.domain's lock files), so a session
+does not collide with another engineer's tests or runs on the same machine.
+"""
 
 import os
 import random
 
+from sofia_ros.nodes.domain import claim_ros_domain, release_ros_domain
+
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-# As sofia_ros/__init__.py does, before any test module imports numpy: small BLAS problems, few cores.
-for _variable in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS'):
-    os.environ.setdefault(_variable, '1')
-os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(1, 101))
+_probe = claim_ros_domain({}, rng=random.SystemRandom())
+release_ros_domain(_probe, {})
+os.environ['ROS_DOMAIN_ID'] = str(_probe.domain_id)
 
 
 import pytest  # noqa: E402  (the DDS environment must be set before anything imports rclpy)

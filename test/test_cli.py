@@ -47,7 +47,7 @@ def test_demo_reproduces_the_thesis_tables():
 BAD_TRUTHS = {
     'broken.yaml': ('effects:\n  earth_rotation: {\n', 'not valid YAML'),
     'unknown.yaml': ('effects:\n  gyro_wobble: {}\n', "unknown effect 'gyro_wobble'; did you mean"),
-    'badparam.yaml': ('effects:\n  seeing: {rms_arcsec: fast}\n', 'rms_arcsec must be a number in arcsec'),
+    'badparam.yaml': ('effects:\n  seeing: {rms_arcsec: fast}\n', 'rms_arcsec must be a number in [0, 10] arcsec'),
     'lowstar.yaml': ('effects:\n  earth_rotation: {}\nscenario:\n  latitude_deg: 12.0\n', 'below the limit of 20 deg'),
     'highcd.yaml': ('effects:\n  earth_rotation: {}\nscenario:\n  start_elevation_deg: 70.0\n',
                     'coarse drive elevation 70.000 deg is outside 16.5-68.5 deg'),
@@ -93,8 +93,9 @@ def test_replay_of_a_missing_bag_is_refused(tmp_path):
     assert result.returncode == 2 and 'does not exist' in result.stderr
 
 
-@pytest.mark.parametrize('option, value, message', [('--rate', '-1', '--rate must be >= 0'),
-                                                    ('--wait-s', '-2', '--wait-s must be >= 0')])
+@pytest.mark.parametrize('option, value, message', [
+    ('--rate', '-1', 'argument --rate: must be a finite number in [0, 1e+06] x real time, got -1'),
+    ('--wait-s', '-2', 'argument --wait-s: must be a finite number in [0, 3600] s, got -2')])
 def test_replay_refuses_negative_rate_and_wait(tmp_path, option, value, message):
     result = run_sofia('replay', str(tmp_path / 'none'), option, value)
     assert result.returncode == 2 and message in result.stderr

@@ -151,7 +151,7 @@ def test_parameter_with_wrong_units_is_refused(tmp_path, capsys, null_bag):
     model = tmp_path / 'm.yaml'
     model.write_text("effects:\n  gyro_bias: {el_deg_per_h: '0.1 arcsec/s'}\n")
     line = _error_line(capsys, ['compare', str(null_bag), '--model', str(model)])
-    assert 'must be a number in deg/h' in line
+    assert 'must be a number in [-10, 10] deg/h' in line
 
 
 def test_bag_without_the_observables_is_refused(tmp_path, capsys):

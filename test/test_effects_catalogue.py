@@ -55,7 +55,7 @@ def test_unknown_parameter_lists_the_known_ones():
 
 
 def test_parameter_of_wrong_type_is_refused():
-    with pytest.raises(ConfigError, match='rms_arcsec must be a number in arcsec'):
+    with pytest.raises(ConfigError, match=r'rms_arcsec must be a number in \[0, 10\] arcsec'):
         resolve_params('seeing', {'rms_arcsec': 'large'})
 
 

@@ -335,28 +335,36 @@ def _check_layout(path: Path) -> None:
         )
     metadata_path = path / 'metadata.yaml'
     if not metadata_path.is_file():
-        if any(path.glob('*.mcap')):
+        if _recoverable(path):
             raise BagError(
                 f'bag {path} was not closed (no metadata.yaml; its writer stopped before '
-                f'finishing); recover what it holds with sofia_ros.bag.recover_bag({str(path)!r})'
+                f'finishing); recover what it holds with `sofia recover {path}`'
             )
         raise BagError(
-            f'{path} is not a rosbag2 bag directory (no metadata.yaml); '
+            f'{path} is not a rosbag2 bag directory (no metadata.yaml and no MCAP data to recover); '
             'pass a bag written by the recorder'
         )
     try:
         metadata = yaml.safe_load(metadata_path.read_text())
         storage = metadata['rosbag2_bagfile_information']['storage_identifier']
     except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError) as err:
+        first_line = str(err).strip().splitlines()[0] if str(err).strip() else ''
+        hint = (f'rebuild the bag with `sofia recover {path}`' if _recoverable(path)
+                else 'its .mcap holds nothing to recover')
         raise BagError(
-            f'{metadata_path} is not rosbag2 metadata ({type(err).__name__}: {err}); '
-            f'rebuild the bag with sofia_ros.bag.recover_bag({str(path)!r})'
+            f'{metadata_path} is not rosbag2 metadata ({type(err).__name__}: {first_line}); {hint}'
         ) from err
     if storage != 'mcap':
         raise BagError(
             f'bag {path} uses {storage!r} storage, not MCAP; convert it with '
             f'`rosbags-convert --src {path} --dst NEW_DIR --dst-storage mcap`'
         )
+
+
+def _recoverable(path: Path) -> bool:
+    """Whether ``path`` holds exactly one .mcap with more than its magic (what recover_bag can read)."""
+    files = list(path.glob('*.mcap'))
+    return len(files) == 1 and files[0].stat().st_size > 8
 
 
 def _damaged(path: Path, err: BaseException) -> BagError:
@@ -369,7 +377,7 @@ def _damaged(path: Path, err: BaseException) -> BagError:
             chunk = None
         if chunk is not None:
             err = ValueError(chunk)
-    return BagError(
-        f'bag {path} is truncated or corrupt ({type(err).__name__}: {err}); '
-        f'salvage its complete chunks with sofia_ros.bag.recover_bag({str(path)!r})'
-    )
+    detail = str(err).strip().splitlines()[0] if str(err).strip() else ''
+    hint = (f'salvage its complete chunks with `sofia recover {path}`' if _recoverable(path)
+            else 'it holds nothing to recover')
+    return BagError(f'bag {path} is truncated or corrupt ({type(err).__name__}: {detail}); {hint}')

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -9,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import yaml
 import zstandard
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
 from mcap.records import Channel, Footer, Message, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
 
@@ -42,6 +43,8 @@ class RecoveryReport:
     last_stamp_ns: int | None
     reached_footer: bool
     stop_reason: str
+    #: byte offsets of damaged records that were skipped (the intact chunks after them are kept)
+    skipped_offsets: tuple[int, ...] = ()
 
     @property
     def message_count(self) -> int:
@@ -60,15 +63,10 @@ def recover_bag(
     mcap_path = _mcap_file(source)
     if destination is None:
         destination = source.with_name(source.name + RECOVERED_SUFFIX)
-    stop_reason = 'end of file'
-    with mcap_path.open('rb') as stream, BagWriter(destination) as writer:
+    data = mcap_path.read_bytes()
+    with BagWriter(destination) as writer:
         copier = _Copier(writer)
-        try:
-            for record in StreamReader(stream, validate_crcs=True).records:
-                copier.copy(record)
-        except _DAMAGE_ERRORS as err:
-            # Everything before the first cut or damaged record has been copied.
-            stop_reason = f'{type(err).__name__} {err}'.strip()
+        stop_reason, skipped = _copy_records(data, copier)
     return RecoveryReport(
         source=source,
         bag=writer.path,
@@ -76,7 +74,76 @@ def recover_bag(
         last_stamp_ns=copier.last_stamp_ns,
         reached_footer=copier.reached_footer,
         stop_reason=stop_reason,
+        skipped_offsets=tuple(skipped),
     )
+
+
+_OPCODE_CHUNK = 0x06
+_RECORD_HEAD = 9  # opcode (1 byte) + content length (uint64)
+
+
+def _top_level_records(data, offset):
+    """(offset, end) of each top-level record from ``offset`` while lengths stay inside the file."""
+    while offset + _RECORD_HEAD <= len(data):
+        length = struct.unpack_from('<Q', data, offset + 1)[0]
+        end = offset + _RECORD_HEAD + length
+        if end > len(data):
+            return
+        yield offset, end
+        offset = end
+
+
+def _next_chunk(data, offset):
+    """Offset of the next top-level chunk record after ``offset`` that parses whole, or None."""
+    position = data.find(bytes([_OPCODE_CHUNK]), offset + 1)
+    while position != -1:
+        if position + _RECORD_HEAD <= len(data):
+            end = position + _RECORD_HEAD + struct.unpack_from('<Q', data, position + 1)[0]
+            if end <= len(data) and _parse(data[position:end]) is not None:
+                return position
+        position = data.find(bytes([_OPCODE_CHUNK]), position + 1)
+    return None
+
+
+def _parse(record_bytes):
+    """The records of one top-level record (a chunk yields what it holds), CRCs checked; None if damaged."""
+    records = []
+    try:
+        for record in StreamReader(io.BytesIO(record_bytes), skip_magic=True, validate_crcs=True).records:
+            records.append(record)
+    except EndOfFile:
+        # The reader reports the end of its input so; a record that yielded nothing was damaged.
+        return records or None
+    except _DAMAGE_ERRORS:
+        return None
+    return records
+
+
+def _copy_records(data, copier):
+    """Copy every intact top-level record; skip a damaged one and resynchronize on the next chunk.
+
+    Returns why reading ended and the byte offsets of the records skipped.
+    """
+    if not data.startswith(_MCAP_MAGIC):
+        return 'bad magic', []
+    offset, skipped, stop_reason = len(_MCAP_MAGIC), [], 'end of file'
+    while offset is not None and offset < len(data):
+        resume = None
+        for start, end in _top_level_records(data, offset):
+            records = _parse(data[start:end])
+            if records is None:
+                skipped.append(start)
+                resume = _next_chunk(data, start)
+                break
+            for record in records:
+                copier.copy(record)
+            offset = end
+        else:
+            if offset < len(data) and not copier.reached_footer:
+                stop_reason = f'file cut inside the record at byte {offset}'
+            break
+        offset = resume
+    return stop_reason, skipped
 
 
 class _Copier:
@@ -93,12 +160,15 @@ class _Copier:
     def copy(self, record: McapRecord) -> None:
         """Copy one record; records other than schema, channel and message are rebuilt on close."""
         if isinstance(record, Message):
+            if record.channel_id not in self._topics:
+                return  # its channel was defined in a damaged record
             self.writer.write_raw(self._topics[record.channel_id], record.data, record.log_time)
             self.last_stamp_ns = max(record.log_time, self.last_stamp_ns or 0)
         elif isinstance(record, Schema):
             self._msgtypes[record.id] = record.name
         # The summary section repeats every channel; the first sighting registers it.
-        elif isinstance(record, Channel) and record.id not in self._topics:
+        elif isinstance(record, Channel) and record.id not in self._topics \
+                and record.schema_id in self._msgtypes:
             msgtype = self._msgtypes[record.schema_id]
             self.writer.add_topic(record.topic, msgtype, latched=_is_latched(record))
             self._topics[record.id] = record.topic

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,7 +13,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.recording import MODES, new_bag_path, record_graph
+from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
@@ -96,8 +95,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     bag_path = new_bag_path(bag_path)
     config = graph_config(truth, seed, plan)
     wall_start = time.perf_counter()
-    record_graph(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
-                 progress=progress)
+    fault = record_campaign(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
+                            timeout_s=timeout_s, progress=progress)
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)
     summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,
@@ -105,7 +104,7 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     (bag_path / 'truth.yaml').write_text(truth.text)
     (bag_path / 'model.yaml').write_text(model_text)
     (bag_path / 'calibration.yaml').write_text(result_yaml)
-    (bag_path / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    finish_run(bag_path, summary, fault)
     return AlignmentRun(summary, result_yaml, bag_path)
 
 

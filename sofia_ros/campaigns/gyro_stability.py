@@ -12,15 +12,15 @@ RIS, FD, CD, VIS, oil pumps, cooling carts, fans) is recorded as a latched Diagn
 from __future__ import annotations
 
 import datetime as dt
-import json
 import time
 from dataclasses import dataclass
 
 import yaml
 
+from sofia_ros import interrupts
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
-from sofia_ros.campaigns.recording import new_bag_path
+from sofia_ros.campaigns.recording import finish_run, new_bag_path, write_summary
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
 from sofia_ros.sim import messages as m
@@ -123,31 +123,36 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
     wall_start = time.perf_counter()
     bag = BagWriter(bag_path, epoch_ns=epoch_ns_of(scenario.start_utc))
     bag.open()
+    runner = LockstepRunner(cores, tick_ns=DEFAULT_TICK_NS, bag=bag)
     try:
-        bag.write_document('/config/truth', truth.text, 0)
-        bag.write_document('/config/case', case_text, 0)
-        bag.write_document(SCENARIO_TOPIC, scenario_document(scenario), 0)
-        bag.add_topic(SUBSYSTEM_TOPIC, 'diagnostic_msgs/msg/DiagnosticStatus', latched=True)
-        bag.write_message(SUBSYSTEM_TOPIC, m.status_msg('ta_subsystems', f'{case}: {test_case.description}',
-                                                        dict(test_case.subsystems), hardware_id='TA'), 0)
-        runner = LockstepRunner(cores, tick_ns=DEFAULT_TICK_NS, bag=bag)
-        until_ns = int(round(hours * 3600.0 * 1e9))
+        with interrupts.graceful():
+            bag.write_document('/config/truth', truth.text, 0)
+            bag.write_document('/config/case', case_text, 0)
+            bag.write_document(SCENARIO_TOPIC, scenario_document(scenario), 0)
+            bag.add_topic(SUBSYSTEM_TOPIC, 'diagnostic_msgs/msg/DiagnosticStatus', latched=True)
+            bag.write_message(SUBSYSTEM_TOPIC, m.status_msg('ta_subsystems', f'{case}: {test_case.description}',
+                                                            dict(test_case.subsystems), hardware_id='TA'), 0)
+            until_ns = int(round(hours * 3600.0 * 1e9))
 
-        def stop():
-            if progress is not None:
-                progress(runner.stamp_ns / 1e9, hours * 3600.0)
-            return False
+            def stop():
+                if progress is not None:
+                    progress(runner.stamp_ns / 1e9, hours * 3600.0)
+                return interrupts.requested() is not None
 
-        runner.run(until_ns=until_ns, stop=stop)
-    except BaseException:
-        bag.abort()
+            runner.run(until_ns=until_ns, stop=stop)
+    except Exception as err:
+        # A bug: close what was recorded, keep the reason in summary.json; the traceback follows.
+        bag.close()
+        write_summary(bag_path, {'case': case, 'sim_seconds': round(runner.stamp_ns / 1e9, 3), 'stopped': 'fault',
+                                 'reason': f'{type(err).__name__}: {err}'})
         raise
-    bag.close()
+    finally:
+        bag.close()
     sim_seconds = runner.stamp_ns / 1e9
     summary = {'case': case, 'sim_seconds': round(sim_seconds, 3),
                'wall_seconds': round(time.perf_counter() - wall_start, 3),
                'samples_per_axis': int(round(sim_seconds * GYRO_SAMPLE_RATE_HZ))}
-    bag_path.joinpath('summary.json').write_text(json.dumps(summary, indent=2) + '\n')
     bag_path.joinpath('truth.yaml').write_text(truth.text)
     bag_path.joinpath('case.yaml').write_text(case_text)
+    finish_run(bag_path, summary)
     return summary

@@ -4,19 +4,24 @@ every node in its own process."""
 from __future__ import annotations
 
 import dataclasses
+import json
+import signal
 import tempfile
+import time
 from pathlib import Path
 
 import yaml
 
+from sofia_ros import interrupts
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
-from sofia_ros.errors import ConfigError
+from sofia_ros.errors import ConfigError, RunFaultError, RunInterrupted
 from sofia_ros.sim.graph import build_cores
 from sofia_ros.sim.runner import LockstepRunner
 from sofia_ros.sim.scenario import SCENARIO_TOPIC, scenario_document
 
-__all__ = ['MODES', 'graph_documents', 'record_graph', 'new_bag_path']
+__all__ = ['MODES', 'graph_documents', 'record_campaign', 'record_graph', 'new_bag_path', 'write_summary', 'finish_run',
+           'summary_of_failed_run']
 
 #: 'executor': every node in this process under one executor, over DDS; 'processes': each node its
 #: own process, as `ros2 run` starts them; 'direct': the same cores in one loop without DDS.
@@ -41,23 +46,80 @@ def graph_documents(config, model_text=None):
     return documents
 
 
+def write_summary(bag_path, summary):
+    """summary.json beside the bag (mode from the umask, like every other output)."""
+    Path(bag_path, 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+
+
+def summary_of_failed_run(bag_path, wall_seconds, reason):
+    """The summary of a run whose bag could not be read back (a recorder that died leaves it unclosed)."""
+    closed = Path(bag_path, 'metadata.yaml').exists()
+    hint = '' if closed or 'sofia recover' in reason else \
+        f'; the bag is not closed: rebuild it with `sofia recover {bag_path}`'
+    return {'sim_seconds': None, 'wall_seconds': round(wall_seconds, 3), 'reason': reason + hint}
+
+
+def finish_run(bag_path, summary, fault=None):
+    """Write summary.json; raise RunInterrupted (a signal stopped the run) or RunFaultError (``fault``).
+
+    An interrupted or faulted run's summary has ``stopped`` ('interrupted' or 'fault') and the reason.
+    """
+    signum = interrupts.requested()
+    if signum is not None:
+        name = signal.Signals(signum).name
+        summary.update(stopped='interrupted', reason=f'interrupted by {name}')
+    elif fault:
+        summary['stopped'] = 'fault'
+        summary.setdefault('reason', fault)
+    if Path(bag_path).is_dir():
+        write_summary(bag_path, summary)
+    sim = '' if summary.get('sim_seconds') is None else f' at sim {summary["sim_seconds"]:.1f} s'
+    if signum is not None:
+        if not Path(bag_path).is_dir():
+            raise RunInterrupted(signum, f'interrupted by {name} before the recorder created {bag_path}; '
+                                         'nothing was recorded')
+        raise RunInterrupted(signum, f'interrupted by {name}{sim}; {bag_path} holds the run up to then '
+                                     '(summary.json: "stopped": "interrupted")')
+    if fault:
+        raise RunFaultError(f'run stopped{sim}: {summary["reason"]} (summary.json: "stopped": "fault")')
+
+
+def record_campaign(config, bag_path, **options):
+    """record_graph(config, bag_path, **options); when it fails after the start, summary.json gets the
+    reason (``"stopped": "fault"``) before the error propagates: RunFaultError (exit 3) or a bug."""
+    wall_start = time.perf_counter()
+    try:
+        return record_graph(config, bag_path, **options)
+    except RunFaultError as err:
+        finish_run(bag_path, summary_of_failed_run(bag_path, time.perf_counter() - wall_start, str(err)), str(err))
+        raise
+    except Exception as err:
+        if Path(bag_path).is_dir():
+            write_summary(bag_path, {**summary_of_failed_run(bag_path, time.perf_counter() - wall_start,
+                                                             f'{type(err).__name__}: {err}'), 'stopped': 'fault'})
+        raise
+
+
 def record_graph(config, bag_path, *, model_text, mode, max_sim_s, timeout_s, progress=None):
     """Run the graph of ``config`` until its calibration node finishes, recording every topic to ``bag_path``.
 
     The bag starts with :func:`graph_documents` in every mode (in 'processes' the recorder
-    node builds them from its parameters).
+    node builds them from its parameters). Returns why the run stopped early (a stall, a signal)
+    or None when it ended by itself; the bag is closed either way.
     """
-    if mode == 'direct':
-        _run_direct(config, bag_path, graph_documents(config, model_text), max_sim_s, progress)
-    elif mode == 'executor':
-        from sofia_ros.nodes.launch import run_graph_in_process
+    with interrupts.graceful():
+        if mode == 'direct':
+            return _run_direct(config, bag_path, graph_documents(config, model_text), max_sim_s, progress)
+        if mode == 'executor':
+            from sofia_ros.nodes.launch import run_graph_in_process
 
-        run_graph_in_process(config, bag_path, documents=graph_documents(config, model_text), max_sim_s=max_sim_s,
-                             timeout_s=timeout_s, progress=progress)
-    elif mode == 'processes':
-        _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
-    else:
-        raise ConfigError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
+            _, reason, complete = run_graph_in_process(config, bag_path, documents=graph_documents(config, model_text),
+                                                       max_sim_s=max_sim_s, timeout_s=timeout_s, progress=progress)
+            return None if complete else reason
+        if mode == 'processes':
+            _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
+            return None
+    raise ConfigError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
 
 
 def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress):
@@ -73,6 +135,8 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
 
 
 def _run_direct(config, bag_path, documents, max_sim_s, progress):
+    """The cores in one loop; a signal (sofia_ros.interrupts) ends it between ticks. Whatever stops
+    the loop, the bag is closed with every tick recorded so far."""
     cores = build_cores(config)
     calibration = cores[-1]
     bag = BagWriter(bag_path, epoch_ns=epoch_ns_of(config.scenario.start_utc))
@@ -85,10 +149,10 @@ def _run_direct(config, bag_path, documents, max_sim_s, progress):
         def stop():
             if progress is not None:
                 progress(runner.stamp_ns / 1e9, max_sim_s)
-            return calibration.outcome.finished or calibration.outcome.failed
+            return calibration.outcome.finished or calibration.outcome.failed or interrupts.requested() is not None
 
         runner.run(until_ns=int(max_sim_s * 1e9), stop=stop)
-    except BaseException:
-        bag.abort()
-        raise
-    bag.close()
+    finally:
+        bag.close()
+    signum = interrupts.requested()
+    return None if signum is None else f'interrupted by {signal.Signals(signum).name}'

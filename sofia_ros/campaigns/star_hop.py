@@ -8,13 +8,12 @@ holds every centroid, the 400 Hz gyro samples and each observation's hold window
 from __future__ import annotations
 
 import datetime as dt
-import json
 import time
 
 import yaml
 
 from sofia_ros.campaigns.alignment import result_from_bag
-from sofia_ros.campaigns.recording import new_bag_path, record_graph
+from sofia_ros.campaigns.recording import finish_run, new_bag_path, record_campaign
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sim.graph import GraphConfig
 from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
@@ -58,8 +57,8 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
     last_offset_s = config.plan.observations[-1][1]
     max_sim_s = last_offset_s - config.plan.observations[0][1] + 20.0 * config.plan.timeout_s + config.plan.hold_s
     wall_start = time.perf_counter()
-    record_graph(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s, timeout_s=timeout_s,
-                 progress=progress)
+    fault = record_campaign(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
+                            timeout_s=timeout_s, progress=progress)
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)
     result = yaml.safe_load(result_yaml)
@@ -70,5 +69,5 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
     (bag_path / 'truth.yaml').write_text(truth.text)
     (bag_path / 'model.yaml').write_text(model_text)
     (bag_path / 'star_hop.yaml').write_text(result_yaml)
-    (bag_path / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    finish_run(bag_path, summary, fault)
     return summary

@@ -2,17 +2,35 @@
 
 from __future__ import annotations
 
+import fcntl
+import io
 import json
 import os
+import sys
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from sofia_ros.cli_args import number
 from sofia_ros.errors import ConfigError
 
-__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'write_text_atomically']
+__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'write_text_atomically',
+           'anchor_memory_bytes', 'MIN_ANCHOR_S']
+
+
+#: Attitude anchors closer than ten frames of the slowest camera (0.2 s ticks, 1 s HIPO cadence and
+#: longer imager exposures) are not determined by the centroids between them.
+MIN_ANCHOR_S = 2.0
+MAX_ANCHOR_S = 86400.0
+#: The fit's dense normal matrix and covariance: (3 per anchor + terms)^2 doubles, a few copies alive.
+_DENSE_COPIES = 4
+_TERM_COLUMNS = 100
+#: Refuse a comparison whose design matrix would not fit in this share of the machine's memory.
+_MEMORY_SHARE = 0.5
+#: The reference camera every imager is compared against (6.2).
+HIPO_CENTROIDS = '/hipo/centroids'
 
 
 def add_compare_arguments(parser):
@@ -22,8 +40,9 @@ def add_compare_arguments(parser):
     parser.add_argument('--model', required=True, help='model YAML (effects: ..., fit: true for fitted terms)')
     parser.add_argument('--json', help='write the comparison as JSON (docs/compare.md)')
     parser.add_argument('--report', help='write an HTML report with plots to this directory (ledger kept across runs)')
-    parser.add_argument('--anchor-s', type=float, default=30.0,
-                        help='spacing of the attitude anchors in s (default 30; they absorb the gyro random walk)')
+    parser.add_argument('--anchor-s', type=number(MIN_ANCHOR_S, MAX_ANCHOR_S, 's'), default=30.0,
+                        help=f'spacing of the attitude anchors in s (default 30, at least {MIN_ANCHOR_S:g}: ten '
+                             'frames of the slowest camera; they absorb the gyro random walk)')
 
 
 def add_model_arguments(parser):
@@ -33,16 +52,43 @@ def add_model_arguments(parser):
     parser.add_argument('--model', required=True, help='model YAML to edit in place')
 
 
+def _umask():
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_text_atomically(path, text):
-    """Write a file whole or not at all (temporary file in the same directory, then rename)."""
+    """Write a file whole or not at all (temporary file in the same directory, then rename).
+
+    A symlink is written through (its target is replaced, the link stays); the file keeps its
+    mode, a new one gets 0666 less the umask like any other output. ConfigError in one line when
+    the directory or file cannot be written.
+    """
     path = Path(path)
-    if path.parent and not path.parent.exists():
-        raise ConfigError(f'directory {path.parent} does not exist; create it or choose another path')
-    handle, temporary = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
+    if path.is_dir():
+        raise ConfigError(f'{path} is a directory; give a file name')
+    target = path.resolve() if path.is_symlink() else path
+    if target.parent and not target.parent.exists():
+        raise ConfigError(f'directory {target.parent} does not exist; create it or choose another path')
+    try:
+        mode = target.stat().st_mode & 0o7777
+    except FileNotFoundError:
+        mode = 0o666 & ~_umask()
+    try:
+        handle, temporary = tempfile.mkstemp(prefix=f'.{target.name}.', dir=target.parent)
+    except OSError as err:
+        raise ConfigError(f'cannot write {path}: {err.strerror} (directory {target.parent})') from err
     try:
         with os.fdopen(handle, 'w') as stream:
+            os.fchmod(stream.fileno(), mode)
             stream.write(text)
-        os.replace(temporary, path)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, target)
+    except OSError as err:
+        Path(temporary).unlink(missing_ok=True)
+        raise ConfigError(f'cannot write {path}: {err.strerror}') from err
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
@@ -214,11 +260,13 @@ def run_compare(args, out):
     from sofia_ros.config import load_effect_config
 
     model = load_effect_config(args.model)
-    if not args.anchor_s > 0:
-        raise ConfigError(f'--anchor-s must be a positive number of seconds, got {args.anchor_s}')
     for target in (args.json, args.report):
         if target and not Path(target).resolve().parent.exists():
             raise ConfigError(f'the directory of {target} does not exist; create it first')
+    if args.json and Path(args.json).is_dir():
+        raise ConfigError(f'--json {args.json} is a directory; give a file name, '
+                          f'e.g. {Path(args.json) / "compare.json"}')
+    _check_bag_arguments(args.bag, args.anchor_s, lambda line: print(line, file=sys.stderr))
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f'--report {args.report} is a file; give a directory')
     if str(args.bag).lower().endswith(('.yaml', '.yml')):
@@ -238,28 +286,101 @@ def run_compare(args, out):
     return 0
 
 
+def anchor_memory_bytes(duration_s, anchor_s):
+    """Memory the fit's dense matrices take for a record of ``duration_s`` with anchors every ``anchor_s``."""
+    columns = 3 * (duration_s / anchor_s + 1.0) + _TERM_COLUMNS
+    return _DENSE_COPIES * 8 * columns ** 2
+
+
+def _check_bag_arguments(bag, anchor_s, warn):
+    """Refuse an --anchor-s whose dense fit matrices would not fit in half of this machine's memory;
+    warn when the bag has no HIPO centroids (the imagers are then fitted without their reference)."""
+    from sofia_ros.bag import BagReader
+    from sofia_ros.errors import BagError
+    from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+
+    try:
+        with BagReader(bag) as reader:
+            names = {info.name for info in reader.topics}
+            duration_s = reader.topic('/clock').count * DEFAULT_TICK_NS / 1e9
+    except BagError:
+        return  # compare_bag names what is wrong with the bag itself
+    needed = anchor_memory_bytes(duration_s, anchor_s)
+    available = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES') * _MEMORY_SHARE
+    if needed > available:
+        raise ConfigError(f'--anchor-s {anchor_s:g} needs about {needed / 2**30:.1f} GiB for {duration_s:.0f} s of '
+                          f'record (usable here: {available / 2**30:.1f} GiB); choose a larger --anchor-s')
+    if HIPO_CENTROIDS not in names and any(name.endswith('/centroids') for name in names):
+        warn(f'sofia compare: warning: {bag} has no {HIPO_CENTROIDS}: the reference camera is missing, so the '
+             'imagers are fitted against the gyros alone and HIPO-relative terms are not observable')
+
+
+@contextmanager
+def _edit_lock(target):
+    """Hold an exclusive flock on a sidecar file beside ``target`` (concurrent `sofia model add` wait in turn)."""
+    lock_path = target.with_name(f'.{target.name}.lock')
+    try:
+        descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+    except OSError as err:
+        raise ConfigError(f'cannot lock {target} for editing ({lock_path}: {err.strerror}); '
+                          'is its directory writable?') from err
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(descriptor)
+
+
+def _round_trip_yaml():
+    from ruamel.yaml import YAML
+
+    editor = YAML()  # round trip: comments, order, quotes and flow style stay as the user wrote them
+    editor.preserve_quotes = True
+    return editor
+
+
 def run_model_add(args, out):
-    """`sofia model add EFFECT --model M.yaml`: the effect becomes a fitted term; the file is rewritten whole."""
-    from sofia_ros.config import parse_effect_config
+    """`sofia model add EFFECT --model M.yaml`: the effect becomes a fitted term.
+
+    The file is edited, not regenerated: comments, order and style stay (ruamel.yaml round
+    trip); it is replaced atomically, a symlink is written through to its target with the
+    target's mode, and concurrent edits wait for each other on a sidecar lock.
+    """
+    from ruamel.yaml.comments import CommentedMap
+    from ruamel.yaml.error import YAMLError
+
+    from sofia_ros.config import load_effect_config, parse_effect_config
     from sofia_ros.effects import get_effect
 
     spec = get_effect(args.effect)
     path = Path(args.model)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise ConfigError(f'cannot read {path}: {err.strerror}; check the path') from err
-    parse_effect_config(text, str(path))
-    document = yaml.safe_load(text) or {}
-    effects = document.setdefault('effects', {}) or {}
-    document['effects'] = effects
-    current = effects.get(spec.name)
-    if isinstance(current, dict) and current.get('fit'):
-        raise ConfigError(f'{path} already fits {spec.name}; nothing to add')
-    effects[spec.name] = {**(current or {}), 'fit': True}
-    new_text = yaml.safe_dump(document, sort_keys=False)
-    parse_effect_config(new_text, str(path))
-    write_text_atomically(path, new_text)
+    target = path.resolve() if path.is_symlink() else path
+    if not target.exists():
+        raise ConfigError(f'cannot read {path}: no such file; check the path')
+    with _edit_lock(target):
+        text = load_effect_config(target).text
+        editor = _round_trip_yaml()
+        try:
+            document = editor.load(text)
+        except YAMLError as err:
+            raise ConfigError(f'{path}: not valid YAML ({str(err).splitlines()[0]}); fix the syntax') from err
+        if document is None:
+            document = CommentedMap()
+        if document.get('effects') is None:
+            document['effects'] = CommentedMap()
+        effects = document['effects']
+        current = effects.get(spec.name)
+        if isinstance(current, dict) and current.get('fit'):
+            raise ConfigError(f'{path} already fits {spec.name}; nothing to add')
+        if isinstance(current, dict):
+            current['fit'] = True
+        else:
+            effects[spec.name] = CommentedMap([('fit', True)])
+        buffer = io.StringIO()
+        editor.dump(document, buffer)
+        new_text = buffer.getvalue()
+        parse_effect_config(new_text, str(path))
+        write_text_atomically(target, new_text)
     print(f'{path}: {spec.name} added as a fitted term (starting at its thesis defaults); rerun sofia compare',
           file=out)
     return 0

@@ -133,30 +133,67 @@ def resolve_params(name, given):
             known = ', '.join(p.name for p in spec.params)
             raise ConfigError(f'effect {name!r}: unknown parameter {key!r} (known: {known})')
         resolved[key] = _checked_value(name, param, value)
+    problem = spec.check(resolved) if spec.check is not None else None
+    if problem:
+        raise ConfigError(f'effect {name!r}: {problem}')
     return resolved
 
 
-def _checked_value(effect_name, param, value):
-    """Coerce ``value`` to the type of the parameter's default, or raise ConfigError."""
-    default = param.default
-    if isinstance(default, float):
+#: Longest list a parameter may hold (vibration lines and the like).
+MAX_LIST_ENTRIES = 1000
+
+
+def _shown(value, limit=60):
+    """``repr(value)`` cut to ``limit`` characters: a message never prints a whole (expanded) structure."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + '...'
+
+
+def _range_text(param):
+    low = '-inf' if param.minimum is None else f'{param.minimum:g}'
+    high = 'inf' if param.maximum is None else f'{param.maximum:g}'
+    return f'[{low}, {high}] {param.unit}'
+
+
+def _checked_entry(effect_name, label, param, template, value):
+    """One value (or list entry) against the type of ``template`` and the parameter's range or choices."""
+    if isinstance(template, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(
-                f'effect {effect_name!r}: {param.name} must be a number in {param.unit}, got {value!r}'
-            )
-        value = float(value)
-        if value != value or value in (float('inf'), float('-inf')):
-            raise ConfigError(f'effect {effect_name!r}: {param.name} must be finite, got {value!r}')
-        return value
+            raise ConfigError(f'effect {effect_name!r}: {label} must be a number in {_range_text(param)}, '
+                              f'got {_shown(value)}')
+        try:
+            number = float(value)
+        except OverflowError as err:
+            raise ConfigError(f'effect {effect_name!r}: {label} must be finite, in {_range_text(param)}') from err
+        if number != number or number in (float('inf'), float('-inf')):
+            raise ConfigError(f'effect {effect_name!r}: {label} must be finite, in {_range_text(param)}, '
+                              f'got {_shown(value)}')
+        if (param.minimum is not None and number < param.minimum) or \
+                (param.maximum is not None and number > param.maximum):
+            raise ConfigError(f'effect {effect_name!r}: {label} = {number:g} is outside {_range_text(param)}')
+        return number
+    if not isinstance(value, type(template)) or isinstance(value, bool) != isinstance(template, bool):
+        raise ConfigError(f'effect {effect_name!r}: {label} must be a {type(template).__name__}, got {_shown(value)}')
+    if param.choices and value not in param.choices:
+        raise ConfigError(f'effect {effect_name!r}: {label} must be one of {", ".join(param.choices)}, '
+                          f'got {_shown(value)}')
+    return value
+
+
+def _checked_value(effect_name, param, value):
+    """Coerce ``value`` to the type of the parameter's default within its range, or raise ConfigError."""
+    default = param.default
     if isinstance(default, list):
         if not isinstance(value, list):
-            raise ConfigError(f'effect {effect_name!r}: {param.name} must be a list ({param.unit}), got {value!r}')
-        return list(value)
-    if not isinstance(value, type(default)):
-        raise ConfigError(
-            f'effect {effect_name!r}: {param.name} must be a {type(default).__name__}, got {value!r}'
-        )
-    return value
+            raise ConfigError(f'effect {effect_name!r}: {param.name} must be a list ({param.unit}), '
+                              f'got {_shown(value)}')
+        if len(value) > MAX_LIST_ENTRIES:
+            raise ConfigError(f'effect {effect_name!r}: {param.name} has {len(value)} entries '
+                              f'(at most {MAX_LIST_ENTRIES})')
+        template = default[0] if default else 0.0
+        return [_checked_entry(effect_name, f'{param.name}[{index}]', param, template, entry)
+                for index, entry in enumerate(value)]
+    return _checked_entry(effect_name, param.name, param, default, value)
 
 
 def catalogue_as_json():

@@ -22,6 +22,11 @@ class Parameter:
     #: True for a parameter that shapes the effect (period, phase, weather) rather than scaling it:
     #: the effect vanishes when its scaling parameters are zero, whatever the shaping ones are.
     shape: bool = False
+    #: Allowed range in the parameter's unit (None: only finite); for a list, of every entry.
+    minimum: float | None = None
+    maximum: float | None = None
+    #: Allowed values of a text parameter (or of every entry of a list of texts); empty: any.
+    choices: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -55,6 +60,8 @@ class EffectSpec:
     gyro_rate_offset: Callable | None = None
     camera_rotation: Callable | None = None
     camera_shift_px: Callable | None = None
+    #: check(resolved_params) -> None or a message: conditions between parameters (equal list lengths)
+    check: Callable | None = None
 
     @property
     def hooks(self):

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import signal
 import time
 
 from std_msgs.msg import String
 
+from sofia_ros import interrupts
 from sofia_ros.nodes.shell import LockstepNode
 from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS, done_topic, stop_text
 from sofia_ros.sim import messages as m
@@ -53,6 +55,11 @@ class ClockNode(LockstepNode):
 
     def _watchdog(self):
         if self.stop_reason is not None:
+            return
+        signum = interrupts.requested()
+        if signum is not None:
+            # SIGINT/SIGTERM of `sofia run` (executor mode): the recorder keeps every completed tick.
+            self._stop(self.next_tick - 1, f'interrupted by {signal.Signals(signum).name}', complete=False)
             return
         waited_s = time.monotonic() - self.last_progress
         if self.next_tick <= 1:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import ctypes
 import os
-import random
 import shutil
 import signal
 import subprocess
@@ -16,9 +16,12 @@ from pathlib import Path
 import rclpy
 from rclpy.logging import LoggingSeverity
 from rclpy.experimental import EventsExecutor
+from rclpy.signals import SignalHandlerOptions
 
+from sofia_ros import interrupts
 from sofia_ros.bag.timebase import epoch_ns_of
-from sofia_ros.errors import SofiaError
+from sofia_ros.errors import RunFaultError
+from sofia_ros.nodes.domain import claim_ros_domain, claimed_ros_domain, release_ros_domain
 from sofia_ros.nodes.clock_node import ClockNode
 from sofia_ros.nodes.graph_params import graph_parameters, write_params_file
 from sofia_ros.nodes.recorder_node import RecorderNode
@@ -26,20 +29,12 @@ from sofia_ros.nodes.shell import CoreNode
 from sofia_ros.nodes.sync import parse_stop
 from sofia_ros.sim.graph import build_cores, graph_topics
 
-__all__ = ['isolate_ros_environment', 'run_graph_in_process', 'run_graph_in_processes', 'start_graph_processes',
+__all__ = ['run_graph_in_process', 'run_graph_in_processes', 'start_graph_processes',
            'wait_for_graph', 'stop_graph', 'GraphProcesses', 'GraphRunError']
 
 
-class GraphRunError(SofiaError):
-    """The live graph did not finish (stall, crash or wall-clock timeout)."""
-
-
-def isolate_ros_environment(domain_id=None):
-    """Keep DDS traffic on this machine and, unless given, in a random domain of its own."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    if domain_id is not None:
-        os.environ['ROS_DOMAIN_ID'] = str(domain_id)
-    os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 101)))
+class GraphRunError(RunFaultError):
+    """The live graph did not finish (stall, crash, a node process died, or the wall-clock timeout)."""
 
 
 def _participants(cores):
@@ -47,9 +42,18 @@ def _participants(cores):
 
 
 def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=7200.0, timeout_s=3600.0, progress=None):
-    """All nodes in one process under one executor; return the calibration core and the stop reason."""
-    isolate_ros_environment()
-    rclpy.init()
+    """All nodes in one process under one executor; return the calibration core, the stop reason and
+    whether the run ended by itself (False: a stall or a signal stopped it; the bag is closed either way).
+
+    The ROS domain is claimed for the run (nodes.domain). SIGINT/SIGTERM are left to sofia_ros.interrupts:
+    the clock stops the graph at the next watchdog check and the recorder closes the bag.
+    """
+    with claimed_ros_domain():
+        return _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, progress)
+
+
+def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, progress):
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
         cores = build_cores(config)
         topics = graph_topics(cores)
@@ -76,10 +80,10 @@ def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=7200.0, ti
         finally:
             recorder.abort()
         calibration = next(node.core for node in nodes if node.core.name == 'calibration')
-        reason = parse_stop(clock.stop_reason)[2] if clock.stop_reason else ''
+        _, complete, reason = parse_stop(clock.stop_reason) if clock.stop_reason else (0, False, '')
         for node in (*nodes, clock, recorder):
             node.destroy_node()
-        return calibration, reason
+        return calibration, reason, complete
     finally:
         rclpy.try_shutdown()
 
@@ -90,12 +94,35 @@ class GraphProcesses:
 
     processes: dict
     workdir: Path
+    #: the ROS domain the graph holds (nodes.domain), released by stop_graph
+    domain: object = None
+    bag_path: Path | None = None
 
 
 def start_graph_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, stall_timeout_s=15.0,
                           model_file=''):
-    """Start every node as its own process (what `ros2 run` gives), sharing one params file."""
-    isolate_ros_environment()
+    """Start every node as its own process (what `ros2 run` gives), sharing one params file.
+
+    The nodes share one process group of their own (stop_graph signals the group) and get SIGINT
+    from the kernel if this process dies, so no node outlives the run. The ROS domain is claimed
+    until stop_graph.
+    """
+    domain = claim_ros_domain()
+    try:
+        return _start_graph_processes(truth_file, seed, plan, bag_path, tick_ns, max_sim_s, stall_timeout_s,
+                                      model_file, domain)
+    except BaseException:
+        release_ros_domain(domain)
+        raise
+
+
+def _die_with_parent():
+    """In the child before exec: SIGINT when the parent dies (Linux prctl PR_SET_PDEATHSIG)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(1, signal.SIGINT, 0, 0, 0)
+
+
+def _start_graph_processes(truth_file, seed, plan, bag_path, tick_ns, max_sim_s, stall_timeout_s, model_file, domain):
     workdir = Path(tempfile.mkdtemp(prefix='sofia_graph_'))
     params = workdir / 'params.yaml'
     values = graph_parameters(truth_file, seed, plan, tick_ns=tick_ns, max_sim_s=max_sim_s, bag_path=bag_path,
@@ -107,40 +134,63 @@ def start_graph_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_
                    *((camera, 'imager', ('-r', f'__node:={camera}', '-p', f'camera:={camera}'))
                      for camera in ('fpi', 'ffi', 'wfi'))]
     processes = {}
-    for name, executable, extra in executables:
-        with open(workdir / f'{name}.log', 'w') as log:
-            processes[name] = subprocess.Popen(
-                [sys.executable, '-m', 'sofia_ros.nodes.executables', executable, '--ros-args', '--params-file',
-                 str(params), *extra], stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy())
-    return GraphProcesses(processes, workdir)
+    graph = GraphProcesses(processes, workdir, domain, Path(bag_path))
+    try:
+        for name, executable, extra in executables:
+            with open(workdir / f'{name}.log', 'w') as log:
+                group = next(iter(processes.values())).pid if processes else 0
+                processes[name] = subprocess.Popen(
+                    [sys.executable, '-m', 'sofia_ros.nodes.executables', executable, '--ros-args', '--params-file',
+                     str(params), *extra], stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy(),
+                    process_group=group, preexec_fn=_die_with_parent)
+    except BaseException:
+        stop_graph(graph)
+        shutil.rmtree(workdir, ignore_errors=True)
+        raise
+    return graph
 
 
 def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
-    """Wait until the recorder has closed the bag; then stop every remaining node."""
+    """Wait until the recorder has closed the bag, or a signal asks to stop (sofia_ros.interrupts);
+    then stop every remaining node. GraphRunError when the recorder died or the time ran out."""
     start = time.monotonic()
     try:
-        while graph.processes['recorder'].poll() is None:
-            time.sleep(0.2)
-            if progress is not None:
-                progress(None, max_sim_s)
-            if time.monotonic() - start > timeout_s:
-                raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; '
-                                    f'logs in {graph.workdir}')
+        with interrupts.graceful():
+            while graph.processes['recorder'].poll() is None and interrupts.requested() is None:
+                time.sleep(0.2)
+                if progress is not None:
+                    progress(None, max_sim_s)
+                if time.monotonic() - start > timeout_s:
+                    raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; '
+                                        f'logs in {graph.workdir}')
     finally:
         stop_graph(graph)
+    recorder = graph.processes['recorder']
+    # Stopped by a signal, a recorder that had not started yet exits non-zero too; that is no fault.
+    if recorder.returncode not in (0, None) and interrupts.requested() is None:
+        how = (f'was killed by {signal.Signals(-recorder.returncode).name}' if recorder.returncode < 0
+               else f'exited with code {recorder.returncode}')
+        raise GraphRunError(f'the recorder node {how}; its bag is not closed: rebuild it with '
+                            f'`sofia recover {graph.bag_path}`; logs in {graph.workdir}')
 
 
 def stop_graph(graph):
-    """SIGINT every node still running (the recorder closes its bag), then kill stragglers."""
-    for process in graph.processes.values():
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
+    """SIGINT the graph's process group (the recorder closes its bag), kill stragglers, release the domain."""
+    running = [process for process in graph.processes.values() if process.poll() is None]
+    if running:
+        first = next(iter(graph.processes.values()))
+        try:
+            os.killpg(first.pid, signal.SIGINT)
+        except ProcessLookupError:
+            for process in running:
+                process.send_signal(signal.SIGINT)
     for process in graph.processes.values():
         try:
             process.wait(timeout=10)
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+    release_ros_domain(graph.domain)
 
 
 def run_graph_in_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, timeout_s=3600.0,
@@ -152,6 +202,13 @@ def run_graph_in_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim
     """
     graph = start_graph_processes(truth_file, seed, plan, bag_path, tick_ns=tick_ns, max_sim_s=max_sim_s,
                                   stall_timeout_s=stall_timeout_s, model_file=model_file)
-    wait_for_graph(graph, timeout_s=timeout_s, progress=progress, max_sim_s=max_sim_s)
+    try:
+        wait_for_graph(graph, timeout_s=timeout_s, progress=progress, max_sim_s=max_sim_s)
+    except GraphRunError:
+        raise
+    except BaseException:
+        # A second signal or a bug in this process: the nodes are down, their logs say nothing new.
+        shutil.rmtree(graph.workdir, ignore_errors=True)
+        raise
     shutil.rmtree(graph.workdir, ignore_errors=True)
     return graph

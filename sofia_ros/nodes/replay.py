@@ -7,9 +7,11 @@ import time
 import rclpy
 import rclpy.duration
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
 from sofia_ros.bag import BagReader
+from sofia_ros.errors import BagError
 from sofia_ros.nodes.shell import message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS
 from sofia_ros.sim import messages as m
@@ -29,8 +31,13 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
     from rclpy.node import Node
 
     with BagReader(bag_path) as bag:
+        recorded = {info.name for info in bag.topics}
+        missing = sorted(set(topics or ()) - recorded)
+        if missing:
+            raise BagError(f'{", ".join(missing)} not in bag {bag_path}; it records {", ".join(sorted(recorded))}')
         infos = [info for info in bag.topics if topics is None or info.name in topics]
-        rclpy.init()
+        # SIGINT/SIGTERM stay with sofia_ros.interrupts: one line and exit 130/143, not an RCLError.
+        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         try:
             node = Node('replay')
             publishers = {}

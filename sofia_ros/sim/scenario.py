@@ -35,6 +35,25 @@ class Scenario:
         return self.start_temperature_c + self.temperature_slope_c_per_h * elapsed_s / 3600.0
 
 
+#: Allowed range of each numeric scenario key.
+SCENARIO_RANGES = {
+    'latitude_deg': (-90.0, 90.0), 'longitude_deg': (-180.0, 360.0), 'height_m': (-500.0, 20000.0),
+    'heading_deg': (-360.0, 360.0), 'start_elevation_deg': (-90.0, 90.0), 'start_temperature_c': (-80.0, 60.0),
+    'temperature_slope_c_per_h': (-100.0, 100.0),
+}
+
+
+def _scenario_number(key, value):
+    """A finite number inside SCENARIO_RANGES[key]; ConfigError naming the key and the range otherwise."""
+    low, high = SCENARIO_RANGES[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f'scenario: {key} must be a number in [{low:g}, {high:g}], got {str(value)[:40]!r}')
+    number = float(value)
+    if not low <= number <= high:  # also false for NaN
+        raise ConfigError(f'scenario: {key} = {number:g} is outside [{low:g}, {high:g}]')
+    return number
+
+
 def scenario_from_mapping(defaults, overrides):
     """A Scenario from campaign defaults overlaid with a truth file's ``scenario:`` mapping."""
     if overrides is None:
@@ -54,11 +73,14 @@ def scenario_from_mapping(defaults, overrides):
     fields.update(overrides)
     try:
         start_utc = dt.datetime.fromisoformat(str(fields['start_utc']).replace('Z', '+00:00'))
-        numbers = {key: float(fields[key]) for key in fields if key != 'start_utc'}
     except (TypeError, ValueError) as err:
-        raise ConfigError(f'scenario: {err}; give numbers and an ISO 8601 start_utc') from err
+        raise ConfigError(f'scenario: start_utc {str(fields["start_utc"])[:40]!r} is not a date and time ({err}); '
+                          'give ISO 8601 with a timezone, e.g. 2004-09-03T04:22:16Z') from err
+    numbers = {key: _scenario_number(key, fields[key]) for key in fields if key != 'start_utc'}
     if start_utc.tzinfo is None:
         raise ConfigError('scenario: start_utc needs a timezone, e.g. 2004-09-03T04:22:16Z')
+    if not 1900 <= start_utc.year <= 2100:
+        raise ConfigError(f'scenario: start_utc must lie in 1900-2100 (the sky model\'s range), got {start_utc.year}')
     site = Site(numbers['latitude_deg'], numbers['longitude_deg'], numbers['height_m'])
     return Scenario(site, start_utc, numbers['heading_deg'], numbers['start_elevation_deg'],
                     numbers['start_temperature_c'], numbers['temperature_slope_c_per_h'])

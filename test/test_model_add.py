@@ -1,0 +1,122 @@
+"""`sofia model add` as a careful editor: comments, order, symlinks, mode, concurrent edits (issue 13)."""
+
+import os
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sofia_ros.cli import main
+from sofia_ros.compare.cli import write_text_atomically
+from sofia_ros.config import load_effect_config
+from sofia_ros.errors import ConfigError
+
+MODEL = """\
+# my model: what the TASCU assumes
+description: "hand-written"   # keep me
+effects:
+  earth_rotation: {}          # 4.1
+  # the FEM
+  focal_plane_flexure: {scale: 1.0}
+  gyro_bias:
+    fit: true
+    el_deg_per_h: -0.06   # from the last run
+"""
+
+
+def test_comments_order_and_style_survive_and_the_effect_is_fitted(tmp_path, capsys):
+    model = tmp_path / 'm.yaml'
+    model.write_text(MODEL)
+    assert main(['model', 'add', 'gyro_misalignment', '--model', str(model)]) == 0
+    text = model.read_text()
+    assert text.startswith(MODEL)
+    assert text[len(MODEL):] == '  gyro_misalignment:\n    fit: true\n'
+    assert load_effect_config(model).fitted == {'gyro_bias', 'gyro_misalignment'}
+
+
+def test_an_effect_already_listed_gets_fit_beside_its_values(tmp_path):
+    model = tmp_path / 'm.yaml'
+    model.write_text(MODEL)
+    assert main(['model', 'add', 'focal_plane_flexure', '--model', str(model)]) == 0
+    assert '  focal_plane_flexure: {scale: 1.0, fit: true}\n' in model.read_text()
+    assert '# the FEM' in model.read_text()
+
+
+def test_a_symlink_is_written_through_and_the_mode_kept(tmp_path):
+    real = tmp_path / 'models' / 'real.yaml'
+    real.parent.mkdir()
+    real.write_text(MODEL)
+    real.chmod(0o640)
+    link = tmp_path / 'm.yaml'
+    link.symlink_to(real)
+    assert main(['model', 'add', 'seeing', '--model', str(link)]) == 0
+    assert link.is_symlink() and link.resolve() == real
+    assert stat.S_IMODE(real.stat().st_mode) == 0o640
+    assert 'seeing' in load_effect_config(real).fitted
+    assert sorted(p.name for p in real.parent.iterdir() if not p.name.startswith('.real.yaml.lock')) == ['real.yaml']
+
+
+def test_concurrent_adds_keep_every_effect(tmp_path):
+    model = tmp_path / 'm.yaml'
+    model.write_text(MODEL)
+    effects = ['seeing', 'timestamp_offset', 'gyro_scale_factor', 'imager_rotation_of_field', 'tracker_drift',
+               'fpi_internal_flexure']
+    runs = [subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'model', 'add', effect, '--model', str(model)],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE) for effect in effects]
+    for run in runs:
+        assert run.wait(timeout=120) == 0, run.stderr.read()
+    assert load_effect_config(model).fitted == {'gyro_bias', *effects}
+    assert model.read_text().startswith(MODEL)
+
+
+def test_an_unwritable_file_is_one_line(tmp_path, capsys, monkeypatch):
+    model = tmp_path / 'm.yaml'
+    model.write_text(MODEL)
+
+    def refuse(*args):
+        raise PermissionError(13, 'Permission denied')
+
+    monkeypatch.setattr(os, 'replace', refuse)
+    assert main(['model', 'add', 'seeing', '--model', str(model)]) == 2
+    err = capsys.readouterr().err
+    assert err == f'sofia: error: cannot write {model}: Permission denied\n'
+    assert model.read_text() == MODEL
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith('.m.yaml.') and 'lock' not in p.name] == []
+
+
+def test_an_unlockable_file_is_one_line(capsys):
+    # /proc allows no new files: the sidecar lock cannot be created.
+    assert main(['model', 'add', 'seeing', '--model', '/proc/version']) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('sofia: error: cannot lock /proc/version for editing') and err.count('\n') == 1
+
+
+def test_new_outputs_follow_the_umask(tmp_path):
+    previous = os.umask(0o022)
+    try:
+        write_text_atomically(tmp_path / 'out.json', '{}\n')
+    finally:
+        os.umask(previous)
+    assert stat.S_IMODE((tmp_path / 'out.json').stat().st_mode) == 0o644
+
+
+def test_writing_onto_a_directory_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match='is a directory; give a file name'):
+        write_text_atomically(tmp_path, '{}\n')
+
+
+def test_a_missing_directory_is_refused(tmp_path):
+    with pytest.raises(ConfigError, match='does not exist; create it'):
+        write_text_atomically(Path(tmp_path, 'no', 'out.json'), '{}\n')
+
+
+def test_a_duplicate_key_is_refused_without_touching_the_file(tmp_path, capsys):
+    model = tmp_path / 'm.yaml'
+    text = MODEL + 'effects: {}\n'
+    model.write_text(text)
+    assert main(['model', 'add', 'seeing', '--model', str(model)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and f'{model}: not valid YAML' in err
+    assert model.read_text() == text

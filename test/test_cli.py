@@ -132,5 +132,4 @@ def test_a_flipped_byte_in_a_bag_is_one_line_naming_the_chunk(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and 'Traceback' not in result.stderr
     assert f'chunk 6 of {len(chunks)} (byte {chunks[5].chunk_start_offset},' in lines[0]
-    assert lines[0].endswith(f"fails its CRC check); salvage its complete chunks with "
-                             f"sofia_ros.bag.recover_bag('{bag}')")
+    assert lines[0].endswith(f"fails its CRC check); salvage its complete chunks with `sofia recover {bag}`")

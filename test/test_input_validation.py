@@ -218,3 +218,11 @@ def test_a_list_with_too_many_entries_is_refused():
     with pytest.raises(ConfigError, match=f'frequencies_hz has {MAX_LIST_ENTRIES + 1} entries '
                                           rf'\(at most {MAX_LIST_ENTRIES}\)'):
         parse_effect_config(f'effects: {{vibration_lines: {{frequencies_hz: [{entries}]}}}}')
+
+
+def test_ranges_hold_for_files_while_a_fit_may_search_beyond_them():
+    fitted = resolve_params('gyro_axis_swap', {'scale_temperature_coefficient_ppm_per_c': -6137.16})
+    assert fitted['scale_temperature_coefficient_ppm_per_c'] == -6137.16
+    with pytest.raises(ConfigError, match=r'scale_temperature_coefficient_ppm_per_c = -6137.16 is outside '
+                                          r'\[-1000, 1000\] ppm/C'):
+        resolve_params('gyro_axis_swap', {'scale_temperature_coefficient_ppm_per_c': -6137.16}, within_ranges=True)

@@ -27,7 +27,7 @@ TRUTH = str(ROOT / 'config' / 'truth' / 'nominal.yaml')
     ('effects: {seeing: {rms_arcsec: .nan}}', r'rms_arcsec must be finite, in \[0, 10\] arcsec'),
     ('effects: {seeing: {rms_arcsec: true}}', r'rms_arcsec must be a number in \[0, 10\] arcsec, got True'),
     ('effects: {vibration_lines: {frequencies_hz: [1.0, 1.3, 4.0]}}',
-     r'one entry per line, got 3, 2 and 2 entries'),
+     r'need one entry per line, got 3, 2 and 2$'),
     ('scenario: {start_utc: 2004-13-45T99:00:00}', r'a value cannot be read \(month must be in 1..12\)'),
     ("scenario: {start_utc: '2004-09-03'}", r'start_utc needs a timezone'),
     ('scenario: {latitude_deg: .nan}', r'latitude_deg = nan is outside \[-90, 90\]'),

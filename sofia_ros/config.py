@@ -110,7 +110,7 @@ def parse_effect_config(text, source='<text>'):
         if not isinstance(name, str):
             raise ConfigError(f'{source}: effect names are text, got {str(name)[:40]!r}')
         try:
-            effects[name] = resolve_params(name, params)
+            effects[name] = resolve_params(name, params, within_ranges=True)
         except ConfigError as err:
             raise ConfigError(f'{source}: {err}') from err
         if isinstance(params, dict) and params.get('fit'):

@@ -27,7 +27,7 @@ TRUTH = str(ROOT / 'config' / 'truth' / 'nominal.yaml')
     ('effects: {seeing: {rms_arcsec: .nan}}', r'rms_arcsec must be finite, in \[0, 10\] arcsec'),
     ('effects: {seeing: {rms_arcsec: true}}', r'rms_arcsec must be a number in \[0, 10\] arcsec, got True'),
     ('effects: {vibration_lines: {frequencies_hz: [1.0, 1.3, 4.0]}}',
-     r'one entry per line, got 3, 2 and 2 entries'),
+     r'need one entry per line, got 3, 2 and 2$'),
     ('scenario: {start_utc: 2004-13-45T99:00:00}', r'a value cannot be read \(month must be in 1..12\)'),
     ("scenario: {start_utc: '2004-09-03'}", r'start_utc needs a timezone'),
     ('scenario: {latitude_deg: .nan}', r'latitude_deg = nan is outside \[-90, 90\]'),
@@ -218,3 +218,11 @@ def test_a_list_with_too_many_entries_is_refused():
     with pytest.raises(ConfigError, match=f'frequencies_hz has {MAX_LIST_ENTRIES + 1} entries '
                                           rf'\(at most {MAX_LIST_ENTRIES}\)'):
         parse_effect_config(f'effects: {{vibration_lines: {{frequencies_hz: [{entries}]}}}}')
+
+
+def test_ranges_hold_for_files_while_a_fit_may_search_beyond_them():
+    fitted = resolve_params('gyro_axis_swap', {'scale_temperature_coefficient_ppm_per_c': -6137.16})
+    assert fitted['scale_temperature_coefficient_ppm_per_c'] == -6137.16
+    with pytest.raises(ConfigError, match=r'scale_temperature_coefficient_ppm_per_c = -6137.16 is outside '
+                                          r'\[-1000, 1000\] ppm/C'):
+        resolve_params('gyro_axis_swap', {'scale_temperature_coefficient_ppm_per_c': -6137.16}, within_ranges=True)

@@ -115,8 +115,13 @@ def get_effect(name):
         raise UnknownEffectError(f'unknown effect {name!r}{hint}') from err
 
 
-def resolve_params(name, given):
-    """Defaults of effect ``name`` overlaid with ``given`` (``{}`` or None takes the thesis defaults)."""
+def resolve_params(name, given, *, within_ranges=False):
+    """Defaults of effect ``name`` overlaid with ``given`` (``{}`` or None takes the thesis defaults).
+
+    Types, finiteness, text choices and the spec's check always hold; ``within_ranges`` also holds
+    every number to its parameter's range - what a truth or model file may say (config). A fit
+    (sofia compare, the noise loop) may wander outside the ranges while it searches.
+    """
     spec = get_effect(name)
     if given is None:
         given = {}
@@ -132,7 +137,7 @@ def resolve_params(name, given):
         if param is None:
             known = ', '.join(p.name for p in spec.params)
             raise ConfigError(f'effect {name!r}: unknown parameter {key!r} (known: {known})')
-        resolved[key] = _checked_value(name, param, value)
+        resolved[key] = _checked_value(name, param, value, within_ranges)
     problem = spec.check(resolved) if spec.check is not None else None
     if problem:
         raise ConfigError(f'effect {name!r}: {problem}')
@@ -155,7 +160,7 @@ def _range_text(param):
     return f'[{low}, {high}] {param.unit}'
 
 
-def _checked_entry(effect_name, label, param, template, value):
+def _checked_entry(effect_name, label, param, template, value, within_ranges):
     """One value (or list entry) against the type of ``template`` and the parameter's range or choices."""
     if isinstance(template, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -168,8 +173,8 @@ def _checked_entry(effect_name, label, param, template, value):
         if number != number or number in (float('inf'), float('-inf')):
             raise ConfigError(f'effect {effect_name!r}: {label} must be finite, in {_range_text(param)}, '
                               f'got {_shown(value)}')
-        if (param.minimum is not None and number < param.minimum) or \
-                (param.maximum is not None and number > param.maximum):
+        if within_ranges and ((param.minimum is not None and number < param.minimum) or
+                              (param.maximum is not None and number > param.maximum)):
             raise ConfigError(f'effect {effect_name!r}: {label} = {number:g} is outside {_range_text(param)}')
         return number
     if not isinstance(value, type(template)) or isinstance(value, bool) != isinstance(template, bool):
@@ -180,7 +185,7 @@ def _checked_entry(effect_name, label, param, template, value):
     return value
 
 
-def _checked_value(effect_name, param, value):
+def _checked_value(effect_name, param, value, within_ranges):
     """Coerce ``value`` to the type of the parameter's default within its range, or raise ConfigError."""
     default = param.default
     if isinstance(default, list):
@@ -191,9 +196,9 @@ def _checked_value(effect_name, param, value):
             raise ConfigError(f'effect {effect_name!r}: {param.name} has {len(value)} entries '
                               f'(at most {MAX_LIST_ENTRIES})')
         template = default[0] if default else 0.0
-        return [_checked_entry(effect_name, f'{param.name}[{index}]', param, template, entry)
+        return [_checked_entry(effect_name, f'{param.name}[{index}]', param, template, entry, within_ranges)
                 for index, entry in enumerate(value)]
-    return _checked_entry(effect_name, param.name, param, default, value)
+    return _checked_entry(effect_name, param.name, param, default, value, within_ranges)
 
 
 def catalogue_as_json():

@@ -7,8 +7,8 @@ def _equal_line_lists(params):
     """vibration_lines: one frequency, amplitude and axis per line."""
     lengths = [len(params[key]) for key in ('frequencies_hz', 'amplitudes_arcsec_per_s', 'axes')]
     if len(set(lengths)) > 1:
-        return (f'frequencies_hz, amplitudes_arcsec_per_s and axes must have one entry per line, got '
-                f'{lengths[0]}, {lengths[1]} and {lengths[2]} entries')
+        return ('frequencies_hz, amplitudes_arcsec_per_s and axes need one entry per line, got '
+                f'{lengths[0]}, {lengths[1]} and {lengths[2]}')
     return None
 
 EFFECTS = (

@@ -2,6 +2,8 @@
 
 import json
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -201,6 +203,10 @@ def test_a_killed_recorder_is_named_and_the_run_exits_3(tmp_path):
     assert 'the recorder node was killed by SIGKILL' in err and f'sofia recover {bag}' in err
     summary = json.loads((bag / 'summary.json').read_text())
     assert summary['stopped'] == 'fault' and 'recorder node was killed' in summary['reason']
+    # A fault keeps the node logs and names their folder; the test removes it.
+    logs = Path(re.search(r'logs in (\S+)', err).group(1))
+    assert (logs / 'recorder.log').exists()
+    shutil.rmtree(logs)
 
 
 @pytest.mark.timeout(120)

@@ -2,6 +2,8 @@
 
 import json
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -201,6 +203,10 @@ def test_a_killed_recorder_is_named_and_the_run_exits_3(tmp_path):
     assert 'the recorder node was killed by SIGKILL' in err and f'sofia recover {bag}' in err
     summary = json.loads((bag / 'summary.json').read_text())
     assert summary['stopped'] == 'fault' and 'recorder node was killed' in summary['reason']
+    # A fault keeps the node logs and names their folder; the test removes it.
+    logs = Path(re.search(r'logs in (\S+)', err).group(1))
+    assert (logs / 'recorder.log').exists()
+    shutil.rmtree(logs)
 
 
 @pytest.mark.timeout(120)
@@ -239,3 +245,19 @@ def test_when_every_domain_is_held_the_run_is_told_to_wait(held_domain, monkeypa
     with pytest.raises(DomainBusyError, match=f'every ROS domain {held_domain}-{held_domain} is in use'):
         claim_ros_domain()
     assert 'ROS_DOMAIN_ID' not in os.environ
+
+
+@pytest.mark.timeout(420)
+def test_a_node_that_dies_under_processes_is_a_fault_exit_3(tmp_path):
+    process, bag = _start_run(tmp_path, MODES['processes'])
+    time.sleep(3.0)  # past the start-up watchdog's first tick
+    gyro_box = [pid for pid in _children(process.pid)
+                if b'gyro_box' in Path(f'/proc/{pid}/cmdline').read_bytes()]
+    assert len(gyro_box) == 1, _children(process.pid)
+    os.kill(gyro_box[0], signal.SIGKILL)
+    _, err = process.communicate(timeout=180)
+    assert process.returncode == 3, err
+    assert 'Traceback' not in err and 'gyro_box stopped reporting' in err
+    summary = json.loads((bag / 'summary.json').read_text())
+    assert summary['stopped'] == 'fault' and 'gyro_box stopped reporting' in summary['reason']
+    assert (bag / 'metadata.yaml').exists()

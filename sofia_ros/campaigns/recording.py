@@ -117,21 +117,30 @@ def record_graph(config, bag_path, *, model_text, mode, max_sim_s, timeout_s, pr
                                                        max_sim_s=max_sim_s, timeout_s=timeout_s, progress=progress)
             return None if complete else reason
         if mode == 'processes':
-            _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
-            return None
+            return _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
     raise ConfigError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
 
 
 def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress):
-    """Each node its own process, reading truth and model from files beside its params file."""
+    """Each node its own process, reading truth and model from files beside its params file; returns why the
+    run stopped early (the clock's stall reason, as the recorder kept it; a signal) or None."""
+    from sofia_ros.bag import BagReader
+    from sofia_ros.nodes.executables import STALLED_EXIT_CODE
     from sofia_ros.nodes.launch import run_graph_in_processes
 
     with tempfile.TemporaryDirectory(prefix='sofia_run_') as folder:
         truth_file, model_file = Path(folder) / 'truth.yaml', Path(folder) / 'model.yaml'
         truth_file.write_text(config.truth.text)
         model_file.write_text(model_text)
-        run_graph_in_processes(truth_file, config.seed, config.plan, bag_path, tick_ns=config.tick_ns,
-                               max_sim_s=max_sim_s, timeout_s=timeout_s, model_file=model_file, progress=progress)
+        graph = run_graph_in_processes(truth_file, config.seed, config.plan, bag_path, tick_ns=config.tick_ns,
+                                       max_sim_s=max_sim_s, timeout_s=timeout_s, model_file=model_file,
+                                       progress=progress)
+    if interrupts.requested() is not None:
+        return f'interrupted by {signal.Signals(interrupts.requested()).name}'
+    if graph.processes['clock'].returncode != STALLED_EXIT_CODE:
+        return None
+    with BagReader(bag_path) as bag:
+        return bag.document('/result/stop')
 
 
 def _run_direct(config, bag_path, documents, max_sim_s, progress):

@@ -14,8 +14,12 @@ from rclpy.node import Node
 import sofia_ros
 from sofia_ros.errors import SofiaError
 from sofia_ros.nodes.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
+from sofia_ros.nodes.sync import parse_stop
 
-__all__ = ['clock', 'plant', 'gyro_box', 'imager', 'hipo', 'tascu', 'calibration', 'recorder', 'main']
+#: Exit code of the clock node when it stopped the run because a node fell silent (a fault).
+STALLED_EXIT_CODE = 3
+
+__all__ = ['STALLED_EXIT_CODE', 'clock', 'plant', 'gyro_box', 'imager', 'hipo', 'tascu', 'calibration', 'recorder', 'main']
 
 
 def _read_parameters(executable):
@@ -78,7 +82,8 @@ def main(executable=None, argv=None):
         executor.add_node(node)
         while node.stop_reason is None or (hasattr(node, 'closed') and not node.closed):
             executor.spin_once(timeout_sec=0.1)
-        return 0
+        # The clock tells its parent when it stopped the run for a fault (a stall) rather than its end.
+        return STALLED_EXIT_CODE if executable == 'clock' and not parse_stop(node.stop_reason)[1] else 0
     except SofiaError as err:
         print(f'{executable}: error: {err}', file=sys.stderr)
         return 2

@@ -202,10 +202,11 @@ def test_a_replay_re_latches_the_documents_for_a_late_subscriber(direct_run):
             rclpy.spin_once(node, timeout_sec=0.05)
         assert [message.data for message in documents] == [truth_text]
         assert 1_094_185_971 <= ticks[0].clock.sec < 1_094_185_971 + 60  # replayed on the campaign's UTC time
-        # Stopped mid-replay, it says so in one line, without a traceback.
+        # Stopped mid-replay, it says so in one line, without a traceback, and exits 143 (SIGTERM).
         replay.terminate()
-        output, errors = replay.communicate(timeout=20)
-        assert 'stopped after' in output and 'Traceback' not in errors
+        _, errors = replay.communicate(timeout=20)
+        assert replay.returncode == 143, errors
+        assert errors.strip() == 'sofia: interrupted by SIGTERM' and 'Traceback' not in errors
     finally:
         if replay is not None and replay.poll() is None:
             replay.kill()

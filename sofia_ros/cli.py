@@ -88,24 +88,22 @@ def _model_text(args):
 
 
 def _run_campaign(args):
-    from sofia_ros.campaigns.alignment import run_alignment
+    from sofia_ros.campaigns.registry import campaign_named
     from sofia_ros.config import load_effect_config
-    from sofia_ros.sim.calibration import AlignmentPlan
 
-    if args.campaign == 'gyro-stability':
+    spec = campaign_named(args.campaign)
+    if spec.name == 'gyro-stability':
         return _run_gyro_stability(args)
-    if args.campaign == 'star-hop':
+    if spec.name == 'star-hop':
         return _run_star_hop(args)
-    if args.campaign != 'alignment':
-        raise ConfigError(f"unknown campaign {args.campaign!r}; available: alignment, star-hop, gyro-stability")
     truth = load_effect_config(args.truth)
     model_text = _model_text(args)
-    plan = AlignmentPlan(repetitions=args.repetitions, verification_repetitions=args.verification_repetitions,
-                         drift_track_s=args.drift_track_s)
+    plan = spec.plan(repetitions=args.repetitions, verification_repetitions=args.verification_repetitions,
+                     drift_track_s=args.drift_track_s)
     progress = _Progress()
     try:
-        run = run_alignment(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=_mode(args),
-                            max_sim_s=args.max_sim_s, model_text=model_text, progress=progress)
+        run = spec.run(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=_mode(args),
+                       max_sim_s=args.max_sim_s, model_text=model_text, progress=progress)
     finally:
         progress.close()
     _print_alignment_summary(run)

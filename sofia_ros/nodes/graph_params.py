@@ -14,19 +14,16 @@ from dataclasses import fields, replace
 
 import yaml
 
-from sofia_ros.campaigns.alignment import graph_config
-from sofia_ros.campaigns.star_hop import star_hop_config
+from sofia_ros.campaigns.registry import CAMPAIGNS as _REGISTRY, graph_campaign_of_plan
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import ConfigError, InvalidArgumentError, UnknownStarError
-from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.protocol import DEFAULT_TICK_NS
-from sofia_ros.sim.star_hop import StarHopPlan
 
 __all__ = ['CAMPAIGNS', 'GRAPH_PARAMETERS', 'graph_parameters', 'graph_config_from_parameters', 'plan_parameters',
            'plan_from_parameters', 'write_params_file']
 
-#: campaign -> (plan dataclass, GraphConfig builder taking truth, seed, plan)
-CAMPAIGNS = {'alignment': (AlignmentPlan, graph_config), 'star-hop': (StarHopPlan, star_hop_config)}
+#: the campaigns with a node graph (campaigns.registry), whose nodes take these parameters
+CAMPAIGNS = {name: spec for name, spec in _REGISTRY.items() if spec.build_config is not None}
 
 #: name -> (default, description); the plan.* parameters come from the campaign's plan dataclass
 GRAPH_PARAMETERS = {
@@ -47,8 +44,7 @@ _KINDS = {bool: ('true or false', 'booleans'), int: ('an integer', 'integers'), 
 
 def graph_parameters(truth_file, seed, plan, *, tick_ns, max_sim_s, bag_path='', stall_timeout_s=15.0, model_file=''):
     """Parameter values of one run; the campaign is the one whose plan dataclass ``plan`` is."""
-    campaign = next(name for name, (plan_class, _) in CAMPAIGNS.items() if type(plan) is plan_class)
-    return {'campaign': campaign, 'truth_file': str(truth_file), 'seed': int(seed), 'tick_ns': int(tick_ns),
+    return {'campaign': graph_campaign_of_plan(plan).name, 'truth_file': str(truth_file), 'seed': int(seed), 'tick_ns': int(tick_ns),
             'max_sim_s': float(max_sim_s), 'stall_timeout_s': float(stall_timeout_s), 'bag_path': str(bag_path),
             'model_file': str(model_file), **plan_parameters(plan)}
 
@@ -72,7 +68,7 @@ def plan_from_parameters(campaign, values):
     ConfigError names an unknown parameter, a value of the wrong type, columns of unequal
     length and whatever the plan itself refuses (an unknown star, a hold of 0 s).
     """
-    plan_class = CAMPAIGNS[campaign][0]
+    plan_class = CAMPAIGNS[campaign].plan_type
     defaults = plan_parameters(plan_class())
     unknown = sorted(set(values) - set(defaults))
     if unknown:
@@ -126,7 +122,7 @@ def graph_config_from_parameters(values):
         raise ConfigError('parameter truth_file is empty; pass -p truth_file:=config/truth/nominal.yaml')
     truth = load_effect_config(values['truth_file'])
     plan = plan_from_parameters(campaign, {name: value for name, value in values.items() if name.startswith('plan.')})
-    config = CAMPAIGNS[campaign][1](truth, int(values['seed']), plan)
+    config = CAMPAIGNS[campaign].build_config(truth, int(values['seed']), plan)
     return replace(config, tick_ns=int(values['tick_ns']))
 
 

@@ -1,0 +1,92 @@
+"""The campaigns, one record each: what a campaign is called, what plans it, how it runs, what reads its bags.
+
+ROS-free: the CLI, the graph parameters, the launch code, compare and the atlas look campaigns up
+here, so adding a campaign is one module under ``campaigns/`` plus one entry in :data:`CAMPAIGNS`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Any, Callable, Mapping
+
+from sofia_ros.errors import ConfigError
+
+__all__ = ['CAMPAIGNS', 'CampaignSpec', 'campaign_named', 'graph_campaign_of_plan']
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    """One campaign: its plan dataclass, how its graph is configured and run, its named plan variants."""
+
+    name: str
+    #: one line for `sofia run --help` and the README
+    summary: str
+    #: the plan dataclass (None: the campaign has no node graph and no plan, e.g. gyro-stability)
+    plan_type: type | None
+    #: (truth, seed, plan) -> sim.graph.GraphConfig; None for a campaign without a node graph
+    build_config: Callable[..., Any] | None
+    #: runs it and writes the bag and its side files: campaigns.<module>.run_<campaign>
+    run: Callable[..., Any]
+    #: the offline tools that understand its bags ('compare', 'noise')
+    analyses: tuple[str, ...]
+    #: variant name -> plan field overrides; 'full' is the dataclass defaults
+    variants: Mapping[str, Mapping[str, Any]] = field(default_factory=lambda: MappingProxyType({'full': {}}))
+
+    def plan(self, variant: str = 'full', **overrides: Any) -> Any:
+        """The plan of a named variant (fields overridden by ``overrides``); ConfigError for an unknown variant."""
+        if self.plan_type is None:
+            raise ConfigError(f'the {self.name} campaign has no plan; it takes its own options')
+        if variant not in self.variants:
+            raise ConfigError(f'the {self.name} campaign has no variant {variant!r}; '
+                              f'use one of {", ".join(self.variants)}')
+        return replace(self.plan_type(), **{**self.variants[variant], **overrides})
+
+
+def _alignment() -> CampaignSpec:
+    from sofia_ros.campaigns.alignment import graph_config, run_alignment
+    from sofia_ros.sim.calibration import AlignmentPlan
+
+    return CampaignSpec(
+        'alignment', 'Table 3.4 at the reference elevation on Polaris, then the boresight series (6.1, 6.2)',
+        AlignmentPlan, graph_config, run_alignment, ('compare',),
+        MappingProxyType({'full': {}, 'reduced': {'repetitions': 2, 'verification_repetitions': 1}}))
+
+
+def _star_hop() -> CampaignSpec:
+    from sofia_ros.campaigns.star_hop import run_star_hop, star_hop_config
+    from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
+
+    return CampaignSpec(
+        'star-hop', "Table D.3's 17 observations of six stars: absolute pointing and differential flexure (6.2, 6.3)",
+        StarHopPlan, star_hop_config, run_star_hop, ('compare',),
+        MappingProxyType({'full': {}, 'reduced': {'observations': table_d3_offsets_s()[3:7]}}))
+
+
+def _gyro_stability() -> CampaignSpec:
+    from sofia_ros.campaigns.gyro_stability import run_gyro_stability
+
+    return CampaignSpec('gyro-stability', 'the gyro box alone, one Table 5.2 test case (5.3)',
+                        None, None, run_gyro_stability, ('noise',), MappingProxyType({}))
+
+
+#: every campaign by name, in the order `sofia run` lists them
+CAMPAIGNS: Mapping[str, CampaignSpec] = MappingProxyType(
+    {spec.name: spec for spec in (_alignment(), _star_hop(), _gyro_stability())})
+
+
+def campaign_named(name: str) -> CampaignSpec:
+    """The campaign called ``name``; ConfigError naming the known ones otherwise."""
+    try:
+        return CAMPAIGNS[name]
+    except KeyError as err:
+        raise ConfigError(f'unknown campaign {name!r}; available: {", ".join(CAMPAIGNS)}') from err
+
+
+def graph_campaign_of_plan(plan: Any) -> CampaignSpec:
+    """The campaign whose plan dataclass ``plan`` is an instance of; ConfigError for any other object."""
+    for spec in CAMPAIGNS.values():
+        if spec.plan_type is not None and type(plan) is spec.plan_type:
+            return spec
+    raise ConfigError(f'{type(plan).__name__} is no campaign plan; plans are '
+                      f'{", ".join(spec.plan_type.__name__ for spec in CAMPAIGNS.values() if spec.plan_type)}')

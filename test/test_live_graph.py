@@ -12,7 +12,7 @@ from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.config import load_effect_config
 from sofia_ros.nodes.launch import start_graph_processes, stop_graph, wait_for_graph
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 NOMINAL = load_effect_config('config/truth/nominal.yaml')
 SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=10.0)

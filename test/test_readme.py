@@ -6,7 +6,7 @@ from sofia_ros.campaigns.alignment import graph_config
 from sofia_ros.cli import build_parser
 from sofia_ros.config import load_effect_config
 from sofia_ros.sim.graph import topic_table_markdown
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 REPO = Path(__file__).resolve().parents[1]
 README = (REPO / 'README.md').read_text()

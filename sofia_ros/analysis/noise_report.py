@@ -36,16 +36,14 @@ from sofia_ros.analysis.noise_loop import (
 from sofia_ros.analysis.noise_model import arw_of_decimated_record, bias_stability, fit_noise_model
 from sofia_ros.analysis.spectra import welch_equivalent_dof, welch_rate_psd, welch_segment_samples
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.gyro_stability import SUBSYSTEM_TOPIC
 from sofia_ros.errors import BagError, InvalidArgumentError
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC
+from sofia_ros.topics import CASE_DOCUMENT, GYRO_IMU, SUBSYSTEM_STATUS
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ, RAD_PER_ARCSEC
 
 __all__ = [
     'AXES',
-    'IMU_TOPIC',
-    'CASE_TOPIC',
     'MIN_SAMPLES',
     'NoiseRecord',
     'NoiseAnalysis',
@@ -57,8 +55,6 @@ __all__ = [
 ]
 
 AXES = ('el', 'xel', 'los')
-IMU_TOPIC = '/gyro_box/imu'
-CASE_TOPIC = '/config/case'
 #: Shortest analyzable record: four Welch segments of 256 samples (spectra.welch_segment_samples).
 MIN_SAMPLES = 1024
 _N_TAUS = 60
@@ -110,18 +106,18 @@ def integrated_angle_arcsec(noise_arcsec_per_s, sample_rate_hz):
     return np.cumsum(noise_arcsec_per_s - noise_arcsec_per_s.mean(axis=0), axis=0) / sample_rate_hz
 
 
-def load_noise_record(bag_path, imu_topic=IMU_TOPIC):
+def load_noise_record(bag_path, imu_topic=GYRO_IMU.name):
     """Read a gyro-stability bag: /gyro_box/imu, /config/case and, if recorded, /ta/subsystem_status."""
     with BagReader(bag_path) as bag:
         names = {topic.name for topic in bag.topics}
         if imu_topic not in names:
             raise BagError(f'{bag_path} has no {imu_topic}; record a gyro-stability campaign first')
-        if CASE_TOPIC not in names:
-            raise BagError(f'{bag_path} has no {CASE_TOPIC}; `sofia noise` reads the geometry of a gyro-stability run')
-        case = yaml.safe_load(bag.document(CASE_TOPIC))
+        if CASE_DOCUMENT.name not in names:
+            raise BagError(f'{bag_path} has no {CASE_DOCUMENT.name}; `sofia noise` reads the geometry of a gyro-stability run')
+        case = yaml.safe_load(bag.document(CASE_DOCUMENT.name))
         subsystems = None
-        if SUBSYSTEM_TOPIC in names:
-            for _, _, message in bag.messages(SUBSYSTEM_TOPIC):
+        if SUBSYSTEM_STATUS.name in names:
+            for _, _, message in bag.messages(SUBSYSTEM_STATUS.name):
                 subsystems = {value.key: value.value for value in message.values}
         imu = bag.imu_arrays(imu_topic)
     return NoiseRecord(Path(bag_path), imu.angular_velocity_rad_per_s / RAD_PER_ARCSEC, case, subsystems)
@@ -227,6 +223,6 @@ def analyze_record(record, *, model=None, decimate=1):
     return NoiseAnalysis(document, sample_rate_hz, noise, curves, fits, freq_hz, psd, segment, measured, base, effects)
 
 
-def analyze_noise(bag_path, *, model=None, decimate=1, imu_topic=IMU_TOPIC):
+def analyze_noise(bag_path, *, model=None, decimate=1, imu_topic=GYRO_IMU.name):
     """The `sofia noise --json` document of a bag (docs/noise.md)."""
     return analyze_record(load_noise_record(bag_path, imu_topic), model=model, decimate=decimate).document

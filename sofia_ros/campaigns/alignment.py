@@ -14,13 +14,14 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
+from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import GraphConfig
-from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
-from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
+from sofia_ros.topics import CALIBRATION_RESULT, CLOCK, STOP_DOCUMENT
 from sofia_ros.units import ARCSEC_PER_RAD
 
 __all__ = ['MODES', 'AlignmentRun', 'default_scenario', 'graph_config', 'run_alignment',
@@ -113,12 +114,12 @@ def result_from_bag(bag_path):
     with BagReader(bag_path, campaign_time=True) as bag:
         names = {topic.name for topic in bag.topics}
         result = None
-        if '/calibration/result' in names:
-            for _, _, message in bag.messages('/calibration/result'):
+        if CALIBRATION_RESULT.name in names:
+            for _, _, message in bag.messages(CALIBRATION_RESULT.name):
                 result = message.data
-        stop_reason = bag.document('/result/stop') if '/result/stop' in names else None
+        stop_reason = bag.document(STOP_DOCUMENT.name) if STOP_DOCUMENT.name in names else None
         sim_ns = 0
-        for _, stamp_ns, _ in bag.messages('/clock'):
+        for _, stamp_ns, _ in bag.messages(CLOCK.name):
             sim_ns = stamp_ns
     if result is None:
         reason = f'stopped: {stop_reason}' if stop_reason else 'the calibration node published no result'

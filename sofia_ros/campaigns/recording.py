@@ -16,9 +16,10 @@ from sofia_ros import interrupts
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.errors import ConfigError, RunFaultError, RunInterrupted
+from sofia_ros.scenario import scenario_document
 from sofia_ros.sim.graph import build_cores
 from sofia_ros.sim.runner import LockstepRunner
-from sofia_ros.sim.scenario import SCENARIO_TOPIC, scenario_document
+from sofia_ros.topics import MODEL_DOCUMENT, PLAN_DOCUMENT, SCENARIO_DOCUMENT, STOP_DOCUMENT, TRUTH_DOCUMENT
 
 __all__ = ['MODES', 'graph_documents', 'record_campaign', 'record_graph', 'new_bag_path', 'write_summary', 'finish_run',
            'summary_of_failed_run']
@@ -38,11 +39,11 @@ def new_bag_path(bag_path):
 
 def graph_documents(config, model_text=None):
     """(topic, text) of the documents a graph's bag starts with: truth, model (if given), scenario, plan."""
-    documents = [('/config/truth', config.truth.text)]
+    documents = [(TRUTH_DOCUMENT.name, config.truth.text)]
     if model_text is not None:
-        documents.append(('/config/model', model_text))
-    documents.append((SCENARIO_TOPIC, scenario_document(config.scenario)))
-    documents.append(('/config/plan', yaml.safe_dump(dataclasses.asdict(config.plan), sort_keys=False)))
+        documents.append((MODEL_DOCUMENT.name, model_text))
+    documents.append((SCENARIO_DOCUMENT.name, scenario_document(config.scenario)))
+    documents.append((PLAN_DOCUMENT.name, yaml.safe_dump(dataclasses.asdict(config.plan), sort_keys=False)))
     return documents
 
 
@@ -140,7 +141,7 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
     if graph.processes['clock'].returncode != STALLED_EXIT_CODE:
         return None
     with BagReader(bag_path) as bag:
-        return bag.document('/result/stop')
+        return bag.document(STOP_DOCUMENT.name)
 
 
 def _run_direct(config, bag_path, documents, max_sim_s, progress):

@@ -15,8 +15,8 @@ import yaml
 from sofia_ros.campaigns.alignment import result_from_bag
 from sofia_ros.campaigns.recording import finish_run, new_bag_path, record_campaign
 from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sim.graph import GraphConfig
-from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sim.star_hop import CDT, TABLE_D3_OBSERVATIONS, StarHopPlan
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 

@@ -15,6 +15,7 @@ import sofia_ros
 from sofia_ros.errors import SofiaError
 from sofia_ros.nodes.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
 from sofia_ros.nodes.sync import parse_stop
+from sofia_ros.topics import CLOCK
 
 #: Exit code of the clock node when it stopped the run because a node fell silent (a fault).
 STALLED_EXIT_CODE = 3
@@ -52,7 +53,7 @@ def _build(executable, values):
     participants = [core.name for core in cores if core.name != 'clock']
     if executable == 'clock':
         return ClockNode([*participants, 'recorder'], tick_ns=config.tick_ns, max_sim_s=values['max_sim_s'],
-                         stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics['/clock'][2]) + 1)
+                         stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics[CLOCK.name][2]) + 1)
     if executable == 'recorder':
         if not values['bag_path']:
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')

@@ -17,7 +17,7 @@ import yaml
 from sofia_ros.campaigns.registry import CAMPAIGNS as _REGISTRY, graph_campaign_of_plan
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import ConfigError, InvalidArgumentError, UnknownStarError
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 __all__ = ['CAMPAIGNS', 'GRAPH_PARAMETERS', 'graph_parameters', 'graph_config_from_parameters', 'plan_parameters',
            'plan_from_parameters', 'write_params_file']

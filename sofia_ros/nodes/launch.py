@@ -28,6 +28,7 @@ from sofia_ros.nodes.recorder_node import RecorderNode
 from sofia_ros.nodes.shell import CoreNode
 from sofia_ros.nodes.sync import parse_stop
 from sofia_ros.sim.graph import build_cores, graph_topics
+from sofia_ros.topics import CLOCK
 
 __all__ = ['run_graph_in_process', 'run_graph_in_processes', 'start_graph_processes',
            'wait_for_graph', 'stop_graph', 'GraphProcesses', 'GraphRunError']
@@ -58,7 +59,7 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
         cores = build_cores(config)
         topics = graph_topics(cores)
         nodes = [CoreNode(core, graph_topics=topics, tick_ns=config.tick_ns) for core in cores if core.name != 'clock']
-        clock_subscribers = len(topics['/clock'][2]) + 1
+        clock_subscribers = len(topics[CLOCK.name][2]) + 1
         clock = ClockNode([*_participants(cores), 'recorder'], tick_ns=config.tick_ns, max_sim_s=max_sim_s,
                           subscribers=clock_subscribers)
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,

@@ -11,11 +11,11 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
+from sofia_ros import messages as m
 from sofia_ros.errors import ConfigError
 from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic, parse_stop
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.gyro_box import IMU_TOPIC
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
+from sofia_ros.topics import GYRO_IMU as IMU_TOPIC
 
 __all__ = ['message_class', 'LockstepNode', 'CoreNode']
 

@@ -22,6 +22,7 @@ from scipy.spatial.transform import Rotation
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PointStamped
 
+from sofia_ros import messages as m
 from sofia_ros import mount
 from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_rad
 from sofia_ros.calibration.solvers import Maneuver, fit_alignment
@@ -29,25 +30,24 @@ from sofia_ros.control.tracker import pixel_jacobian_px_per_rad
 from sofia_ros.errors import InvalidArgumentError, SofiaError
 from sofia_ros.frames import dcm_from_quaternion, dcm_from_rotation_angles, quaternion_from_dcm
 from sofia_ros.sensors.imager_model import nominal_detector
-from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, observed_place, visible_stars
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.camera import centroid_topic
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
-from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
-from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, ParameterResult, TopicSpec
+from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, ParameterResult
 from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
+from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, observed_place, visible_stars
+from sofia_ros.topics import (
+    CALIBRATION_MANEUVERS,
+    CALIBRATION_PROGRESS,
+    CALIBRATION_RESULT,
+    CD_JOINT,
+    FD_JOINTS,
+    JOINT_STATES,
+    centroid_topic,
+)
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_DEG
 
 __all__ = ['AlignmentPlan', 'CalibrationCore', 'TOPICS', 'maneuver_record', 'maneuver_from_record']
 
-TOPICS = {
-    'progress': TopicSpec('/calibration/progress', 'diagnostic_msgs/msg/DiagnosticStatus',
-                          'calibration step, iteration and the latest fitted angles'),
-    'result': TopicSpec('/calibration/result', 'std_msgs/msg/String',
-                        'accepted alignment matrices and their accuracy, YAML'),
-    'maneuvers': TopicSpec('/calibration/maneuvers', 'std_msgs/msg/String',
-                           'each fit: the maneuvers it used (axis, angle, centroids, active matrix, block), YAML'),
-}
+#: the topics this core publishes besides the TASCU's commands, by the short names its methods use
+TOPICS = {'progress': CALIBRATION_PROGRESS, 'result': CALIBRATION_RESULT, 'maneuvers': CALIBRATION_MANEUVERS}
 IMAGERS = ('fpi', 'ffi', 'wfi')
 _FD_MARGIN_DEG = 2.9
 _KEPT_FRAMES = 200
@@ -111,7 +111,7 @@ class CalibrationCore(NodeCore):
 
     def inputs(self):
         cameras = tuple(centroid_topic(camera) for camera in ('hipo', *IMAGERS))
-        return (TASCU_TOPICS['motion_status'], TASCU_TOPICS['command_status'], PLANT_TOPICS['joint_states'],
+        return (TASCU_TOPICS['motion_status'], TASCU_TOPICS['command_status'], JOINT_STATES,
                 TASCU_TOPICS['attitude'], *cameras)
 
     def outputs(self):
@@ -123,7 +123,7 @@ class CalibrationCore(NodeCore):
             self.status = message.message
         elif topic == TASCU_TOPICS['command_status'].name:
             self.command_status[int(m.status_values_of(message)['command_stamp_ns'])] = message.message
-        elif topic == PLANT_TOPICS['joint_states'].name:
+        elif topic == JOINT_STATES.name:
             self.joints = m.joint_positions_of(message)
         elif topic == TASCU_TOPICS['attitude'].name:
             self.attitude = message

@@ -15,10 +15,10 @@ from sofia_ros.sim.calibration import AlignmentPlan, CalibrationCore
 from sofia_ros.sim.camera import CameraCore
 from sofia_ros.sim.clock import ClockCore
 from sofia_ros.sim.gyro_box import GyroBoxCore
-from sofia_ros.sim.star_hop import StarHopCore, StarHopPlan
 from sofia_ros.sim.plant import PlantCore
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.sim.star_hop import StarHopCore, StarHopPlan
 from sofia_ros.sim.tascu import TascuCore
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 __all__ = ['CAMERAS', 'NODE_NAMES', 'GraphConfig', 'build_core', 'build_cores', 'graph_topics', 'topic_table_markdown']
 
@@ -33,7 +33,7 @@ class GraphConfig:
     """Everything a node needs to build its core: truth, scenario, seed, campaign plan, tick."""
 
     truth: object  # sofia_ros.config.EffectConfig
-    scenario: object  # sofia_ros.sim.scenario.Scenario
+    scenario: object  # sofia_ros.scenario.Scenario
     seed: int
     plan: AlignmentPlan = field(default_factory=AlignmentPlan)
     tick_ns: int = DEFAULT_TICK_NS

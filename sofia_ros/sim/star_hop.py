@@ -19,12 +19,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import yaml
 
+from sofia_ros import messages as m
 from sofia_ros.calibration.published import EQ_6_1
 from sofia_ros.errors import InvalidArgumentError
-from sofia_ros.sim import messages as m
 from sofia_ros.sim.calibration import IMAGERS, TOPICS, CalibrationCore
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
 from sofia_ros.sky.catalogue import star_by_name
+from sofia_ros.topics import CD_JOINT, FD_JOINTS
 from sofia_ros.units import RAD_PER_DEG
 
 __all__ = ['StarHopPlan', 'StarHopCore', 'TABLE_D3_OBSERVATIONS', 'CDT']

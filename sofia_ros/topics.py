@@ -12,8 +12,10 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Mapping
 
+from sofia_ros.graph_nodes import CAMERAS
+
 __all__ = [
-    'DEFAULT_TICK_NS', 'TopicSpec', 'CAMERAS', 'IMAGERS', 'CD_JOINT', 'FD_JOINTS',
+    'DEFAULT_TICK_NS', 'TopicSpec', 'CD_JOINT', 'FD_JOINTS',
     'CLOCK', 'TRUTH_IMU', 'TRUTH_JOINTS', 'TRUTH_TEMPERATURE', 'JOINT_STATES',
     'GYRO_IMU', 'GYRO_TEMPERATURE',
     'TASCU_ATTITUDE', 'MOTION_STATUS', 'DRIFT_ESTIMATE', 'COMMAND_STATUS', 'FD_COMMAND', 'CD_COMMAND',
@@ -30,10 +32,6 @@ __all__ = [
 #: ``/clock`` advances one tick per message, so a bag's duration is its ``/clock`` count times this.
 DEFAULT_TICK_NS = 200_000_000
 
-#: The four cameras, HIPO first (the reference the imagers are measured against), in graph order.
-CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
-#: The science imagers (every camera but HIPO).
-IMAGERS = CAMERAS[1:]
 #: Joint names in the plant's JointState messages: the coarse-drive elevation, the fine-drive angles.
 CD_JOINT = 'cd_elevation'
 FD_JOINTS = ('fd_el', 'fd_xel', 'fd_los')

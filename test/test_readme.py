@@ -42,7 +42,7 @@ def test_every_documented_verb_exists():
 def test_shipped_params_file_builds_the_graph():
     import yaml
 
-    from sofia_ros.nodes.graph_params import graph_config_from_parameters
+    from sofia_ros.campaigns.graph_params import graph_config_from_parameters
 
     document = yaml.safe_load((Path(__file__).resolve().parents[1] / 'config/alignment.params.yaml').read_text())
     config = graph_config_from_parameters(document['/**']['ros__parameters'])

@@ -8,10 +8,10 @@ import numpy as np
 import yaml
 
 from sofia_ros.bag import BagReader
+from sofia_ros.calibration.maneuver_records import maneuver_from_record
 from sofia_ros.calibration.solvers import fit_alignment
 from sofia_ros.errors import BagError
 from sofia_ros.sensors.imager_model import nominal_detector
-from sofia_ros.sim.calibration import maneuver_from_record
 from sofia_ros.topics import CALIBRATION_MANEUVERS
 
 __all__ = ['OfflineFit', 'refit_alignments']

@@ -86,7 +86,7 @@ def run_noise(args):
 
 
 def _print_document(document):
-    from sofia_ros.analysis.noise_report import AXES
+    from sofia_ros.frames import AXES
 
     print(f'{document["case"]}: {document["description"]}; {document["samples_per_axis"]} samples per axis at '
           f'{document["sample_rate_hz"]:g} Hz ({document["record_s"]:.0f} s)')

@@ -60,6 +60,7 @@ from sofia_ros.analysis.ranking import CandidateTerm, rank_candidates
 from sofia_ros.analysis.spectra import log_chi_square_bias_and_sigma, welch_equivalent_dof, welch_sinusoid_psd
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
+from sofia_ros.frames import AXES
 from sofia_ros.sensors.gyro_noise import (
     NoiseCoefficients,
     rate_ramp_arcsec_per_s2_to_deg_per_h2,
@@ -68,7 +69,6 @@ from sofia_ros.sensors.gyro_noise import (
 )
 
 __all__ = [
-    'AXES',
     'NoiseGrid',
     'MeasuredNoise',
     'measured_noise',
@@ -83,7 +83,6 @@ __all__ = [
     'PSD_LOWEST_BIN',
 ]
 
-AXES = ('el', 'xel', 'los')
 _AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
 #: The loop's PSD rows start this many segment bins above 0 Hz.
 PSD_LOWEST_BIN = 8

@@ -18,11 +18,12 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from sofia_ros.analysis.noise_loop import AXES, predicted_noise
+from sofia_ros.analysis.noise_loop import predicted_noise
 from sofia_ros.analysis.noise_model import noise_adev
 from sofia_ros.analysis.noise_report import integrated_angle_arcsec
 from sofia_ros.analysis.spectra import rate_spectrogram
 from sofia_ros.errors import ConfigError
+from sofia_ros.frames import AXES
 
 __all__ = ['PLOTS', 'check_report_dir', 'write_report']
 

@@ -37,13 +37,13 @@ from sofia_ros.analysis.noise_model import arw_of_decimated_record, bias_stabili
 from sofia_ros.analysis.spectra import welch_equivalent_dof, welch_rate_psd, welch_segment_samples
 from sofia_ros.bag import BagReader
 from sofia_ros.errors import BagError, InvalidArgumentError
+from sofia_ros.frames import AXES
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC
 from sofia_ros.topics import CASE_DOCUMENT, GYRO_IMU, SUBSYSTEM_STATUS
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ, RAD_PER_ARCSEC
 
 __all__ = [
-    'AXES',
     'MIN_SAMPLES',
     'NoiseRecord',
     'NoiseAnalysis',
@@ -54,7 +54,6 @@ __all__ = [
     'analyze_noise',
 ]
 
-AXES = ('el', 'xel', 'los')
 #: Shortest analyzable record: four Welch segments of 256 samples (spectra.welch_segment_samples).
 MIN_SAMPLES = 1024
 _N_TAUS = 60

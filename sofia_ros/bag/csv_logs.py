@@ -29,6 +29,8 @@ from sofia_ros import messages as m
 from sofia_ros.bag import BagReader
 from sofia_ros.bag.writer import BagWriter
 from sofia_ros.errors import ConfigError
+from sofia_ros.frames import AXES
+from sofia_ros.graph_nodes import CAMERAS
 from sofia_ros.topics import (
     CALIBRATION_RESULT,
     CD_JOINT,
@@ -44,10 +46,9 @@ from sofia_ros.topics import (
 
 __all__ = ['export_csv_logs', 'import_csv_logs', 'CSV_COLUMNS']
 
-_AXES = ('el', 'xel', 'los')
 _JOINTS = (CD_JOINT, *FD_JOINTS)
 CSV_COLUMNS = {
-    'gyro.csv': ('time_ns', *(f'{axis}_rad_per_s' for axis in _AXES)),
+    'gyro.csv': ('time_ns', *(f'{axis}_rad_per_s' for axis in AXES)),
     'gyro_temperature.csv': ('time_ns', 'temperature_c'),
     'joints.csv': ('time_ns', *(f'{joint}_rad' for joint in _JOINTS)),
     'attitude.csv': ('time_ns', 'qx', 'qy', 'qz', 'qw'),
@@ -55,8 +56,7 @@ CSV_COLUMNS = {
     'motion_status.csv': ('time_ns', 'state'),
 }
 _OPTIONAL = ('motion_status.csv',)
-_ACCELERATION = tuple(f'{axis}_m_per_s2' for axis in _AXES)
-_CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
+_ACCELERATION = tuple(f'{axis}_m_per_s2' for axis in AXES)
 _MOTION_NAME = 'motion_status'
 
 
@@ -70,7 +70,7 @@ def export_csv_logs(bag_path, directory):
     directory.mkdir(parents=True, exist_ok=False)
     with BagReader(bag_path) as bag:
         names = {topic.name for topic in bag.topics}
-        cameras = [camera for camera in _CAMERAS if CENTROIDS[camera].name in names]
+        cameras = [camera for camera in CAMERAS if CENTROIDS[camera].name in names]
         optional = [topic for topic in (MOTION_STATUS.name, CALIBRATION_RESULT.name) if topic in names]
         records = bag.messages_by_topic(GYRO_IMU.name, GYRO_TEMPERATURE.name, JOINT_STATES.name,
                                         TASCU_ATTITUDE.name, *optional,
@@ -172,7 +172,7 @@ def import_csv_logs(directory, bag_path):
     stamps = np.array(_parsed(directory / 'gyro.csv', gyro, 'time_ns', int), dtype=np.int64)
     if np.any(np.diff(stamps) <= 0):
         raise ConfigError(f'{directory / "gyro.csv"}: time_ns must increase from row to row')
-    rates = np.column_stack([_parsed(directory / 'gyro.csv', gyro, f'{axis}_rad_per_s', float) for axis in _AXES])
+    rates = np.column_stack([_parsed(directory / 'gyro.csv', gyro, f'{axis}_rad_per_s', float) for axis in AXES])
     forces = (np.column_stack([_parsed(directory / 'gyro.csv', gyro, column, float) for column in _ACCELERATION])
               if _ACCELERATION[0] in gyro[0] else np.zeros_like(rates))
     first_ns = int(stamps[0])
@@ -225,13 +225,13 @@ def _write_rows(bag, directory, tables):
     frames = {}
     for stamp, row in each('centroids.csv'):
         camera = row['camera']
-        if camera not in _CAMERAS:
-            raise ConfigError(f'{directory / "centroids.csv"}: unknown camera {camera!r} (known: {", ".join(_CAMERAS)})')
+        if camera not in CAMERAS:
+            raise ConfigError(f'{directory / "centroids.csv"}: unknown camera {camera!r} (known: {", ".join(CAMERAS)})')
         stars = frames.setdefault((camera, stamp), [])
         if row['hip'] != '':
             x_px, y_px = floats('centroids.csv', row, ('x_px', 'y_px'))
             stars.append(_Centroid(int(row['hip']), x_px, y_px))
-    for camera in _CAMERAS:
+    for camera in CAMERAS:
         keys = sorted(key for key in frames if key[0] == camera)
         if not keys:
             continue

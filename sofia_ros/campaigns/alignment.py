@@ -19,7 +19,7 @@ from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.graph import GraphConfig
+from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, GraphConfig
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 from sofia_ros.topics import CALIBRATION_RESULT, CLOCK, STOP_DOCUMENT
 from sofia_ros.units import ARCSEC_PER_RAD
@@ -85,7 +85,7 @@ def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevati
     return Rotation.from_matrix(error.T).as_rotvec() * ARCSEC_PER_RAD
 
 
-def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=7200.0, model_text='effects: {}\n',
+def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=DEFAULT_MAX_SIM_S, model_text='effects: {}\n',
                   progress=None, timeout_s=3600.0):
     """Run the campaign and write the bag plus truth.yaml, model.yaml, calibration.yaml and summary.json.
 
@@ -102,10 +102,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     result_yaml, sim_seconds = result_from_bag(bag_path)
     summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,
                        wall_seconds)
-    (bag_path / 'truth.yaml').write_text(truth.text)
-    (bag_path / 'model.yaml').write_text(model_text)
-    (bag_path / 'calibration.yaml').write_text(result_yaml)
-    finish_run(bag_path, summary, fault)
+    finish_run(bag_path, summary, fault,
+               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, 'calibration.yaml': result_yaml})
     return AlignmentRun(summary, result_yaml, bag_path)
 
 

@@ -151,7 +151,5 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
     summary = {'case': case, 'sim_seconds': round(sim_seconds, 3),
                'wall_seconds': round(time.perf_counter() - wall_start, 3),
                'samples_per_axis': int(round(sim_seconds * GYRO_SAMPLE_RATE_HZ))}
-    bag_path.joinpath('truth.yaml').write_text(truth.text)
-    bag_path.joinpath('case.yaml').write_text(case_text)
-    finish_run(bag_path, summary)
+    finish_run(bag_path, summary, side_files={'truth.yaml': truth.text, 'case.yaml': case_text})
     return summary

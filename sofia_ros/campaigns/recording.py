@@ -60,11 +60,14 @@ def summary_of_failed_run(bag_path, wall_seconds, reason):
     return {'sim_seconds': None, 'wall_seconds': round(wall_seconds, 3), 'reason': reason + hint}
 
 
-def finish_run(bag_path, summary, fault=None):
-    """Write summary.json; raise RunInterrupted (a signal stopped the run) or RunFaultError (``fault``).
+def finish_run(bag_path, summary, fault=None, *, side_files=None):
+    """Write the side files (file name -> text, e.g. truth.yaml) and summary.json beside the bag; raise
+    RunInterrupted (a signal stopped the run) or RunFaultError (``fault``).
 
     An interrupted or faulted run's summary has ``stopped`` ('interrupted' or 'fault') and the reason.
     """
+    for name, text in (side_files or {}).items():
+        Path(bag_path, name).write_text(text)
     signum = interrupts.requested()
     if signum is not None:
         name = signal.Signals(signum).name
@@ -126,16 +129,17 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
     """Each node its own process, reading truth and model from files beside its params file; returns why the
     run stopped early (the clock's stall reason, as the recorder kept it; a signal) or None."""
     from sofia_ros.bag import BagReader
-    from sofia_ros.nodes.executables import STALLED_EXIT_CODE
+    from sofia_ros.campaigns.run_parameters import graph_parameters
+    from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
     from sofia_ros.nodes.launch import run_graph_in_processes
 
     with tempfile.TemporaryDirectory(prefix='sofia_run_') as folder:
         truth_file, model_file = Path(folder) / 'truth.yaml', Path(folder) / 'model.yaml'
         truth_file.write_text(config.truth.text)
         model_file.write_text(model_text)
-        graph = run_graph_in_processes(truth_file, config.seed, config.plan, bag_path, tick_ns=config.tick_ns,
-                                       max_sim_s=max_sim_s, timeout_s=timeout_s, model_file=model_file,
-                                       progress=progress)
+        parameters = graph_parameters(truth_file, config.seed, config.plan, tick_ns=config.tick_ns,
+                                      max_sim_s=max_sim_s, bag_path=bag_path, model_file=model_file)
+        graph = run_graph_in_processes(parameters, bag_path, timeout_s=timeout_s, progress=progress)
     if interrupts.requested() is not None:
         return f'interrupted by {signal.Signals(interrupts.requested()).name}'
     if graph.processes['clock'].returncode != STALLED_EXIT_CODE:
@@ -148,7 +152,7 @@ def _run_direct(config, bag_path, documents, max_sim_s, progress):
     """The cores in one loop; a signal (sofia_ros.interrupts) ends it between ticks. Whatever stops
     the loop, the bag is closed with every tick recorded so far."""
     cores = build_cores(config)
-    calibration = cores[-1]
+    calibration = next(core for core in cores if core.ends_run)
     bag = BagWriter(bag_path, epoch_ns=epoch_ns_of(config.scenario.start_utc))
     bag.open()
     try:

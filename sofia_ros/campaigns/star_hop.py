@@ -66,8 +66,6 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
                'finished': bool(result.get('accepted')), 'observations': len(result.get('observations', []))}
     if not summary['finished']:
         summary['reason'] = result.get('reason', 'not finished')
-    (bag_path / 'truth.yaml').write_text(truth.text)
-    (bag_path / 'model.yaml').write_text(model_text)
-    (bag_path / 'star_hop.yaml').write_text(result_yaml)
-    finish_run(bag_path, summary, fault)
+    finish_run(bag_path, summary, fault,
+               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, 'star_hop.yaml': result_yaml})
     return summary

@@ -14,7 +14,10 @@ from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS, done_topic, stop_text
 from sofia_ros.topics import CLOCK
 from rosgraph_msgs.msg import Clock
 
-__all__ = ['ClockNode']
+__all__ = ['ClockNode', 'STALLED_EXIT_CODE']
+
+#: Exit code of the clock node's process when it stopped the run because a node fell silent (a fault).
+STALLED_EXIT_CODE = 3
 
 _STARTUP_TIMEOUT_S = 120.0
 

@@ -34,6 +34,13 @@ class NodeCore:
     name = ''
     #: (node name, lag in ticks) this core waits for before its tick
     upstream = ()
+    #: True for the core whose sequence is the campaign: the run ends when it finishes or fails
+    ends_run = False
+    #: the nodes this core sets parameters on (SET_PARAMETERS requests; parameter clients in the live graph)
+    parameter_targets = ()
+    #: an input topic of sensor_msgs/Imu samples that the core takes as one ImuBlock per tick (the live
+    #: shell subscribes to it raw and decodes a tick's samples in one go), or None
+    imu_block_input = None
 
     def __init__(self):
         self.outcome = RunOutcome()

@@ -13,8 +13,8 @@ import numpy as np
 from scipy.optimize import brentq
 from diagnostic_msgs.msg import DiagnosticStatus
 
+from sofia_ros import graph_nodes, mount, topics
 from sofia_ros import messages as m
-from sofia_ros import mount, topics
 from sofia_ros.control import servo, tracker
 from sofia_ros.control.attitude import propagate_dcm, rotation_error_rad
 from sofia_ros.errors import CommandRefusedError, ConfigError, SofiaError
@@ -45,7 +45,8 @@ class TascuCore(NodeCore):
     """Alignment, FBC, attitude propagation, servo, motion status and tracker."""
 
     name = 'tascu'
-    upstream = (('gyro_box', 0), ('hipo', 0), ('fpi', 0), ('ffi', 0), ('wfi', 0), ('calibration', 1))
+    imu_block_input = IMU_TOPIC.name
+    upstream = (('gyro_box', 0), *((camera, 0) for camera in graph_nodes.CAMERAS), ('calibration', 1))
 
     def __init__(self, settings=None):
         super().__init__()

@@ -234,7 +234,7 @@ def _recover(args):
 
 
 def _noise(args):
-    from sofia_ros.analysis.noise_cli import run_noise
+    from sofia_ros.noise.cli import run_noise
 
     return run_noise(args)
 
@@ -267,7 +267,7 @@ def _import(args):
 
 
 def _add_noise_arguments(parser):
-    from sofia_ros.analysis.noise_cli import add_noise_arguments
+    from sofia_ros.noise.cli import add_noise_arguments
 
     add_noise_arguments(parser)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import yaml
 
@@ -54,7 +55,7 @@ def _scenario_number(key, value):
     return number
 
 
-def scenario_from_mapping(defaults, overrides):
+def scenario_from_mapping(defaults: Scenario, overrides: Mapping[str, Any] | None) -> Scenario:
     """A Scenario from campaign defaults overlaid with a truth file's ``scenario:`` mapping."""
     if overrides is None:
         return defaults
@@ -88,7 +89,7 @@ def scenario_from_mapping(defaults, overrides):
 
 
 
-def scenario_document(scenario):
+def scenario_document(scenario: Scenario) -> str:
     """The scenario as the YAML document recorded on topics.SCENARIO_DOCUMENT."""
     return yaml.safe_dump({
         'latitude_deg': scenario.site.latitude_deg, 'longitude_deg': scenario.site.longitude_deg,
@@ -99,7 +100,7 @@ def scenario_document(scenario):
     }, sort_keys=False)
 
 
-def scenario_from_document(text):
+def scenario_from_document(text: str) -> Scenario:
     """A Scenario from a recorded scenario document; ConfigError if it is not one."""
     try:
         fields = yaml.safe_load(text)

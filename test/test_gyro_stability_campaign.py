@@ -64,7 +64,7 @@ def test_unknown_case_and_bad_length_are_refused(tmp_path):
 
 
 def test_noise_analysis_finds_the_case_line_the_arw_and_the_earth_rate_table(tc3, tmp_path):
-    from sofia_ros.analysis.noise_report import analyze_noise
+    from sofia_ros.noise.run import analyze_noise
     from sofia_ros.cli import main
 
     document = analyze_noise(tc3[2])
@@ -93,7 +93,7 @@ def test_noise_analysis_finds_the_case_line_the_arw_and_the_earth_rate_table(tc3
 
 def test_without_pumps_the_fitted_arw_is_the_truths(tmp_path):
     # TC-1 (RIS shut down): with its 14 lines taken out of the fit, N = 0.0132"/sqrt(s) within 3 sigma.
-    from sofia_ros.analysis.noise_report import analyze_noise
+    from sofia_ros.noise.run import analyze_noise
 
     run_gyro_stability(TRUTH, case='TC-1', hours=0.05, seed=3, bag_path=tmp_path / 'tc1')
     document = analyze_noise(tmp_path / 'tc1')
@@ -131,7 +131,7 @@ def values_el(document):
 
 
 def test_noise_of_a_bag_without_a_case_is_refused(tmp_path):
-    from sofia_ros.analysis.noise_report import analyze_noise
+    from sofia_ros.noise.run import analyze_noise
     from sofia_ros.bag import BagWriter
 
     with BagWriter(tmp_path / 'empty') as bag:

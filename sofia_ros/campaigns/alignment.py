@@ -85,8 +85,8 @@ def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevati
     return Rotation.from_matrix(error.T).as_rotvec() * ARCSEC_PER_RAD
 
 
-def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=DEFAULT_MAX_SIM_S, model_text='effects: {}\n',
-                  progress=None, timeout_s=3600.0):
+def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=DEFAULT_MAX_SIM_S,
+                  model_text='effects: {}\n', progress=None, timeout_s=3600.0):
     """Run the campaign and write the bag plus truth.yaml, model.yaml, calibration.yaml and summary.json.
 
     ``mode``: one of recording.MODES, 'executor' (every node in this process under one executor,

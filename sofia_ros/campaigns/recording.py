@@ -8,7 +8,9 @@ import json
 import signal
 import tempfile
 import time
+from os import PathLike
 from pathlib import Path
+from typing import Any, Callable, Mapping
 
 import yaml
 
@@ -17,7 +19,7 @@ from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.errors import ConfigError, RunFaultError, RunInterrupted
 from sofia_ros.scenario import scenario_document
-from sofia_ros.sim.graph import build_cores
+from sofia_ros.sim.graph import GraphConfig, build_cores
 from sofia_ros.sim.runner import LockstepRunner
 from sofia_ros.topics import MODEL_DOCUMENT, PLAN_DOCUMENT, SCENARIO_DOCUMENT, STOP_DOCUMENT, TRUTH_DOCUMENT
 
@@ -29,7 +31,7 @@ __all__ = ['MODES', 'graph_documents', 'record_campaign', 'record_graph', 'new_b
 MODES = ('executor', 'processes', 'direct')
 
 
-def new_bag_path(bag_path):
+def new_bag_path(bag_path: str | PathLike[str]) -> Path:
     """The bag directory as a Path; ConfigError if it exists already (a run never overwrites a bag)."""
     bag_path = Path(bag_path)
     if bag_path.exists():
@@ -37,7 +39,7 @@ def new_bag_path(bag_path):
     return bag_path
 
 
-def graph_documents(config, model_text=None):
+def graph_documents(config: GraphConfig, model_text: str | None = None) -> list[tuple[str, str]]:
     """(topic, text) of the documents a graph's bag starts with: truth, model (if given), scenario, plan."""
     documents = [(TRUTH_DOCUMENT.name, config.truth.text)]
     if model_text is not None:
@@ -47,12 +49,12 @@ def graph_documents(config, model_text=None):
     return documents
 
 
-def write_summary(bag_path, summary):
+def write_summary(bag_path: str | PathLike[str], summary: dict) -> None:
     """summary.json beside the bag (mode from the umask, like every other output)."""
     Path(bag_path, 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
 
 
-def summary_of_failed_run(bag_path, wall_seconds, reason):
+def summary_of_failed_run(bag_path: str | PathLike[str], wall_seconds: float, reason: str) -> dict:
     """The summary of a run whose bag could not be read back (a recorder that died leaves it unclosed)."""
     closed = Path(bag_path, 'metadata.yaml').exists()
     hint = '' if closed or 'sofia recover' in reason else \
@@ -60,7 +62,8 @@ def summary_of_failed_run(bag_path, wall_seconds, reason):
     return {'sim_seconds': None, 'wall_seconds': round(wall_seconds, 3), 'reason': reason + hint}
 
 
-def finish_run(bag_path, summary, fault=None, *, side_files=None):
+def finish_run(bag_path: str | PathLike[str], summary: dict, fault: str | None = None, *,
+               side_files: Mapping[str, str] | None = None) -> None:
     """Write the side files (file name -> text, e.g. truth.yaml) and summary.json beside the bag; raise
     RunInterrupted (a signal stopped the run) or RunFaultError (``fault``).
 
@@ -88,7 +91,7 @@ def finish_run(bag_path, summary, fault=None, *, side_files=None):
         raise RunFaultError(f'run stopped{sim}: {summary["reason"]} (summary.json: "stopped": "fault")')
 
 
-def record_campaign(config, bag_path, **options):
+def record_campaign(config: GraphConfig, bag_path: Path, **options: Any) -> str | None:
     """record_graph(config, bag_path, **options); when it fails after the start, summary.json gets the
     reason (``"stopped": "fault"``) before the error propagates: RunFaultError (exit 3) or a bug."""
     wall_start = time.perf_counter()
@@ -104,7 +107,8 @@ def record_campaign(config, bag_path, **options):
         raise
 
 
-def record_graph(config, bag_path, *, model_text, mode, max_sim_s, timeout_s, progress=None):
+def record_graph(config: GraphConfig, bag_path: Path, *, model_text: str | None, mode: str, max_sim_s: float,
+                 timeout_s: float, progress: Callable[[float | None, float], None] | None = None) -> str | None:
     """Run the graph of ``config`` until its calibration node finishes, recording every topic to ``bag_path``.
 
     The bag starts with :func:`graph_documents` in every mode (in 'processes' the recorder

@@ -58,7 +58,8 @@ def _star_hop() -> CampaignSpec:
     from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
 
     return CampaignSpec(
-        StarHopPlan.campaign, "Table D.3's 17 observations of six stars: absolute pointing and differential flexure (6.2, 6.3)",
+        StarHopPlan.campaign,
+        "Table D.3's 17 observations of six stars: absolute pointing and differential flexure (6.2, 6.3)",
         StarHopPlan, star_hop_config, run_star_hop, ('compare',),
         MappingProxyType({'full': {}, 'reduced': {'observations': table_d3_offsets_s()[3:7]}}))
 

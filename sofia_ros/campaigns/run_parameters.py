@@ -12,18 +12,22 @@ them back with ``campaigns.graph_params``. No registry here: the recording side 
 from __future__ import annotations
 
 from dataclasses import fields
+from os import PathLike
+from typing import Any
 
 __all__ = ['graph_parameters', 'plan_parameters']
 
 
-def graph_parameters(truth_file, seed, plan, *, tick_ns, max_sim_s, bag_path='', stall_timeout_s=15.0, model_file=''):
+def graph_parameters(truth_file: str | PathLike[str], seed: int, plan: Any, *, tick_ns: int, max_sim_s: float,
+                     bag_path: str | PathLike[str] = '', stall_timeout_s: float = 15.0,
+                     model_file: str | PathLike[str] = '') -> dict[str, Any]:
     """Parameter values of one run; the campaign is the one ``plan`` plans (its dataclass' ``campaign``)."""
     return {'campaign': plan.campaign, 'truth_file': str(truth_file), 'seed': int(seed), 'tick_ns': int(tick_ns),
             'max_sim_s': float(max_sim_s), 'stall_timeout_s': float(stall_timeout_s), 'bag_path': str(bag_path),
             'model_file': str(model_file), **plan_parameters(plan)}
 
 
-def plan_parameters(plan):
+def plan_parameters(plan: Any) -> dict[str, Any]:
     """The plan as plan.* parameter values: one per field, a field with ``columns`` one array per column."""
     values = {}
     for spec in fields(plan):

@@ -12,6 +12,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable, Mapping
 
 import rclpy
 import yaml
@@ -39,7 +40,8 @@ def _participants(cores):
     return [core.name for core in cores if core.name != 'clock']
 
 
-def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=DEFAULT_MAX_SIM_S, timeout_s=3600.0, progress=None):
+def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=DEFAULT_MAX_SIM_S, timeout_s=3600.0,
+                         progress=None):
     """All nodes in one process under one executor; return the calibration core, the stop reason and
     whether the run ended by itself (False: a stall or a signal stopped it; the bag is closed either way).
 
@@ -97,7 +99,8 @@ class GraphProcesses:
     bag_path: Path | None = None
 
 
-def write_params_file(path, values, per_node=None):
+def write_params_file(path: Path, values: Mapping[str, Any],
+                      per_node: Mapping[str, Mapping[str, Any]] | None = None) -> None:
     """A --params-file with the graph parameters for every node (``/**``) plus per-node sections."""
     document = {'/**': {'ros__parameters': values}}
     for node, node_values in (per_node or {}).items():
@@ -105,7 +108,7 @@ def write_params_file(path, values, per_node=None):
     path.write_text(yaml.safe_dump(document, sort_keys=False))
 
 
-def start_graph_processes(parameters, bag_path):
+def start_graph_processes(parameters: Mapping[str, Any], bag_path: str | os.PathLike[str]) -> GraphProcesses:
     """Start every node as its own process (what `ros2 run` gives), sharing one params file of the graph
     ``parameters`` (campaigns.graph_params.graph_parameters; bag_path among them for the recorder).
 
@@ -194,7 +197,9 @@ def stop_graph(graph):
     release_ros_domain(graph.domain)
 
 
-def run_graph_in_processes(parameters, bag_path, *, timeout_s=3600.0, progress=None):
+def run_graph_in_processes(parameters: Mapping[str, Any], bag_path: str | os.PathLike[str], *,
+                           timeout_s: float = 3600.0,
+                           progress: Callable[[float | None, float], None] | None = None) -> GraphProcesses:
     """Each node as its own process (start_graph_processes); return the GraphProcesses after the recorder
     closed the bag.
 

@@ -2,15 +2,15 @@
 
 One record of `sofia run gyro-stability` is read once (load_noise_record) and analyzed
 (analyze_record), optionally as if only every k-th sample had been kept (the housekeeping case of
-4.2.5, corrected by 4.27 with the quantization term of noise_model.arw_of_decimated_record):
+4.2.5, corrected by 4.27 with the quantization term of noise.fit.arw_of_decimated_record):
 
-- the Earth-rate table of Table 5.7 with the heading search and its degeneracy (noise_earth_rate);
+- the Earth-rate table of Table 5.7 with the heading search and its degeneracy (noise.earth_rate);
 - per axis, the overlapping Allan deviation (4.6-4.8) of the mean-removed rate, its five-term fit
   (4.24) with 4.25 errors and the PSD's lines as nuisance terms, the bias stability read at the
   curve's minimum (Table 5.8) among points known to 25 % and whether the record resolves it, the
   Welch PSD of 5.2.5 and its lines with their likely sources, and the largest excursion of the
   integrated angle (Figs. 5.8-5.9);
-- the noise-model loop (noise_loop): the model's residual and the missing terms ranked.
+- the noise-model loop (noise.candidates): the model's residual and the missing terms ranked.
 
 The document is the `sofia noise --json` contract (docs/noise.md).
 """
@@ -25,19 +25,15 @@ import yaml
 
 from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
 from sofia_ros.analysis.lines import find_lines, silent_sources
-from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
-from sofia_ros.analysis.noise_loop import (
-    check_noise_model,
-    fit_base,
-    measured_noise,
-    rank_missing_terms,
-    residual_summary,
-)
-from sofia_ros.analysis.noise_model import arw_of_decimated_record, bias_stability, fit_noise_model
 from sofia_ros.analysis.spectra import welch_equivalent_dof, welch_rate_psd, welch_segment_samples
 from sofia_ros.bag import BagReader
 from sofia_ros.errors import BagError, InvalidArgumentError
 from sofia_ros.frames import AXES
+from sofia_ros.noise.candidates import fit_base, rank_missing_terms, residual_summary
+from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
+from sofia_ros.noise.fit import arw_of_decimated_record, bias_stability, fit_noise_model
+from sofia_ros.noise.measure import measured_noise
+from sofia_ros.noise.predict import check_noise_model
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC
 from sofia_ros.topics import CASE_DOCUMENT, GYRO_IMU, SUBSYSTEM_STATUS
@@ -112,7 +108,8 @@ def load_noise_record(bag_path, imu_topic=GYRO_IMU.name):
         if imu_topic not in names:
             raise BagError(f'{bag_path} has no {imu_topic}; record a gyro-stability campaign first')
         if CASE_DOCUMENT.name not in names:
-            raise BagError(f'{bag_path} has no {CASE_DOCUMENT.name}; `sofia noise` reads the geometry of a gyro-stability run')
+            raise BagError(f'{bag_path} has no {CASE_DOCUMENT.name}; '
+                           '`sofia noise` reads the geometry of a gyro-stability run')
         case = yaml.safe_load(bag.document(CASE_DOCUMENT.name))
         subsystems = None
         if SUBSYSTEM_STATUS.name in names:
@@ -123,7 +120,7 @@ def load_noise_record(bag_path, imu_topic=GYRO_IMU.name):
 
 
 def _decimated_arw(fit, sample_rate_hz, quantization_arcsec):
-    """(read-out ARW, its sigma) of a decimated record's fit (noise_model.arw_of_decimated_record)."""
+    """(read-out ARW, its sigma) of a decimated record's fit (noise.fit.arw_of_decimated_record)."""
     arw = float(arw_of_decimated_record(fit.arw_arcsec_per_sqrt_s, sample_rate_hz, quantization_arcsec))
     # dN/dN_sampled = N_sampled (f_sampled / f_read-out) / N
     slope = fit.arw_arcsec_per_sqrt_s * sample_rate_hz / GYRO_SAMPLE_RATE_HZ / arw if arw > 0.0 else np.inf

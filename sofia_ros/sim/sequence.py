@@ -111,6 +111,7 @@ class SequenceCore(NodeCore):
                 {'accepted': False, 'reason': str(err), **self.record}, sort_keys=False))))
         return self.outbox
 
+    # --- steps every sequence is made of ---------------------------------------------------
     def _progress(self, step, values=None, level=DiagnosticStatus.OK):
         self.outbox.append((TOPICS['progress'].name, m.status_msg('calibration', step, values, level)))
 

@@ -178,6 +178,8 @@ def _run_star_hop(args):
 
 
 def _print_alignment_summary(run):
+    from sofia_ros.frames import AXES
+
     summary = run.summary
     print(f'bag: {run.bag_path}  ({summary["sim_seconds"]:.1f} s sim in {summary["wall_seconds"]:.1f} s wall, '
           f'{summary["sim_seconds"] / max(summary["wall_seconds"], 1e-9):.1f}x)')
@@ -186,7 +188,7 @@ def _print_alignment_summary(run):
         return
     print(f'alignment accepted after {summary["iterations"]} iteration(s); residual against /truth:')
     print(f'  {"axis":<5} {"residual":>10} {"predicted 1-sigma":>18} {"ratio":>7}')
-    for axis in ('el', 'xel', 'los'):
+    for axis in AXES:
         residual = summary['residual_misalignment_arcsec'][axis]
         sigma = summary['predicted_sigma_arcsec'][axis]
         print(f'  {axis.upper():<5} {residual:>9.2f}" {sigma:>17.2f}" {abs(residual) / sigma:>7.2f}')

@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
+from sofia_ros.frames import AXES
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
@@ -130,7 +131,7 @@ def _summary(result, truth, elevation_deg, sim_seconds, wall_seconds):
                'accepted': bool(result.get('accepted'))}
     if summary['accepted']:
         residual = residual_misalignment_arcsec(result['tarf_from_gyrf'], truth.effects, elevation_deg)
-        summary['residual_misalignment_arcsec'] = dict(zip(('el', 'xel', 'los'), (float(v) for v in residual)))
+        summary['residual_misalignment_arcsec'] = dict(zip(AXES, (float(v) for v in residual)))
         summary['predicted_sigma_arcsec'] = result['predicted_sigma_arcsec']
         summary['iterations'] = len(result['iterations'])
     else:

@@ -1,16 +1,19 @@
 """ament_python package setup: `colcon build` puts executables in lib/sofia_ros, pip in bin/."""
 
+import runpy
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE_NAME = 'sofia_ros'
 
-# One executable per node (``ros2 run sofia_ros <name>``) plus the ``sofia`` command.
+# One executable per node (``ros2 run sofia_ros <name>``) plus the ``sofia`` command; the node
+# executables are listed once, in sofia_ros/graph_nodes.py (standard library only, so it runs here).
+GRAPH_NODES = runpy.run_path(str(Path(__file__).resolve().parent / PACKAGE_NAME / 'graph_nodes.py'))
 NODE_EXECUTABLES = {
     'sofia': 'sofia_ros.cli:main',
-    **{name: f'sofia_ros.nodes.executables:{name}' for name in (
-        'clock', 'plant', 'gyro_box', 'imager', 'hipo', 'tascu', 'calibration', 'recorder')},
+    **{name: f'sofia_ros.nodes.executables:{name}' for name in GRAPH_NODES['EXECUTABLES']},
 }
 
 

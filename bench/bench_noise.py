@@ -31,11 +31,11 @@ import allantools
 import numpy as np
 
 from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
-from sofia_ros.analysis.noise_plots import write_report
-from sofia_ros.analysis.noise_report import analyze_record, load_noise_record
 from sofia_ros.campaigns.gyro_stability import run_gyro_stability
 from sofia_ros.cli import main as sofia
 from sofia_ros.config import load_effect_config, parse_effect_config
+from sofia_ros.noise.report import write_report
+from sofia_ros.noise.run import analyze_record, load_noise_record
 
 REPOSITORY = Path(__file__).resolve().parents[1]
 MODEL = 'effects:\n  gyro_noise: {}\n  gyro_misalignment: {}\n'

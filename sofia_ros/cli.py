@@ -98,16 +98,21 @@ def _run_campaign(args):
         return _run_star_hop(args)
     truth = load_effect_config(args.truth)
     model_text = _model_text(args)
-    plan = spec.plan(repetitions=args.repetitions, verification_repetitions=args.verification_repetitions,
-                     drift_track_s=args.drift_track_s)
+    # Options left out take the plan dataclass' own defaults.
+    plan = spec.plan(**_given(args, 'repetitions', 'verification_repetitions', 'drift_track_s'))
     progress = _Progress()
     try:
         run = spec.run(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=_mode(args),
-                       max_sim_s=args.max_sim_s, model_text=model_text, progress=progress)
+                       model_text=model_text, progress=progress, **_given(args, 'max_sim_s'))
     finally:
         progress.close()
     _print_alignment_summary(run)
     return 0
+
+
+def _given(args, *names):
+    """The options among ``names`` given on the command line (argparse leaves the others None)."""
+    return {name: getattr(args, name) for name in names if getattr(args, name) is not None}
 
 
 def _mode(args):
@@ -155,7 +160,7 @@ def _run_star_hop(args):
             raise ConfigError(f'--observations needs 1 <= FIRST < LAST <= {len(observations)}, got {args.observations}')
         observations = observations[first - 1:last]
     try:
-        plan = StarHopPlan(observations=observations, hold_s=args.hold_s, follow_times=not args.no_follow_times)
+        plan = StarHopPlan(observations=observations, follow_times=not args.no_follow_times, **_given(args, 'hold_s'))
     except InvalidArgumentError as err:
         raise ConfigError(str(err)) from err
     progress = _Progress()
@@ -173,6 +178,8 @@ def _run_star_hop(args):
 
 
 def _print_alignment_summary(run):
+    from sofia_ros.frames import AXES
+
     summary = run.summary
     print(f'bag: {run.bag_path}  ({summary["sim_seconds"]:.1f} s sim in {summary["wall_seconds"]:.1f} s wall, '
           f'{summary["sim_seconds"] / max(summary["wall_seconds"], 1e-9):.1f}x)')
@@ -181,7 +188,7 @@ def _print_alignment_summary(run):
         return
     print(f'alignment accepted after {summary["iterations"]} iteration(s); residual against /truth:')
     print(f'  {"axis":<5} {"residual":>10} {"predicted 1-sigma":>18} {"ratio":>7}')
-    for axis in ('el', 'xel', 'los'):
+    for axis in AXES:
         residual = summary['residual_misalignment_arcsec'][axis]
         sigma = summary['predicted_sigma_arcsec'][axis]
         print(f'  {axis.upper():<5} {residual:>9.2f}" {sigma:>17.2f}" {abs(residual) / sigma:>7.2f}')
@@ -192,6 +199,7 @@ def _print_alignment_summary(run):
 def _print_flexure_series(flexure_record):
     """Imager boresights against HIPO over elevation (Table 3.5, Fig. 6.4) beside the FEM (Table 3.3)."""
     from sofia_ros import flexure
+    from sofia_ros.graph_nodes import IMAGERS
 
     if not flexure_record:
         return
@@ -199,7 +207,7 @@ def _print_flexure_series(flexure_record):
     print(f'boresight change against HIPO from 23 to 60 deg (dEL, dXEL), stars at '
           f'{", ".join(f"{e:.1f}" for e in sorted(elevations))} deg:')
     load = flexure.gravity_load_tarf
-    for camera in ('fpi', 'ffi', 'wfi'):
+    for camera in IMAGERS:
         measured = flexure_record['fit'][camera]['change_23_to_60_deg_arcsec']
         fem = (0.0, 0.0) if camera == 'fpi' else flexure.differential_imager_rotation_arcsec(camera, load(60.0), load(23.0))
         print(f'  {camera.upper():<4} measured ({measured[0]:+6.2f}", {measured[1]:+6.2f}")   '
@@ -228,7 +236,7 @@ def _recover(args):
 
 
 def _noise(args):
-    from sofia_ros.analysis.noise_cli import run_noise
+    from sofia_ros.noise.cli import run_noise
 
     return run_noise(args)
 
@@ -261,7 +269,7 @@ def _import(args):
 
 
 def _add_noise_arguments(parser):
-    from sofia_ros.analysis.noise_cli import add_noise_arguments
+    from sofia_ros.noise.cli import add_noise_arguments
 
     add_noise_arguments(parser)
 
@@ -293,16 +301,18 @@ def build_parser():
     where = run.add_mutually_exclusive_group()
     where.add_argument('--processes', action='store_true', help='each node in its own process')
     where.add_argument('--direct', action='store_true', help='cores in one loop without DDS (fastest)')
-    run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'), default=6,
-                     help='maneuvers per axis (default 6, as in 6.1)')
-    run.add_argument('--verification-repetitions', type=integer(1, 100, 'maneuvers per axis'), default=2,
-                     help='verification maneuvers per axis')
-    run.add_argument('--drift-track-s', type=number(1.0, 3600.0, 's'), default=60.0,
-                     help='drift estimation on the star, s')
-    run.add_argument('--max-sim-s', type=number(0.0, 172800.0, 's', low_open=True), default=7200.0,
-                     help='stop after this much sim time')
-    run.add_argument('--hold-s', type=number(0.0, 7200.0, 's', low_open=True), default=60.0,
-                     help='star-hop: seconds each star is held and recorded')
+    # No defaults here: an option left out takes the plan dataclass' default (sim.calibration.AlignmentPlan,
+    # sim.star_hop.StarHopPlan) or the campaign runner's (campaigns.recording.DEFAULT_MAX_SIM_S).
+    run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'),
+                     help="maneuvers per axis (default: the plan's, six as in 6.1)")
+    run.add_argument('--verification-repetitions', type=integer(1, 100, 'maneuvers per axis'),
+                     help="verification maneuvers per axis (default: the plan's)")
+    run.add_argument('--drift-track-s', type=number(1.0, 3600.0, 's'),
+                     help="drift estimation on the star, s (default: the plan's)")
+    run.add_argument('--max-sim-s', type=number(0.0, 172800.0, 's', low_open=True),
+                     help='alignment: stop after this much sim time (default: two hours)')
+    run.add_argument('--hold-s', type=number(0.0, 7200.0, 's', low_open=True),
+                     help="star-hop: seconds each star is held and recorded (default: the plan's)")
     run.add_argument('--no-follow-times', action='store_true',
                      help='star-hop: go to the next star at once instead of at its Table D.3 time')
     run.add_argument('--observations', help='star-hop: only observations FIRST-LAST of Table D.3 (e.g. 4-9)')

@@ -119,7 +119,7 @@ def parse_effect_config(text, source='<text>'):
     if scenario is not None and not isinstance(scenario, dict):
         raise ConfigError(f'{source}: scenario must be a mapping')
     if scenario:
-        from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
+        from sofia_ros.scenario import Scenario, scenario_from_mapping
         from sofia_ros.sky import WACO_2004_SITE
 
         try:

@@ -20,7 +20,9 @@ __all__ = [
     'BagError',
     'FitError',
     'DomainBusyError',
+    'CalibrationAbort',
     'RunFaultError',
+    'GraphRunError',
     'RunInterrupted',
 ]
 
@@ -73,8 +75,16 @@ class DomainBusyError(ConfigError):
     """Another run on this machine holds the ROS domain (its lock file); two graphs in one domain corrupt each other."""
 
 
+class CalibrationAbort(SofiaError):
+    """The calibration node's sequence cannot go on (a timeout, a refused command); the reason says why."""
+
+
 class RunFaultError(SofiaError):
     """A campaign stopped by a fault after it started (a node died, the graph stalled); its bag is closed."""
+
+
+class GraphRunError(RunFaultError):
+    """The live graph did not finish (stall, crash, a node process died, or the wall-clock timeout)."""
 
 
 class RunInterrupted(BaseException):

@@ -43,6 +43,7 @@ from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar, unit_vector
 
 __all__ = [
+    'AXES',
     'QUATERNION_NORM_TOLERANCE',
     'dcm_from_quaternion',
     'quaternion_from_dcm',
@@ -71,6 +72,8 @@ __all__ = [
     'boresight_dcm',
 ]
 
+#: The TARF axes, in the order of every rotation-angle and rate 3-vector (B.19-B.22).
+AXES = ('el', 'xel', 'los')
 #: Largest | |q| - 1 | accepted before a quaternion is normalized.
 QUATERNION_NORM_TOLERANCE = 1e-6
 #: Below this the rotation angle is taken as zero and a rotation axis is undefined.

@@ -15,7 +15,7 @@ from sofia_ros.campaigns.alignment import graph_config, run_alignment
 from sofia_ros.config import load_effect_config
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import build_cores, graph_topics
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 NOMINAL = load_effect_config('config/truth/nominal.yaml')
 # Reduced campaign: 4 repetitions (the residual drift fit needs >= 4), 1 verification pair, 30 s drift track.

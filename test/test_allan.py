@@ -15,8 +15,8 @@ from sofia_ros.analysis.allan import (
     psd_corrected_for_sampling,
     required_test_time_s,
 )
-from sofia_ros.analysis.noise_model import arw_from_slope_fit
 from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.noise.fit import arw_from_slope_fit
 from sofia_ros.sensors.gyro_noise import GYRO_001_1999, NoiseCoefficients, gyro_rate_arcsec_per_s
 
 SAMPLE_RATE_HZ = 400.0  # FOG180 read-out rate (2.4.1)

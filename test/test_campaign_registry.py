@@ -2,9 +2,9 @@
 
 import pytest
 
+from sofia_ros.campaigns import graph_params
 from sofia_ros.campaigns.registry import CAMPAIGNS, campaign_named, graph_campaign_of_plan
 from sofia_ros.errors import ConfigError
-from sofia_ros.nodes import graph_params
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.star_hop import StarHopPlan
 

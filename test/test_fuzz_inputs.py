@@ -13,7 +13,7 @@ from sofia_ros.bag import BagReader, BagWriter
 from sofia_ros.cli import main
 from sofia_ros.compare.observations import REQUIRED_TOPICS
 from sofia_ros.effects import CATALOGUE
-from sofia_ros.sim.scenario import SCENARIO_RANGES
+from sofia_ros.scenario import SCENARIO_RANGES
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = str(ROOT / 'config' / 'truth' / 'nominal.yaml')

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
-from sofia_ros.analysis.noise_model import BIAS_INSTABILITY_PLATEAU, loglog_slope, quantization_adev
 from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.noise.fit import BIAS_INSTABILITY_PLATEAU, loglog_slope, quantization_adev
 from sofia_ros.sensors.gyro_noise import (
     GYRO_001_1999,
     QUANTIZATION_ARCSEC,

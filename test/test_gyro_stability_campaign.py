@@ -7,11 +7,12 @@ import pytest
 
 from sofia_ros.analysis.spectra import welch_rate_psd
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.gyro_stability import CASES, SUBSYSTEM_TOPIC, run_gyro_stability
+from sofia_ros.campaigns.gyro_stability import CASES, run_gyro_stability
 from sofia_ros.config import parse_effect_config
 from sofia_ros.earth_rate import earth_rate_tarf_rad_per_s
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm as true_tarf_from_gyrf
+from sofia_ros.topics import SUBSYSTEM_STATUS
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 
 TRUTH = parse_effect_config('effects:\n  gyro_misalignment: {}\n  gyro_bias: {}\n  gyro_noise: {}\n')
@@ -63,7 +64,7 @@ def test_unknown_case_and_bad_length_are_refused(tmp_path):
 
 
 def test_noise_analysis_finds_the_case_line_the_arw_and_the_earth_rate_table(tc3, tmp_path):
-    from sofia_ros.analysis.noise_report import analyze_noise
+    from sofia_ros.noise.run import analyze_noise
     from sofia_ros.cli import main
 
     document = analyze_noise(tc3[2])
@@ -92,7 +93,7 @@ def test_noise_analysis_finds_the_case_line_the_arw_and_the_earth_rate_table(tc3
 
 def test_without_pumps_the_fitted_arw_is_the_truths(tmp_path):
     # TC-1 (RIS shut down): with its 14 lines taken out of the fit, N = 0.0132"/sqrt(s) within 3 sigma.
-    from sofia_ros.analysis.noise_report import analyze_noise
+    from sofia_ros.noise.run import analyze_noise
 
     run_gyro_stability(TRUTH, case='TC-1', hours=0.05, seed=3, bag_path=tmp_path / 'tc1')
     document = analyze_noise(tmp_path / 'tc1')
@@ -108,8 +109,8 @@ def test_without_pumps_the_fitted_arw_is_the_truths(tmp_path):
 def test_the_case_configuration_of_table_5_2_is_recorded_as_a_diagnostic_status(tc3):
     # TC-3 (5.2.1): RIS active, FD braked, VIS uncaged; the pumps and cooling carts run with the RIS.
     with BagReader(tc3[2]) as reader:
-        assert reader.topic(SUBSYSTEM_TOPIC).msgtype == 'diagnostic_msgs/msg/DiagnosticStatus'
-        (_, stamp_ns, status), = reader.messages(SUBSYSTEM_TOPIC)
+        assert reader.topic(SUBSYSTEM_STATUS.name).msgtype == 'diagnostic_msgs/msg/DiagnosticStatus'
+        (_, stamp_ns, status), = reader.messages(SUBSYSTEM_STATUS.name)
     states = {value.key: value.value for value in status.values}
     # Logged at the campaign's start, 2007-06-21T18:00:00Z (the bag is on the campaign's UTC time).
     assert (stamp_ns, status.hardware_id, status.message) == (
@@ -130,7 +131,7 @@ def values_el(document):
 
 
 def test_noise_of_a_bag_without_a_case_is_refused(tmp_path):
-    from sofia_ros.analysis.noise_report import analyze_noise
+    from sofia_ros.noise.run import analyze_noise
     from sofia_ros.bag import BagWriter
 
     with BagWriter(tmp_path / 'empty') as bag:

@@ -9,10 +9,12 @@ import yaml
 
 from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.alignment import run_alignment
+from sofia_ros.campaigns.run_parameters import graph_parameters
 from sofia_ros.config import load_effect_config
 from sofia_ros.nodes.launch import start_graph_processes, stop_graph, wait_for_graph
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 NOMINAL = load_effect_config('config/truth/nominal.yaml')
 SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=10.0)
@@ -74,11 +76,17 @@ def _truth_file(tmp_path):
     return path
 
 
+def _parameters(tmp_path, seed, bag, **options):
+    """The graph parameters of a SHORT alignment run recorded to ``bag``."""
+    return graph_parameters(_truth_file(tmp_path), seed, SHORT, tick_ns=DEFAULT_TICK_NS, max_sim_s=DEFAULT_MAX_SIM_S,
+                            bag_path=bag, **options)
+
+
 @pytest.mark.timeout(300)
 @STARTUP_RERUNS
 def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
     bag = tmp_path / 'fault'
-    graph = start_graph_processes(_truth_file(tmp_path), 3, SHORT, bag, tick_ns=DEFAULT_TICK_NS, stall_timeout_s=5.0)
+    graph = start_graph_processes(_parameters(tmp_path, 3, bag, stall_timeout_s=5.0), bag)
     try:
         _wait_until_running(graph)
         graph.processes['gyro_box'].kill()
@@ -100,7 +108,7 @@ def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
 @STARTUP_RERUNS
 def test_recorder_stopped_by_sigint_closes_a_complete_bag(tmp_path):
     bag = tmp_path / 'sigint'
-    graph = start_graph_processes(_truth_file(tmp_path), 4, SHORT, bag, tick_ns=DEFAULT_TICK_NS)
+    graph = start_graph_processes(_parameters(tmp_path, 4, bag), bag)
     try:
         _wait_until_running(graph)
         graph.processes['recorder'].send_signal(signal.SIGINT)

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import pytest
 
-from sofia_ros.analysis.noise_plots import PLOTS
 from sofia_ros.bag import BagWriter
 from sofia_ros.campaigns.gyro_stability import CASES, run_gyro_stability
 from sofia_ros.cli import main
 from sofia_ros.config import parse_effect_config
+from sofia_ros.noise.report import PLOTS
 
 DOCS = Path(__file__).resolve().parents[1] / 'docs' / 'noise.md'
 MODEL = ('effects:\n  gyro_noise: {}\n  gyro_misalignment: {}\n'

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
 from sofia_ros.calibration.published import TABLE_D2_A5
 from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
 
 # Table 5.7 and 5.2.1/5.2.4: Edwards, N 34.9368 deg, GPS heading 324 deg, CD 40.1077 deg.
 LATITUDE_DEG, HEADING_DEG, ELEVATION_DEG = 34.9368, 324.0, 40.1077

@@ -5,11 +5,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sofia_ros.analysis.noise_loop import model_lines, model_with_candidate
-from sofia_ros.analysis.noise_report import NoiseRecord, analyze_record
 from sofia_ros.config import parse_effect_config
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
+from sofia_ros.noise.candidates import model_with_candidate
+from sofia_ros.noise.predict import model_lines
+from sofia_ros.noise.run import NoiseRecord, analyze_record
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC, NoiseCoefficients, gyro_rate_arcsec_per_s
 
 SAMPLE_RATE_HZ = 400.0

@@ -13,7 +13,8 @@ from sofia_ros.analysis.allan import (
     octave_cluster_sizes,
     overlapping_allan_deviation,
 )
-from sofia_ros.analysis.noise_model import (
+from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.noise.fit import (
     BIAS_INSTABILITY_PLATEAU,
     allan_variance_from_psd,
     arw_adev,
@@ -37,7 +38,6 @@ from sofia_ros.analysis.noise_model import (
     rrw_psd,
     sinusoid_adev,
 )
-from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.sensors.gyro_noise import (
     GYRO_001_1999,
     GYRO_001_2008,

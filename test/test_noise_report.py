@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import yaml
 
-from sofia_ros.analysis.noise_loop import model_with_candidate
-from sofia_ros.analysis.noise_model import noise_adev
-from sofia_ros.analysis.noise_report import BIAS_STABILITY_MAX_SIGMA_REL, analyze_record, load_noise_record
 from sofia_ros.campaigns.gyro_stability import run_gyro_stability
 from sofia_ros.config import parse_effect_config
+from sofia_ros.noise.candidates import model_with_candidate
+from sofia_ros.noise.fit import noise_adev
+from sofia_ros.noise.run import BIAS_STABILITY_MAX_SIGMA_REL, analyze_record, load_noise_record
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC, rate_ramp_deg_per_h2_to_arcsec_per_s2
 

@@ -14,6 +14,7 @@ from mcap.reader import make_reader
 from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
 
+from sofia_ros import messages as m
 from sofia_ros.bag import BagReader, BagWriter
 from sofia_ros.bag.msgtypes import decode_cdr
 from sofia_ros.campaigns.alignment import run_alignment
@@ -23,7 +24,6 @@ from sofia_ros.config import load_effect_config
 from sofia_ros.errors import BagError, PerturbationError
 from sofia_ros.perturb import PERTURBATION_FILE, Perturbation, perturb_bag
 from sofia_ros.sensors.imager_model import nominal_detector
-from sofia_ros.sim import messages as m
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 

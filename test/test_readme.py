@@ -6,7 +6,7 @@ from sofia_ros.campaigns.alignment import graph_config
 from sofia_ros.cli import build_parser
 from sofia_ros.config import load_effect_config
 from sofia_ros.sim.graph import topic_table_markdown
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 REPO = Path(__file__).resolve().parents[1]
 README = (REPO / 'README.md').read_text()
@@ -42,7 +42,7 @@ def test_every_documented_verb_exists():
 def test_shipped_params_file_builds_the_graph():
     import yaml
 
-    from sofia_ros.nodes.graph_params import graph_config_from_parameters
+    from sofia_ros.campaigns.graph_params import graph_config_from_parameters
 
     document = yaml.safe_load((Path(__file__).resolve().parents[1] / 'config/alignment.params.yaml').read_text())
     config = graph_config_from_parameters(document['/**']['ros__parameters'])

@@ -2,8 +2,8 @@
 
 import numpy as np
 
+from sofia_ros import messages as m
 from sofia_ros.bag import wire_cdr
-from sofia_ros.sim import messages as m
 
 
 def _block():

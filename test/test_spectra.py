@@ -5,7 +5,6 @@ import pytest
 from scipy import stats
 
 from sofia_ros.analysis.allan import psd_corrected_for_sampling
-from sofia_ros.analysis.noise_model import arw_deg_per_sqrt_h_from_white_psd, loglog_slope, noise_psd
 from sofia_ros.analysis.lines import find_lines, likely_source, line_threshold, silent_sources
 from sofia_ros.analysis.spectra import (
     log_chi_square_bias_and_sigma,
@@ -16,6 +15,7 @@ from sofia_ros.analysis.spectra import (
     welch_sinusoid_psd,
 )
 from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.noise.fit import arw_deg_per_sqrt_h_from_white_psd, loglog_slope, noise_psd
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC, SPECIFICATION, NoiseCoefficients, gyro_rate_arcsec_per_s
 
 SAMPLE_RATE_HZ = 400.0  # 2.4.1

@@ -15,15 +15,16 @@ import pytest
 import yaml
 
 from sofia_ros.bag import BagReader
+from sofia_ros.campaigns.graph_params import graph_config_from_parameters, plan_from_parameters
+from sofia_ros.campaigns.run_parameters import graph_parameters, plan_parameters
 from sofia_ros.campaigns.star_hop import run_star_hop
 from sofia_ros.cli import main
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import ConfigError
-from sofia_ros.nodes.graph_params import (graph_config_from_parameters, graph_parameters, plan_from_parameters,
-                                          plan_parameters, write_params_file)
+from sofia_ros.nodes.launch import write_params_file
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH_FILE = ROOT / 'config' / 'truth' / 'nominal.yaml'

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from sofia_ros import messages as m
 from sofia_ros.errors import ConfigError
 from sofia_ros.frames import dcm_from_rotation_angles
-from sofia_ros.sim import messages as m
 from sofia_ros.sim.tascu import TOPICS, TascuCore
 from sofia_ros.units import RAD_PER_DEG
 

@@ -1,3 +1,3 @@
-"""Offline analysis of gyro data: Allan variance, noise model and spectra (section 4.2, chapter 5)."""
+"""Generic tools for gyro and centroid data: Allan variance, spectra, lines, structure, ranking, centroid drift."""
 
-__all__ = ['allan', 'noise_model', 'spectra']
+__all__ = ['allan', 'centroid_drift', 'lines', 'ranking', 'spectra', 'structure']

@@ -8,10 +8,11 @@ import numpy as np
 import yaml
 
 from sofia_ros.bag import BagReader
+from sofia_ros.calibration.maneuver_records import maneuver_from_record
 from sofia_ros.calibration.solvers import fit_alignment
 from sofia_ros.errors import BagError
 from sofia_ros.sensors.imager_model import nominal_detector
-from sofia_ros.sim.calibration import maneuver_from_record
+from sofia_ros.topics import CALIBRATION_MANEUVERS
 
 __all__ = ['OfflineFit', 'refit_alignments']
 
@@ -28,9 +29,9 @@ class OfflineFit:
 def refit_alignments(bag_path):
     """Every alignment fit of a run, solved again from /calibration/maneuvers, in recording order."""
     with BagReader(bag_path) as bag:
-        if '/calibration/maneuvers' not in {topic.name for topic in bag.topics}:
+        if CALIBRATION_MANEUVERS.name not in {topic.name for topic in bag.topics}:
             raise BagError(f'{bag_path} has no /calibration/maneuvers; record an alignment campaign first')
-        documents = [yaml.safe_load(message.data) for _, _, message in bag.messages('/calibration/maneuvers')]
+        documents = [yaml.safe_load(message.data) for _, _, message in bag.messages(CALIBRATION_MANEUVERS.name)]
     fits = []
     for document in documents:
         maneuvers = [maneuver_from_record(record) for record in document['maneuvers']]

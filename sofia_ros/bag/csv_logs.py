@@ -25,22 +25,30 @@ from pathlib import Path
 
 import numpy as np
 
+from sofia_ros import messages as m
 from sofia_ros.bag import BagReader
 from sofia_ros.bag.writer import BagWriter
 from sofia_ros.errors import ConfigError
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.gyro_box import IMU_TOPIC, TEMPERATURE_TOPIC
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
-from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
-from sofia_ros.sim.scenario import SCENARIO_TOPIC
-from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
+from sofia_ros.frames import AXES
+from sofia_ros.graph_nodes import CAMERAS
+from sofia_ros.topics import (
+    CALIBRATION_RESULT,
+    CD_JOINT,
+    CENTROIDS,
+    FD_JOINTS,
+    GYRO_IMU,
+    GYRO_TEMPERATURE,
+    JOINT_STATES,
+    MOTION_STATUS,
+    SCENARIO_DOCUMENT,
+    TASCU_ATTITUDE,
+)
 
 __all__ = ['export_csv_logs', 'import_csv_logs', 'CSV_COLUMNS']
 
-_AXES = ('el', 'xel', 'los')
 _JOINTS = (CD_JOINT, *FD_JOINTS)
 CSV_COLUMNS = {
-    'gyro.csv': ('time_ns', *(f'{axis}_rad_per_s' for axis in _AXES)),
+    'gyro.csv': ('time_ns', *(f'{axis}_rad_per_s' for axis in AXES)),
     'gyro_temperature.csv': ('time_ns', 'temperature_c'),
     'joints.csv': ('time_ns', *(f'{joint}_rad' for joint in _JOINTS)),
     'attitude.csv': ('time_ns', 'qx', 'qy', 'qz', 'qw'),
@@ -48,9 +56,7 @@ CSV_COLUMNS = {
     'motion_status.csv': ('time_ns', 'state'),
 }
 _OPTIONAL = ('motion_status.csv',)
-_ACCELERATION = tuple(f'{axis}_m_per_s2' for axis in _AXES)
-_CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
-_RESULT_TOPIC = '/calibration/result'
+_ACCELERATION = tuple(f'{axis}_m_per_s2' for axis in AXES)
 _MOTION_NAME = 'motion_status'
 
 
@@ -64,13 +70,13 @@ def export_csv_logs(bag_path, directory):
     directory.mkdir(parents=True, exist_ok=False)
     with BagReader(bag_path) as bag:
         names = {topic.name for topic in bag.topics}
-        cameras = [camera for camera in _CAMERAS if f'/{camera}/centroids' in names]
-        optional = [topic for topic in (TASCU_TOPICS['motion_status'].name, _RESULT_TOPIC) if topic in names]
-        records = bag.messages_by_topic(IMU_TOPIC.name, TEMPERATURE_TOPIC.name, PLANT_TOPICS['joint_states'].name,
-                                        TASCU_TOPICS['attitude'].name, *optional,
-                                        *(f'/{camera}/centroids' for camera in cameras), imu=(IMU_TOPIC.name,))
-        (directory / 'scenario.yaml').write_text(bag.document(SCENARIO_TOPIC))
-    imu = records[IMU_TOPIC.name]
+        cameras = [camera for camera in CAMERAS if CENTROIDS[camera].name in names]
+        optional = [topic for topic in (MOTION_STATUS.name, CALIBRATION_RESULT.name) if topic in names]
+        records = bag.messages_by_topic(GYRO_IMU.name, GYRO_TEMPERATURE.name, JOINT_STATES.name,
+                                        TASCU_ATTITUDE.name, *optional,
+                                        *(CENTROIDS[camera].name for camera in cameras), imu=(GYRO_IMU.name,))
+        (directory / 'scenario.yaml').write_text(bag.document(SCENARIO_DOCUMENT.name))
+    imu = records[GYRO_IMU.name]
     with open(directory / 'gyro.csv', 'w', newline='') as stream:
         writer = csv.writer(stream)
         writer.writerow(CSV_COLUMNS['gyro.csv'] + _ACCELERATION)
@@ -86,24 +92,24 @@ def export_csv_logs(bag_path, directory):
                 stamp = m.stamp_ns_of(message.header.stamp) if hasattr(message, 'header') else log_ns
                 writer.writerow([stamp, *values_of(message)])
 
-    rows('gyro_temperature.csv', TEMPERATURE_TOPIC.name, lambda msg: [_number(msg.temperature)])
-    rows('joints.csv', PLANT_TOPICS['joint_states'].name,
+    rows('gyro_temperature.csv', GYRO_TEMPERATURE.name, lambda msg: [_number(msg.temperature)])
+    rows('joints.csv', JOINT_STATES.name,
          lambda msg: [_number(m.joint_positions_of(msg)[joint]) for joint in _JOINTS])
-    rows('attitude.csv', TASCU_TOPICS['attitude'].name, lambda msg: map(_number, m.quaternion_xyzw_of(msg)))
-    if TASCU_TOPICS['motion_status'].name in records:
-        rows('motion_status.csv', TASCU_TOPICS['motion_status'].name, lambda msg: [msg.message])
+    rows('attitude.csv', TASCU_ATTITUDE.name, lambda msg: map(_number, m.quaternion_xyzw_of(msg)))
+    if MOTION_STATUS.name in records:
+        rows('motion_status.csv', MOTION_STATUS.name, lambda msg: [msg.message])
     with open(directory / 'centroids.csv', 'w', newline='') as stream:
         writer = csv.writer(stream)
         writer.writerow(CSV_COLUMNS['centroids.csv'])
         for camera in cameras:
-            for message in records[f'/{camera}/centroids'][1]:
+            for message in records[CENTROIDS[camera].name][1]:
                 stamp = m.stamp_ns_of(message.header.stamp)
                 stars = m.centroids_of(message)
                 for hip, x_px, y_px in stars or [('', None, None)]:
                     writer.writerow([camera, stamp, hip, '' if x_px is None else _number(x_px),
                                      '' if y_px is None else _number(y_px)])
-    if _RESULT_TOPIC in records and records[_RESULT_TOPIC][1]:
-        (directory / 'calibration_result.yaml').write_text(records[_RESULT_TOPIC][1][-1].data)
+    if CALIBRATION_RESULT.name in records and records[CALIBRATION_RESULT.name][1]:
+        (directory / 'calibration_result.yaml').write_text(records[CALIBRATION_RESULT.name][1][-1].data)
     return directory
 
 
@@ -166,21 +172,21 @@ def import_csv_logs(directory, bag_path):
     stamps = np.array(_parsed(directory / 'gyro.csv', gyro, 'time_ns', int), dtype=np.int64)
     if np.any(np.diff(stamps) <= 0):
         raise ConfigError(f'{directory / "gyro.csv"}: time_ns must increase from row to row')
-    rates = np.column_stack([_parsed(directory / 'gyro.csv', gyro, f'{axis}_rad_per_s', float) for axis in _AXES])
+    rates = np.column_stack([_parsed(directory / 'gyro.csv', gyro, f'{axis}_rad_per_s', float) for axis in AXES])
     forces = (np.column_stack([_parsed(directory / 'gyro.csv', gyro, column, float) for column in _ACCELERATION])
               if _ACCELERATION[0] in gyro[0] else np.zeros_like(rates))
     first_ns = int(stamps[0])
     result = directory / 'calibration_result.yaml'
     with BagWriter(bag_path) as bag:
-        bag.add_topic(SCENARIO_TOPIC, 'std_msgs/msg/String', latched=True)
-        bag.write_document(SCENARIO_TOPIC, scenario, first_ns)
-        bag.add_topic(IMU_TOPIC.name, IMU_TOPIC.msgtype)
+        bag.add_topic(SCENARIO_DOCUMENT.name, 'std_msgs/msg/String', latched=True)
+        bag.write_document(SCENARIO_DOCUMENT.name, scenario, first_ns)
+        bag.add_topic(GYRO_IMU.name, GYRO_IMU.msgtype)
         for data, stamp in zip(m.imu_block_cdr(m.ImuBlock('gyrf', stamps, rates, forces)), stamps.tolist()):
-            bag.write_raw(IMU_TOPIC.name, data, stamp)
+            bag.write_raw(GYRO_IMU.name, data, stamp)
         _write_rows(bag, directory, tables)
         if result.exists():
-            bag.add_topic(_RESULT_TOPIC, 'std_msgs/msg/String', latched=True)
-            bag.write_message(_RESULT_TOPIC, m.string_msg(result.read_text()), int(stamps[-1]))
+            bag.add_topic(CALIBRATION_RESULT.name, 'std_msgs/msg/String', latched=True)
+            bag.write_message(CALIBRATION_RESULT.name, m.string_msg(result.read_text()), int(stamps[-1]))
     return Path(bag_path)
 
 
@@ -196,42 +202,42 @@ def _write_rows(bag, directory, tables):
         except ValueError as err:
             raise ConfigError(f'{directory / name}: a value of {", ".join(columns)} is not a number') from err
 
-    bag.add_topic(TEMPERATURE_TOPIC.name, TEMPERATURE_TOPIC.msgtype)
+    bag.add_topic(GYRO_TEMPERATURE.name, GYRO_TEMPERATURE.msgtype)
     for stamp, row in each('gyro_temperature.csv'):
-        bag.write_message(TEMPERATURE_TOPIC.name,
+        bag.write_message(GYRO_TEMPERATURE.name,
                           m.temperature_msg(stamp, 'gyrf', floats('gyro_temperature.csv', row, ['temperature_c'])[0]),
                           stamp)
-    topic = PLANT_TOPICS['joint_states']
+    topic = JOINT_STATES
     bag.add_topic(topic.name, topic.msgtype)
     for stamp, row in each('joints.csv'):
         values = floats('joints.csv', row, [f'{joint}_rad' for joint in _JOINTS])
         bag.write_message(topic.name, m.joint_state(stamp, dict(zip(_JOINTS, values))), stamp)
-    topic = TASCU_TOPICS['attitude']
+    topic = TASCU_ATTITUDE
     bag.add_topic(topic.name, topic.msgtype)
     for stamp, row in each('attitude.csv'):
         bag.write_message(topic.name, m.quaternion_stamped(stamp, 'irf', floats('attitude.csv', row,
                                                                                 ('qx', 'qy', 'qz', 'qw'))), stamp)
     if 'motion_status.csv' in tables:
-        topic = TASCU_TOPICS['motion_status']
+        topic = MOTION_STATUS
         bag.add_topic(topic.name, topic.msgtype)
         for stamp, row in each('motion_status.csv'):
             bag.write_message(topic.name, m.status_msg(_MOTION_NAME, row['state']), stamp)
     frames = {}
     for stamp, row in each('centroids.csv'):
         camera = row['camera']
-        if camera not in _CAMERAS:
-            raise ConfigError(f'{directory / "centroids.csv"}: unknown camera {camera!r} (known: {", ".join(_CAMERAS)})')
+        if camera not in CAMERAS:
+            raise ConfigError(f'{directory / "centroids.csv"}: unknown camera {camera!r} (known: {", ".join(CAMERAS)})')
         stars = frames.setdefault((camera, stamp), [])
         if row['hip'] != '':
             x_px, y_px = floats('centroids.csv', row, ('x_px', 'y_px'))
             stars.append(_Centroid(int(row['hip']), x_px, y_px))
-    for camera in _CAMERAS:
+    for camera in CAMERAS:
         keys = sorted(key for key in frames if key[0] == camera)
         if not keys:
             continue
-        bag.add_topic(f'/{camera}/centroids', 'geometry_msgs/msg/PoseArray')
+        bag.add_topic(CENTROIDS[camera].name, 'geometry_msgs/msg/PoseArray')
         for _, stamp in keys:
-            bag.write_message(f'/{camera}/centroids', m.centroid_array(stamp, camera, frames[(camera, stamp)]), stamp)
+            bag.write_message(CENTROIDS[camera].name, m.centroid_array(stamp, camera, frames[(camera, stamp)]), stamp)
 
 
 class _Centroid:

@@ -25,6 +25,7 @@ from sofia_ros.bag.msgtypes import (
 )
 from sofia_ros.bag.timebase import epoch_ns_of, has_leading_stamp, shift_stamp
 from sofia_ros.errors import BagError, InvalidArgumentError
+from sofia_ros.topics import SCENARIO_DOCUMENT
 
 # The zstd module rosbags decompresses chunks with.
 if sys.version_info >= (3, 14):
@@ -41,11 +42,7 @@ if TYPE_CHECKING:
 
     RawRecords = Iterator[tuple[Connection, int, bytes]]
 
-__all__ = ['BagReader', 'SCENARIO_TOPIC']
-
-#: Topic of the scenario document in a bag: where and when (start_utc) the campaign happened, as a logbook
-#: would record it (YAML, sofia_ros.sim.scenario); BagReader(campaign_time=True) counts time from its start.
-SCENARIO_TOPIC = '/config/scenario'
+__all__ = ['BagReader']
 
 # What reading a damaged MCAP file raises inside rosbags and decode_cdr: chunk and
 # record parsing, zstd, CDR decoding.
@@ -98,7 +95,7 @@ class BagReader:
             if self._reader.start_time < epoch_ns:
                 raise BagError(
                     f'bag {self.path} starts {(epoch_ns - self._reader.start_time) / 1e9:.0f} s before its campaign '
-                    f'start ({SCENARIO_TOPIC}): it was recorded with times from 0, not in UTC; '
+                    f'start ({SCENARIO_DOCUMENT.name}): it was recorded with times from 0, not in UTC; '
                     're-record it with `sofia run`'
                 )
             self._origin_ns = epoch_ns
@@ -107,17 +104,17 @@ class BagReader:
     def campaign_epoch_ns(self) -> int:
         """The campaign's start (start_utc of /config/scenario) in ns since the Unix epoch."""
         self._require_open()
-        if SCENARIO_TOPIC not in self._reader.topics:
-            raise BagError(f'bag {self.path} has no {SCENARIO_TOPIC} to take the campaign start from; '
+        if SCENARIO_DOCUMENT.name not in self._reader.topics:
+            raise BagError(f'bag {self.path} has no {SCENARIO_DOCUMENT.name} to take the campaign start from; '
                            'record it with `sofia run`')
-        text = self.document(SCENARIO_TOPIC)
+        text = self.document(SCENARIO_DOCUMENT.name)
         try:
             start_utc = dt.datetime.fromisoformat(str(yaml.safe_load(text)['start_utc']))
             if start_utc.tzinfo is None:
                 raise ValueError('start_utc has no timezone')
         except (yaml.YAMLError, TypeError, KeyError, ValueError) as err:
             raise BagError(
-                f'bag {self.path} has no campaign start ({SCENARIO_TOPIC} with an aware start_utc: '
+                f'bag {self.path} has no campaign start ({SCENARIO_DOCUMENT.name} with an aware start_utc: '
                 f'{type(err).__name__} {err}); record it with `sofia run`'
             ) from err
         return epoch_ns_of(start_utc)

@@ -1,4 +1,5 @@
-"""Calibration science: alignment solvers (3.3, eqs. 3.8-3.19) and accuracies (3.5, eqs. 3.30-3.37)."""
+"""Calibration science: alignment solvers (3.3, eqs. 3.8-3.19), accuracies (3.5, eqs. 3.30-3.37), the boresight
+series over elevation (Table 3.5, 6.2; boresights) and the maneuver records of /calibration/maneuvers."""
 
 from sofia_ros.calibration.accuracy import (
     gamma_rad,

@@ -14,13 +14,15 @@ from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
+from sofia_ros.frames import AXES
+from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.graph import GraphConfig
-from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
-from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, GraphConfig
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
+from sofia_ros.topics import CALIBRATION_RESULT, CLOCK, STOP_DOCUMENT
 from sofia_ros.units import ARCSEC_PER_RAD
 
 __all__ = ['MODES', 'AlignmentRun', 'default_scenario', 'graph_config', 'run_alignment',
@@ -84,8 +86,8 @@ def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevati
     return Rotation.from_matrix(error.T).as_rotvec() * ARCSEC_PER_RAD
 
 
-def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=7200.0, model_text='effects: {}\n',
-                  progress=None, timeout_s=3600.0):
+def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=DEFAULT_MAX_SIM_S,
+                  model_text='effects: {}\n', progress=None, timeout_s=3600.0):
     """Run the campaign and write the bag plus truth.yaml, model.yaml, calibration.yaml and summary.json.
 
     ``mode``: one of recording.MODES, 'executor' (every node in this process under one executor,
@@ -101,10 +103,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     result_yaml, sim_seconds = result_from_bag(bag_path)
     summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,
                        wall_seconds)
-    (bag_path / 'truth.yaml').write_text(truth.text)
-    (bag_path / 'model.yaml').write_text(model_text)
-    (bag_path / 'calibration.yaml').write_text(result_yaml)
-    finish_run(bag_path, summary, fault)
+    finish_run(bag_path, summary, fault,
+               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, 'calibration.yaml': result_yaml})
     return AlignmentRun(summary, result_yaml, bag_path)
 
 
@@ -113,12 +113,12 @@ def result_from_bag(bag_path):
     with BagReader(bag_path, campaign_time=True) as bag:
         names = {topic.name for topic in bag.topics}
         result = None
-        if '/calibration/result' in names:
-            for _, _, message in bag.messages('/calibration/result'):
+        if CALIBRATION_RESULT.name in names:
+            for _, _, message in bag.messages(CALIBRATION_RESULT.name):
                 result = message.data
-        stop_reason = bag.document('/result/stop') if '/result/stop' in names else None
+        stop_reason = bag.document(STOP_DOCUMENT.name) if STOP_DOCUMENT.name in names else None
         sim_ns = 0
-        for _, stamp_ns, _ in bag.messages('/clock'):
+        for _, stamp_ns, _ in bag.messages(CLOCK.name):
             sim_ns = stamp_ns
     if result is None:
         reason = f'stopped: {stop_reason}' if stop_reason else 'the calibration node published no result'
@@ -131,7 +131,7 @@ def _summary(result, truth, elevation_deg, sim_seconds, wall_seconds):
                'accepted': bool(result.get('accepted'))}
     if summary['accepted']:
         residual = residual_misalignment_arcsec(result['tarf_from_gyrf'], truth.effects, elevation_deg)
-        summary['residual_misalignment_arcsec'] = dict(zip(('el', 'xel', 'los'), (float(v) for v in residual)))
+        summary['residual_misalignment_arcsec'] = dict(zip(AXES, (float(v) for v in residual)))
         summary['predicted_sigma_arcsec'] = result['predicted_sigma_arcsec']
         summary['iterations'] = len(result['iterations'])
     else:

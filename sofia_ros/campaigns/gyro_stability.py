@@ -18,22 +18,22 @@ from dataclasses import dataclass
 import yaml
 
 from sofia_ros import interrupts
+from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.campaigns.recording import finish_run, new_bag_path, write_summary
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
-from sofia_ros.sim import messages as m
+from sofia_ros.scenario import Scenario, scenario_document
 from sofia_ros.sim.clock import ClockCore
 from sofia_ros.sim.gyro_box import GyroBoxCore
 from sofia_ros.sim.plant import PlantCore
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
 from sofia_ros.sim.runner import LockstepRunner
-from sofia_ros.sim.scenario import SCENARIO_TOPIC, Scenario, scenario_document
 from sofia_ros.sky import EDWARDS_2007_SITE
+from sofia_ros.topics import CASE_DOCUMENT, DEFAULT_TICK_NS, SCENARIO_DOCUMENT, SUBSYSTEM_STATUS, TRUTH_DOCUMENT
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
 
-__all__ = ['TestCase', 'CASES', 'SUBSYSTEM_TOPIC', 'edwards_scenario', 'case_effects', 'run_gyro_stability']
+__all__ = ['TestCase', 'CASES', 'edwards_scenario', 'case_effects', 'run_gyro_stability']
 
 #: 2007-06-21, the first day of the test series (5.2); the hour is arbitrary (gyros do not see the sky).
 START_UTC = dt.datetime(2007, 6, 21, 18, 0, 0, tzinfo=dt.timezone.utc)
@@ -49,7 +49,7 @@ class TestCase:
     #: (frequency Hz, amplitude arcsec/s, axis) lines the configuration excites
     lines: tuple
     los_oscillation_period_s: float | None
-    #: (subsystem, state) of Table 5.2 and 5.2.1, recorded on SUBSYSTEM_TOPIC
+    #: (subsystem, state) of Table 5.2 and 5.2.1, recorded on topics.SUBSYSTEM_STATUS
     subsystems: tuple
 
 
@@ -82,7 +82,6 @@ CASES = {
                      _subsystems('activated', 'unbraked', 'open loop, TA balanced', _UNCAGED)),
 }
 #: The case's TA configuration (Table 5.2) as one latched diagnostic_msgs/DiagnosticStatus.
-SUBSYSTEM_TOPIC = '/ta/subsystem_status'
 
 
 def edwards_scenario():
@@ -126,12 +125,12 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
     runner = LockstepRunner(cores, tick_ns=DEFAULT_TICK_NS, bag=bag)
     try:
         with interrupts.graceful():
-            bag.write_document('/config/truth', truth.text, 0)
-            bag.write_document('/config/case', case_text, 0)
-            bag.write_document(SCENARIO_TOPIC, scenario_document(scenario), 0)
-            bag.add_topic(SUBSYSTEM_TOPIC, 'diagnostic_msgs/msg/DiagnosticStatus', latched=True)
-            bag.write_message(SUBSYSTEM_TOPIC, m.status_msg('ta_subsystems', f'{case}: {test_case.description}',
-                                                            dict(test_case.subsystems), hardware_id='TA'), 0)
+            bag.write_document(TRUTH_DOCUMENT.name, truth.text, 0)
+            bag.write_document(CASE_DOCUMENT.name, case_text, 0)
+            bag.write_document(SCENARIO_DOCUMENT.name, scenario_document(scenario), 0)
+            bag.add_topic(SUBSYSTEM_STATUS.name, SUBSYSTEM_STATUS.msgtype, latched=True)
+            bag.write_message(SUBSYSTEM_STATUS.name, m.status_msg('ta_subsystems', f'{case}: {test_case.description}',
+                                                                  dict(test_case.subsystems), hardware_id='TA'), 0)
             until_ns = int(round(hours * 3600.0 * 1e9))
 
             def stop():
@@ -152,7 +151,5 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
     summary = {'case': case, 'sim_seconds': round(sim_seconds, 3),
                'wall_seconds': round(time.perf_counter() - wall_start, 3),
                'samples_per_axis': int(round(sim_seconds * GYRO_SAMPLE_RATE_HZ))}
-    bag_path.joinpath('truth.yaml').write_text(truth.text)
-    bag_path.joinpath('case.yaml').write_text(case_text)
-    finish_run(bag_path, summary)
+    finish_run(bag_path, summary, side_files={'truth.yaml': truth.text, 'case.yaml': case_text})
     return summary

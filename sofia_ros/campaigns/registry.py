@@ -48,7 +48,7 @@ def _alignment() -> CampaignSpec:
     from sofia_ros.sim.calibration import AlignmentPlan
 
     return CampaignSpec(
-        'alignment', 'Table 3.4 at the reference elevation on Polaris, then the boresight series (6.1, 6.2)',
+        AlignmentPlan.campaign, 'Table 3.4 at the reference elevation on Polaris, then the boresight series (6.1, 6.2)',
         AlignmentPlan, graph_config, run_alignment, ('compare',),
         MappingProxyType({'full': {}, 'reduced': {'repetitions': 2, 'verification_repetitions': 1}}))
 
@@ -58,7 +58,8 @@ def _star_hop() -> CampaignSpec:
     from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
 
     return CampaignSpec(
-        'star-hop', "Table D.3's 17 observations of six stars: absolute pointing and differential flexure (6.2, 6.3)",
+        StarHopPlan.campaign,
+        "Table D.3's 17 observations of six stars: absolute pointing and differential flexure (6.2, 6.3)",
         StarHopPlan, star_hop_config, run_star_hop, ('compare',),
         MappingProxyType({'full': {}, 'reduced': {'observations': table_d3_offsets_s()[3:7]}}))
 

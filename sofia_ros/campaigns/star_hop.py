@@ -15,8 +15,8 @@ import yaml
 from sofia_ros.campaigns.alignment import result_from_bag
 from sofia_ros.campaigns.recording import finish_run, new_bag_path, record_campaign
 from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sim.graph import GraphConfig
-from sofia_ros.sim.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sim.star_hop import CDT, TABLE_D3_OBSERVATIONS, StarHopPlan
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 
@@ -66,8 +66,6 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
                'finished': bool(result.get('accepted')), 'observations': len(result.get('observations', []))}
     if not summary['finished']:
         summary['reason'] = result.get('reason', 'not finished')
-    (bag_path / 'truth.yaml').write_text(truth.text)
-    (bag_path / 'model.yaml').write_text(model_text)
-    (bag_path / 'star_hop.yaml').write_text(result_yaml)
-    finish_run(bag_path, summary, fault)
+    finish_run(bag_path, summary, fault,
+               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, 'star_hop.yaml': result_yaml})
     return summary

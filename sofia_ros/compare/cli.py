@@ -297,7 +297,7 @@ def _check_bag_arguments(bag, anchor_s, warn):
     warn when the bag has no HIPO centroids (the imagers are then fitted without their reference)."""
     from sofia_ros.bag import BagReader
     from sofia_ros.errors import BagError
-    from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+    from sofia_ros.topics import DEFAULT_TICK_NS
 
     try:
         with BagReader(bag) as reader:

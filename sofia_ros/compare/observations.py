@@ -13,26 +13,33 @@ from pathlib import Path
 
 import numpy as np
 
+from sofia_ros import messages as m
 from sofia_ros.bag import BagReader
 from sofia_ros.compare.predict import tick_means
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.frames import dcm_from_quaternion
+from sofia_ros.scenario import scenario_from_document
 from sofia_ros.sensors.imager_model import CAMERAS, nominal_detector
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.gyro_box import IMU_TOPIC, TEMPERATURE_TOPIC
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
-from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
-from sofia_ros.sim.scenario import SCENARIO_TOPIC, scenario_from_document
-from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
+from sofia_ros.topics import (
+    CALIBRATION_RESULT,
+    CD_JOINT,
+    CENTROIDS,
+    FD_JOINTS,
+    GYRO_IMU,
+    GYRO_TEMPERATURE,
+    JOINT_STATES,
+    MOTION_STATUS,
+    SCENARIO_DOCUMENT,
+    TASCU_ATTITUDE,
+)
 from sofia_ros.units import DEG_PER_RAD
 
 __all__ = ['MOTION_STATES', 'Centroids', 'GyroSamples', 'Observations', 'read_observations']
 
 #: TASCU motion states (6.3), coded by index in Centroids.motion_code.
 MOTION_STATES = ('transient', 'settled', 'locked')
-_RESULT_TOPIC = '/calibration/result'
-REQUIRED_TOPICS = (IMU_TOPIC.name, TEMPERATURE_TOPIC.name, PLANT_TOPICS['joint_states'].name,
-                   TASCU_TOPICS['attitude'].name, SCENARIO_TOPIC)
+REQUIRED_TOPICS = (GYRO_IMU.name, GYRO_TEMPERATURE.name, JOINT_STATES.name,
+                   TASCU_ATTITUDE.name, SCENARIO_DOCUMENT.name)
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,10 +132,10 @@ def _centroid_rows(records_by_camera):
 def _gyro_samples(imu, temperature_records):
     time_s = imu.header_stamp_ns / m.NS_PER_S
     if len(time_s) < 2 or np.any(np.diff(time_s) <= 0):
-        raise BagError(f'{IMU_TOPIC.name} holds {len(time_s)} samples out of time order; the bag is damaged')
+        raise BagError(f'{GYRO_IMU.name} holds {len(time_s)} samples out of time order; the bag is damaged')
     tick_end_s, temperatures = _series(temperature_records, lambda msg: msg.temperature)
     if len(tick_end_s) == 0:
-        raise BagError(f'{TEMPERATURE_TOPIC.name} is empty; `sofia compare` needs the gyro-box tick stamps')
+        raise BagError(f'{GYRO_TEMPERATURE.name} is empty; `sofia compare` needs the gyro-box tick stamps')
     # A sample in (t_k-1, t_k] belongs to tick k, whose temperature the box used (sim.gyro_box).
     tick = np.minimum(np.searchsorted(tick_end_s, time_s, side='left'), len(tick_end_s) - 1)
     keep = time_s <= tick_end_s[-1]
@@ -160,26 +167,26 @@ def read_observations(bag_path):
             if missing:
                 raise BagError(f'{bag_path} lacks {", ".join(missing)}; `sofia compare` needs a campaign bag '
                                'recorded by `sofia run alignment` (or star-hop)')
-            cameras = tuple(camera for camera in CAMERAS if f'/{camera}/centroids' in names)
+            cameras = tuple(camera for camera in CAMERAS if CENTROIDS[camera].name in names)
             if not cameras:
                 raise BagError(f'{bag_path} has no /<camera>/centroids topic; nothing to compare')
-            scenario = scenario_from_document(bag.document(SCENARIO_TOPIC))
-            camera_topics = [f'/{camera}/centroids' for camera in cameras]
-            optional = [topic for topic in (TASCU_TOPICS['motion_status'].name, _RESULT_TOPIC) if topic in names]
-            records = bag.messages_by_topic(IMU_TOPIC.name, *REQUIRED_TOPICS[1:-1], *optional, *camera_topics,
-                                            imu=(IMU_TOPIC.name,))
+            scenario = scenario_from_document(bag.document(SCENARIO_DOCUMENT.name))
+            camera_topics = [CENTROIDS[camera].name for camera in cameras]
+            optional = [topic for topic in (MOTION_STATUS.name, CALIBRATION_RESULT.name) if topic in names]
+            records = bag.messages_by_topic(GYRO_IMU.name, *REQUIRED_TOPICS[1:-1], *optional, *camera_topics,
+                                            imu=(GYRO_IMU.name,))
     except ConfigError as err:
         raise BagError(f'{bag_path}: {err}') from err
     rows = _centroid_rows([records[topic] for topic in camera_topics])
-    gyro = _gyro_samples(records[IMU_TOPIC.name], records[TEMPERATURE_TOPIC.name])
-    joint_s, joints = _series(records[PLANT_TOPICS['joint_states'].name], m.joint_positions_of)
-    attitude_s, quaternions = _series(records[TASCU_TOPICS['attitude'].name],
+    gyro = _gyro_samples(records[GYRO_IMU.name], records[GYRO_TEMPERATURE.name])
+    joint_s, joints = _series(records[JOINT_STATES.name], m.joint_positions_of)
+    attitude_s, quaternions = _series(records[TASCU_ATTITUDE.name],
                                       lambda msg: m.quaternion_xyzw_of(msg.quaternion))
-    motion_s, motion_codes = _motion_series(records.get(TASCU_TOPICS['motion_status'].name, ([], [])))
+    motion_s, motion_codes = _motion_series(records.get(MOTION_STATUS.name, ([], [])))
     if len(rows['hip']) == 0:
         raise BagError(f'{bag_path}: the cameras recorded no star; nothing to compare')
     if len(attitude_s) == 0:
-        raise BagError(f'{bag_path}: {TASCU_TOPICS["attitude"].name} is empty; the TASCU never ran')
+        raise BagError(f'{bag_path}: {TASCU_ATTITUDE.name} is empty; the TASCU never ran')
     initial_time_s = float(attitude_s[0])
     # Frames must lie where the gyros cover them: after the first attitude, before the last tick.
     keep = (rows['stamp'] > initial_time_s) & (rows['stamp'] < gyro.tick_end_s[-1])
@@ -197,6 +204,6 @@ def read_observations(bag_path):
                           elevation_deg, fd_los_deg, temperature_c, motion_code)
     transient = motion_codes == MOTION_STATES.index('transient')
     move_start_s = motion_s[transient & ~np.concatenate([[False], transient[:-1]])]
-    results = records.get(_RESULT_TOPIC, ([], []))[1]
+    results = records.get(CALIBRATION_RESULT.name, ([], []))[1]
     return Observations(bag_path, scenario, centroids, gyro, initial_time_s, dcm_from_quaternion(quaternions[0]),
                         move_start_s, results[-1].data if results else None)

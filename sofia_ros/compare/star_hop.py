@@ -34,11 +34,11 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.analysis.centroid_drift import fit_centroid_drift
+from sofia_ros.calibration.boresights import boresight_shift_arcsec, flexure_fit
 from sofia_ros.compare.observations import MOTION_STATES
 from sofia_ros.errors import BagError
 from sofia_ros.flexure import differential_imager_rotation_arcsec, gravity_load_tarf
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm, nominal_detector
-from sofia_ros.sim.calibration import boresight_shift_arcsec, flexure_fit
 from sofia_ros.sky.distances import attitude_change_euler_arcsec, short_move_euler_arcsec, spherical_sum_arcsec
 from sofia_ros.units import ARCSEC_PER_RAD
 

@@ -30,7 +30,7 @@ from numpy.polynomial import legendre
 
 from sofia_ros.effects.base import EffectSpec, Parameter
 from sofia_ros.errors import UnknownEffectError
-from sofia_ros.frames import FFI, FPI, HIPO_2004, WFI
+from sofia_ros.frames import AXES, FFI, FPI, HIPO_2004, WFI
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
 __all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_VARIABLES', 'POLY_DEGREE',
@@ -39,8 +39,7 @@ __all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYR
 PREFIX = 'empirical:'
 _DETECTORS = {'hipo': HIPO_2004, 'fpi': FPI, 'ffi': FFI, 'wfi': WFI}
 CAMERA_OBSERVABLES = tuple(f'{camera}.{axis}' for camera in _DETECTORS for axis in ('x', 'y'))
-GYRO_AXES = ('el', 'xel', 'los')
-GYRO_OBSERVABLES = tuple(f'gyro.{axis}' for axis in GYRO_AXES)
+GYRO_OBSERVABLES = tuple(f'gyro.{axis}' for axis in AXES)
 POLY_DEGREE = 3
 _RAD_PER_S_PER_DEG_PER_H = RAD_PER_DEG / 3600.0
 
@@ -146,7 +145,7 @@ def empirical_spec(name):
     params = tuple(Parameter(f'{label}_{"deg_per_h" if gyro else "arcsec"}', 0.0, unit,
                              f'coefficient of {label} ({unit})') for label in labels)
     if gyro:
-        axis = GYRO_AXES.index(observable.split('.')[1])
+        axis = AXES.index(observable.split('.')[1])
 
         def rate_offset(values, context):
             coefficients = np.array([values[param.name] for param in params])

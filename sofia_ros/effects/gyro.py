@@ -1,6 +1,7 @@
 """Gyro effects: alignment, bias, scale factor, calibration assignment and noise (2.4.1, 4.2, 5, 6.1, 6.3)."""
 
 from sofia_ros.effects.base import EffectSpec, Parameter
+from sofia_ros.frames import AXES
 
 
 def _equal_line_lists(params):
@@ -110,7 +111,7 @@ EFFECTS = (
                       minimum=0.0, maximum=1000.0),
             Parameter('amplitudes_arcsec_per_s', [0.05, 0.05], 'arcsec/s', 'rate amplitude of each line',
                       minimum=0.0, maximum=100.0),
-            Parameter('axes', ['el', 'el'], 'axis', 'gyro axis each line appears on', choices=('el', 'xel', 'los')),
+            Parameter('axes', ['el', 'el'], 'axis', 'gyro axis each line appears on', choices=AXES),
         ),
         check=_equal_line_lists,
     ),

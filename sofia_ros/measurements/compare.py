@@ -28,13 +28,13 @@ from sofia_ros.analysis.ranking import (
     rank_candidates,
 )
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
-from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA
 from sofia_ros.compare.fit import free_parameters
 from sofia_ros.effects import CATALOGUE, resolve_params
 from sofia_ros.errors import FitError
 from sofia_ros.measurements.format import ALIGNMENT, DRIFT_EFFECTS, KINDS
 from sofia_ros.measurements.predict import predict_table, star_geometry
+from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
 
 __all__ = ['SetCompareResult', 'compare_measurement_set', 'EXPLAINED_QUANTILE', 'REFINED_CANDIDATES']
 

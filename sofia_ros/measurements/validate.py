@@ -9,6 +9,7 @@ import numpy as np
 import yaml
 
 from sofia_ros.errors import ConfigError, InvalidArgumentError, SofiaError
+from sofia_ros.frames import AXES
 from sofia_ros.measurements.format import (
     FORMAT_VERSION,
     KINDS,
@@ -270,7 +271,7 @@ def _star_distance(values, context, where, source):
 
 def _earth_rate(values, context, where, source):
     rates = tuple(_number(values[f'{axis}_deg_per_h'], f'{where} {axis}_deg_per_h', source)
-                  for axis in ('el', 'xel', 'los'))
+                  for axis in AXES)
     if np.linalg.norm(rates) > 100.0:
         raise ConfigError(f'{source}: {where}: rates of {np.linalg.norm(rates):.0f} deg/h are not a braked telescope '
                           "(Earth rate is 15 deg/h); check the units")

@@ -8,13 +8,16 @@ import time
 from std_msgs.msg import String
 
 from sofia_ros import interrupts
+from sofia_ros import messages as m
 from sofia_ros.nodes.shell import LockstepNode
 from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS, done_topic, stop_text
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
+from sofia_ros.topics import CLOCK
 from rosgraph_msgs.msg import Clock
 
-__all__ = ['ClockNode']
+__all__ = ['ClockNode', 'STALLED_EXIT_CODE']
+
+#: Exit code of the clock node's process when it stopped the run because a node fell silent (a fault).
+STALLED_EXIT_CODE = 3
 
 _STARTUP_TIMEOUT_S = 120.0
 
@@ -25,9 +28,9 @@ class ClockNode(LockstepNode):
     def __init__(self, participants, *, tick_ns, max_sim_s, stall_timeout_s=15.0, subscribers=1):
         """``participants`` in tick order: the first silent one of them is the likely culprit of a stall."""
         super().__init__('clock', upstream=[(name, 1) for name in participants], tick_ns=tick_ns,
-                         expected_outputs={PLANT_TOPICS['clock'].name: subscribers})
-        self.publishers_by_topic[PLANT_TOPICS['clock'].name] = self.create_publisher(
-            Clock, PLANT_TOPICS['clock'].name, SYNC_QOS)
+                         expected_outputs={CLOCK.name: subscribers})
+        self.publishers_by_topic[CLOCK.name] = self.create_publisher(
+            Clock, CLOCK.name, SYNC_QOS)
         self.stop_publisher = self.create_publisher(String, STOP_TOPIC, SYNC_QOS)
         self.max_tick = int(max_sim_s * m.NS_PER_S // tick_ns)
         self.stall_timeout_s = stall_timeout_s
@@ -44,7 +47,7 @@ class ClockNode(LockstepNode):
             self._stop(tick - 1, f'reached the sim-time limit of {self.max_tick * self.tick_ns / m.NS_PER_S:g} s')
             return
         self.last_progress = time.monotonic()
-        self.publish(PLANT_TOPICS['clock'].name, m.clock_msg(tick * self.tick_ns))
+        self.publish(CLOCK.name, m.clock_msg(tick * self.tick_ns))
         self.publish_done(tick)
 
     def _stop(self, last_tick, reason, complete=True):

@@ -1,5 +1,6 @@
-"""Entry points of the node executables (``ros2 run sofia_ros <name>``): clock, plant, gyro_box,
-imager (fpi/ffi/wfi by the ``camera`` parameter), hipo, tascu, calibration, recorder."""
+"""Entry points of the node executables (``ros2 run sofia_ros <name>``), one per entry of
+graph_nodes.EXECUTABLES: clock, plant, gyro_box, imager (fpi/ffi/wfi by the ``camera`` parameter,
+``ros2 run sofia_ros imager --ros-args -p camera:=fpi -r __node:=fpi``), hipo, tascu, calibration, recorder."""
 
 from __future__ import annotations
 
@@ -12,14 +13,14 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
 import sofia_ros
+from sofia_ros.campaigns.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
 from sofia_ros.errors import SofiaError
-from sofia_ros.nodes.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
+from sofia_ros.graph_nodes import EXECUTABLES, IMAGERS
+from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
 from sofia_ros.nodes.sync import parse_stop
+from sofia_ros.topics import CLOCK
 
-#: Exit code of the clock node when it stopped the run because a node fell silent (a fault).
-STALLED_EXIT_CODE = 3
-
-__all__ = ['STALLED_EXIT_CODE', 'clock', 'plant', 'gyro_box', 'imager', 'hipo', 'tascu', 'calibration', 'recorder', 'main']
+__all__ = ['main', *EXECUTABLES]
 
 
 def _read_parameters(executable):
@@ -52,7 +53,7 @@ def _build(executable, values):
     participants = [core.name for core in cores if core.name != 'clock']
     if executable == 'clock':
         return ClockNode([*participants, 'recorder'], tick_ns=config.tick_ns, max_sim_s=values['max_sim_s'],
-                         stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics['/clock'][2]) + 1)
+                         stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics[CLOCK.name][2]) + 1)
     if executable == 'recorder':
         if not values['bag_path']:
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
@@ -60,8 +61,8 @@ def _build(executable, values):
         return RecorderNode(values['bag_path'], topics, [core.name for core in cores], tick_ns=config.tick_ns,
                             epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=graph_documents(config, model_text))
     name = values['camera'] if executable == 'imager' else executable
-    if executable == 'imager' and name not in ('fpi', 'ffi', 'wfi'):
-        raise SofiaError(f"imager needs -p camera:=fpi|ffi|wfi, got {name!r}")
+    if executable == 'imager' and name not in IMAGERS:
+        raise SofiaError(f"imager needs -p camera:={'|'.join(IMAGERS)}, got {name!r}")
     return CoreNode(build_core(name, config), graph_topics=topics, tick_ns=config.tick_ns)
 
 
@@ -95,44 +96,17 @@ def main(executable=None, argv=None):
         rclpy.try_shutdown()
 
 
-def clock():
-    """ros2 run sofia_ros clock"""
-    return main('clock')
+def __getattr__(name):
+    """The console-script entry point of each executable of graph_nodes.EXECUTABLES (``ros2 run sofia_ros <name>``)."""
+    if name not in EXECUTABLES:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
 
+    def entry_point():
+        return main(name)
 
-def plant():
-    """ros2 run sofia_ros plant"""
-    return main('plant')
-
-
-def gyro_box():
-    """ros2 run sofia_ros gyro_box"""
-    return main('gyro_box')
-
-
-def imager():
-    """ros2 run sofia_ros imager --ros-args -p camera:=fpi -r __node:=fpi"""
-    return main('imager')
-
-
-def hipo():
-    """ros2 run sofia_ros hipo"""
-    return main('hipo')
-
-
-def tascu():
-    """ros2 run sofia_ros tascu"""
-    return main('tascu')
-
-
-def calibration():
-    """ros2 run sofia_ros calibration"""
-    return main('calibration')
-
-
-def recorder():
-    """ros2 run sofia_ros recorder"""
-    return main('recorder')
+    entry_point.__name__ = entry_point.__qualname__ = name
+    entry_point.__doc__ = f'ros2 run sofia_ros {name}'
+    return entry_point
 
 
 if __name__ == '__main__':

@@ -12,36 +12,36 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable, Mapping
 
 import rclpy
+import yaml
 from rclpy.logging import LoggingSeverity
 from rclpy.experimental import EventsExecutor
 from rclpy.signals import SignalHandlerOptions
 
 from sofia_ros import interrupts
 from sofia_ros.bag.timebase import epoch_ns_of
-from sofia_ros.errors import RunFaultError
-from sofia_ros.nodes.domain import claim_ros_domain, claimed_ros_domain, release_ros_domain
+from sofia_ros.errors import GraphRunError
+from sofia_ros.graph_nodes import EXECUTABLES
 from sofia_ros.nodes.clock_node import ClockNode
-from sofia_ros.nodes.graph_params import graph_parameters, write_params_file
+from sofia_ros.nodes.domain import claim_ros_domain, claimed_ros_domain, release_ros_domain
 from sofia_ros.nodes.recorder_node import RecorderNode
 from sofia_ros.nodes.shell import CoreNode
 from sofia_ros.nodes.sync import parse_stop
-from sofia_ros.sim.graph import build_cores, graph_topics
+from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, build_cores, graph_topics
+from sofia_ros.topics import CLOCK
 
-__all__ = ['run_graph_in_process', 'run_graph_in_processes', 'start_graph_processes',
-           'wait_for_graph', 'stop_graph', 'GraphProcesses', 'GraphRunError']
-
-
-class GraphRunError(RunFaultError):
-    """The live graph did not finish (stall, crash, a node process died, or the wall-clock timeout)."""
+__all__ = ['run_graph_in_process', 'run_graph_in_processes', 'start_graph_processes', 'write_params_file',
+           'wait_for_graph', 'stop_graph', 'GraphProcesses']
 
 
 def _participants(cores):
     return [core.name for core in cores if core.name != 'clock']
 
 
-def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=7200.0, timeout_s=3600.0, progress=None):
+def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=DEFAULT_MAX_SIM_S, timeout_s=3600.0,
+                         progress=None):
     """All nodes in one process under one executor; return the calibration core, the stop reason and
     whether the run ended by itself (False: a stall or a signal stopped it; the bag is closed either way).
 
@@ -58,7 +58,7 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
         cores = build_cores(config)
         topics = graph_topics(cores)
         nodes = [CoreNode(core, graph_topics=topics, tick_ns=config.tick_ns) for core in cores if core.name != 'clock']
-        clock_subscribers = len(topics['/clock'][2]) + 1
+        clock_subscribers = len(topics[CLOCK.name][2]) + 1
         clock = ClockNode([*_participants(cores), 'recorder'], tick_ns=config.tick_ns, max_sim_s=max_sim_s,
                           subscribers=clock_subscribers)
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,
@@ -79,7 +79,7 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
                 raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time')
         finally:
             recorder.abort()
-        calibration = next(node.core for node in nodes if node.core.name == 'calibration')
+        calibration = next(node.core for node in nodes if node.core.ends_run)
         _, complete, reason = parse_stop(clock.stop_reason) if clock.stop_reason else (0, False, '')
         for node in (*nodes, clock, recorder):
             node.destroy_node()
@@ -99,9 +99,18 @@ class GraphProcesses:
     bag_path: Path | None = None
 
 
-def start_graph_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, stall_timeout_s=15.0,
-                          model_file=''):
-    """Start every node as its own process (what `ros2 run` gives), sharing one params file.
+def write_params_file(path: Path, values: Mapping[str, Any],
+                      per_node: Mapping[str, Mapping[str, Any]] | None = None) -> None:
+    """A --params-file with the graph parameters for every node (``/**``) plus per-node sections."""
+    document = {'/**': {'ros__parameters': values}}
+    for node, node_values in (per_node or {}).items():
+        document[node] = {'ros__parameters': node_values}
+    path.write_text(yaml.safe_dump(document, sort_keys=False))
+
+
+def start_graph_processes(parameters: Mapping[str, Any], bag_path: str | os.PathLike[str]) -> GraphProcesses:
+    """Start every node as its own process (what `ros2 run` gives), sharing one params file of the graph
+    ``parameters`` (campaigns.graph_params.graph_parameters; bag_path among them for the recorder).
 
     The nodes share one process group of their own (stop_graph signals the group) and get SIGINT
     from the kernel if this process dies, so no node outlives the run. The ROS domain is claimed
@@ -109,8 +118,7 @@ def start_graph_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_
     """
     domain = claim_ros_domain()
     try:
-        return _start_graph_processes(truth_file, seed, plan, bag_path, tick_ns, max_sim_s, stall_timeout_s,
-                                      model_file, domain)
+        return _start_graph_processes(parameters, bag_path, domain)
     except BaseException:
         release_ros_domain(domain)
         raise
@@ -122,17 +130,13 @@ def _die_with_parent():
     libc.prctl(1, signal.SIGINT, 0, 0, 0)
 
 
-def _start_graph_processes(truth_file, seed, plan, bag_path, tick_ns, max_sim_s, stall_timeout_s, model_file, domain):
+def _start_graph_processes(parameters, bag_path, domain):
     workdir = Path(tempfile.mkdtemp(prefix='sofia_graph_'))
     params = workdir / 'params.yaml'
-    values = graph_parameters(truth_file, seed, plan, tick_ns=tick_ns, max_sim_s=max_sim_s, bag_path=bag_path,
-                              stall_timeout_s=stall_timeout_s, model_file=model_file)
-    write_params_file(params, values)
-    executables = [('clock', 'clock', ()), ('plant', 'plant', ()), ('gyro_box', 'gyro_box', ()),
-                   ('hipo', 'hipo', ()), ('tascu', 'tascu', ()), ('calibration', 'calibration', ()),
-                   ('recorder', 'recorder', ()),
-                   *((camera, 'imager', ('-r', f'__node:={camera}', '-p', f'camera:={camera}'))
-                     for camera in ('fpi', 'ffi', 'wfi'))]
+    write_params_file(params, parameters)
+    # (node, executable, extra arguments): an executable that runs several nodes is told which by its remap
+    executables = [(node, executable, ('-r', f'__node:={node}', '-p', f'camera:={node}') if len(nodes) > 1 else ())
+                   for executable, nodes in EXECUTABLES.items() for node in nodes]
     processes = {}
     graph = GraphProcesses(processes, workdir, domain, Path(bag_path))
     try:
@@ -193,17 +197,18 @@ def stop_graph(graph):
     release_ros_domain(graph.domain)
 
 
-def run_graph_in_processes(truth_file, seed, plan, bag_path, *, tick_ns, max_sim_s=7200.0, timeout_s=3600.0,
-                           stall_timeout_s=15.0, model_file='', progress=None):
-    """Each node as its own process; return the GraphProcesses after the recorder closed the bag.
+def run_graph_in_processes(parameters: Mapping[str, Any], bag_path: str | os.PathLike[str], *,
+                           timeout_s: float = 3600.0,
+                           progress: Callable[[float | None, float], None] | None = None) -> GraphProcesses:
+    """Each node as its own process (start_graph_processes); return the GraphProcesses after the recorder
+    closed the bag.
 
     The node logs and params file are removed once the bag is closed; a run that fails keeps
     them, and its GraphRunError names the folder.
     """
-    graph = start_graph_processes(truth_file, seed, plan, bag_path, tick_ns=tick_ns, max_sim_s=max_sim_s,
-                                  stall_timeout_s=stall_timeout_s, model_file=model_file)
+    graph = start_graph_processes(parameters, bag_path)
     try:
-        wait_for_graph(graph, timeout_s=timeout_s, progress=progress, max_sim_s=max_sim_s)
+        wait_for_graph(graph, timeout_s=timeout_s, progress=progress, max_sim_s=parameters['max_sim_s'])
     except GraphRunError:
         raise
     except BaseException:

@@ -5,14 +5,13 @@ from __future__ import annotations
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.task import Future
 
+from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
 from sofia_ros.nodes.shell import LockstepNode, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
-from sofia_ros.sim import messages as m
+from sofia_ros.topics import PARAMETER_EVENTS, STOP_DOCUMENT
 
-__all__ = ['RecorderNode', 'PARAMETER_EVENTS']
-
-PARAMETER_EVENTS = '/parameter_events'
+__all__ = ['RecorderNode']
 
 
 class RecorderNode(LockstepNode):
@@ -26,7 +25,7 @@ class RecorderNode(LockstepNode):
         self.bag = BagWriter(bag_path, epoch_ns=epoch_ns)
         self.bag.open()
         self.msgtypes = dict(topics)
-        self.msgtypes[PARAMETER_EVENTS] = 'rcl_interfaces/msg/ParameterEvent'
+        self.msgtypes[PARAMETER_EVENTS.name] = PARAMETER_EVENTS.msgtype
         for topic, msgtype in sorted(self.msgtypes.items()):
             # /clock is offered transient-local (nodes.sync.SYNC_QOS), the rest as DATA_QOS.
             self.bag.add_topic(topic, msgtype, latched=msgtype == 'rosgraph_msgs/msg/Clock')
@@ -38,8 +37,8 @@ class RecorderNode(LockstepNode):
         for topic, msgtype in topics.items():
             qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
             self.create_subscription(message_class(msgtype), topic, self._record_callback(topic), qos, raw=True)
-        self.create_subscription(ParameterEvent, PARAMETER_EVENTS, self._record_callback(PARAMETER_EVENTS, False),
-                                 DATA_QOS, raw=True)
+        self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
+                                 self._record_callback(PARAMETER_EVENTS.name, False), DATA_QOS, raw=True)
 
     def _record_callback(self, topic, counted=True):
         msgtype = self.msgtypes[topic]
@@ -62,7 +61,7 @@ class RecorderNode(LockstepNode):
 
     def on_stop(self):
         # Why the run ended goes into the bag too (a finished calibration, a stall, the time limit).
-        self.bag.write_document('/result/stop', parse_stop(self.stop_reason)[2], self.clock_ns)
+        self.bag.write_document(STOP_DOCUMENT.name, parse_stop(self.stop_reason)[2], self.clock_ns)
         self._close_if_complete()
 
     def tick_requirements(self, tick):

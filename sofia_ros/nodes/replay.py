@@ -9,11 +9,12 @@ import rclpy.duration
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
+from sofia_ros import messages as m
 from sofia_ros.bag import BagReader
 from sofia_ros.errors import BagError
 from sofia_ros.nodes.shell import message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS
-from sofia_ros.sim import messages as m
+from sofia_ros.topics import CLOCK
 
 __all__ = ['replay_bag']
 
@@ -44,7 +45,7 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
             for info in infos:
                 qos = SYNC_QOS if info.name in latched else DATA_QOS
                 publishers[info.name] = node.create_publisher(message_class(info.msgtype), info.name, qos)
-            clock = publishers.get('/clock') or node.create_publisher(Clock, '/clock', SYNC_QOS)
+            clock = publishers.get(CLOCK.name) or node.create_publisher(Clock, CLOCK.name, SYNC_QOS)
             waiting = _wait_for_subscribers(node, [p for name, p in publishers.items() if name not in latched], wait_s)
             if waiting and out is not None:
                 out.write(f'no subscriber after {wait_s:g} s on {", ".join(waiting)}; replaying anyway\n')
@@ -55,7 +56,7 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
                     delay = (stamp_ns - first_ns) / 1e9 / rate - (time.monotonic() - start_wall)
                     if delay > 0:
                         time.sleep(delay)
-                if topic != '/clock' and '/clock' not in publishers:
+                if topic != CLOCK.name and CLOCK.name not in publishers:
                     clock.publish(m.clock_msg(stamp_ns))
                 publishers[topic].publish(bytes(data))
                 count += 1

@@ -11,10 +11,9 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
+from sofia_ros import messages as m
 from sofia_ros.errors import ConfigError
 from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic, parse_stop
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.gyro_box import IMU_TOPIC
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
 
 __all__ = ['message_class', 'LockstepNode', 'CoreNode']
@@ -170,7 +169,7 @@ class CoreNode(LockstepNode):
                 # /clock is transient-local: a reader that matches late still gets the current tick.
                 qos = SYNC_QOS if spec.msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
                 # The 400 Hz samples stay raw CDR until the tick decodes them in one go.
-                raw = spec.name == IMU_TOPIC.name
+                raw = spec.name == core.imu_block_input
                 self.create_subscription(message_class(spec.msgtype), spec.name, self._input_callback(spec.name), qos,
                                          raw=raw)
         for spec in core.outputs():
@@ -179,8 +178,7 @@ class CoreNode(LockstepNode):
         self.parameter_clients = {}
         if hasattr(core, 'parameters'):
             self._declare_core_parameters()
-        self.targets = [node for node in ('tascu',) if core.name == 'calibration']
-        for target in self.targets:
+        for target in core.parameter_targets:
             self.parameter_clients[target] = AsyncParameterClient(self, target)
 
     def extra_ready(self):
@@ -206,7 +204,7 @@ class CoreNode(LockstepNode):
     def _input_callback(self, topic):
         def callback(message):
             self.received[topic] += 1
-            if topic == IMU_TOPIC.name:
+            if topic == self.core.imu_block_input:
                 self.imu_buffer.append(message)
             else:
                 self.core.receive(topic, message)
@@ -219,7 +217,7 @@ class CoreNode(LockstepNode):
 
     def run_tick(self, tick):
         if self.imu_buffer:
-            self.core.receive(IMU_TOPIC.name, m.imu_block_from_cdr('gyrf', self.imu_buffer))
+            self.core.receive(self.core.imu_block_input, m.imu_block_from_cdr('gyrf', self.imu_buffer))
             self.imu_buffer = []
         self.tick_in_progress = tick
         for topic, message in self.core.tick(tick * self.tick_ns):

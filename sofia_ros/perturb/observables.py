@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from sofia_ros.errors import PerturbationError
 from sofia_ros.sensors.imager_model import CAMERAS, nominal_detector
-from sofia_ros.sim.gyro_box import IMU_TOPIC
+from sofia_ros.topics import CENTROIDS, GYRO_IMU
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 
 __all__ = ['CAMERA_AXES', 'GYRO_AXES', 'OBSERVABLES', 'Observable', 'observable']
@@ -51,9 +51,9 @@ def observable(name: str) -> Observable:
     source, _, axis = str(name).partition('.')
     if source in CAMERAS and axis in CAMERA_AXES:
         scale_arcsec_per_px = nominal_detector(source).scale_arcsec_per_px
-        return Observable(name, f'/{source}/centroids', source, CAMERA_AXES[axis], 'px', 'arcsec',
+        return Observable(name, CENTROIDS[source].name, source, CAMERA_AXES[axis], 'px', 'arcsec',
                           (('arcsec', 1.0 / scale_arcsec_per_px), ('px', 1.0)))
     if source == 'gyro' and axis in GYRO_AXES:
-        return Observable(name, IMU_TOPIC.name, None, GYRO_AXES[axis], 'rad_per_s', 'deg_per_h',
+        return Observable(name, GYRO_IMU.name, None, GYRO_AXES[axis], 'rad_per_s', 'deg_per_h',
                           (('deg_per_h', RAD_PER_DEG / _SECONDS_PER_HOUR), ('arcsec_per_s', RAD_PER_ARCSEC)))
     raise PerturbationError(f'unknown observable {name!r}; pick one of {", ".join(OBSERVABLES)}')

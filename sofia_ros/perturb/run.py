@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import yaml
 
+from sofia_ros import messages as m
 from sofia_ros.bag import TYPESTORE, BagReader
 from sofia_ros.bag.imu import decode_imu_rows, with_angular_velocity
 from sofia_ros.bag.msgtypes import decode_cdr
@@ -28,7 +29,6 @@ from sofia_ros.perturb.observables import Observable, observable as observable_n
 from sofia_ros.perturb.rewrite import channel_id_of, channel_payloads, copy_mcap, read_summary
 from sofia_ros.perturb.shapes import evaluate_shape, parse_shape, shape_names
 from sofia_ros.perturb.variables import CAMERA_VARIABLES, GYRO_VARIABLES, Rows, row_variables
-from sofia_ros.sim import messages as m
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator

@@ -15,11 +15,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sofia_ros import messages as m
 from sofia_ros.errors import BagError
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.gyro_box import IMU_TOPIC, TEMPERATURE_TOPIC
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
-from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
+from sofia_ros.topics import CD_JOINT, FD_JOINTS, GYRO_IMU, GYRO_TEMPERATURE, JOINT_STATES
 from sofia_ros.units import DEG_PER_RAD
 
 if TYPE_CHECKING:
@@ -34,7 +32,7 @@ SPECIFIC_FORCE_VARIABLES = ('specific_force_x_m_per_s2', 'specific_force_y_m_per
 GYRO_VARIABLES = ('time_s', 'elevation_deg', 'los_angle_deg', 'temperature_c', *SPECIFIC_FORCE_VARIABLES)
 #: The variables of camera rows (one star in one frame).
 CAMERA_VARIABLES = (*GYRO_VARIABLES, 'detector_x_px', 'detector_y_px', 'hip')
-_JOINT_TOPIC = PLANT_TOPICS['joint_states'].name
+_JOINT_TOPIC = JOINT_STATES.name
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,15 +61,15 @@ def row_variables(bag: BagReader, rows: Rows, names: Iterable[str]) -> dict[str,
             if name in names:
                 values[name] = np.interp(row_s, joint_s, [positions[joint] * DEG_PER_RAD for positions in joints])
     if 'temperature_c' in names:
-        stamps_ns, temperatures = _stamped(bag, TEMPERATURE_TOPIC.name, 'temperature_c', lambda msg: msg.temperature)
+        stamps_ns, temperatures = _stamped(bag, GYRO_TEMPERATURE.name, 'temperature_c', lambda msg: msg.temperature)
         previous = np.searchsorted(stamps_ns, rows.stamp_ns, side='right') - 1
         values['temperature_c'] = np.asarray(temperatures, dtype=float)[np.clip(previous, 0, None)]
     wanted_forces = [name for name in SPECIFIC_FORCE_VARIABLES if name in names and name not in values]
     if wanted_forces:
-        _require(bag, IMU_TOPIC.name, 'specific_force_*_m_per_s2')
-        imu = bag.imu_arrays(IMU_TOPIC.name)
+        _require(bag, GYRO_IMU.name, 'specific_force_*_m_per_s2')
+        imu = bag.imu_arrays(GYRO_IMU.name)
         if len(imu.stamp_ns) == 0:
-            raise BagError(f'{IMU_TOPIC.name} in bag {bag.path} is empty; specific_force_*_m_per_s2 is read from it')
+            raise BagError(f'{GYRO_IMU.name} in bag {bag.path} is empty; specific_force_*_m_per_s2 is read from it')
         imu_s = _seconds(imu.header_stamp_ns, origin_ns)
         for name in wanted_forces:
             axis = SPECIFIC_FORCE_VARIABLES.index(name)

@@ -22,13 +22,12 @@ import numpy as np
 
 from sofia_ros.effects import CATALOGUE, get_effect, is_empirical, plugin_terms
 from sofia_ros.effects.context import GyroContext
-from sofia_ros.frames import dcm_from_rotation_angles
+from sofia_ros.frames import AXES, dcm_from_rotation_angles
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 
 __all__ = ['AXES', 'GyroErrorModel', 'gyro_error_model', 'gyro_effect_names', 'measured_rates_gyrf_rad_per_s',
            'true_rates_tarf_rad_per_s', 'tarf_from_gyrf_dcm', 'AXIS_SWAP_REFERENCE_C']
 
-AXES = ('el', 'xel', 'los')
 _AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
 #: Temperature at which the swapped calibrations differ by scale_difference_ppm (the Waco night, 6.2).
 AXIS_SWAP_REFERENCE_C = 22.8

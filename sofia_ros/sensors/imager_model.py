@@ -70,6 +70,7 @@ from sofia_ros.frames import (
     pixel_to_vector,
     vector_to_pixel,
 )
+from sofia_ros.graph_nodes import IMAGERS
 from sofia_ros.mount import altaz_from_unit_vector_hrf, hrf_from_irf_dcm, unit_vector_hrf
 from sofia_ros.sky.catalogue import StarEntry, hipparcos_columns
 from sofia_ros.sky.places import Site, Weather, observed_directions_hrf
@@ -95,7 +96,8 @@ __all__ = [
     'ImagerTruth',
 ]
 
-CAMERAS = ('fpi', 'ffi', 'wfi', 'hipo')
+#: The sensor model's order: the imagers, then HIPO (graph_nodes names them).
+CAMERAS = (*IMAGERS, 'hipo')
 #: Required sensitivity of Table 2.6 as an Hp limit; HIPO sees through the telescope like the FPI.
 MAGNITUDE_LIMIT_MAG = {'wfi': 8.0, 'ffi': 13.0, 'fpi': 16.0, 'hipo': 16.0}
 _NOMINAL_DETECTORS = {'hipo': HIPO_2004, 'fpi': FPI, 'ffi': FFI, 'wfi': WFI}

@@ -12,60 +12,42 @@ generator that waits one tick at every ``yield``.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import datetime as dt
+from dataclasses import asdict, dataclass
+from typing import ClassVar
 
 import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
-from diagnostic_msgs.msg import DiagnosticStatus
-from geometry_msgs.msg import PointStamped
 
-from sofia_ros import mount
+from sofia_ros import messages as m
 from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_rad
+from sofia_ros.calibration.boresights import boresight_shift_arcsec, flexure_fit
+from sofia_ros.calibration.maneuver_records import maneuver_record
 from sofia_ros.calibration.solvers import Maneuver, fit_alignment
-from sofia_ros.control.tracker import pixel_jacobian_px_per_rad
-from sofia_ros.errors import InvalidArgumentError, SofiaError
-from sofia_ros.frames import dcm_from_quaternion, dcm_from_rotation_angles, quaternion_from_dcm
+from sofia_ros.errors import CalibrationAbort, InvalidArgumentError
+from sofia_ros.graph_nodes import IMAGERS
 from sofia_ros.sensors.imager_model import nominal_detector
-from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, observed_place, visible_stars
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.camera import centroid_topic
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
-from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
-from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, ParameterResult, TopicSpec
-from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
+from sofia_ros.sim.sequence import TOPICS, SequenceCore
+from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, visible_stars
+from sofia_ros.topics import CD_JOINT, FD_JOINTS
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_DEG
 
-__all__ = ['AlignmentPlan', 'CalibrationCore', 'TOPICS', 'maneuver_record', 'maneuver_from_record']
+__all__ = ['AlignmentPlan', 'CalibrationCore']
 
-TOPICS = {
-    'progress': TopicSpec('/calibration/progress', 'diagnostic_msgs/msg/DiagnosticStatus',
-                          'calibration step, iteration and the latest fitted angles'),
-    'result': TopicSpec('/calibration/result', 'std_msgs/msg/String',
-                        'accepted alignment matrices and their accuracy, YAML'),
-    'maneuvers': TopicSpec('/calibration/maneuvers', 'std_msgs/msg/String',
-                           'each fit: the maneuvers it used (axis, angle, centroids, active matrix, block), YAML'),
-}
-IMAGERS = ('fpi', 'ffi', 'wfi')
 _FD_MARGIN_DEG = 2.9
-_KEPT_FRAMES = 200
-_RECENTRE_LOS_DEG = 1.0
 #: Stars for the elevation series: bright enough for every camera, within the fine drive's XEL reach.
 _SERIES_MAX_HP_MAG = 6.5
 _SERIES_REACH_DEG = 1.5
 _MIN_REPETITIONS_FOR_DRIFT_FIT = 4
 
 
-class CalibrationAbort(SofiaError):
-    """The sequence cannot go on; the reason says why."""
-
-
 @dataclass(frozen=True)
 class AlignmentPlan:
     """Size of the alignment campaign (6.1: six repetitions, three frames, 5 deg LOS, 4.8' EL/XEL)."""
 
+    #: the campaign this dataclass plans (its name in campaigns.registry)
+    campaign: ClassVar[str] = 'alignment'
     repetitions: int = 6
     frames_per_position: int = 3
     los_angle_deg: float = 5.0
@@ -85,131 +67,14 @@ class AlignmentPlan:
                                        f'+-3 deg fine drive, got {self.los_angle_deg}')
 
 
-class CalibrationCore(NodeCore):
-    """Commands the maneuvers, solves the DCMs, pushes them to the TASCU, verifies."""
-
-    name = 'calibration'
-    upstream = (('tascu', 0), ('hipo', 0), ('fpi', 0), ('ffi', 0), ('wfi', 0))
+class CalibrationCore(SequenceCore):
+    """The alignment sequence: commands the maneuvers, solves the DCMs, pushes them to the TASCU, verifies."""
 
     def __init__(self, plan=None, scenario=None):
-        super().__init__()
-        self.plan = plan or AlignmentPlan()
-        self.scenario = scenario
-        self.attitude = None
-        self.stamp_ns = 0
-        self.status = None
-        self.command_status = {}
-        self.frames = {camera: [] for camera in ('hipo', *IMAGERS)}
-        self.joints = {}
-        self.parameter_result = None
-        self.outbox = []
-        self.active_alignment = np.eye(3)
-        self.star_hip = None
+        super().__init__(plan or AlignmentPlan(), scenario)
         self.block = 0
         self.record = {'iterations': []}
-        self._sequence = self._run()
 
-    def inputs(self):
-        cameras = tuple(centroid_topic(camera) for camera in ('hipo', *IMAGERS))
-        return (TASCU_TOPICS['motion_status'], TASCU_TOPICS['command_status'], PLANT_TOPICS['joint_states'],
-                TASCU_TOPICS['attitude'], *cameras)
-
-    def outputs(self):
-        return (TASCU_TOPICS['move_relative'], TASCU_TOPICS['mtbs_centroid'], TASCU_TOPICS['mtbs_inertial'],
-                TASCU_TOPICS['track'], TOPICS['progress'], TOPICS['result'], TOPICS['maneuvers'])
-
-    def receive(self, topic, message):
-        if topic == TASCU_TOPICS['motion_status'].name:
-            self.status = message.message
-        elif topic == TASCU_TOPICS['command_status'].name:
-            self.command_status[int(m.status_values_of(message)['command_stamp_ns'])] = message.message
-        elif topic == PLANT_TOPICS['joint_states'].name:
-            self.joints = m.joint_positions_of(message)
-        elif topic == TASCU_TOPICS['attitude'].name:
-            self.attitude = message
-        elif topic == SET_PARAMETERS:
-            self.parameter_result = message
-        elif topic.endswith('/centroids'):
-            frames = self.frames[message.header.frame_id]
-            frames.append((m.stamp_ns_of(message.header.stamp), m.centroids_of(message)))
-            del frames[:-_KEPT_FRAMES]
-
-    def tick(self, stamp_ns):
-        self.stamp_ns = stamp_ns
-        self.outbox = []
-        if self.outcome.finished or self.outcome.failed:
-            return []
-        try:
-            next(self._sequence)
-        except StopIteration:
-            self.outcome.finished = True
-        except SofiaError as err:
-            self.outcome.failed, self.outcome.reason = True, str(err)
-            self._progress('failed', {'reason': str(err)}, DiagnosticStatus.ERROR)
-            self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(
-                {'accepted': False, 'reason': str(err), **self.record}, sort_keys=False))))
-        return self.outbox
-
-    # --- small steps ------------------------------------------------------------------------
-    def _progress(self, step, values=None, level=DiagnosticStatus.OK):
-        self.outbox.append((TOPICS['progress'].name, m.status_msg('calibration', step, values, level)))
-
-    def _wait(self, predicate, what):
-        deadline_ns = self.stamp_ns + m.seconds_to_ns(self.plan.timeout_s)
-        while not predicate():
-            if self.stamp_ns >= deadline_ns:
-                raise CalibrationAbort(f'timed out after {self.plan.timeout_s:g} s waiting for {what}')
-            yield
-
-    def _locked(self):
-        yield from self._wait(lambda: self.status == 'locked', 'the TASCU to report locked')
-
-    def _command(self, kind, message):
-        command_ns = self.stamp_ns + len(self.outbox)  # unique even for two commands in one tick
-        message.header.stamp = m.time_msg(command_ns)
-        self.outbox.append((TASCU_TOPICS[kind].name, message))
-        yield from self._wait(lambda: command_ns in self.command_status, f'the TASCU to answer {kind}')
-        yield from self._wait(lambda: not self.command_status[command_ns].startswith('accepted'),
-                              f'{kind} to finish')
-        answer = self.command_status[command_ns]
-        if answer.startswith('refused'):
-            raise CalibrationAbort(f'TASCU refused {kind}: {answer[len("refused: "):]}')
-
-    def _move(self, rotation_rad):
-        yield from self._command('move_relative', m.vector3_stamped(0, 'tarf', rotation_rad))
-        yield from self._locked()
-
-    def _point_message(self, camera, pixel, z=0.0):
-        msg = PointStamped()
-        msg.header.frame_id = camera
-        msg.point.x, msg.point.y, msg.point.z = float(pixel[0]), float(pixel[1]), float(z)
-        return msg
-
-    def _star_frames(self, camera, count):
-        """Mean centroid of the tracked star over the next ``count`` frames after now."""
-        # Whole exposures after the lock: the longest (imagers, 2 s) started at most 1 s before its midpoint.
-        since_ns = self.stamp_ns + m.NS_PER_S
-        frames = self.frames[camera]
-        yield from self._wait(
-            lambda: sum(1 for stamp, stars in frames if stamp > since_ns and self._find(stars)) >= count,
-            f'{count} {camera.upper()} frames with HIP {self.star_hip}')
-        found = [(stamp, self._find(stars)) for stamp, stars in frames if stamp > since_ns and self._find(stars)]
-        found = found[:count]
-        frames.clear()
-        pixels = np.array([pixel for _, pixel in found])
-        return pixels.mean(axis=0), float(np.mean([stamp for stamp, _ in found])) / m.NS_PER_S
-
-    def _find(self, stars):
-        return next(((x, y) for hip, x, y in stars if hip == self.star_hip), None)
-
-    def _push(self, values):
-        self.parameter_result = None
-        self.outbox.append((SET_PARAMETERS, ParameterRequest('tascu', values)))
-        yield from self._wait(lambda: isinstance(self.parameter_result, ParameterResult), 'the parameter service')
-        if not self.parameter_result.successful:
-            raise CalibrationAbort(f'TASCU refused parameters: {self.parameter_result.reasons}')
-
-    # --- the sequence -----------------------------------------------------------------------
     def _run(self):
         self._progress('acquire')
         yield from self._locked()
@@ -230,12 +95,6 @@ class CalibrationCore(NodeCore):
             yield from self._flexure_series()
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(self.result(), sort_keys=False))))
-
-    def _recentre_los(self, threshold_deg=_RECENTRE_LOS_DEG):
-        """Turn the fine drive's LOS back to zero beyond a threshold: an inertial hold walks it at Earth rate."""
-        fd_los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
-        if abs(fd_los_deg) > threshold_deg:
-            yield from self._move(np.array([0.0, 0.0, -fd_los_deg * RAD_PER_DEG]))
 
     def _centre_star(self):
         yield from self._recentre_los()
@@ -348,10 +207,6 @@ class CalibrationCore(NodeCore):
         """Fit the residual drift (6.1) when every block has enough maneuvers to spare the unknowns."""
         return self.plan.repetitions >= _MIN_REPETITIONS_FOR_DRIFT_FIT
 
-    def _set_alignment(self, dcm):
-        yield from self._push({'alignment.tarf_from_gyrf': np.asarray(dcm).ravel().tolist()})
-        self.active_alignment = np.asarray(dcm)
-
     def _imager_rotation_of_field(self):
         """Maneuver 4 of Table 3.4: EL/XEL rotations seen in each imager give A_XYIRF,TARF."""
         self._progress('rotation_of_field')
@@ -369,34 +224,6 @@ class CalibrationCore(NodeCore):
         yield from self._push(updates)
 
     # --- boresights over elevation (Table 3.5, 6.2) ------------------------------------------
-    def _star_direction_irf(self, star):
-        """The star's direction in the TASCU's IRF (TARF at start-up) from the catalogue and the nominal mount."""
-        elapsed_s = self.stamp_ns / m.NS_PER_S
-        utc = self.scenario.start_utc + dt.timedelta(seconds=elapsed_s)
-        place = observed_place(star, self.scenario.site, utc, WACO_2004_WEATHER,
-                               min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
-        s_hrf = mount.unit_vector_hrf(place.apparent_altitude_deg, place.azimuth_deg)
-        tarf0_from_hrf0 = mount.tarf_from_hrf_dcm(self.scenario.heading_deg, self.scenario.start_elevation_deg)
-        return tarf0_from_hrf0 @ mount.hrf_from_irf_dcm(self.scenario.latitude_deg, elapsed_s).T @ s_hrf
-
-    def _point_at(self, star):
-        """MTBS_INERTIAL: turn the LOS onto the star, the coarse drive taking large elevation changes (6.3)."""
-        estimate = dcm_from_quaternion(m.quaternion_xyzw_of(self.attitude))
-        star_tarf = estimate @ self._star_direction_irf(star)
-        axis = np.cross([0.0, 0.0, 1.0], star_tarf)
-        rotation = axis / np.linalg.norm(axis) * np.arctan2(np.linalg.norm(axis), star_tarf[2])
-        target = dcm_from_rotation_angles(rotation) @ estimate
-        yield from self._command('mtbs_inertial', m.quaternion_stamped(0, 'irf', quaternion_from_dcm(target)))
-        yield from self._locked()
-
-    def _acquire(self, hip):
-        """Star into HIPO through the wide fields: FFI centring first, then HIPO (6.2, 6.3)."""
-        self.star_hip = hip
-        for camera in ('ffi', 'hipo'):
-            pixel, _ = yield from self._star_frames(camera, 1)
-            yield from self._command('mtbs_centroid', self._point_message(camera, pixel))
-            yield from self._locked()
-
     def _reachable_star(self, target_deg, exclude):
         """Brightest catalogue star within 3 deg of an elevation that the fine drive reaches in azimuth."""
         utc = self.scenario.start_utc + dt.timedelta(seconds=self.stamp_ns / m.NS_PER_S)
@@ -468,45 +295,6 @@ class CalibrationCore(NodeCore):
             'plan': asdict(self.plan),
             **self.record,
         }
-
-
-def boresight_shift_arcsec(camera, pixel, boresight_px):
-    """Imager rotation (dEL, dXEL) ["] against HIPO since el0, from the HIPO-centred star's pixel (3.2-3.4, 6.2).
-
-    A camera turned by theta against the focal plane sees the star as if the telescope had turned
-    by theta, so the offset from the el0 boresight, mapped back through the pixel geometry, is the
-    differential flexure of Fig. 3.17 (right) and Fig. 6.4.
-    """
-    jacobian = pixel_jacobian_px_per_rad(camera, boresight_px, np.eye(3))[:, :2]
-    return np.linalg.solve(jacobian, np.asarray(pixel) - np.asarray(boresight_px)) * ARCSEC_PER_RAD
-
-
-def flexure_fit(rows, camera, reference_elevation_deg):
-    """Least-squares p cos(el) + q sin(el) about el0 per axis (the form of 3.28/3.29 with 3.4.2)."""
-    elevations = np.radians([row['elevation_deg'] for row in rows])
-    el0 = np.radians(reference_elevation_deg)
-    design = np.column_stack([np.cos(elevations) - np.cos(el0), np.sin(elevations) - np.sin(el0)])
-    shifts = np.array([row[camera] for row in rows])
-    coefficients, *_ = np.linalg.lstsq(design, shifts, rcond=None)
-    span = np.radians([23.0, 60.0])
-    change = (np.column_stack([np.cos(span), np.sin(span)]) @ coefficients)
-    return {'el_arcsec_cos_sin': coefficients[:, 0].tolist(), 'xel_arcsec_cos_sin': coefficients[:, 1].tolist(),
-            'change_23_to_60_deg_arcsec': (change[1] - change[0]).tolist(),
-            'rms_residual_arcsec': float(np.sqrt(np.mean((design @ coefficients - shifts) ** 2)))}
-
-
-def maneuver_record(maneuver):
-    """A Maneuver as plain YAML-able values (the /calibration/maneuvers record)."""
-    return {'axis': maneuver.axis, 'angle_rad': float(maneuver.angle_rad),
-            'start_px': [float(v) for v in maneuver.start_px], 'end_px': [float(v) for v in maneuver.end_px],
-            'active_alignment': np.asarray(maneuver.active_alignment).tolist(),
-            'duration_s': float(maneuver.duration_s), 'block': int(maneuver.block)}
-
-
-def maneuver_from_record(record):
-    """Inverse of maneuver_record."""
-    return Maneuver(record['axis'], record['angle_rad'], record['start_px'], record['end_px'],
-                    np.asarray(record['active_alignment']), record['duration_s'], record['block'])
 
 
 def _small_angles(dcm, reference):

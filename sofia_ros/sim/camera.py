@@ -9,25 +9,19 @@ from __future__ import annotations
 
 from scipy.spatial.transform import Rotation, Slerp
 
+from sofia_ros import messages as m
 from sofia_ros.errors import ConfigError
 from sofia_ros.frames import dcm_from_quaternion
 from sofia_ros.sensors.imager_model import CAMERAS, ImagerTruth, Scene
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
-from sofia_ros.sim.protocol import NodeCore, TopicSpec
+from sofia_ros.sim.protocol import NodeCore
+from sofia_ros.topics import CD_JOINT, FD_JOINTS, centroid_topic
 from sofia_ros.units import DEG_PER_RAD
 
-__all__ = ['CameraCore', 'centroid_topic', 'DEFAULT_TIMING_S']
+__all__ = ['CameraCore', 'DEFAULT_TIMING_S']
 
 #: (frame period, exposure) in s: HIPO 0.5 s exposures on Polaris (6.1), imagers 2 s (6.2).
 DEFAULT_TIMING_S = {'hipo': (1.0, 0.5), 'fpi': (2.0, 2.0), 'ffi': (2.0, 2.0), 'wfi': (2.0, 2.0)}
-
-
-def centroid_topic(camera):
-    """TopicSpec of a camera's centroid stream."""
-    return TopicSpec(f'/{camera}/centroids', 'geometry_msgs/msg/PoseArray',
-                     f'{camera.upper()} centroids of every star on the chip: x, y px; z = HIP number')
 
 
 class CameraCore(NodeCore):

@@ -1,8 +1,8 @@
 """Clock core: one /clock message per tick (rosgraph_msgs/Clock), the graph's sim time."""
 
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
+from sofia_ros import messages as m
 from sofia_ros.sim.protocol import NodeCore
+from sofia_ros.topics import CLOCK
 
 __all__ = ['ClockCore']
 
@@ -13,7 +13,7 @@ class ClockCore(NodeCore):
     name = 'clock'
 
     def outputs(self):
-        return (PLANT_TOPICS['clock'],)
+        return (CLOCK,)
 
     def tick(self, stamp_ns):
-        return [(PLANT_TOPICS['clock'].name, m.clock_msg(stamp_ns))]
+        return [(CLOCK.name, m.clock_msg(stamp_ns))]

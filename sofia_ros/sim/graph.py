@@ -7,45 +7,50 @@ and many processes run identical cores with identical seeds.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Iterable, Sequence
 
 import numpy as np
 
+from sofia_ros.config import EffectConfig
 from sofia_ros.errors import ConfigError
+from sofia_ros.graph_nodes import CAMERAS, NODE_NAMES, SEEDED_NODES
+from sofia_ros.scenario import Scenario
 from sofia_ros.sim.calibration import AlignmentPlan, CalibrationCore
 from sofia_ros.sim.camera import CameraCore
 from sofia_ros.sim.clock import ClockCore
 from sofia_ros.sim.gyro_box import GyroBoxCore
-from sofia_ros.sim.star_hop import StarHopCore, StarHopPlan
 from sofia_ros.sim.plant import PlantCore
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.sim.protocol import NodeCore
+from sofia_ros.sim.star_hop import StarHopCore, StarHopPlan
 from sofia_ros.sim.tascu import TascuCore
+from sofia_ros.topics import DEFAULT_TICK_NS
 
-__all__ = ['CAMERAS', 'NODE_NAMES', 'GraphConfig', 'build_core', 'build_cores', 'graph_topics', 'topic_table_markdown']
+__all__ = ['DEFAULT_MAX_SIM_S', 'GraphConfig', 'build_core', 'build_cores', 'graph_topics', 'topic_table_markdown']
 
-CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
-#: Every node of the alignment graph, in a fixed order (seeds are drawn in this order).
-NODE_NAMES = ('clock', 'plant', 'gyro_box', *CAMERAS, 'tascu', 'calibration')
-_SEEDED = ('gyro_box', *CAMERAS)
+#: Sim time after which the clock stops a graph run unless the campaign gives its own budget (the full
+#: alignment campaign takes about 1850 s).
+DEFAULT_MAX_SIM_S = 7200.0
 
 
 @dataclass(frozen=True)
 class GraphConfig:
     """Everything a node needs to build its core: truth, scenario, seed, campaign plan, tick."""
 
-    truth: object  # sofia_ros.config.EffectConfig
-    scenario: object  # sofia_ros.sim.scenario.Scenario
+    truth: EffectConfig
+    scenario: Scenario
     seed: int
-    plan: AlignmentPlan = field(default_factory=AlignmentPlan)
+    #: the campaign's plan: its dataclass (campaigns.registry) decides the calibration node's sequence
+    plan: AlignmentPlan | StarHopPlan = field(default_factory=AlignmentPlan)
     tick_ns: int = DEFAULT_TICK_NS
     fd_braked: bool = False
 
-    def node_seed(self, name):
+    def node_seed(self, name: str) -> int:
         """The seed of node ``name``, drawn from the run seed in NODE_NAMES order."""
-        children = np.random.SeedSequence(self.seed).spawn(len(_SEEDED))
-        return int(children[_SEEDED.index(name)].generate_state(1)[0])
+        children = np.random.SeedSequence(self.seed).spawn(len(SEEDED_NODES))
+        return int(children[SEEDED_NODES.index(name)].generate_state(1)[0])
 
 
-def build_core(name, config):
+def build_core(name: str, config: GraphConfig) -> NodeCore:
     """The core of node ``name`` for this graph."""
     effects = config.truth.effects
     if name == 'clock':
@@ -65,12 +70,12 @@ def build_core(name, config):
     raise ConfigError(f'unknown node {name!r}; nodes are {", ".join(NODE_NAMES)}')
 
 
-def build_cores(config, names=NODE_NAMES):
+def build_cores(config: GraphConfig, names: Sequence[str] = NODE_NAMES) -> list[NodeCore]:
     """Cores of the named nodes."""
     return [build_core(name, config) for name in names]
 
 
-def graph_topics(cores):
+def graph_topics(cores: Iterable[NodeCore]) -> dict[str, tuple[str, str | None, tuple[str, ...]]]:
     """topic -> (msgtype, publisher node, subscriber nodes) over a set of cores."""
     topics = {}
     for core in cores:
@@ -82,7 +87,7 @@ def graph_topics(cores):
     return {name: (msgtype, publisher, tuple(subscribers)) for name, (msgtype, publisher, subscribers) in topics.items()}
 
 
-def topic_table_markdown(config):
+def topic_table_markdown(config: GraphConfig) -> str:
     """The README's topic table: every topic of the graph with type, publisher, subscribers, meaning."""
     cores = build_cores(config)
     meanings = {spec.name: spec.meaning for core in cores for spec in (*core.outputs(), *core.inputs())}

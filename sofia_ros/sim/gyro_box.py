@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sofia_ros import messages as m
 from sofia_ros.frames import dcm_from_rotation_angles
 from sofia_ros.sensors.gyro_errors import (
     AXES,
@@ -19,17 +20,13 @@ from sofia_ros.sensors.gyro_errors import (
     measured_rates_gyrf_rad_per_s,
 )
 from sofia_ros.sensors.gyro_noise import GyroNoiseStream, NoiseCoefficients
-from sofia_ros.sim import messages as m
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
-from sofia_ros.sim.protocol import NodeCore, TopicSpec
+from sofia_ros.sim.protocol import NodeCore
+from sofia_ros.topics import GYRO_IMU as IMU_TOPIC
+from sofia_ros.topics import GYRO_TEMPERATURE as TEMPERATURE_TOPIC
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ, STANDARD_GRAVITY_M_PER_S2
 
-__all__ = ['GyroBoxCore', 'IMU_TOPIC']
-
-IMU_TOPIC = TopicSpec('/gyro_box/imu', 'sensor_msgs/msg/Imu',
-                      'one 400 Hz sample: FOG rates (rad/s) and accelerations (m/s^2) in GYRF')
-TEMPERATURE_TOPIC = TopicSpec('/gyro_box/temperature', 'sensor_msgs/msg/Temperature',
-                              'gyro box temperature (deg C), once per tick')
+__all__ = ['GyroBoxCore']
 
 
 class GyroBoxCore(NodeCore):

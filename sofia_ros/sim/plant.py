@@ -11,32 +11,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from sofia_ros import mount
+from sofia_ros import messages as m
+from sofia_ros import mount, topics
 from sofia_ros.control.attitude import mean_rate_rad_per_s, propagate_dcm
 from sofia_ros.frames import quaternion_from_dcm
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS, NodeCore, TopicSpec
+from sofia_ros.sim.protocol import NodeCore
+from sofia_ros.topics import CD_JOINT, DEFAULT_TICK_NS, FD_JOINTS
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
-__all__ = ['PlantCore', 'FD_JOINTS', 'CD_JOINT']
+__all__ = ['PlantCore', 'TOPICS']
 
-CD_JOINT = 'cd_elevation'
-FD_JOINTS = ('fd_el', 'fd_xel', 'fd_los')
-
+#: the topics this core reads and writes, by the short names its methods use (defined in sofia_ros.topics)
 TOPICS = {
-    'clock': TopicSpec('/clock', 'rosgraph_msgs/msg/Clock', 'simulated time, one message per tick'),
-    'fd_command': TopicSpec('/tascu/fd_command', 'geometry_msgs/msg/Vector3Stamped',
-                            'inertial body rate the fine drive is to hold over the next tick, TARF, rad/s'),
-    'cd_command': TopicSpec('/tascu/cd_command', 'sensor_msgs/msg/JointState',
-                            'coarse-drive target elevation (cd_elevation, rad)'),
-    'truth_imu': TopicSpec('/truth/imu', 'sensor_msgs/msg/Imu',
-                           'true TARF attitude in IRF, mean inertial rate over the tick (TARF), specific force'),
-    'truth_joints': TopicSpec('/truth/joints', 'sensor_msgs/msg/JointState',
-                              'true coarse-drive elevation and fine-drive angles (rad)'),
-    'truth_temperature': TopicSpec('/truth/temperature', 'sensor_msgs/msg/Temperature',
-                                   'telescope structure temperature (deg C)'),
-    'joint_states': TopicSpec('/ta/joint_states', 'sensor_msgs/msg/JointState',
-                              'housekeeping: CD encoder and FD spherical-sensor angles (rad)'),
+    'clock': topics.CLOCK, 'fd_command': topics.FD_COMMAND, 'cd_command': topics.CD_COMMAND,
+    'truth_imu': topics.TRUTH_IMU, 'truth_joints': topics.TRUTH_JOINTS,
+    'truth_temperature': topics.TRUTH_TEMPERATURE, 'joint_states': topics.JOINT_STATES,
 }
 
 

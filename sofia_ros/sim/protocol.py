@@ -15,22 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ['DEFAULT_TICK_NS', 'TopicSpec', 'NodeCore', 'RunOutcome', 'SET_PARAMETERS', 'ParameterRequest',
+__all__ = ['NodeCore', 'RunOutcome', 'SET_PARAMETERS', 'ParameterRequest',
            'ParameterResult']
-
-#: 0.2 s: the servo and the sensors exchange once per tick (a 5 Hz position loop with a 2/s gain
-#: settles a move in 2-3 s); the gyro box still samples at 400 Hz and cameras keep their own timing.
-DEFAULT_TICK_NS = 200_000_000
-
-
-@dataclass(frozen=True)
-class TopicSpec:
-    """A topic, its ROS type string and a one-line meaning (for the README's table)."""
-
-    name: str
-    msgtype: str
-    meaning: str
-
 
 @dataclass
 class RunOutcome:
@@ -48,12 +34,19 @@ class NodeCore:
     name = ''
     #: (node name, lag in ticks) this core waits for before its tick
     upstream = ()
+    #: True for the core whose sequence is the campaign: the run ends when it finishes or fails
+    ends_run = False
+    #: the nodes this core sets parameters on (SET_PARAMETERS requests; parameter clients in the live graph)
+    parameter_targets = ()
+    #: an input topic of sensor_msgs/Imu samples that the core takes as one ImuBlock per tick (the live
+    #: shell subscribes to it raw and decodes a tick's samples in one go), or None
+    imu_block_input = None
 
     def __init__(self):
         self.outcome = RunOutcome()
 
     def inputs(self):
-        """TopicSpecs this core consumes."""
+        """TopicSpecs (sofia_ros.topics) this core consumes."""
         return ()
 
     def outputs(self):

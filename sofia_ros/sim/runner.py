@@ -6,14 +6,13 @@ cores and the order of their ticks are the same as over DDS (see protocol.py).
 
 from __future__ import annotations
 
+from sofia_ros import messages as m
 from sofia_ros.bag import wire_cdr
 from sofia_ros.errors import ConfigError
-from sofia_ros.sim import messages as m
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
+from sofia_ros.topics import PARAMETER_EVENTS
 
-__all__ = ['LockstepRunner', 'tick_order', 'PARAMETER_EVENTS']
-
-PARAMETER_EVENTS = '/parameter_events'
+__all__ = ['LockstepRunner', 'tick_order']
 
 
 def tick_order(cores):
@@ -55,7 +54,7 @@ class LockstepRunner:
                 self.subscribers.setdefault(spec.name, []).append(core)
             for spec in core.outputs():
                 self.msgtypes[spec.name] = spec.msgtype
-        self.msgtypes[PARAMETER_EVENTS] = 'rcl_interfaces/msg/ParameterEvent'
+        self.msgtypes[PARAMETER_EVENTS.name] = PARAMETER_EVENTS.msgtype
         if bag is not None:
             for topic, msgtype in sorted(self.msgtypes.items()):
                 # As over DDS: /clock is offered transient-local, the rest reliable and volatile.
@@ -94,7 +93,7 @@ class LockstepRunner:
                 reasons[name] = str(err)
         changed = {name: value for name, value in request.values.items() if not reasons[name]}
         if changed:
-            self._record(PARAMETER_EVENTS, m.parameter_event(self.stamp_ns, request.node, changed))
+            self._record(PARAMETER_EVENTS.name, m.parameter_event(self.stamp_ns, request.node, changed))
         return ParameterResult(request.node, reasons)
 
     def _record(self, topic, message):

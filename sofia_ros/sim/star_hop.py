@@ -15,16 +15,18 @@ from __future__ import annotations
 
 import datetime as dt
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import yaml
 
+from sofia_ros import messages as m
 from sofia_ros.calibration.published import EQ_6_1
 from sofia_ros.errors import InvalidArgumentError
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.calibration import IMAGERS, TOPICS, CalibrationCore
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
+from sofia_ros.graph_nodes import IMAGERS
+from sofia_ros.sim.sequence import TOPICS, SequenceCore
 from sofia_ros.sky.catalogue import star_by_name
+from sofia_ros.topics import CD_JOINT, FD_JOINTS
 from sofia_ros.units import RAD_PER_DEG
 
 __all__ = ['StarHopPlan', 'StarHopCore', 'TABLE_D3_OBSERVATIONS', 'CDT']
@@ -52,6 +54,8 @@ def table_d3_offsets_s():
 class StarHopPlan:
     """The star-hop sequence: (star, start offset s) pairs, hold per star, timing and the TASCU's alignment."""
 
+    #: the campaign this dataclass plans (its name in campaigns.registry)
+    campaign: ClassVar[str] = 'star-hop'
     #: (star, seconds after Table D.3's first observation); the run starts at the first one listed.
     #: As node parameters: one array per column, plan.observations.star and plan.observations.offset_s.
     observations: tuple = field(default_factory=table_d3_offsets_s, metadata={'columns': ('star', 'offset_s')})
@@ -73,7 +77,7 @@ class StarHopPlan:
             raise InvalidArgumentError(f'hold_s must be positive, got {self.hold_s}')
 
 
-class StarHopCore(CalibrationCore):
+class StarHopCore(SequenceCore):
     """Commands the star-hop sequence and records each observation's hold window."""
 
     def __init__(self, plan, scenario):

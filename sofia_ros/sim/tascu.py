@@ -13,41 +13,28 @@ import numpy as np
 from scipy.optimize import brentq
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from sofia_ros import mount
+from sofia_ros import graph_nodes, mount, topics
+from sofia_ros import messages as m
 from sofia_ros.control import servo, tracker
 from sofia_ros.control.attitude import propagate_dcm, rotation_error_rad
 from sofia_ros.errors import CommandRefusedError, ConfigError, SofiaError
 from sofia_ros.flexure import focal_plane_telescope_rotation_arcsec, gravity_load_tarf
 from sofia_ros.frames import dcm_from_quaternion, dcm_from_rotation_angles, quaternion_from_dcm
 from sofia_ros.sensors.imager_model import CAMERAS
-from sofia_ros.sim import messages as m
-from sofia_ros.sim.camera import centroid_topic
-from sofia_ros.sim.gyro_box import IMU_TOPIC
-from sofia_ros.sim.plant import CD_JOINT, FD_JOINTS
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
-from sofia_ros.sim.protocol import NodeCore, TopicSpec
+from sofia_ros.sim.protocol import NodeCore
+from sofia_ros.topics import CD_JOINT, FD_JOINTS, centroid_topic
+from sofia_ros.topics import GYRO_IMU as IMU_TOPIC
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import orthonormal_dcm
 
 __all__ = ['TascuCore', 'TOPICS', 'DEFAULT_BORESIGHT_PX']
 
+#: the topics this core publishes and the commands it takes, by the short names its methods use
 TOPICS = {
-    'attitude': TopicSpec('/tascu/attitude', 'geometry_msgs/msg/QuaternionStamped',
-                          'TASCU estimate of TARF in IRF (quaternion, scalar last), once per tick'),
-    'motion_status': TopicSpec('/tascu/motion_status', 'diagnostic_msgs/msg/DiagnosticStatus',
-                               'transient / settled / locked (1" RSS for 0.1 s) with the control deviation'),
-    'drift': TopicSpec('/tascu/drift_estimate', 'geometry_msgs/msg/Vector3Stamped',
-                       'tracker drift estimate subtracted from the gyro rates, TARF, rad/s'),
-    'command_status': TopicSpec('/tascu/command_status', 'diagnostic_msgs/msg/DiagnosticStatus',
-                                'accepted / done / refused (with the reason) per command, keyed by its stamp'),
-    'move_relative': TopicSpec('/tascu/move_relative', 'geometry_msgs/msg/Vector3Stamped',
-                               'command: turn by (EL, XEL, LOS) rad about the TARF axes'),
-    'mtbs_centroid': TopicSpec('/tascu/mtbs_centroid', 'geometry_msgs/msg/PointStamped',
-                               'command: move the star at (x, y) px of camera frame_id to its boresight'),
-    'mtbs_inertial': TopicSpec('/tascu/mtbs_inertial', 'geometry_msgs/msg/QuaternionStamped',
-                               'command: move TARF to this attitude in IRF (coarse drive for large EL)'),
-    'track': TopicSpec('/tascu/track', 'geometry_msgs/msg/PointStamped',
-                       'command: estimate drift on the star at (x, y) px of camera frame_id for z seconds'),
+    'attitude': topics.TASCU_ATTITUDE, 'motion_status': topics.MOTION_STATUS, 'drift': topics.DRIFT_ESTIMATE,
+    'command_status': topics.COMMAND_STATUS, 'move_relative': topics.MOVE_RELATIVE,
+    'mtbs_centroid': topics.MTBS_CENTROID, 'mtbs_inertial': topics.MTBS_INERTIAL, 'track': topics.TRACK,
 }
 COMMAND_TOPICS = ('move_relative', 'mtbs_centroid', 'mtbs_inertial', 'track')
 DEFAULT_BORESIGHT_PX = {'hipo': (559.0, 489.0), 'fpi': (511.5, 511.5), 'ffi': (511.5, 511.5), 'wfi': (511.5, 511.5)}
@@ -58,7 +45,8 @@ class TascuCore(NodeCore):
     """Alignment, FBC, attitude propagation, servo, motion status and tracker."""
 
     name = 'tascu'
-    upstream = (('gyro_box', 0), ('hipo', 0), ('fpi', 0), ('ffi', 0), ('wfi', 0), ('calibration', 1))
+    imu_block_input = IMU_TOPIC.name
+    upstream = (('gyro_box', 0), *((camera, 0) for camera in graph_nodes.CAMERAS), ('calibration', 1))
 
     def __init__(self, settings=None):
         super().__init__()

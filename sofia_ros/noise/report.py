@@ -18,11 +18,12 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from sofia_ros.analysis.noise_loop import AXES, predicted_noise
-from sofia_ros.analysis.noise_model import noise_adev
-from sofia_ros.analysis.noise_report import integrated_angle_arcsec
 from sofia_ros.analysis.spectra import rate_spectrogram
 from sofia_ros.errors import ConfigError
+from sofia_ros.frames import AXES
+from sofia_ros.noise.fit import noise_adev
+from sofia_ros.noise.predict import predicted_noise
+from sofia_ros.noise.run import integrated_angle_arcsec
 
 __all__ = ['PLOTS', 'check_report_dir', 'write_report']
 
@@ -97,7 +98,7 @@ def _angle_figure(analysis, path):
 
 
 def _model_psd(analysis, freq_hz):
-    """The noise model with its refitted white level (noise_loop.fit_base) on any frequencies."""
+    """The noise model with its refitted white level (noise.candidates.fit_base) on any frequencies."""
     _, rest = predicted_noise(analysis.effects, analysis.measured.grid, freq_hz, include_arw=False)
     return rest + 2.0 * analysis.base.white_level[:, np.newaxis]
 

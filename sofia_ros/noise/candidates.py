@@ -4,16 +4,16 @@ A noise model is an effects file with the schema of a truth (docs/effects.md). P
 the Allan variance and the Welch PSD of the mean-removed rate:
 
 - ``gyro_noise``: quantization 4.13 / 4.11, ARW 4.16 / 4.14, bias instability 4.18 (corrected, see
-  noise_model) / 4.17, RRW 4.20 / 4.19, the same on every axis as the truth simulator applies them;
+  noise.fit) / 4.17, RRW 4.20 / 4.19, the same on every axis as the truth simulator applies them;
 - ``gyro_bias_drift``: the rate ramp per axis, 4.22 / 4.21;
 - ``vibration_lines`` and ``los_oscillation`` (rate amplitude 2 pi A / T): the AV of a sampled
-  sinusoid (4.6-4.7, noise_model.sinusoid_adev) and the expected Welch estimate of a line
+  sinusoid (4.6-4.7, noise.fit.sinusoid_adev) and the expected Welch estimate of a line
   (spectra.welch_sinusoid_psd, aliases included);
 - other effects (bias, misalignment, scale factor) are constant rates: the mean removes them.
 
 Decimated records (every k-th read-out, 4.2.5): white noise keeps its per-sample variance, so the
 ARW terms are k times larger in AV and PSD (the inverse of 4.27-4.29), and quantization, blue at
-the read-out rate (4.11), becomes white (noise_model.decimated_quantization_variance).
+the read-out rate (4.11), becomes white (noise.fit.decimated_quantization_variance).
 
 Residual, weighted so that each row has about unit variance and correlated rows count once:
 ln(measured / predicted root AV) at the curve's taus with the 4.25 error, times the square root of
@@ -47,51 +47,33 @@ from scipy import optimize, signal
 
 from sofia_ros.analysis.allan import arw_corrected_for_sampling
 from sofia_ros.analysis.lines import likely_source
-from sofia_ros.analysis.noise_model import (
+from sofia_ros.analysis.ranking import CandidateTerm, rank_candidates
+from sofia_ros.analysis.spectra import welch_sinusoid_psd
+from sofia_ros.effects import resolve_params
+from sofia_ros.errors import ConfigError
+from sofia_ros.frames import AXES
+from sofia_ros.noise.fit import (
     BIAS_INSTABILITY_PLATEAU,
     bias_instability_psd,
-    decimated_quantization_variance,
     quantization_psd,
     rate_ramp_psd,
     rrw_psd,
     sinusoid_adev,
 )
-from sofia_ros.analysis.ranking import CandidateTerm, rank_candidates
-from sofia_ros.analysis.spectra import log_chi_square_bias_and_sigma, welch_equivalent_dof, welch_sinusoid_psd
-from sofia_ros.effects import resolve_params
-from sofia_ros.errors import ConfigError
+from sofia_ros.noise.predict import model_lines, predicted_noise
 from sofia_ros.sensors.gyro_noise import (
-    NoiseCoefficients,
     rate_ramp_arcsec_per_s2_to_deg_per_h2,
-    rate_ramp_deg_per_h2_to_arcsec_per_s2,
     rrw_arcsec_per_s_sqrt_s_to_deg_per_h_sqrt_h,
 )
 
 __all__ = [
-    'AXES',
-    'NoiseGrid',
-    'MeasuredNoise',
-    'measured_noise',
-    'model_lines',
-    'check_noise_model',
-    'predicted_noise',
     'BaseFit',
     'fit_base',
     'rank_missing_terms',
     'residual_summary',
     'model_with_candidate',
-    'PSD_LOWEST_BIN',
 ]
 
-AXES = ('el', 'xel', 'los')
-_AXIS_INDEX = {axis: index for index, axis in enumerate(AXES)}
-#: The loop's PSD rows start this many segment bins above 0 Hz.
-PSD_LOWEST_BIN = 8
-#: Periodogram values one segment bin apart are correlated by the window; for Hamming (a0 = 0.54,
-#: a1 = 0.46) the correlations of |X|^2 are rho_1^2, rho_2^2 with rho_1 = a0 a1 / (a0^2 + a1^2/2),
-#: rho_2 = (a1^2 / 4) / (a0^2 + a1^2/2): each bin carries 1 + 2 (rho_1^2 + rho_2^2) bins' worth.
-_HAMMING_RHO = (0.54 * 0.46 / (0.54**2 + 0.46**2 / 2), 0.46**2 / 4 / (0.54**2 + 0.46**2 / 2))
-_PSD_REDUNDANCY = 1.0 + 2.0 * sum(rho**2 for rho in _HAMMING_RHO)
 #: A residual PSD peak is a line candidate when it stands this many chi-square sigmas above the model
 #: and above its surroundings (noise alone reaches ~5 sigma in 10^7 bins at the 13 dof of 3 minutes).
 _PEAK_SIGMAS = 6.0
@@ -106,182 +88,6 @@ _PERIOD_GRID = 80
 _PINNED = 1e-3
 _JACOBIAN_STEP = 1e-4
 _DEFAULT_BI_CUTOFF_HZ = 10.0
-
-
-@dataclass(frozen=True)
-class NoiseGrid:
-    """Where a record is compared with a model: AV taus, PSD row frequencies, sample and read-out rates."""
-
-    tau_s: np.ndarray
-    freq_hz: np.ndarray
-    sample_rate_hz: float
-    readout_rate_hz: float
-    segment_samples: int
-    record_s: float
-
-    @property
-    def decimation(self):
-        """Read-out samples per analyzed sample (4.2.5)."""
-        return self.readout_rate_hz / self.sample_rate_hz
-
-
-@dataclass(frozen=True)
-class MeasuredNoise:
-    """A record's root AV and PSD on the grid, with the per-row log errors (see module docstring).
-
-    Rows of the residual vector: ln root AV for el, xel, los at every tau, then ln PSD for el, xel,
-    los at every grid frequency. ``log_values`` holds the measured side (the PSD less its chi-square
-    log bias), ``weights`` one over each row's error, ``log_factor`` 1/2 on AV rows (root AV),
-    ``row_axis`` the axis index of each row.
-    """
-
-    grid: NoiseGrid
-    adev: np.ndarray
-    allan_sigma_ln: np.ndarray
-    psd: np.ndarray
-    psd_log_bias: float
-    psd_sigma_ln: float
-    peak_sigma_ln: float
-    fine_freq_hz: np.ndarray
-    fine_psd: np.ndarray
-    log_values: np.ndarray
-    weights: np.ndarray
-    log_factor: np.ndarray
-    row_axis: np.ndarray
-
-    def allan_rows(self, index):
-        """Residual rows of one axis's root AV."""
-        return index * self.grid.tau_s.size + np.arange(self.grid.tau_s.size)
-
-    def psd_rows(self, index, selection=slice(None)):
-        """Residual rows of one axis's PSD (all, or the selected grid frequencies)."""
-        start = 3 * self.grid.tau_s.size + index * self.grid.freq_hz.size
-        return start + np.arange(self.grid.freq_hz.size)[selection]
-
-
-def _points_per_octave(tau_s):
-    """Local density of the tau grid: AV points closer than an octave share most clusters."""
-    log_tau = np.log2(tau_s)
-    spacing = np.gradient(log_tau) if log_tau.size > 1 else np.ones(1)
-    return np.maximum(1.0, 1.0 / np.maximum(spacing, 1e-12))
-
-
-def measured_noise(curves, fine_freq_hz, fine_psd, *, sample_rate_hz, readout_rate_hz, segment_samples,
-                   n_samples):
-    """The loop's view of a record: Allan curves per axis and the Welch PSD (n_freq x 3) as computed."""
-    tau_s = np.asarray(curves[0].tau_s, dtype=float)
-    stride = max(1, int(round((fine_freq_hz.size - 1) * 2 / segment_samples)))
-    coarse = np.arange(0, fine_freq_hz.size, stride)
-    bin_hz = sample_rate_hz / segment_samples
-    rows = coarse[(fine_freq_hz[coarse] >= PSD_LOWEST_BIN * bin_hz) & (fine_freq_hz[coarse] < sample_rate_hz / 2)]
-    bias, sigma = log_chi_square_bias_and_sigma(welch_equivalent_dof(n_samples, segment_samples))
-    grid = NoiseGrid(tau_s, np.asarray(fine_freq_hz[rows], dtype=float), float(sample_rate_hz), float(readout_rate_hz),
-                     int(segment_samples), n_samples / sample_rate_hz)
-    adev = np.array([curve.adev for curve in curves])
-    psd = np.asarray(fine_psd[rows].T, dtype=float)
-    allan_sigma_ln = np.asarray(curves[0].sigma_rel) * np.sqrt(_points_per_octave(tau_s))
-    psd_sigma_ln = sigma * np.sqrt(_PSD_REDUNDANCY)
-    return MeasuredNoise(
-        grid=grid, adev=adev, allan_sigma_ln=allan_sigma_ln, psd=psd,
-        psd_log_bias=bias, psd_sigma_ln=psd_sigma_ln, peak_sigma_ln=sigma,
-        fine_freq_hz=np.asarray(fine_freq_hz, dtype=float), fine_psd=np.asarray(fine_psd.T, dtype=float),
-        log_values=np.concatenate([np.log(adev).ravel(), (np.log(psd) - bias).ravel()]),
-        weights=np.concatenate([np.tile(1.0 / allan_sigma_ln, 3), np.full(psd.size, 1.0 / psd_sigma_ln)]),
-        log_factor=np.concatenate([np.full(adev.size, 0.5), np.ones(psd.size)]),
-        row_axis=np.concatenate([np.repeat(np.arange(3), tau_s.size), np.repeat(np.arange(3), grid.freq_hz.size)]),
-    )
-
-
-def _white(variance_per_sample, grid, freq_hz):
-    """AV var t_s / tau and one-sided PSD 2 var / fs of white rate noise (4.16, 4.14)."""
-    return (variance_per_sample / grid.sample_rate_hz / grid.tau_s,
-            np.full(freq_hz.shape, 2.0 * variance_per_sample / grid.sample_rate_hz))
-
-
-def _sinusoid(amplitude_arcsec_per_s, frequency_hz, grid, freq_hz):
-    """AV (4.6-4.7) and expected Welch PSD of a sampled line."""
-    return (sinusoid_adev(grid.tau_s, amplitude_arcsec_per_s, frequency_hz, grid.sample_rate_hz) ** 2,
-            welch_sinusoid_psd(freq_hz, amplitude_arcsec_per_s, frequency_hz, grid.sample_rate_hz,
-                               grid.segment_samples))
-
-
-def _gyro_noise_terms(params, grid, freq_hz, include_arw):
-    """(AV, PSD) of each gyro_noise process, the same on every axis (4.11-4.20, decimation per module)."""
-    coefficients = NoiseCoefficients(
-        quantization_arcsec=params['quantization_arcsec'], arw_deg_per_sqrt_h=params['arw_deg_per_sqrt_h'],
-        bias_instability_deg_per_h=params['bias_instability_deg_per_h'],
-        bias_cutoff_hz=params['bias_instability_cutoff_hz'], rrw_deg_per_h_sqrt_h=params['rrw_deg_per_h_sqrt_h'],
-    ).as_arcsec()
-    tau, terms = grid.tau_s, []
-    quantization = coefficients['quantization_arcsec']
-    if grid.decimation > 1.0:
-        terms.append(_white(decimated_quantization_variance(quantization, grid.readout_rate_hz), grid, freq_hz))
-    else:
-        terms.append(((quantization / (2.0 * tau)) ** 2, quantization_psd(freq_hz, quantization, grid.sample_rate_hz)))
-    if include_arw:
-        arw = coefficients['arw_arcsec_per_sqrt_s']
-        terms.append(_white(arw**2 * grid.readout_rate_hz, grid, freq_hz))
-    bias = coefficients['bias_instability_arcsec_per_s']
-    terms.append((np.full(tau.shape, (BIAS_INSTABILITY_PLATEAU * bias) ** 2),
-                  bias_instability_psd(freq_hz, bias, params['bias_instability_cutoff_hz'])))
-    rrw = coefficients['rrw_arcsec_per_s_sqrt_s']
-    terms.append((rrw**2 * tau / 3.0, rrw_psd(freq_hz, rrw)))
-    return terms
-
-
-def model_lines(effects):
-    """(frequency Hz, amplitude arcsec/s, axis index) of the model's vibration_lines, checked."""
-    params = effects.get('vibration_lines')
-    if not params:
-        return []
-    frequencies, amplitudes, axes = params['frequencies_hz'], params['amplitudes_arcsec_per_s'], params['axes']
-    if not len(frequencies) == len(amplitudes) == len(axes):
-        raise ConfigError('vibration_lines: frequencies_hz, amplitudes_arcsec_per_s and axes need one entry per '
-                          f'line, got {len(frequencies)}, {len(amplitudes)} and {len(axes)}')
-    unknown = sorted(set(map(str, axes)) - set(AXES))
-    if unknown:
-        raise ConfigError(f'vibration_lines: unknown axis {", ".join(unknown)}; use el, xel or los')
-    try:
-        return [(float(f), float(a), _AXIS_INDEX[axis]) for f, a, axis in zip(frequencies, amplitudes, axes)]
-    except (TypeError, ValueError) as err:
-        raise ConfigError(f'vibration_lines: frequencies and amplitudes must be numbers ({err})') from err
-
-
-def check_noise_model(effects):
-    """ConfigError naming the effect when a model cannot predict noise (lines, LOS period, noise coefficients)."""
-    model_lines(effects)
-    if effects.get('los_oscillation') and effects['los_oscillation']['period_s'] <= 0.0:
-        raise ConfigError(f'los_oscillation: period_s must be > 0 s, got {effects["los_oscillation"]["period_s"]:g}')
-    negative = sorted(key for key, value in (effects.get('gyro_noise') or {}).items()
-                      if isinstance(value, float) and value < 0.0)
-    if negative:
-        raise ConfigError(f'gyro_noise: {", ".join(negative)} must be >= 0 (noise coefficients, Table 5.1)')
-
-
-def predicted_noise(effects, grid, freq_hz=None, *, include_arw=True):
-    """Model AV (3 x taus, (arcsec/s)^2) and one-sided PSD (3 x freqs) per axis (module docstring)."""
-    freq_hz = grid.freq_hz if freq_hz is None else freq_hz
-    av, psd = np.zeros((3, grid.tau_s.size)), np.zeros((3, freq_hz.size))
-    if effects.get('gyro_noise'):
-        for term_av, term_psd in _gyro_noise_terms(effects['gyro_noise'], grid, freq_hz, include_arw):
-            av += term_av
-            psd += term_psd
-    if effects.get('gyro_bias_drift'):
-        for index, axis in enumerate(AXES):
-            ramp = rate_ramp_deg_per_h2_to_arcsec_per_s2(effects['gyro_bias_drift'][f'{axis}_deg_per_h2'])
-            av[index] += (ramp * grid.tau_s) ** 2 / 2.0
-            psd[index] += rate_ramp_psd(freq_hz, ramp)
-    for frequency_hz, amplitude, index in model_lines(effects):
-        line_av, line_psd = _sinusoid(amplitude, frequency_hz, grid, freq_hz)
-        av[index] += line_av
-        psd[index] += line_psd
-    if effects.get('los_oscillation'):
-        params = effects['los_oscillation']
-        line_av, line_psd = _sinusoid(2.0 * np.pi * params['amplitude_arcsec'] / params['period_s'],
-                                      1.0 / params['period_s'], grid, freq_hz)
-        av[2] += line_av
-        psd[2] += line_psd
-    return av, psd
 
 
 def _linear(av, psd):

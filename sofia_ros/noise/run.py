@@ -2,15 +2,15 @@
 
 One record of `sofia run gyro-stability` is read once (load_noise_record) and analyzed
 (analyze_record), optionally as if only every k-th sample had been kept (the housekeeping case of
-4.2.5, corrected by 4.27 with the quantization term of noise_model.arw_of_decimated_record):
+4.2.5, corrected by 4.27 with the quantization term of noise.fit.arw_of_decimated_record):
 
-- the Earth-rate table of Table 5.7 with the heading search and its degeneracy (noise_earth_rate);
+- the Earth-rate table of Table 5.7 with the heading search and its degeneracy (noise.earth_rate);
 - per axis, the overlapping Allan deviation (4.6-4.8) of the mean-removed rate, its five-term fit
   (4.24) with 4.25 errors and the PSD's lines as nuisance terms, the bias stability read at the
   curve's minimum (Table 5.8) among points known to 25 % and whether the record resolves it, the
   Welch PSD of 5.2.5 and its lines with their likely sources, and the largest excursion of the
   integrated angle (Figs. 5.8-5.9);
-- the noise-model loop (noise_loop): the model's residual and the missing terms ranked.
+- the noise-model loop (noise.candidates): the model's residual and the missing terms ranked.
 
 The document is the `sofia noise --json` contract (docs/noise.md).
 """
@@ -25,27 +25,21 @@ import yaml
 
 from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
 from sofia_ros.analysis.lines import find_lines, silent_sources
-from sofia_ros.analysis.noise_earth_rate import DEGENERATE_PAIR, earth_rate_table
-from sofia_ros.analysis.noise_loop import (
-    check_noise_model,
-    fit_base,
-    measured_noise,
-    rank_missing_terms,
-    residual_summary,
-)
-from sofia_ros.analysis.noise_model import arw_of_decimated_record, bias_stability, fit_noise_model
 from sofia_ros.analysis.spectra import welch_equivalent_dof, welch_rate_psd, welch_segment_samples
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.gyro_stability import SUBSYSTEM_TOPIC
 from sofia_ros.errors import BagError, InvalidArgumentError
+from sofia_ros.frames import AXES
+from sofia_ros.noise.candidates import fit_base, rank_missing_terms, residual_summary
+from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
+from sofia_ros.noise.fit import arw_of_decimated_record, bias_stability, fit_noise_model
+from sofia_ros.noise.measure import measured_noise
+from sofia_ros.noise.predict import check_noise_model
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC
+from sofia_ros.topics import CASE_DOCUMENT, GYRO_IMU, SUBSYSTEM_STATUS
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ, RAD_PER_ARCSEC
 
 __all__ = [
-    'AXES',
-    'IMU_TOPIC',
-    'CASE_TOPIC',
     'MIN_SAMPLES',
     'NoiseRecord',
     'NoiseAnalysis',
@@ -56,9 +50,6 @@ __all__ = [
     'analyze_noise',
 ]
 
-AXES = ('el', 'xel', 'los')
-IMU_TOPIC = '/gyro_box/imu'
-CASE_TOPIC = '/config/case'
 #: Shortest analyzable record: four Welch segments of 256 samples (spectra.welch_segment_samples).
 MIN_SAMPLES = 1024
 _N_TAUS = 60
@@ -110,25 +101,26 @@ def integrated_angle_arcsec(noise_arcsec_per_s, sample_rate_hz):
     return np.cumsum(noise_arcsec_per_s - noise_arcsec_per_s.mean(axis=0), axis=0) / sample_rate_hz
 
 
-def load_noise_record(bag_path, imu_topic=IMU_TOPIC):
+def load_noise_record(bag_path, imu_topic=GYRO_IMU.name):
     """Read a gyro-stability bag: /gyro_box/imu, /config/case and, if recorded, /ta/subsystem_status."""
     with BagReader(bag_path) as bag:
         names = {topic.name for topic in bag.topics}
         if imu_topic not in names:
             raise BagError(f'{bag_path} has no {imu_topic}; record a gyro-stability campaign first')
-        if CASE_TOPIC not in names:
-            raise BagError(f'{bag_path} has no {CASE_TOPIC}; `sofia noise` reads the geometry of a gyro-stability run')
-        case = yaml.safe_load(bag.document(CASE_TOPIC))
+        if CASE_DOCUMENT.name not in names:
+            raise BagError(f'{bag_path} has no {CASE_DOCUMENT.name}; '
+                           '`sofia noise` reads the geometry of a gyro-stability run')
+        case = yaml.safe_load(bag.document(CASE_DOCUMENT.name))
         subsystems = None
-        if SUBSYSTEM_TOPIC in names:
-            for _, _, message in bag.messages(SUBSYSTEM_TOPIC):
+        if SUBSYSTEM_STATUS.name in names:
+            for _, _, message in bag.messages(SUBSYSTEM_STATUS.name):
                 subsystems = {value.key: value.value for value in message.values}
         imu = bag.imu_arrays(imu_topic)
     return NoiseRecord(Path(bag_path), imu.angular_velocity_rad_per_s / RAD_PER_ARCSEC, case, subsystems)
 
 
 def _decimated_arw(fit, sample_rate_hz, quantization_arcsec):
-    """(read-out ARW, its sigma) of a decimated record's fit (noise_model.arw_of_decimated_record)."""
+    """(read-out ARW, its sigma) of a decimated record's fit (noise.fit.arw_of_decimated_record)."""
     arw = float(arw_of_decimated_record(fit.arw_arcsec_per_sqrt_s, sample_rate_hz, quantization_arcsec))
     # dN/dN_sampled = N_sampled (f_sampled / f_read-out) / N
     slope = fit.arw_arcsec_per_sqrt_s * sample_rate_hz / GYRO_SAMPLE_RATE_HZ / arw if arw > 0.0 else np.inf
@@ -227,6 +219,6 @@ def analyze_record(record, *, model=None, decimate=1):
     return NoiseAnalysis(document, sample_rate_hz, noise, curves, fits, freq_hz, psd, segment, measured, base, effects)
 
 
-def analyze_noise(bag_path, *, model=None, decimate=1, imu_topic=IMU_TOPIC):
+def analyze_noise(bag_path, *, model=None, decimate=1, imu_topic=GYRO_IMU.name):
     """The `sofia noise --json` document of a bag (docs/noise.md)."""
     return analyze_record(load_noise_record(bag_path, imu_topic), model=model, decimate=decimate).document

@@ -18,11 +18,11 @@ from __future__ import annotations
 import numpy as np
 
 from sofia_ros.earth_rate import best_fit_heading_deg, earth_rate_tarf_deg_per_h
+from sofia_ros.frames import AXES
 from sofia_ros.validate import finite_array, orthonormal_dcm
 
-__all__ = ['AXES', 'DEGENERATE_PAIR', 'earth_rate_table']
+__all__ = ['DEGENERATE_PAIR', 'earth_rate_table']
 
-AXES = ('el', 'xel', 'los')
 #: Effects a stationary record cannot tell apart (5.2.4).
 DEGENERATE_PAIR = ('heading_error', 'gyro_bias')
 

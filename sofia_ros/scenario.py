@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import datetime as dt
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import yaml
 
-from sofia_ros.bag.reader import SCENARIO_TOPIC
 from sofia_ros.errors import ConfigError
 from sofia_ros.sky import Site
+from sofia_ros.topics import SCENARIO_DOCUMENT
 
-__all__ = ['SCENARIO_TOPIC', 'Scenario', 'scenario_document', 'scenario_from_document', 'scenario_from_mapping']
+__all__ = ['Scenario', 'scenario_document', 'scenario_from_document', 'scenario_from_mapping']
 
 
 @dataclass(frozen=True)
@@ -54,7 +55,7 @@ def _scenario_number(key, value):
     return number
 
 
-def scenario_from_mapping(defaults, overrides):
+def scenario_from_mapping(defaults: Scenario, overrides: Mapping[str, Any] | None) -> Scenario:
     """A Scenario from campaign defaults overlaid with a truth file's ``scenario:`` mapping."""
     if overrides is None:
         return defaults
@@ -88,8 +89,8 @@ def scenario_from_mapping(defaults, overrides):
 
 
 
-def scenario_document(scenario):
-    """The scenario as the YAML document recorded on SCENARIO_TOPIC."""
+def scenario_document(scenario: Scenario) -> str:
+    """The scenario as the YAML document recorded on topics.SCENARIO_DOCUMENT."""
     return yaml.safe_dump({
         'latitude_deg': scenario.site.latitude_deg, 'longitude_deg': scenario.site.longitude_deg,
         'height_m': scenario.site.height_m, 'start_utc': scenario.start_utc.isoformat(),
@@ -99,13 +100,13 @@ def scenario_document(scenario):
     }, sort_keys=False)
 
 
-def scenario_from_document(text):
+def scenario_from_document(text: str) -> Scenario:
     """A Scenario from a recorded scenario document; ConfigError if it is not one."""
     try:
         fields = yaml.safe_load(text)
     except yaml.YAMLError as err:
-        raise ConfigError(f'{SCENARIO_TOPIC} is not valid YAML; re-record the bag') from err
+        raise ConfigError(f'{SCENARIO_DOCUMENT.name} is not valid YAML; re-record the bag') from err
     if not isinstance(fields, dict) or not {'latitude_deg', 'start_utc', 'heading_deg'} <= set(fields):
-        raise ConfigError(f'{SCENARIO_TOPIC} lacks latitude_deg, start_utc or heading_deg; re-record the bag')
+        raise ConfigError(f'{SCENARIO_DOCUMENT.name} lacks latitude_deg, start_utc or heading_deg; re-record the bag')
     placeholder = Scenario(Site(0.0, 0.0, 0.0), dt.datetime(2000, 1, 1, tzinfo=dt.timezone.utc), 0.0, 40.0)
     return scenario_from_mapping(placeholder, fields)

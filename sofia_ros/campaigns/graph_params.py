@@ -1,26 +1,21 @@
-"""Node parameters that describe the graph (campaign, truth file, seed, plan, tick), shared by every node.
+"""The graph's node parameters read back: a node executable's GraphConfig from its parameter values.
 
-The plan is the campaign's plan dataclass, one parameter ``plan.<field>`` per field (tuples as
-arrays). A field of rows whose dataclass metadata names its ``columns`` is one array per column,
-``plan.<field>.<column>``: the star hop's observations are ``plan.observations.star`` (string
-array) and ``plan.observations.offset_s`` (double array, seconds after Table D.3's first
-observation), entry i of both being observation i. Plan parameters left out take the dataclass
-defaults.
+How they are written is ``campaigns.run_parameters``; plan parameters left out take the dataclass
+defaults. Every value is checked against the type of its default, with one clear error line.
 """
 
 from __future__ import annotations
 
 from dataclasses import fields, replace
 
-import yaml
-
-from sofia_ros.campaigns.registry import CAMPAIGNS as _REGISTRY, graph_campaign_of_plan
+from sofia_ros.campaigns.registry import CAMPAIGNS as _REGISTRY
+from sofia_ros.campaigns.run_parameters import plan_parameters
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import ConfigError, InvalidArgumentError, UnknownStarError
-from sofia_ros.sim.protocol import DEFAULT_TICK_NS
+from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
+from sofia_ros.topics import DEFAULT_TICK_NS
 
-__all__ = ['CAMPAIGNS', 'GRAPH_PARAMETERS', 'graph_parameters', 'graph_config_from_parameters', 'plan_parameters',
-           'plan_from_parameters', 'write_params_file']
+__all__ = ['CAMPAIGNS', 'GRAPH_PARAMETERS', 'graph_config_from_parameters', 'plan_from_parameters']
 
 #: the campaigns with a node graph (campaigns.registry), whose nodes take these parameters
 CAMPAIGNS = {name: spec for name, spec in _REGISTRY.items() if spec.build_config is not None}
@@ -31,7 +26,7 @@ GRAPH_PARAMETERS = {
     'truth_file': ('', 'truth YAML (effects: ..., scenario: ...) of the run'),
     'seed': (0, 'run seed; each node draws its own stream from it'),
     'tick_ns': (DEFAULT_TICK_NS, 'lock-step tick in ns of sim time'),
-    'max_sim_s': (7200.0, 'the clock stops the run after this much sim time'),
+    'max_sim_s': (DEFAULT_MAX_SIM_S, 'the clock stops the run after this much sim time'),
     'stall_timeout_s': (15.0, 'the clock stops the run when a node is silent this long (wall time)'),
     'bag_path': ('', 'recorder: output bag directory'),
     'model_file': ('', 'recorder: model YAML stored in the bag as /config/model'),
@@ -40,26 +35,6 @@ GRAPH_PARAMETERS = {
 #: type of a parameter's default -> (what one value must be, what an array's entries must be)
 _KINDS = {bool: ('true or false', 'booleans'), int: ('an integer', 'integers'), float: ('a number', 'numbers'),
           str: ('a string', 'strings')}
-
-
-def graph_parameters(truth_file, seed, plan, *, tick_ns, max_sim_s, bag_path='', stall_timeout_s=15.0, model_file=''):
-    """Parameter values of one run; the campaign is the one whose plan dataclass ``plan`` is."""
-    return {'campaign': graph_campaign_of_plan(plan).name, 'truth_file': str(truth_file), 'seed': int(seed), 'tick_ns': int(tick_ns),
-            'max_sim_s': float(max_sim_s), 'stall_timeout_s': float(stall_timeout_s), 'bag_path': str(bag_path),
-            'model_file': str(model_file), **plan_parameters(plan)}
-
-
-def plan_parameters(plan):
-    """The plan as plan.* parameter values: one per field, a field with ``columns`` one array per column."""
-    values = {}
-    for spec in fields(plan):
-        value = getattr(plan, spec.name)
-        columns = spec.metadata.get('columns')
-        if columns:
-            values.update({f'plan.{spec.name}.{column}': list(rows) for column, rows in zip(columns, zip(*value))})
-        else:
-            values[f'plan.{spec.name}'] = list(value) if isinstance(value, tuple) else value
-    return values
 
 
 def plan_from_parameters(campaign, values):
@@ -125,10 +100,3 @@ def graph_config_from_parameters(values):
     config = CAMPAIGNS[campaign].build_config(truth, int(values['seed']), plan)
     return replace(config, tick_ns=int(values['tick_ns']))
 
-
-def write_params_file(path, values, per_node=None):
-    """A --params-file with the graph parameters for every node (``/**``) plus per-node sections."""
-    document = {'/**': {'ros__parameters': values}}
-    for node, node_values in (per_node or {}).items():
-        document[node] = {'ros__parameters': node_values}
-    path.write_text(yaml.safe_dump(document, sort_keys=False))

@@ -62,9 +62,9 @@ def _write_json(document, target):
 
 def run_noise(args):
     """`sofia noise`: check every input, analyze, write report and JSON, print the tables (5.2)."""
-    from sofia_ros.analysis.noise_loop import check_noise_model
-    from sofia_ros.analysis.noise_plots import check_report_dir, write_report
-    from sofia_ros.analysis.noise_report import analyze_record, checked_decimation, load_noise_record
+    from sofia_ros.noise.predict import check_noise_model
+    from sofia_ros.noise.report import check_report_dir, write_report
+    from sofia_ros.noise.run import analyze_record, checked_decimation, load_noise_record
     from sofia_ros.config import load_effect_config
 
     decimate = checked_decimation(args.decimate)
@@ -86,7 +86,7 @@ def run_noise(args):
 
 
 def _print_document(document):
-    from sofia_ros.analysis.noise_report import AXES
+    from sofia_ros.frames import AXES
 
     print(f'{document["case"]}: {document["description"]}; {document["samples_per_axis"]} samples per axis at '
           f'{document["sample_rate_hz"]:g} Hz ({document["record_s"]:.0f} s)')

@@ -1,0 +1,209 @@
+"""The calibration node's sequence machinery, shared by the alignment sequence and the star hop.
+
+A sequence is a generator that waits one tick at every ``yield``; its steps command the TASCU
+(move_relative, mtbs_centroid, mtbs_inertial, track) and wait for its answer and for *locked*,
+collect the tracked star's centroids, push parameters to the TASCU and acquire a catalogue star
+through the wide fields (6.1-6.4). Subclasses write ``_run``, the sequence itself.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import numpy as np
+import yaml
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PointStamped
+
+from sofia_ros import messages as m
+from sofia_ros import mount
+from sofia_ros.errors import CalibrationAbort, SofiaError
+from sofia_ros.frames import dcm_from_quaternion, dcm_from_rotation_angles, quaternion_from_dcm
+from sofia_ros.graph_nodes import CAMERAS
+from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, ParameterResult
+from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
+from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, observed_place
+from sofia_ros.topics import (
+    CALIBRATION_MANEUVERS,
+    CALIBRATION_PROGRESS,
+    CALIBRATION_RESULT,
+    FD_JOINTS,
+    JOINT_STATES,
+    centroid_topic,
+)
+from sofia_ros.units import RAD_PER_DEG
+
+__all__ = ['SequenceCore', 'TOPICS']
+
+#: the topics the calibration node publishes besides the TASCU's commands, by the short names its methods use
+TOPICS = {'progress': CALIBRATION_PROGRESS, 'result': CALIBRATION_RESULT, 'maneuvers': CALIBRATION_MANEUVERS}
+_KEPT_FRAMES = 200
+_RECENTRE_LOS_DEG = 1.0
+
+
+class SequenceCore(NodeCore):
+    """The calibration node: runs ``_run`` one tick at a time and publishes its result; the steps it is made of."""
+
+    name = 'calibration'
+    upstream = (('tascu', 0), *((camera, 0) for camera in CAMERAS))
+    ends_run = True
+    parameter_targets = ('tascu',)
+
+    def __init__(self, plan, scenario):
+        super().__init__()
+        self.plan = plan
+        self.scenario = scenario
+        self.attitude = None
+        self.stamp_ns = 0
+        self.status = None
+        self.command_status = {}
+        self.frames = {camera: [] for camera in CAMERAS}
+        self.joints = {}
+        self.parameter_result = None
+        self.outbox = []
+        self.active_alignment = np.eye(3)
+        self.star_hip = None
+        self.record = {}
+        self._sequence = self._run()
+
+    def _run(self):
+        """The sequence: a generator that yields once per tick it waits."""
+        raise NotImplementedError
+
+    def inputs(self):
+        cameras = tuple(centroid_topic(camera) for camera in CAMERAS)
+        return (TASCU_TOPICS['motion_status'], TASCU_TOPICS['command_status'], JOINT_STATES,
+                TASCU_TOPICS['attitude'], *cameras)
+
+    def outputs(self):
+        return (TASCU_TOPICS['move_relative'], TASCU_TOPICS['mtbs_centroid'], TASCU_TOPICS['mtbs_inertial'],
+                TASCU_TOPICS['track'], TOPICS['progress'], TOPICS['result'], TOPICS['maneuvers'])
+
+    def receive(self, topic, message):
+        if topic == TASCU_TOPICS['motion_status'].name:
+            self.status = message.message
+        elif topic == TASCU_TOPICS['command_status'].name:
+            self.command_status[int(m.status_values_of(message)['command_stamp_ns'])] = message.message
+        elif topic == JOINT_STATES.name:
+            self.joints = m.joint_positions_of(message)
+        elif topic == TASCU_TOPICS['attitude'].name:
+            self.attitude = message
+        elif topic == SET_PARAMETERS:
+            self.parameter_result = message
+        elif topic.endswith('/centroids'):
+            frames = self.frames[message.header.frame_id]
+            frames.append((m.stamp_ns_of(message.header.stamp), m.centroids_of(message)))
+            del frames[:-_KEPT_FRAMES]
+
+    def tick(self, stamp_ns):
+        self.stamp_ns = stamp_ns
+        self.outbox = []
+        if self.outcome.finished or self.outcome.failed:
+            return []
+        try:
+            next(self._sequence)
+        except StopIteration:
+            self.outcome.finished = True
+        except SofiaError as err:
+            self.outcome.failed, self.outcome.reason = True, str(err)
+            self._progress('failed', {'reason': str(err)}, DiagnosticStatus.ERROR)
+            self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(
+                {'accepted': False, 'reason': str(err), **self.record}, sort_keys=False))))
+        return self.outbox
+
+    # --- steps every sequence is made of ---------------------------------------------------
+    def _progress(self, step, values=None, level=DiagnosticStatus.OK):
+        self.outbox.append((TOPICS['progress'].name, m.status_msg('calibration', step, values, level)))
+
+    def _wait(self, predicate, what):
+        deadline_ns = self.stamp_ns + m.seconds_to_ns(self.plan.timeout_s)
+        while not predicate():
+            if self.stamp_ns >= deadline_ns:
+                raise CalibrationAbort(f'timed out after {self.plan.timeout_s:g} s waiting for {what}')
+            yield
+
+    def _locked(self):
+        yield from self._wait(lambda: self.status == 'locked', 'the TASCU to report locked')
+
+    def _command(self, kind, message):
+        command_ns = self.stamp_ns + len(self.outbox)  # unique even for two commands in one tick
+        message.header.stamp = m.time_msg(command_ns)
+        self.outbox.append((TASCU_TOPICS[kind].name, message))
+        yield from self._wait(lambda: command_ns in self.command_status, f'the TASCU to answer {kind}')
+        yield from self._wait(lambda: not self.command_status[command_ns].startswith('accepted'),
+                              f'{kind} to finish')
+        answer = self.command_status[command_ns]
+        if answer.startswith('refused'):
+            raise CalibrationAbort(f'TASCU refused {kind}: {answer[len("refused: "):]}')
+
+    def _move(self, rotation_rad):
+        yield from self._command('move_relative', m.vector3_stamped(0, 'tarf', rotation_rad))
+        yield from self._locked()
+
+    def _point_message(self, camera, pixel, z=0.0):
+        msg = PointStamped()
+        msg.header.frame_id = camera
+        msg.point.x, msg.point.y, msg.point.z = float(pixel[0]), float(pixel[1]), float(z)
+        return msg
+
+    def _star_frames(self, camera, count):
+        """Mean centroid of the tracked star over the next ``count`` frames after now."""
+        # Whole exposures after the lock: the longest (imagers, 2 s) started at most 1 s before its midpoint.
+        since_ns = self.stamp_ns + m.NS_PER_S
+        frames = self.frames[camera]
+        yield from self._wait(
+            lambda: sum(1 for stamp, stars in frames if stamp > since_ns and self._find(stars)) >= count,
+            f'{count} {camera.upper()} frames with HIP {self.star_hip}')
+        found = [(stamp, self._find(stars)) for stamp, stars in frames if stamp > since_ns and self._find(stars)]
+        found = found[:count]
+        frames.clear()
+        pixels = np.array([pixel for _, pixel in found])
+        return pixels.mean(axis=0), float(np.mean([stamp for stamp, _ in found])) / m.NS_PER_S
+
+    def _find(self, stars):
+        return next(((x, y) for hip, x, y in stars if hip == self.star_hip), None)
+
+    def _push(self, values):
+        self.parameter_result = None
+        self.outbox.append((SET_PARAMETERS, ParameterRequest('tascu', values)))
+        yield from self._wait(lambda: isinstance(self.parameter_result, ParameterResult), 'the parameter service')
+        if not self.parameter_result.successful:
+            raise CalibrationAbort(f'TASCU refused parameters: {self.parameter_result.reasons}')
+
+    def _recentre_los(self, threshold_deg=_RECENTRE_LOS_DEG):
+        """Turn the fine drive's LOS back to zero beyond a threshold: an inertial hold walks it at Earth rate."""
+        fd_los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
+        if abs(fd_los_deg) > threshold_deg:
+            yield from self._move(np.array([0.0, 0.0, -fd_los_deg * RAD_PER_DEG]))
+
+    def _set_alignment(self, dcm):
+        yield from self._push({'alignment.tarf_from_gyrf': np.asarray(dcm).ravel().tolist()})
+        self.active_alignment = np.asarray(dcm)
+
+    def _star_direction_irf(self, star):
+        """The star's direction in the TASCU's IRF (TARF at start-up) from the catalogue and the nominal mount."""
+        elapsed_s = self.stamp_ns / m.NS_PER_S
+        utc = self.scenario.start_utc + dt.timedelta(seconds=elapsed_s)
+        place = observed_place(star, self.scenario.site, utc, WACO_2004_WEATHER,
+                               min_altitude_deg=TELESCOPE_MIN_ELEVATION_DEG)
+        s_hrf = mount.unit_vector_hrf(place.apparent_altitude_deg, place.azimuth_deg)
+        tarf0_from_hrf0 = mount.tarf_from_hrf_dcm(self.scenario.heading_deg, self.scenario.start_elevation_deg)
+        return tarf0_from_hrf0 @ mount.hrf_from_irf_dcm(self.scenario.latitude_deg, elapsed_s).T @ s_hrf
+
+    def _point_at(self, star):
+        """MTBS_INERTIAL: turn the LOS onto the star, the coarse drive taking large elevation changes (6.3)."""
+        estimate = dcm_from_quaternion(m.quaternion_xyzw_of(self.attitude))
+        star_tarf = estimate @ self._star_direction_irf(star)
+        axis = np.cross([0.0, 0.0, 1.0], star_tarf)
+        rotation = axis / np.linalg.norm(axis) * np.arctan2(np.linalg.norm(axis), star_tarf[2])
+        target = dcm_from_rotation_angles(rotation) @ estimate
+        yield from self._command('mtbs_inertial', m.quaternion_stamped(0, 'irf', quaternion_from_dcm(target)))
+        yield from self._locked()
+
+    def _acquire(self, hip):
+        """Star into HIPO through the wide fields: FFI centring first, then HIPO (6.2, 6.3)."""
+        self.star_hip = hip
+        for camera in ('ffi', 'hipo'):
+            pixel, _ = yield from self._star_frames(camera, 1)
+            yield from self._command('mtbs_centroid', self._point_message(camera, pixel))
+            yield from self._locked()

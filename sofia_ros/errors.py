@@ -20,6 +20,7 @@ __all__ = [
     'BagError',
     'FitError',
     'DomainBusyError',
+    'SchedulerUnreachableError',
     'RunFaultError',
     'RunInterrupted',
 ]
@@ -71,6 +72,10 @@ class FitError(SofiaError):
 
 class DomainBusyError(ConfigError):
     """Another run on this machine holds the ROS domain (its lock file); two graphs in one domain corrupt each other."""
+
+
+class SchedulerUnreachableError(SofiaError):
+    """`sofia atlas --scheduler ADDRESS`: no Dask scheduler answers at that address within the timeout."""
 
 
 class RunFaultError(SofiaError):

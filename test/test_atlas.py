@@ -1,8 +1,12 @@
 """`sofia atlas` without campaigns: the grid, the Parquet store, the statistics, the page, and every bad input."""
 
 import io
+import os
 import socket
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -272,3 +276,16 @@ def test_the_progress_line_says_done_failed_running_eta_and_the_dashboard():
     last = stream.getvalue().splitlines()[-1]
     assert last.startswith('atlas: 2/4 done, 1 failed, 1 running, 1 waiting;') and 'ETA 0:' in last
     assert last.endswith('dashboard http://127.0.0.1:8787/status')
+
+
+def test_a_plug_in_effect_is_a_grid_axis_like_any_other(tmp_path):
+    """The example plug-in (README) passes the grid; the run then stops at the unreachable scheduler."""
+    root = Path(__file__).resolve().parent.parent
+    env = {**os.environ, 'SOFIA_EFFECT_MODULES': 'ffi_field_flexure', 'PYTHONPATH': str(root / 'examples/effects')}
+    address = f'tcp://127.0.0.1:{_free_port()}'
+    done = subprocess.run([sys.executable, '-m', 'sofia_ros.cli', 'atlas', '--out', str(tmp_path / 'atlas'),
+                           '--effects', 'ffi_field_flexure', '--sizes', '0.5,1', '--campaigns', 'alignment:minimal',
+                           '--seeds', '1', '--scheduler', address, '--connect-timeout-s', '1'],
+                          cwd=root, env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and f'cannot reach the Dask scheduler at {address}' in done.stderr
+    assert done.stdout.startswith('atlas: 2 tasks (1 effects x 2 sizes')

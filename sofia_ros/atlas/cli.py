@@ -113,7 +113,10 @@ def run_atlas(args, out: TextIO, err: TextIO) -> int:
         with dask_client(args.scheduler, workers=args.workers, connect_timeout_s=args.connect_timeout_s) as client:
             progress = Progress(missing, err, dashboard_address(client))
             progress.show(0)
-            run_distributed(tasks, setup, store, client, progress)
+            counts = run_distributed(tasks, setup, store, client, progress)
+        if counts.lost:
+            err.write(f'atlas: {counts.lost} tasks lost with their workers (KilledWorker); run the same command '
+                      'again to retry them\n')
     store.compact()
     summary = summarize(store.read().to_pylist())
     out.write(text_table(summary))

@@ -2,8 +2,8 @@
 
 Dask distributed is the engine: every task is one ``client.submit(run_task, ...)``; the scheduler
 moves a dead worker's tasks to the others (its ``allowed-failures``, 3 by default, before it gives a
-task up as KilledWorker, which becomes that task's row with the error). Rows are stored as their
-futures finish, whatever the order.
+task up as KilledWorker: such a task gets no row, so the next run of the same grid tries it again).
+Rows are stored as their futures finish, whatever the order.
 """
 
 from __future__ import annotations
@@ -28,15 +28,18 @@ __all__ = ['Progress', 'RunCounts', 'checked_scheduler_address', 'dask_client', 
 _ADDRESS = re.compile(r'^(tcp|tls)://[^\s/:]+:\d{1,5}$')
 #: Seconds between progress lines while nothing finishes.
 _PROGRESS_EVERY_S = 30.0
+#: Seconds between looks at the finished futures (a task takes tens of seconds).
+_POLL_S = 0.5
 
 
 @dataclass(frozen=True)
 class RunCounts:
-    """What one invocation ran: rows stored, of them failed, and the keys it found already finished."""
+    """What one invocation ran: rows stored, of them failed, keys found finished, tasks lost with their workers."""
 
     done: int
     failed: int
     skipped: int
+    lost: int = 0
 
 
 def checked_scheduler_address(address: str) -> str:
@@ -109,11 +112,13 @@ class Progress:
         self.failed += row['error'] is not None
         self.show(running)
 
-    def show(self, running: int, *, only_if_due: bool = False) -> None:
-        """Print the progress line (``only_if_due``: only when none was printed for 30 s)."""
+    def due(self) -> bool:
+        """No line for 30 s: time for one."""
+        return time.monotonic() - self._last_line >= _PROGRESS_EVERY_S
+
+    def show(self, running: int) -> None:
+        """Print the progress line."""
         now = time.monotonic()
-        if only_if_due and now - self._last_line < _PROGRESS_EVERY_S:
-            return
         self._last_line = now
         elapsed = now - self.started
         waiting = max(self.total - self.done - running, 0)
@@ -139,56 +144,46 @@ def run_serial(tasks: list[AtlasTask], setup: TaskSetup, store: ResultStore, pro
     todo = _missing(tasks, store)
     failed = 0
     try:
-        for task in todo:
+        for index, task in enumerate(todo):
             row = run_task(task, setup)
             interrupts.raise_if_requested()  # a campaign stopped by a signal is no result
             store.append(row)
             failed += row['error'] is not None
             if progress is not None:
-                progress.finished(row, running=0)
+                progress.finished(row, running=int(index + 1 < len(todo)))
     finally:
         store.flush()
     return RunCounts(len(todo), failed, len(tasks) - len(todo))
 
 
-def _killed_row(task: AtlasTask, setup: TaskSetup, error: BaseException) -> dict:
-    """The row of a task Dask gave up on (its workers kept dying): the error, nothing measured."""
-    from sofia_ros.atlas.task import ROW_FIELDS
-
-    row = {name: None for name in ROW_FIELDS}
-    row.update(key=task.key, effect=task.effect, size=float(task.size), campaign=task.campaign, variant=task.variant,
-               seed=int(task.seed), run_id=setup.run_id, error=f'{type(error).__name__}: {error}'.splitlines()[0][:500])
-    return row
-
-
 def run_distributed(tasks: list[AtlasTask], setup: TaskSetup, store: ResultStore, client,
                     progress: Progress | None = None) -> RunCounts:
     """Submit the missing tasks to the cluster and store each row as its future finishes."""
-    from distributed import wait
+    from distributed import as_completed
 
     todo = _missing(tasks, store)
     futures = {client.submit(run_task, task, setup, key=f'atlas-{setup.run_id}-{task.key}', pure=False): task
                for task in todo}
-    pending, failed = set(futures), 0
+    pending, failed, lost = set(futures), 0, 0
+    arrivals = as_completed(futures, loop=client.loop)
     try:
         while pending:
-            try:
-                finished, pending = wait(pending, timeout=2.0, return_when='FIRST_COMPLETED')
-            except TimeoutError:
-                finished = set()
+            finished = arrivals.next_batch(block=False) if arrivals.has_ready() else []
             if not finished:
+                time.sleep(_POLL_S)
                 interrupts.raise_if_requested()
-                if progress is not None:
-                    progress.show(_running(client, pending), only_if_due=True)
+                if progress is not None and progress.due():
+                    progress.show(_running(client, pending))
                 continue
             for future in finished:
-                task = futures[future]
-                if future.status == 'error':
-                    row = _killed_row(task, setup, future.exception())
-                else:
+                pending.discard(future)
+                if future.status == 'finished':
                     row = future.result()
-                store.append(row)
-                failed += row['error'] is not None
+                    store.append(row)
+                    failed += row['error'] is not None
+                else:  # KilledWorker: the scheduler gave it up; not stored, so the next run tries it again
+                    row = {'error': f'{futures[future].key}: {future.exception()!r}'}
+                    lost += 1
                 future.release()
                 if progress is not None:
                     progress.finished(row, _running(client, pending))
@@ -196,10 +191,12 @@ def run_distributed(tasks: list[AtlasTask], setup: TaskSetup, store: ResultStore
         store.flush()
         if pending:
             client.cancel(list(pending))
-    return RunCounts(len(todo), failed, len(tasks) - len(todo))
+    return RunCounts(len(todo) - lost, failed, len(tasks) - len(todo), lost)
 
 
 def _running(client, pending) -> int:
-    """How many of the pending tasks a worker is computing now."""
+    """How many of the pending tasks the workers are computing now (at most one per worker thread)."""
     keys = {future.key for future in pending}
-    return sum(key in keys for processing in client.processing().values() for key in processing)
+    threads = client.nthreads()
+    return sum(min(sum(key in keys for key in processing), threads.get(worker, 1))
+               for worker, processing in client.processing().items())

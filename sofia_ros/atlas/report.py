@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sofia_ros.atlas.stats import (CONFIDENCE, TABLE_6_5, confusions, detectable_sizes, detection_curves,
-                                   fit_calibration, table_6_5_slice)
+                                   fit_calibration, table_6_5_slice, thesis_sigmas_arcsec)
 from sofia_ros.compare.report import _table as html_table
 
 __all__ = ['AtlasSummary', 'summarize', 'text_table', 'write_html']
@@ -123,12 +123,14 @@ def _table_6_5_plot(summary, path):
 
     figure, (tilt, los) = plt.subplots(1, 2, figsize=(9, 4))
     n = [row.measurements for row in summary.table_6_5]
-    for axes, measured, predicted, thesis, printed, name in (
-            (tilt, 'tilt_rms_arcsec', 'predicted_tilt_arcsec', 'thesis_sigma_r_arcsec', 0, 'tilt (about EL, XEL) ["]'),
-            (los, 'los_rms_arcsec', 'predicted_los_arcsec', 'thesis_sigma_beta_arcsec', 1, 'about LOS ["]')):
+    for axes, measured, predicted, printed, name in (
+            (tilt, 'tilt_rms_arcsec', 'predicted_tilt_arcsec', 0, 'tilt (about EL, XEL) ["]'),
+            (los, 'los_rms_arcsec', 'predicted_los_arcsec', 1, 'about LOS ["]')):
         axes.plot(n, [getattr(row, measured) for row in summary.table_6_5], 'o', label='atlas: RMS against /truth')
         axes.plot(n, [getattr(row, predicted) for row in summary.table_6_5], 's', label='calibration node: predicted')
-        axes.plot(n, [getattr(row, thesis) for row in summary.table_6_5], 'x', label='eqs. 3.32/3.34/3.37, 0.327"')
+        curve_n = list(range(1, max(18, *n) + 1))
+        axes.plot(curve_n, [thesis_sigmas_arcsec(count)[printed] for count in curve_n], '-', color='green',
+                  label='eqs. 3.32/3.34/3.37, sigma_c 0.327"')
         scale = 1.0 if printed == 0 else 60.0
         axes.plot(list(TABLE_6_5), [value[printed] * scale for value in TABLE_6_5.values()], 'k+', markersize=12,
                   label='Table 6.5 as printed')

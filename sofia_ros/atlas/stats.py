@@ -17,7 +17,7 @@ from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_r
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 
 __all__ = ['CONFIDENCE', 'Calibration', 'Confusion', 'DetectableSize', 'DetectionPoint', 'Table65Row',
-           'TABLE_6_5', 'campaign_label', 'confusions', 'detectable_sizes', 'detection_curves', 'fit_calibration',
+           'TABLE_6_5', 'campaign_label', 'thesis_sigmas_arcsec', 'confusions', 'detectable_sizes', 'detection_curves', 'fit_calibration',
            'table_6_5_slice']
 
 #: Two-sided confidence of the binomial intervals (Clopper-Pearson, scipy.stats.binomtest).
@@ -193,7 +193,7 @@ def confusions(rows: list[dict]) -> list[Confusion]:
                   key=lambda c: (-c.count / c.trials, c.effect, c.other))
 
 
-def _thesis_sigmas_arcsec(measurements: int) -> tuple[float, float]:
+def thesis_sigmas_arcsec(measurements: int) -> tuple[float, float]:
     """Table 6.5's sigma_R and sigma_beta for n measurements (eqs. 3.32, 3.34, 3.37), arcsec."""
     sigma_c_rad = _TABLE_6_5_SIGMA_C_ARCSEC * RAD_PER_ARCSEC
     sigma_r = sigma_r_rad(sigma_c_rad, _TABLE_6_5_LOS_ROTATION_DEG * RAD_PER_DEG)
@@ -218,7 +218,7 @@ def table_6_5_slice(rows: list[dict]) -> tuple[list[Table65Row], str]:
     for (measurements, variant), members in sorted(groups.items()):
         tilt = np.array([[row['misalignment_el_arcsec'], row['misalignment_xel_arcsec']] for row in members])
         los = np.array([row['misalignment_los_arcsec'] for row in members])
-        sigma_r, sigma_beta = _thesis_sigmas_arcsec(measurements)
+        sigma_r, sigma_beta = thesis_sigmas_arcsec(measurements)
         table.append(Table65Row(variant, measurements, len(members), float(np.sqrt(np.mean(tilt**2))),
                                 float(np.sqrt(np.mean(los**2))),
                                 float(np.mean([row['predicted_sigma_el_arcsec'] for row in members])),

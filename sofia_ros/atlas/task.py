@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from sofia_ros import interrupts
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC
 from sofia_ros.atlas.grid import AtlasTask, hidden_truth_text, scaled_params
 from sofia_ros.campaigns.registry import campaign_named
@@ -121,6 +122,7 @@ def run_task(task: AtlasTask, setup: TaskSetup) -> dict:
         run = spec.run(truth, seed=task.seed, bag_path=str(bag_path), plan=plan, mode='direct',
                        model_text=setup.model.text)
         # the alignment returns an AlignmentRun, the star hop its summary
+        interrupts.raise_if_requested()  # `--serial` and Ctrl-C: the campaign stopped early, compare nothing
         row.update(_campaign_fields(plan, run.summary if hasattr(run, 'summary') else run))
         result = compare_bag(bag_path, setup.model, candidate_names=setup.candidates)
         row.update(_compare_fields(task, result.document))

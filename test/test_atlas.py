@@ -120,6 +120,7 @@ def _cli(argv, capsys):
     (['--seeds', 'x'], "--seeds 'x'"),
     (['--grid', 'g.yaml', '--seeds', '3'], '--grid and --campaigns both given'),
     (['--scheduler', 'localhost'], "--scheduler 'localhost' is not a scheduler address"),
+    (['--serial', '--workers', '2'], '--workers sizes the local cluster'),
 ])
 def test_bad_commands_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, argv, message):
     out = tmp_path / 'atlas'

@@ -95,6 +95,9 @@ def run_atlas(args, out: TextIO, err: TextIO) -> int:
 
     if args.scheduler is not None:
         checked_scheduler_address(args.scheduler)
+    if args.workers is not None and (args.scheduler is not None or args.serial):
+        raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster has its own workers, '
+                          'with --serial there are none: leave --workers out')
     grid = grid_of_arguments(args)
     store = ResultStore(Path(args.out) / TABLE_DIRECTORY, grid.describe())
     tasks = grid.tasks()

@@ -253,6 +253,12 @@ def _perturb(args):
     return run_perturb(args, sys.stdout)
 
 
+def _atlas(args):
+    from sofia_ros.atlas.cli import run_atlas
+
+    return run_atlas(args, sys.stdout, sys.stderr)
+
+
 def _model(args):
     from sofia_ros.compare.cli import run_model_add
 
@@ -348,6 +354,13 @@ def build_parser():
     perturb = verbs.add_parser('perturb', help='copy a bag with a what-if shape added to one camera or gyro axis')
     add_perturb_arguments(perturb)
     perturb.set_defaults(handler=_perturb)
+
+    from sofia_ros.atlas.cli import add_atlas_arguments
+
+    atlas = verbs.add_parser('atlas', help='hide each effect at several sizes in many campaigns (Dask), run compare, '
+                                           'count: which campaign sees which effect at what size')
+    add_atlas_arguments(atlas)
+    atlas.set_defaults(handler=_atlas)
 
     model = verbs.add_parser('model', help='edit a model file: `sofia model add EFFECT --model M.yaml`')
     add_model_arguments(model)

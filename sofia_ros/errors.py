@@ -21,6 +21,7 @@ __all__ = [
     'FitError',
     'DomainBusyError',
     'CalibrationAbort',
+    'SchedulerUnreachableError',
     'RunFaultError',
     'GraphRunError',
     'RunInterrupted',
@@ -77,6 +78,10 @@ class DomainBusyError(ConfigError):
 
 class CalibrationAbort(SofiaError):
     """The calibration node's sequence cannot go on (a timeout, a refused command); the reason says why."""
+
+
+class SchedulerUnreachableError(SofiaError):
+    """`sofia atlas --scheduler ADDRESS`: no Dask scheduler answers at that address within the timeout."""
 
 
 class RunFaultError(SofiaError):

@@ -50,7 +50,10 @@ def _alignment() -> CampaignSpec:
     return CampaignSpec(
         AlignmentPlan.campaign, 'Table 3.4 at the reference elevation on Polaris, then the boresight series (6.1, 6.2)',
         AlignmentPlan, graph_config, run_alignment, ('compare',),
-        MappingProxyType({'full': {}, 'reduced': {'repetitions': 2, 'verification_repetitions': 1}}))
+        MappingProxyType({'full': {}, 'reduced': {'repetitions': 2, 'verification_repetitions': 1},
+                          # the atlas' tests: the same code path at the least sim time (one frame, no series)
+                          'minimal': {'repetitions': 2, 'verification_repetitions': 1, 'frames_per_position': 1,
+                                      'drift_track_s': 5.0, 'flexure_elevations_deg': (), 'max_iterations': 1}}))
 
 
 def _star_hop() -> CampaignSpec:

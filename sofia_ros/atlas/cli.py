@@ -1,0 +1,128 @@
+"""`sofia atlas`: arguments, the run (serial, local cluster or a scheduler), the report.
+
+The arguments are built with every `sofia` command, so the engine, Parquet and plots load only in run_atlas.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+import uuid
+from pathlib import Path
+from typing import TextIO
+
+from sofia_ros.cli_args import integer, number
+from sofia_ros.errors import ConfigError
+
+__all__ = ['TABLE_DIRECTORY', 'add_atlas_arguments', 'run_atlas', 'parse_seeds']
+
+#: OUT/table is the Parquet table (pyarrow.parquet.read_table(OUT/table)); OUT/report the page, OUT/bags the bags.
+TABLE_DIRECTORY = 'table'
+
+_AXES = ('effects', 'sizes', 'campaigns', 'seeds')
+_DEFAULTS = {'effects': 'all', 'sizes': '0,0.25,0.5,1', 'campaigns': 'alignment:reduced', 'seeds': '5'}
+
+
+def add_atlas_arguments(parser) -> None:
+    """Arguments of `sofia atlas`."""
+    parser.add_argument('--out', required=True, help='atlas directory: OUT/table the Parquet table (an existing one '
+                                                     'of the same grid is resumed, of another grid refused), OUT/report')
+    parser.add_argument('--grid', help='grid YAML (effects, sizes, campaigns, seeds, model, truth, candidates) '
+                                       'instead of the flags below')
+    parser.add_argument('--effects', help='comma-separated effects to hide (catalogue or plug-ins), or all '
+                                          f'(default {_DEFAULTS["effects"]}: every effect the model lacks)')
+    parser.add_argument('--sizes', help='comma-separated multiples of each effect\'s default '
+                                        f'(default {_DEFAULTS["sizes"]}; 0: nothing hidden)')
+    parser.add_argument('--campaigns', help='comma-separated CAMPAIGN[:VARIANT], e.g. alignment:reduced,star-hop:full '
+                                            f'(default {_DEFAULTS["campaigns"]})')
+    parser.add_argument('--seeds', help=f'N (seeds 1..N), A-B or a comma list (default {_DEFAULTS["seeds"]})')
+    parser.add_argument('--model', help='the model compare fits (default config/model/nominal.yaml)')
+    parser.add_argument('--truth', help='the truth the effects are hidden in (default config/truth/nominal.yaml)')
+    parser.add_argument('--candidates', help='comma-separated effects compare ranks (default: the whole catalogue)')
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument('--scheduler', metavar='tcp://HOST:PORT', help='an existing Dask scheduler (default: a '
+                                                                      'LocalCluster on this machine)')
+    where.add_argument('--serial', action='store_true', help='no Dask: one task after another in this process')
+    parser.add_argument('--workers', type=integer(1, 1024, 'worker processes'),
+                        help='LocalCluster worker processes (default: one per core)')
+    parser.add_argument('--connect-timeout-s', type=number(0.1, 600.0, 's'), default=10.0,
+                        help='give up on an unreachable --scheduler after this long (default 10 s)')
+    parser.add_argument('--keep-bags', action='store_true', help='keep every bag under OUT/bags (default: deleted)')
+    parser.add_argument('--report', help='HTML page directory (default OUT/report)')
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``N`` (1..N), ``A-B`` or ``a,b,c``; ConfigError otherwise."""
+    text = text.strip()
+    if re.fullmatch(r'\d+', text):
+        return list(range(1, int(text) + 1))
+    match = re.fullmatch(r'(\d+)-(\d+)', text)
+    if match:
+        return list(range(int(match[1]), int(match[2]) + 1))
+    if re.fullmatch(r'\d+(,\d*)*', text):
+        return [int(part) for part in text.split(',') if part]
+    raise ConfigError(f'--seeds {text!r}: give N (seeds 1..N), A-B or a comma list such as 1,2,7')
+
+
+def _split(text: str) -> list[str]:
+    return [part.strip() for part in text.split(',') if part.strip()]
+
+
+def grid_of_arguments(args):
+    """The AtlasGrid of --grid, or of the axis flags (with their defaults)."""
+    from sofia_ros.atlas.grid import grid_from_file, grid_from_lists
+
+    given = [axis for axis in (*_AXES, 'model', 'truth', 'candidates') if getattr(args, axis) is not None]
+    if args.grid is not None:
+        if given:
+            raise ConfigError(f'--grid and --{given[0]} both given; put the whole grid in the file or use flags only')
+        return grid_from_file(args.grid)
+    value = {axis: getattr(args, axis) if getattr(args, axis) is not None else _DEFAULTS[axis] for axis in _AXES}
+    files = {name: getattr(args, name) for name in ('model', 'truth') if getattr(args, name) is not None}
+    return grid_from_lists(effects=_split(value['effects']), sizes=_split(value['sizes']),
+                           campaigns=_split(value['campaigns']),
+                           seeds=parse_seeds(value['seeds']) if value['seeds'].strip() else [],
+                           candidates=_split(args.candidates) if args.candidates is not None else None, **files)
+
+
+def run_atlas(args, out: TextIO, err: TextIO) -> int:
+    """Run the missing tasks of the grid, then print the table and write the page."""
+    from sofia_ros.atlas.engine import (Progress, checked_scheduler_address, dashboard_address, dask_client,
+                                        run_distributed, run_serial)
+    from sofia_ros.atlas.report import summarize, text_table, write_html
+    from sofia_ros.atlas.store import ResultStore
+    from sofia_ros.atlas.task import TaskSetup
+
+    if args.scheduler is not None:
+        checked_scheduler_address(args.scheduler)
+    if args.workers is not None and (args.scheduler is not None or args.serial):
+        raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster has its own workers, '
+                          'with --serial there are none: leave --workers out')
+    grid = grid_of_arguments(args)
+    store = ResultStore(Path(args.out) / TABLE_DIRECTORY, grid.describe())
+    tasks = grid.tasks()
+    run_id = f'{time.strftime("%Y%m%dT%H%M%S")}-{uuid.uuid4().hex[:6]}'
+    setup = TaskSetup(grid.truth, grid.model, grid.candidates,
+                      str(Path(args.out).resolve() / 'bags') if args.keep_bags else None, run_id)
+    missing = len(tasks) - len(store.finished_keys() & {task.key for task in tasks})
+    engine = 'serial' if args.serial else (args.scheduler or 'a LocalCluster')
+    out.write(f'atlas: {len(tasks)} tasks ({len(grid.effects)} effects x {len(grid.sizes)} sizes x '
+              f'{len(grid.campaigns)} campaigns x {len(grid.seeds)} seeds), {len(tasks) - missing} already in '
+              f'{args.out}; running {missing} on {engine} (run {run_id})\n')
+    out.flush()
+    if missing and args.serial:
+        run_serial(tasks, setup, store, Progress(missing, err))
+    elif missing:
+        with dask_client(args.scheduler, workers=args.workers, connect_timeout_s=args.connect_timeout_s) as client:
+            progress = Progress(missing, err, dashboard_address(client))
+            progress.show(0)
+            counts = run_distributed(tasks, setup, store, client, progress)
+        if counts.lost:
+            err.write(f'atlas: {counts.lost} tasks lost with their workers (KilledWorker); run the same command '
+                      'again to retry them\n')
+    store.compact()
+    summary = summarize(store.read().to_pylist())
+    out.write(text_table(summary))
+    page = write_html(summary, args.report or Path(args.out) / 'report', str(args.out))
+    out.write(f'page: {page}\n')
+    return 0

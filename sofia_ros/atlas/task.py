@@ -1,0 +1,135 @@
+"""One atlas task: a direct-mode campaign (no DDS) with one effect hidden in the truth, then `sofia compare`.
+
+:func:`run_task` is what a Dask worker (or the serial loop) calls; it returns one row, a plain dict
+of the fields in :data:`ROW_FIELDS`. A task that fails returns its row with ``error`` set rather
+than raising, so one bad cell never stops the atlas; only a worker that dies makes Dask retry it.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from sofia_ros import interrupts
+from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC
+from sofia_ros.atlas.grid import AtlasTask, hidden_truth_text, scaled_params
+from sofia_ros.campaigns.registry import campaign_named
+from sofia_ros.config import EffectConfig, parse_effect_config
+
+__all__ = ['ROW_FIELDS', 'TaskSetup', 'reference_param', 'run_task']
+
+#: The row of one task: name -> kind ('str', 'float', 'int', 'bool'); the Parquet schema (atlas.store).
+ROW_FIELDS = {
+    'key': 'str', 'effect': 'str', 'size': 'float', 'campaign': 'str', 'variant': 'str', 'seed': 'int',
+    # measurements per axis of the alignment (repetitions x frames, Table 6.5's n); null for a star hop
+    'measurements': 'int',
+    # the effect's reference parameter (its first scaling one with a non-zero default), true and fitted
+    'param': 'str', 'true_value': 'float', 'fitted_value': 'float', 'fitted_sigma': 'float',
+    'top_candidate': 'str', 'top_delta_bic': 'float', 'effect_delta_bic': 'float', 'detected': 'bool',
+    'degenerate_with': 'str', 'rms_over_floor': 'float', 'verdict': 'str',
+    # the alignment campaign's own result against /truth (summary.json) and its predicted 1-sigma
+    'misalignment_el_arcsec': 'float', 'misalignment_xel_arcsec': 'float', 'misalignment_los_arcsec': 'float',
+    'predicted_sigma_el_arcsec': 'float', 'predicted_sigma_los_arcsec': 'float',
+    'wall_s': 'float', 'error': 'str', 'run_id': 'str',
+}
+
+
+@dataclass(frozen=True)
+class TaskSetup:
+    """What every task of one atlas shares (pickled once per task to the workers)."""
+
+    truth: EffectConfig
+    model: EffectConfig
+    candidates: tuple[str, ...] | None
+    #: keep each bag under this folder (None: a temporary folder, removed after the compare)
+    bag_root: str | None
+    #: who ran the row (one id per `sofia atlas` invocation), so a resume shows what it ran
+    run_id: str = ''
+
+
+def reference_param(effect: str) -> tuple[str | None, float]:
+    """The first scaling parameter with a non-zero scalar default, and that default (None, nan if none)."""
+    for name, value in scaled_params(effect, 1.0).items():
+        if isinstance(value, float) and value != 0.0:
+            return name, value
+    return None, math.nan
+
+
+def _empty_row(task: AtlasTask, setup: TaskSetup) -> dict:
+    row = {name: None for name in ROW_FIELDS}
+    row.update(key=task.key, effect=task.effect, size=float(task.size), campaign=task.campaign,
+               variant=task.variant, seed=int(task.seed), run_id=setup.run_id)
+    return row
+
+
+def _campaign_fields(plan, summary: dict) -> dict:
+    fields = {}
+    if hasattr(plan, 'repetitions') and hasattr(plan, 'frames_per_position'):
+        fields['measurements'] = int(plan.repetitions * plan.frames_per_position)
+    residual = summary.get('residual_misalignment_arcsec')
+    if residual:
+        predicted = summary['predicted_sigma_arcsec']
+        fields.update(misalignment_el_arcsec=residual['el'], misalignment_xel_arcsec=residual['xel'],
+                      misalignment_los_arcsec=residual['los'], predicted_sigma_el_arcsec=predicted['el'],
+                      predicted_sigma_los_arcsec=predicted['los'])
+    return fields
+
+
+def _compare_fields(task: AtlasTask, document: dict) -> dict:
+    """The row's compare part: top candidate, the hidden effect's delta-BIC and fitted value, verdict."""
+    candidates = document['candidates']
+    top = candidates[0] if candidates and candidates[0]['detectable'] else None
+    hidden = next((c for c in candidates if c['effect'] == task.effect), None)
+    param, true_default = reference_param(task.effect)
+    fields = {'param': param, 'true_value': true_default * task.size if param else None,
+              'top_candidate': top['effect'] if top else None, 'top_delta_bic': top['delta_bic'] if top else None,
+              'verdict': document['verdict']['status'],
+              'rms_over_floor': max((o['ratio'] for o in document['verdict']['observables'].values()), default=None),
+              'degenerate_with': ','.join(sorted(b if a == task.effect else a for a, b in document['degenerate']
+                                                 if task.effect in (a, b))) or None}
+    fields['detected'] = bool(top is not None and top['effect'] == task.effect
+                              and top['delta_bic'] >= SIGNIFICANT_DELTA_BIC)
+    if hidden is not None:
+        fields['effect_delta_bic'] = hidden['delta_bic']
+        if param is not None:
+            fields['fitted_value'] = hidden['params'].get(param)
+            fields['fitted_sigma'] = hidden['sigma'].get(param)
+    return fields
+
+
+def run_task(task: AtlasTask, setup: TaskSetup) -> dict:
+    """Run one cell: campaign in direct mode with the effect hidden, compare against the model; one row."""
+    from sofia_ros.compare.run import compare_bag
+
+    started = time.perf_counter()
+    row = _empty_row(task, setup)
+    if setup.bag_root is None:
+        work = Path(tempfile.mkdtemp(prefix='sofia-atlas-'))
+        bag_path = work / 'bag'
+    else:
+        work = None
+        bag_path = Path(setup.bag_root) / task.key.replace('|', '_')
+        shutil.rmtree(bag_path, ignore_errors=True)  # a retry after a killed worker starts afresh
+    try:
+        spec = campaign_named(task.campaign)
+        plan = spec.plan(task.variant)
+        truth = parse_effect_config(hidden_truth_text(setup.truth, task.effect, task.size),
+                                    f'{setup.truth.source} with {task.effect} at {task.size:g}x')
+        run = spec.run(truth, seed=task.seed, bag_path=str(bag_path), plan=plan, mode='direct',
+                       model_text=setup.model.text)
+        # the alignment returns an AlignmentRun, the star hop its summary
+        interrupts.raise_if_requested()  # `--serial` and Ctrl-C: the campaign stopped early, compare nothing
+        row.update(_campaign_fields(plan, run.summary if hasattr(run, 'summary') else run))
+        result = compare_bag(bag_path, setup.model, candidate_names=setup.candidates)
+        row.update(_compare_fields(task, result.document))
+    except Exception as err:  # one failed cell is a row with its error, never a stopped atlas
+        row['error'] = f'{type(err).__name__}: {err}'.splitlines()[0][:500]
+    finally:
+        if work is not None:
+            shutil.rmtree(work, ignore_errors=True)
+    row['wall_s'] = time.perf_counter() - started
+    return row

@@ -1,7 +1,7 @@
 """The package's import graph, read from the source (every import, also those inside functions).
 
-Arrows point one way: the entry points (the ``sofia`` CLI, the node executables) -> campaigns ->
-nodes -> sim -> science core; the offline tools (compare, noise, perturb, measurements, analysis,
+Arrows point one way: the entry points (the ``sofia`` CLI, the node executables) -> atlas (which runs
+campaigns and compares them) -> campaigns -> nodes -> sim -> science core; the offline tools (compare, noise, perturb, measurements, analysis,
 bag) -> science core and bag, never sim/, nodes/ or campaigns/. ``python test/test_import_graph.py``
 prints the graph between the packages.
 """
@@ -19,7 +19,7 @@ ENTRY_POINTS = {'sofia_ros.cli', 'sofia_ros.nodes.executables', *(
     '.'.join(path.relative_to(PACKAGE.parent).with_suffix('').parts) for path in PACKAGE.glob('*/*cli.py'))}
 OFFLINE_TOOLS = ('analysis', 'bag', 'compare', 'measurements', 'noise', 'perturb')
 #: the layers above the science core, top first: a layer imports only the ones after it
-GRAPH_LAYERS = ('campaigns', 'nodes', 'sim')
+GRAPH_LAYERS = ('atlas', 'campaigns', 'nodes', 'sim')
 
 
 def module_name(path):

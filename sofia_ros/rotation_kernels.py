@@ -17,8 +17,10 @@ from scipy.spatial.transform import Rotation
 __all__ = ['is_proper_orthonormal', 'quaternions_from_rotvecs', 'compose_quaternions', 'matrices_from_quaternions',
            'quaternion_from_matrix', 'rotvec_from_quaternion', 'canonical_quaternion', 'slerp_quaternion']
 
-#: Largest |M M^T - I| element for which a matrix is converted here rather than by scipy.
+#: scipy's test for a matrix to use as it is: M M^T within 1e-12 of I off the diagonal, 1e-12 + 1e-5 on it
+#: (numpy.isclose's default rtol); others are orthonormalized first (SVD, U V^T), as scipy does.
 _ORTHONORMAL_TOLERANCE = 1e-12
+_DIAGONAL_TOLERANCE = 1e-12 + 1e-5
 _SMALL_ANGLE_RAD = 1e-3
 
 
@@ -35,8 +37,9 @@ def quaternions_from_rotvecs(rotvecs):
 
 def compose_quaternions(p, q):
     """Quaternion of rotation q followed by rotation p (Rotation p * q; eq. B.25 in active form)."""
-    px, py, pz, pw = np.moveaxis(np.asarray(p, dtype=float), -1, 0)
-    qx, qy, qz, qw = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return np.stack([
         pw * qx + qw * px + (py * qz - pz * qy),
         pw * qy + qw * py + (pz * qx - px * qz),
@@ -47,7 +50,8 @@ def compose_quaternions(p, q):
 
 def matrices_from_quaternions(quaternions):
     """Active rotation matrices (... x 3 x 3) of unit quaternions (... x 4), as Rotation.as_matrix."""
-    x, y, z, w = np.moveaxis(np.asarray(quaternions, dtype=float), -1, 0)
+    quaternions = np.asarray(quaternions, dtype=float)
+    x, y, z, w = quaternions[..., 0], quaternions[..., 1], quaternions[..., 2], quaternions[..., 3]
     x2, y2, z2, w2 = x * x, y * y, z * z, w * w
     xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
     elements = [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw),
@@ -56,23 +60,33 @@ def matrices_from_quaternions(quaternions):
     return np.stack(elements, axis=-1).reshape(*x.shape, 3, 3)
 
 
-def is_proper_orthonormal(matrix):
-    """Whether a 3x3 matrix is orthonormal to 1e-12 with determinant +1 (scipy would use it as it is)."""
-    gram = matrix @ matrix.T
-    gram[0, 0] -= 1.0
-    gram[1, 1] -= 1.0
-    gram[2, 2] -= 1.0
-    if not np.abs(gram).max() <= _ORTHONORMAL_TOLERANCE:
-        return False
+def _determinant(matrix):
     (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
-    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0.0
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+
+
+def _is_orthonormal(matrix):
+    """Whether scipy's from_matrix takes a 3x3 matrix as orthonormal (see _ORTHONORMAL_TOLERANCE)."""
+    departure = np.abs(matrix @ matrix.T - np.eye(3))
+    diagonal = departure.diagonal().max()
+    np.fill_diagonal(departure, 0.0)
+    return bool(departure.max() <= _ORTHONORMAL_TOLERANCE and diagonal <= _DIAGONAL_TOLERANCE)
+
+
+def is_proper_orthonormal(matrix):
+    """Whether a 3x3 matrix is orthonormal to 1e-12 with determinant +1."""
+    departure = np.abs(matrix @ matrix.T - np.eye(3))
+    return bool(departure.max() <= _ORTHONORMAL_TOLERANCE) and _determinant(matrix) > 0.0
 
 
 def quaternion_from_matrix(matrix):
     """Unit quaternion of an active 3x3 rotation matrix (Shepperd's method, as Rotation.from_matrix)."""
     matrix = np.asarray(matrix, dtype=float)
-    if not is_proper_orthonormal(matrix):
-        return Rotation.from_matrix(matrix).as_quat()
+    if not _determinant(matrix) > 0.0:
+        return Rotation.from_matrix(matrix).as_quat()  # scipy's error for a left-handed or null frame
+    if not _is_orthonormal(matrix):
+        left, _, right = np.linalg.svd(matrix)
+        matrix = left @ right
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = matrix.tolist()
     trace = m00 + m11 + m22
     choice = int(np.argmax((m00, m11, m22, trace)))

@@ -364,9 +364,13 @@ def test_rotation_kernels_match_scipy_to_1e_12():
             np.testing.assert_allclose(frames.quaternion_from_dcm(matrix.T), Rotation.from_matrix(matrix).as_quat(canonical=True),
                                        rtol=0, atol=1e-12)
             np.testing.assert_allclose(frames.dcm_from_quaternion(first), matrix.T, rtol=0, atol=1e-12)
-    # A matrix that is not orthonormal is left to scipy (which orthonormalizes it), as before.
-    skewed = Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix() + 1e-7
-    np.testing.assert_array_equal(k.quaternion_from_matrix(skewed), Rotation.from_matrix(skewed).as_quat())
+    # A matrix that is not quite orthonormal (a long propagation) is orthonormalized first, as scipy does.
+    for departure in (1e-11, 1e-7, 1e-4):
+        skewed = Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix() + departure * rng.normal(size=(3, 3))
+        np.testing.assert_allclose(k.quaternion_from_matrix(skewed), Rotation.from_matrix(skewed).as_quat(),
+                                   rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match='Non-positive determinant'):
+        k.quaternion_from_matrix(-np.eye(3))
     angles = np.array([0.02, -0.05, 0.04])
     dcm = Rotation.from_euler('XYZ', angles).as_matrix().T
     np.testing.assert_allclose(tarf_from_icrf_dcm(angles), dcm, rtol=0, atol=1e-12)

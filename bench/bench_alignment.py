@@ -58,7 +58,8 @@ def run_once(mode, repetitions, seed, folder, name, cold):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--repetitions', type=int, default=6, help='LOS/EL/XEL repetitions of the plan (6: the full campaign)')
+    parser.add_argument('--repetitions', type=int, default=6,
+                        help='LOS/EL/XEL repetitions of the plan (6: the full campaign)')
     parser.add_argument('--modes', nargs='*', default=['direct', 'executor', 'processes'])
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--no-cold', action='store_true', help='skip the cold (fresh bytecode) executor run')

@@ -347,10 +347,10 @@ def test_rotation_kernels_match_scipy_to_1e_12():
         rotvecs = rng.normal(size=(33, 3)) * scale
         quaternions = Rotation.from_rotvec(rotvecs).as_quat()
         np.testing.assert_allclose(k.quaternions_from_rotvecs(rotvecs), quaternions, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(k.matrices_from_quaternions(quaternions), Rotation.from_quat(quaternions).as_matrix(),
-                                   rtol=0, atol=1e-12)
-        np.testing.assert_allclose(k.compose_quaternions(quaternions[1:], quaternions[:-1]),
-                                   (Rotation.from_quat(quaternions[1:]) * Rotation.from_quat(quaternions[:-1])).as_quat(),
+        np.testing.assert_allclose(k.matrices_from_quaternions(quaternions),
+                                   Rotation.from_quat(quaternions).as_matrix(), rtol=0, atol=1e-12)
+        composed = (Rotation.from_quat(quaternions[1:]) * Rotation.from_quat(quaternions[:-1])).as_quat()
+        np.testing.assert_allclose(k.compose_quaternions(quaternions[1:], quaternions[:-1]), composed,
                                    rtol=0, atol=1e-12)
         for first, second in zip(quaternions, quaternions[1:]):
             matrix = Rotation.from_quat(first).as_matrix()
@@ -361,8 +361,8 @@ def test_rotation_kernels_match_scipy_to_1e_12():
             np.testing.assert_allclose(k.slerp_quaternion(first, second, 0.3),
                                        Slerp([0.0, 1.0], Rotation.from_quat([first, second]))(0.3).as_quat(),
                                        rtol=0, atol=1e-12)
-            np.testing.assert_allclose(frames.quaternion_from_dcm(matrix.T), Rotation.from_matrix(matrix).as_quat(canonical=True),
-                                       rtol=0, atol=1e-12)
+            np.testing.assert_allclose(frames.quaternion_from_dcm(matrix.T),
+                                       Rotation.from_matrix(matrix).as_quat(canonical=True), rtol=0, atol=1e-12)
             np.testing.assert_allclose(frames.dcm_from_quaternion(first), matrix.T, rtol=0, atol=1e-12)
     # A matrix that is not quite orthonormal (a long propagation) is orthonormalized first, as scipy does.
     for departure in (1e-11, 1e-7, 1e-4):
@@ -388,5 +388,5 @@ def test_rotation_kernels_match_scipy_to_1e_12():
         total = step * total
     moved = propagate_dcm(start, rates, 0.0025)
     np.testing.assert_allclose(moved, total.as_matrix().T @ start, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(rotation_error_rad(start, moved), Rotation.from_matrix((moved @ start.T).T).as_rotvec(),
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rotation_error_rad(start, moved),
+                               Rotation.from_matrix((moved @ start.T).T).as_rotvec(), rtol=0, atol=1e-12)

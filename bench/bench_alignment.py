@@ -1,52 +1,91 @@
-"""Real-time factor of the alignment campaign at one elevation, bag recorded (issue: >= 30x in one
-process, >= 10x with every node in its own process), with peak memory, side by side in one run.
+"""Real-time factor of the alignment campaign in each mode, side by side in one run, as ratios against direct
+mode, with CPU time, peak memory and the machine's load; the in-process graph once cold (fresh bytecode) too.
 
-    .venv/bin/python bench/bench_alignment.py [--repetitions 6] [--modes direct executor processes]
+    .venv/bin/python bench/bench_alignment.py [--repetitions 6] [--modes direct executor processes] [--no-cold]
 
-Each mode runs the same truth (config/truth/nominal.yaml), seed and plan; wall time is measured
-around the whole run (start-up included), peak memory is the largest resident set of this
-process or of any node process.
+Each run is its own process (so peak memory and CPU are that run's own) with the same truth
+(config/truth/nominal.yaml), seed and plan; wall time is measured around the whole run (start-up,
+imports and DDS discovery included), CPU time is that of the run's process and of its node
+processes. The cold run compiles every module afresh (PYTHONPYCACHEPREFIX set to an empty folder),
+as the first `scripts/run-main` on a new machine does; the warm runs use the bytecode cache. The
+machine is shared, so the ratios, measured in the same run, are the figures to compare; the load
+average is printed beside every absolute time. About 6 min with the defaults on an idle 2-core machine.
 """
 
 import argparse
-import resource
-import shutil
+import json
+import os
+import subprocess
+import sys
 import tempfile
-import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[1]
+
+_CHILD = r'''
+import json, os, resource, sys, time
+wall_start, cpu_start = time.perf_counter(), time.process_time()
+from pathlib import Path
 from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.config import load_effect_config
 from sofia_ros.sim.calibration import AlignmentPlan
+mode, repetitions, seed, bag = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), Path(sys.argv[4])
+load_before = os.getloadavg()[0]
+truth = load_effect_config(Path(sys.argv[5]) / 'config/truth/nominal.yaml')
+run = run_alignment(truth, seed=seed, bag_path=bag, plan=AlignmentPlan(repetitions=repetitions), mode=mode)
+children = resource.getrusage(resource.RUSAGE_CHILDREN)
+own = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({
+    'sim_s': run.summary['sim_seconds'], 'wall_s': time.perf_counter() - wall_start,
+    'cpu_s': time.process_time() - cpu_start + children.ru_utime + children.ru_stime,
+    'peak_mb': max(own.ru_maxrss, children.ru_maxrss) / 1024.0, 'accepted': run.summary['accepted'],
+    'bag_mb': sum(path.stat().st_size for path in bag.iterdir()) / 1e6,
+    'load': (load_before + os.getloadavg()[0]) / 2.0}))
+'''
 
 
-def peak_rss_mb():
-    """Largest resident set (MB) of this process and of any finished child process."""
-    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return max(own, children) / 1024.0
+def run_once(mode, repetitions, seed, folder, name, cold):
+    """One campaign in a fresh process; its figures as a dict."""
+    env = dict(os.environ)
+    if cold:
+        env['PYTHONPYCACHEPREFIX'] = tempfile.mkdtemp(prefix='pycache_', dir=folder)
+    result = subprocess.run([sys.executable, '-c', _CHILD, mode, str(repetitions), str(seed), str(folder / name),
+                             str(ROOT)], env=env, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise SystemExit(f'{name} failed (exit {result.returncode}):\n{result.stderr[-2000:]}')
+    return json.loads(result.stdout.strip().splitlines()[-1])
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--repetitions', type=int, default=6)
+    parser.add_argument('--repetitions', type=int, default=6,
+                        help='LOS/EL/XEL repetitions of the plan (6: the full campaign)')
     parser.add_argument('--modes', nargs='*', default=['direct', 'executor', 'processes'])
     parser.add_argument('--seed', type=int, default=1)
+    parser.add_argument('--no-cold', action='store_true', help='skip the cold (fresh bytecode) executor run')
     args = parser.parse_args()
-    truth = load_effect_config(Path(__file__).resolve().parents[1] / 'config/truth/nominal.yaml')
-    plan = AlignmentPlan(repetitions=args.repetitions)
-    folder = Path(tempfile.mkdtemp(prefix='bench_alignment_'))
-    print(f'alignment campaign, nominal truth, seed {args.seed}, {args.repetitions} repetitions, bag recorded')
-    print(f'{"mode":<10} {"sim s":>8} {"wall s":>8} {"x real time":>12} {"peak MB":>8} {"accepted":>9} {"bag MB":>7}')
-    for mode in args.modes:
-        start = time.perf_counter()
-        run = run_alignment(truth, seed=args.seed, bag_path=folder / mode, plan=plan, mode=mode)
-        wall_s = time.perf_counter() - start
-        sim_s = run.summary['sim_seconds']
-        bag_mb = sum(path.stat().st_size for path in (folder / mode).iterdir()) / 1e6
-        print(f'{mode:<10} {sim_s:>8.1f} {wall_s:>8.1f} {sim_s / wall_s:>12.1f} {peak_rss_mb():>8.0f} '
-              f'{str(run.summary["accepted"]):>9} {bag_mb:>7.1f}', flush=True)
-    shutil.rmtree(folder)
+    # Direct mode first: every later line is a ratio to it; the cold run before the warm ones.
+    runs = [(mode, False) for mode in sorted(args.modes, key=lambda mode: mode != 'direct')]
+    if not args.no_cold and 'executor' in args.modes:
+        runs.insert(runs.index(('executor', False)), ('executor', True))
+    print(f'alignment campaign, nominal truth, seed {args.seed}, {args.repetitions} repetitions, bag recorded; '
+          f'{os.cpu_count()} CPUs')
+    print(f'{"run":<16} {"sim s":>7} {"wall s":>7} {"CPU s":>7} {"load":>5} {"x real":>7} {"x real CPU":>10} '
+          f'{"wall/direct":>11} {"CPU/direct":>10} {"peak MB":>8} {"accepted":>8}')
+    direct = None
+    with tempfile.TemporaryDirectory(prefix='bench_alignment_') as folder:
+        for mode, cold in runs:
+            name = f'{mode} (cold)' if cold else mode
+            figures = run_once(mode, args.repetitions, args.seed, Path(folder), name.replace(' (cold)', '_cold'), cold)
+            direct = figures if mode == 'direct' else direct
+            ratios = (f'{figures["wall_s"] / direct["wall_s"]:>11.2f} {figures["cpu_s"] / direct["cpu_s"]:>10.2f}'
+                      if direct else f'{"-":>11} {"-":>10}')
+            print(f'{name:<16} {figures["sim_s"]:>7.1f} {figures["wall_s"]:>7.1f} {figures["cpu_s"]:>7.1f} '
+                  f'{figures["load"]:>5.1f} {figures["sim_s"] / figures["wall_s"]:>7.1f} '
+                  f'{figures["sim_s"] / figures["cpu_s"]:>10.1f} {ratios} {figures["peak_mb"]:>8.0f} '
+                  f'{str(figures["accepted"]):>8}', flush=True)
+    print('wall/direct, CPU/direct: ratio to direct mode in this run (issue 14: executor <= 1.25); '
+          'load: 1-min load average during the run; x real CPU: sim s per CPU s')
 
 
 if __name__ == '__main__':

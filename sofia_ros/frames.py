@@ -39,6 +39,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import InvalidArgumentError, NotOrthonormalError
+from sofia_ros.rotation_kernels import canonical_quaternion, matrices_from_quaternions, quaternion_from_matrix
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar, unit_vector
 
@@ -96,12 +97,16 @@ def _rotation_from_dcm(a):
 
 def dcm_from_quaternion(q):
     """Attitude DCM from a scalar-last quaternion (eq. B.9)."""
-    return _rotation_from_quaternion(q).as_matrix().T
+    quaternion = finite_array('quaternion', q, shape=(4,))
+    norm = float(np.sqrt(quaternion @ quaternion))
+    if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
+        raise InvalidArgumentError(f'quaternion must have unit norm (B.5), got |q| = {norm:.9g}')
+    return matrices_from_quaternions(quaternion / norm).T
 
 
 def quaternion_from_dcm(a):
     """Scalar-last quaternion with q4 >= 0 from an attitude DCM (eq. B.10)."""
-    return _rotation_from_dcm(a).as_quat(canonical=True)
+    return canonical_quaternion(quaternion_from_matrix(orthonormal_dcm('dcm', a).T))
 
 
 def quaternion_multiply(p, q):

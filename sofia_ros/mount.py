@@ -22,6 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import CommandRefusedError
+from sofia_ros.rotation_kernels import is_proper_orthonormal, matrices_from_quaternions, quaternions_from_rotvecs
 from sofia_ros.units import EARTH_RATE_RAD_PER_S, RAD_PER_DEG
 from sofia_ros.validate import finite_array, finite_scalar
 
@@ -42,6 +43,8 @@ __all__ = [
 ]
 
 FINE_DRIVE_LIMIT_DEG = 3.0
+#: Beyond this |sin(beta)| (near the 1-2-3 gimbal lock) fine_drive_angles_from_dcm leaves the angles to scipy.
+_CLOSED_FORM_MAX_SIN_BETA = 0.99
 #: Round-off allowance so that exactly +-3 deg (or 16.5/68.5 deg) passes after rad/deg conversions.
 _LIMIT_SLACK_DEG = 1e-9
 COARSE_DRIVE_LIMITS_DEG = (16.5, 68.5)
@@ -83,14 +86,25 @@ def icrf_from_abrf_dcm(elevation_deg):
 
 def tarf_from_icrf_dcm(fine_drive_rad):
     """A_TARF,ICRF from fine-drive angles (EL, XEL, LOS) as the 1-2-3 sequence of eq. B.4."""
-    angles = finite_array('fine_drive_rad', fine_drive_rad, shape=(3,))
-    # scipy's intrinsic 'XYZ' active rotation is the transpose of the passive B.4 product.
-    return Rotation.from_euler('XYZ', angles).as_matrix().T
+    alpha, beta, gamma = finite_array('fine_drive_rad', fine_drive_rad, shape=(3,)).tolist()
+    # The passive product R3(gamma) R2(beta) R1(alpha) of B.4 written out (scipy's intrinsic 'XYZ'
+    # active rotation, transposed, to 1e-16; test_mount.py).
+    ca, sa, cb, sb, cg, sg = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta), np.cos(gamma), np.sin(gamma)
+    return np.array([
+        [cg * cb, cg * sb * sa + sg * ca, -cg * sb * ca + sg * sa],
+        [-sg * cb, -sg * sb * sa + cg * ca, sg * sb * ca + cg * sa],
+        [sb, -cb * sa, cb * ca],
+    ])
 
 
 def fine_drive_angles_from_dcm(tarf_from_icrf):
     """Fine-drive angles (EL, XEL, LOS) in rad from A_TARF,ICRF (inverse of eq. B.4)."""
     matrix = finite_array('tarf_from_icrf', tarf_from_icrf, shape=(3, 3))
+    if abs(matrix[2, 0]) < _CLOSED_FORM_MAX_SIN_BETA and is_proper_orthonormal(matrix):
+        # Rows of eq. B.4 written out (tarf_from_icrf_dcm): sin(beta) = A31, tan(alpha) = -A32/A33,
+        # tan(gamma) = -A21/A11; the same angles as scipy's as_euler('XYZ') to 1e-15 (test_mount.py).
+        return np.array([np.arctan2(-matrix[2, 1], matrix[2, 2]), np.arcsin(matrix[2, 0]),
+                         np.arctan2(-matrix[1, 0], matrix[0, 0])])
     return Rotation.from_matrix(matrix.T).as_euler('XYZ')
 
 
@@ -105,7 +119,7 @@ def hrf_from_irf_dcm(latitude_deg, elapsed_s, earth_rate_rad_per_s=EARTH_RATE_RA
     elapsed = finite_array('elapsed_s', elapsed_s)
     rotvec = np.multiply.outer(elapsed * earth_rate_rad_per_s, earth_axis_hrf(latitude_deg))
     # The HRF axes are the IRF axes actively turned by the Earth; coordinates transform with the transpose.
-    return np.swapaxes(Rotation.from_rotvec(rotvec).as_matrix(), -1, -2)
+    return np.swapaxes(matrices_from_quaternions(quaternions_from_rotvecs(rotvec)), -1, -2)
 
 
 def tarf_from_hrf_dcm(heading_deg, elevation_deg, fine_drive_rad=(0.0, 0.0, 0.0)):

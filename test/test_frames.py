@@ -333,3 +333,60 @@ def test_pixel_geometry_errors():
         frames.boresight_dcm([1.0, 0.0, 0.0])
     with pytest.raises(InvalidArgumentError, match='non-zero 3-vector'):
         frames.boresight_dcm([0.0, 0.0, 0.0])
+
+
+def test_rotation_kernels_match_scipy_to_1e_12():
+    # The per-tick hot paths use plain-numpy kernels; they must give scipy's answers.
+    from scipy.spatial.transform import Slerp
+
+    from sofia_ros import rotation_kernels as k
+    from sofia_ros.control.attitude import propagate_dcm, rotation_error_rad
+    from sofia_ros.mount import fine_drive_angles_from_dcm, hrf_from_irf_dcm, tarf_from_icrf_dcm
+    rng = np.random.default_rng(7)
+    for scale in (1e-9, 1e-4, 1e-2, 1.0, 3.0):
+        rotvecs = rng.normal(size=(33, 3)) * scale
+        quaternions = Rotation.from_rotvec(rotvecs).as_quat()
+        np.testing.assert_allclose(k.quaternions_from_rotvecs(rotvecs), quaternions, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(k.matrices_from_quaternions(quaternions),
+                                   Rotation.from_quat(quaternions).as_matrix(), rtol=0, atol=1e-12)
+        composed = (Rotation.from_quat(quaternions[1:]) * Rotation.from_quat(quaternions[:-1])).as_quat()
+        np.testing.assert_allclose(k.compose_quaternions(quaternions[1:], quaternions[:-1]), composed,
+                                   rtol=0, atol=1e-12)
+        for first, second in zip(quaternions, quaternions[1:]):
+            matrix = Rotation.from_quat(first).as_matrix()
+            np.testing.assert_allclose(k.quaternion_from_matrix(matrix), Rotation.from_matrix(matrix).as_quat(),
+                                       rtol=0, atol=1e-12)
+            np.testing.assert_allclose(k.rotvec_from_quaternion(-first), Rotation.from_quat(-first).as_rotvec(),
+                                       rtol=0, atol=1e-12)
+            np.testing.assert_allclose(k.slerp_quaternion(first, second, 0.3),
+                                       Slerp([0.0, 1.0], Rotation.from_quat([first, second]))(0.3).as_quat(),
+                                       rtol=0, atol=1e-12)
+            np.testing.assert_allclose(frames.quaternion_from_dcm(matrix.T),
+                                       Rotation.from_matrix(matrix).as_quat(canonical=True), rtol=0, atol=1e-12)
+            np.testing.assert_allclose(frames.dcm_from_quaternion(first), matrix.T, rtol=0, atol=1e-12)
+    # A matrix that is not quite orthonormal (a long propagation) is orthonormalized first, as scipy does.
+    for departure in (1e-11, 1e-7, 1e-4):
+        skewed = Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix() + departure * rng.normal(size=(3, 3))
+        np.testing.assert_allclose(k.quaternion_from_matrix(skewed), Rotation.from_matrix(skewed).as_quat(),
+                                   rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match='Non-positive determinant'):
+        k.quaternion_from_matrix(-np.eye(3))
+    angles = np.array([0.02, -0.05, 0.04])
+    dcm = Rotation.from_euler('XYZ', angles).as_matrix().T
+    np.testing.assert_allclose(tarf_from_icrf_dcm(angles), dcm, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(fine_drive_angles_from_dcm(dcm), angles, rtol=0, atol=1e-12)
+    elapsed_s = np.array([0.0, 10.0, 3600.0])
+    from sofia_ros.mount import EARTH_RATE_RAD_PER_S, earth_axis_hrf
+    expected = np.swapaxes(Rotation.from_rotvec(np.multiply.outer(elapsed_s * EARTH_RATE_RAD_PER_S,
+                                                                  earth_axis_hrf(31.5))).as_matrix(), -1, -2)
+    np.testing.assert_allclose(hrf_from_irf_dcm(31.5, elapsed_s), expected, rtol=0, atol=1e-12)
+    rates = rng.normal(size=(80, 3)) * 1e-3
+    start = Rotation.from_rotvec([0.3, -0.2, 1.0]).as_matrix()
+    steps = Rotation.from_rotvec(rates * 0.0025)
+    total = Rotation.identity()
+    for step in steps:
+        total = step * total
+    moved = propagate_dcm(start, rates, 0.0025)
+    np.testing.assert_allclose(moved, total.as_matrix().T @ start, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(rotation_error_rad(start, moved),
+                               Rotation.from_matrix((moved @ start.T).T).as_rotvec(), rtol=0, atol=1e-12)

@@ -73,6 +73,22 @@ class _Rosbag2Writer(Writer):
 
     STORAGE_PLUGINS = {StoragePlugin.MCAP: CheckedMcapStorage}
 
+    def write(self, connection: Connection, timestamp: int, data: bytes | memoryview) -> None:
+        """rosbags' write without its linear search of the connection list (each 400 Hz sample passes here).
+
+        BagWriter hands over only connections it added; per-message compression (which
+        BagWriter never asks for) still goes through rosbags' own write.
+        """
+        if self.compression_mode == CompressionMode.MESSAGE or not self.storage:
+            super().write(connection, timestamp, data)
+            return
+        self.storage.write(connection, timestamp, data)
+        self.counts[connection.id] += 1
+        if timestamp < self.min_timestamp:
+            self.min_timestamp = timestamp
+        if timestamp > self.max_timestamp:
+            self.max_timestamp = timestamp
+
 
 class BagWriter:
     """Write one new bag directory; use as a context manager.
@@ -242,7 +258,9 @@ class BagWriter:
 
     def _write(self, connection: Connection, data: bytes | memoryview, stamp_ns: int) -> None:
         """Write one message and flush when its log time reaches the next flush."""
-        stamp_ns = _checked_ns('stamp_ns', stamp_ns) + self.epoch_ns
+        if type(stamp_ns) is not int or stamp_ns < 0:  # noqa: E721  (the common case checked cheaply)
+            stamp_ns = _checked_ns('stamp_ns', stamp_ns)
+        stamp_ns += self.epoch_ns
         if self.epoch_ns and has_leading_stamp(connection.msgtype):
             data = shift_stamp(data, self.epoch_ns)
         self._writer.write(connection, stamp_ns, data)

@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from sofia_ros.rotation_kernels import (
+    compose_quaternions,
+    matrices_from_quaternions,
+    quaternion_from_matrix,
+    quaternions_from_rotvecs,
+    rotvec_from_quaternion,
+)
 from sofia_ros.validate import finite_array, positive_scalar
 
 __all__ = [
@@ -20,20 +26,20 @@ def propagate_dcm(frame_from_inertial, rates_rad_per_s, sample_time_s):
     if rates.ndim == 1:
         rates = rates[np.newaxis]
     dt = positive_scalar('sample_time_s', sample_time_s)
-    steps = Rotation.from_rotvec(rates * dt)
+    steps = quaternions_from_rotvecs(rates * dt)
     # Pairwise tree product, latest on the left: log2(N) vectorized compositions.
     while len(steps) > 1:
         if len(steps) % 2:
-            steps = Rotation.concatenate([steps, Rotation.identity()])
-        steps = steps[1::2] * steps[0::2]
+            steps = np.concatenate([steps, [[0.0, 0.0, 0.0, 1.0]]])
+        steps = compose_quaternions(steps[1::2], steps[0::2])
     # A body turned actively by R has A_new = R^T A_old in the passive convention of B.3.
-    return steps[0].as_matrix().T @ frame_from_inertial
+    return matrices_from_quaternions(steps[0]).T @ frame_from_inertial
 
 
 def rotation_error_rad(estimated_from_inertial, commanded_from_inertial):
     """Small rotation angles (about TARF EL, XEL, LOS) that take the estimate onto the command (B.19-B.22)."""
     delta = commanded_from_inertial @ estimated_from_inertial.T
-    return Rotation.from_matrix(delta.T).as_rotvec()
+    return rotvec_from_quaternion(quaternion_from_matrix(delta.T))
 
 
 def mean_rate_rad_per_s(before_from_inertial, after_from_inertial, interval_s):

@@ -7,11 +7,10 @@ published as one PoseArray (x = column, y = row in px, z = HIP number).
 
 from __future__ import annotations
 
-from scipy.spatial.transform import Rotation, Slerp
-
 from sofia_ros import messages as m
 from sofia_ros.errors import ConfigError
 from sofia_ros.frames import dcm_from_quaternion
+from sofia_ros.rotation_kernels import slerp_quaternion
 from sofia_ros.sensors.imager_model import CAMERAS, ImagerTruth, Scene
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
 from sofia_ros.sim.protocol import NodeCore
@@ -67,7 +66,7 @@ class CameraCore(NodeCore):
         outputs = []
         for midpoint_ns in self._midpoints_ns(previous[0], stamp_ns):
             fraction = (midpoint_ns - previous[0]) / (stamp_ns - previous[0])
-            quaternion = Slerp([0.0, 1.0], Rotation.from_quat([previous[1], current[1]]))(fraction).as_quat()
+            quaternion = slerp_quaternion(previous[1], current[1], fraction)
             elevation_deg, force, los_deg = (previous[i] + fraction * (current[i] - previous[i]) for i in (2, 3, 4))
             opening_s = (midpoint_ns - self.exposure_ns // 2) / m.NS_PER_S
             centroids = self.truth.centroids(opening_s, dcm_from_quaternion(quaternion), elevation_deg,

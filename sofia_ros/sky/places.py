@@ -163,10 +163,13 @@ def _star_data_at(columns, epoch_jd):
 def _cirs_place_rad(columns, place, tt):
     """CIRS RA/Dec of catalogue rows: apparent (eraAtci13) or astrometric (eraAtcc13 + NPB)."""
     j2000_data = _star_data_at(columns, erfa.epj2jd(_J2000_JYEAR))
+    # eraAtci13 and eraAtcc13 are eraApci13 (the star-independent part, with the nutation series)
+    # followed by eraAtciq / eraAtccq; the first once for every star gives the same bits at a
+    # fraction of the cost for many stars.
+    astrom, _ = erfa.apci13(*tt)
     if place == 'apparent':
-        ra, dec, _ = erfa.atci13(*j2000_data, *tt)
-        return ra, dec
-    ra, dec = erfa.atcc13(*j2000_data, *tt)
+        return erfa.atciq(*j2000_data, astrom)
+    ra, dec = erfa.atccq(*j2000_data, astrom)
     # Bias-precession-nutation only (GCRS -> CIRS rotation): no aberration, no light deflection.
     direction = np.einsum('ij,...j->...i', erfa.c2i06a(*tt), erfa.s2c(ra, dec))
     return erfa.c2s(direction)
@@ -187,13 +190,14 @@ def _horizontal_places(columns, site, utc, weather, refraction_model, place, dut
     ra, dec = _cirs_place_rad(columns, place, tt)
     observer = (*utc_jd, finite_scalar('dut1_s', dut1_s), site.longitude_deg * RAD_PER_DEG,
                 site.latitude_deg * RAD_PER_DEG, site.height_m, 0.0, 0.0)
-    # Zero pressure switches ERFA's refraction off: the topocentric (catalogue) place.
-    azimuth_rad, zenith_rad = erfa.atio13(ra, dec, *observer, 0.0, 0.0, 0.0, 1.0)[:2]
+    # Zero pressure switches ERFA's refraction off: the topocentric (catalogue) place. eraAtio13
+    # is eraApio13 (star-independent) followed by eraAtioq: the first once for every star.
+    azimuth_rad, zenith_rad = erfa.atioq(ra, dec, erfa.apio13(*observer, 0.0, 0.0, 0.0, 1.0))[:2]
     zenith_deg = np.atleast_1d(zenith_rad * DEG_PER_RAD)
     refraction_arcsec = np.full(zenith_deg.shape, np.nan)
     if refraction_model == 'erfa':
-        refracted_rad = erfa.atio13(ra, dec, *observer, weather.pressure_hpa, weather.temperature_c,
-                                    weather.relative_humidity, weather.wavelength_um)[1]
+        refracted_rad = erfa.atioq(ra, dec, erfa.apio13(*observer, weather.pressure_hpa, weather.temperature_c,
+                                                        weather.relative_humidity, weather.wavelength_um))[1]
         refraction_arcsec = np.atleast_1d((zenith_rad - refracted_rad) * ARCSEC_PER_RAD)
     else:
         valid = zenith_deg <= MAX_ZENITH_DISTANCE_DEG

@@ -1,0 +1,133 @@
+"""Plain-numpy rotation algebra for the per-tick hot paths (Appendix B), scipy's algorithms without its checks.
+
+scipy's ``Rotation`` validates, promotes and dispatches on every call (20-60 us for one 3x3
+matrix); the lock-step loop converts attitudes several times per tick. These kernels run the
+same formulas scipy uses (rotation vector, Hamilton product, Shepperd's matrix-to-quaternion,
+canonical quaternion) on plain arrays; ``test/test_frames.py`` pins them to scipy within 1e-12.
+Quaternions are scalar-last (x, y, z, w), rotations active, as in ``scipy.spatial.transform``.
+Matrices that are not orthonormal to 1e-12 (or are left-handed) go to scipy, which
+re-orthonormalizes them or raises, so the result never depends on which path ran.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ['is_proper_orthonormal', 'quaternions_from_rotvecs', 'compose_quaternions', 'matrices_from_quaternions',
+           'quaternion_from_matrix', 'rotvec_from_quaternion', 'canonical_quaternion', 'slerp_quaternion']
+
+#: scipy's test for a matrix to use as it is: M M^T within 1e-12 of I off the diagonal, 1e-12 + 1e-5 on it
+#: (numpy.isclose's default rtol); others are orthonormalized first (SVD, U V^T), as scipy does.
+_ORTHONORMAL_TOLERANCE = 1e-12
+_DIAGONAL_TOLERANCE = 1e-12 + 1e-5
+_SMALL_ANGLE_RAD = 1e-3
+
+
+def quaternions_from_rotvecs(rotvecs):
+    """Unit quaternions (N x 4) of active rotation vectors (N x 3, rad), as Rotation.from_rotvec."""
+    rotvecs = np.asarray(rotvecs, dtype=float)
+    angle = np.sqrt(np.einsum('...i,...i->...', rotvecs, rotvecs))[..., np.newaxis]
+    small = angle <= _SMALL_ANGLE_RAD
+    angle2 = angle * angle
+    with np.errstate(invalid='ignore', divide='ignore'):
+        scale = np.where(small, 0.5 - angle2 / 48 + angle2 * angle2 / 3840, np.sin(angle / 2) / angle)
+    return np.concatenate([rotvecs * scale, np.cos(angle / 2)], axis=-1)
+
+
+def compose_quaternions(p, q):
+    """Quaternion of rotation q followed by rotation p (Rotation p * q; eq. B.25 in active form)."""
+    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        pw * qx + qw * px + (py * qz - pz * qy),
+        pw * qy + qw * py + (pz * qx - px * qz),
+        pw * qz + qw * pz + (px * qy - py * qx),
+        pw * qw - px * qx - py * qy - pz * qz,
+    ], axis=-1)
+
+
+def matrices_from_quaternions(quaternions):
+    """Active rotation matrices (... x 3 x 3) of unit quaternions (... x 4), as Rotation.as_matrix."""
+    quaternions = np.asarray(quaternions, dtype=float)
+    x, y, z, w = quaternions[..., 0], quaternions[..., 1], quaternions[..., 2], quaternions[..., 3]
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    elements = [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw),
+                2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw),
+                2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2]
+    return np.stack(elements, axis=-1).reshape(*x.shape, 3, 3)
+
+
+def _determinant(matrix):
+    (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+
+
+def _is_orthonormal(matrix):
+    """Whether scipy's from_matrix takes a 3x3 matrix as orthonormal (see _ORTHONORMAL_TOLERANCE)."""
+    departure = np.abs(matrix @ matrix.T - np.eye(3))
+    diagonal = departure.diagonal().max()
+    np.fill_diagonal(departure, 0.0)
+    return bool(departure.max() <= _ORTHONORMAL_TOLERANCE and diagonal <= _DIAGONAL_TOLERANCE)
+
+
+def is_proper_orthonormal(matrix):
+    """Whether a 3x3 matrix is orthonormal to 1e-12 with determinant +1."""
+    departure = np.abs(matrix @ matrix.T - np.eye(3))
+    return bool(departure.max() <= _ORTHONORMAL_TOLERANCE) and _determinant(matrix) > 0.0
+
+
+def quaternion_from_matrix(matrix):
+    """Unit quaternion of an active 3x3 rotation matrix (Shepperd's method, as Rotation.from_matrix)."""
+    matrix = np.asarray(matrix, dtype=float)
+    if not _determinant(matrix) > 0.0:
+        return Rotation.from_matrix(matrix).as_quat()  # scipy's error for a left-handed or null frame
+    if not _is_orthonormal(matrix):
+        left, _, right = np.linalg.svd(matrix)
+        matrix = left @ right
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = matrix.tolist()
+    trace = m00 + m11 + m22
+    choice = int(np.argmax((m00, m11, m22, trace)))
+    if choice == 0:
+        quaternion = (1 - trace + 2 * m00, m10 + m01, m20 + m02, m21 - m12)
+    elif choice == 1:
+        quaternion = (m10 + m01, 1 - trace + 2 * m11, m21 + m12, m02 - m20)
+    elif choice == 2:
+        quaternion = (m20 + m02, m21 + m12, 1 - trace + 2 * m22, m10 - m01)
+    else:
+        quaternion = (m21 - m12, m02 - m20, m10 - m01, 1 + trace)
+    quaternion = np.array(quaternion)
+    return quaternion / np.sqrt(quaternion @ quaternion)
+
+
+def canonical_quaternion(quaternion):
+    """The one of q and -q with w > 0 (or the first non-zero of w, x, y, z positive), as as_quat(canonical=True)."""
+    quaternion = np.asarray(quaternion, dtype=float)
+    for value in (quaternion[3], quaternion[0], quaternion[1], quaternion[2]):
+        if value != 0.0:
+            return -quaternion if value < 0.0 else quaternion
+    return quaternion
+
+
+def rotvec_from_quaternion(quaternion):
+    """Rotation vector (rad) of a unit quaternion, as Rotation.as_rotvec."""
+    quaternion = canonical_quaternion(quaternion)
+    vector = quaternion[:3]
+    angle = 2 * np.arctan2(np.sqrt(vector @ vector), quaternion[3])
+    if angle <= _SMALL_ANGLE_RAD:
+        angle2 = angle * angle
+        return (2 + angle2 / 12 + 7 * angle2 * angle2 / 2880) * vector
+    return angle / np.sin(angle / 2.0) * vector
+
+
+def slerp_quaternion(start, end, fraction):
+    """Quaternion a ``fraction`` of the way from rotation ``start`` to ``end`` (scipy's Slerp of two keys)."""
+    start = np.asarray(start, dtype=float)
+    end = np.asarray(end, dtype=float)
+    start = start / np.sqrt(start @ start)
+    end = end / np.sqrt(end @ end)
+    inverse_start = start * np.array([-1.0, -1.0, -1.0, 1.0])
+    rotvec = rotvec_from_quaternion(compose_quaternions(inverse_start, end))
+    return compose_quaternions(start, quaternions_from_rotvecs(rotvec * fraction))

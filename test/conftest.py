@@ -48,8 +48,6 @@ os.environ['ROS_DOMAIN_ID'] = str(_reserve_test_domain())
 import pytest  # noqa: E402  (the DDS environment must be set before anything imports rclpy)
 
 ROOT = Path(__file__).resolve().parents[1]
-#: seeds of the untouched nominal bags (test_discovery's no-false-alarm set; seed 3 is every module's reference)
-NOMINAL_SEEDS = (3, 4, 5, 6, 7)
 
 
 def record_reduced_alignment(bag_path, *, seed, effect=None, scenario=None):
@@ -115,28 +113,6 @@ def campaign_bags(tmp_path_factory):
     return CampaignBags((base.parent if _xdist_worker() else base) / 'campaign_bags')
 
 
-@pytest.fixture(scope='session')
-def nominal_alignment_bags(campaign_bags):
-    """Untouched reduced alignment bags of the nominal truth, seeds 3-7, recorded once per session.
-
-    Alone, two at a time in spawned processes (the test process may hold rclpy's threads); under
-    xdist one after the other, since the other worker already keeps the second core busy.
-    """
-    if not _xdist_worker():
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context('spawn')) as pool:
-            for future in [pool.submit(_record_nominal, campaign_bags.folder, seed) for seed in NOMINAL_SEEDS]:
-                future.result()
-    return {seed: campaign_bags.reduced_alignment(seed=seed) for seed in NOMINAL_SEEDS}
-
-
-def _record_nominal(folder, seed):
-    """In a spawned process: the nominal bag of one seed into the shared folder."""
-    return CampaignBags(folder).reduced_alignment(seed=seed)
-
-
 # --- xdist (scripts/run-tests runs the suite with `-n 2 --dist loadscope --no-loadscope-reorder`) ------
 #
 # A module is one unit of work (its module fixtures run once) unless it is listed in SPREAD: those
@@ -148,11 +124,11 @@ def _record_nominal(folder, seed):
 # (pytest-xdist issue 1386).
 
 #: modules whose tests are handed out one by one
-SPREAD = frozenset({'test_compare', 'test_fuzz_inputs'})
+SPREAD = frozenset({'test_compare', 'test_discovery', 'test_fuzz_inputs'})
 #: modules that share a unit of work with others (module -> unit)
 UNITS = {'test_live_graph': 'dds', 'test_run_signals': 'dds', 'test_star_hop_processes': 'dds'}
 #: units handed out first, in this order; every other unit follows in collection order
-FIRST = ('dds',)
+FIRST = ('dds', 'test_star_hop')
 
 
 def _unit_of(nodeid):

@@ -18,6 +18,8 @@ from sofia_ros.config import load_effect_config
 from sofia_ros.effects import resolve_params
 
 ROOT = Path(__file__).resolve().parents[1]
+#: A hidden-effect test records its campaign (or waits for the worker that records it) and compares it.
+pytestmark = pytest.mark.timeout(600)
 NOMINAL_MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
 #: A gyro box warming at 10 C/h: the swapped calibrations' temperature slope becomes visible (6.3).
 WARMING = {'temperature_slope_c_per_h': 10.0}

@@ -3,7 +3,7 @@
 DDS stays on this machine, in a domain of its own per test process: one no sofia run holds at the
 start (nodes.domain's lock files) and that no other test process on this machine has reserved (a
 lock of its own, held for the session). So an xdist worker never shares its domain with the other
-worker, nor a session with another engineer's tests or runs.
+worker, nor with a sofia run or another test session (with this conftest) on the machine.
 
 Campaign bags that several tests read are recorded once per session (:class:`CampaignBags`), also
 across xdist workers: the first process to ask records, the others wait for it and read the bag.

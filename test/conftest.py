@@ -1,34 +1,64 @@
-"""Test isolation: DDS stays on this machine, in a random domain of its own per session.
+"""Test isolation and shared campaign bags.
 
-The domain is one no sofia run holds at the start (nodes.domain's lock files), so a session
-does not collide with another engineer's tests or runs on the same machine.
+DDS stays on this machine, in a domain of its own per test process: one no sofia run holds at the
+start (nodes.domain's lock files) and that no other test process on this machine has reserved (a
+lock of its own, held for the session). So an xdist worker never shares its domain with the other
+worker, nor with a sofia run or another test session (with this conftest) on the machine.
+
+Campaign bags that several tests read are recorded once per session (:class:`CampaignBags`), also
+across xdist workers: the first process to ask records, the others wait for it and read the bag.
 """
 
+import fcntl
 import os
 import random
+import tempfile
+from pathlib import Path
 
-from sofia_ros.nodes.domain import claim_ros_domain, release_ros_domain
+from sofia_ros.errors import DomainBusyError
+from sofia_ros.nodes.domain import DOMAIN_IDS, claim_ros_domain, release_ros_domain
 
+
+def _reserve_test_domain(rng=random.SystemRandom()):
+    """A domain free of sofia runs, reserved for this process's session by a lock no run uses; its id."""
+    candidates = list(DOMAIN_IDS)
+    rng.shuffle(candidates)
+    for domain_id in candidates:
+        path = Path(tempfile.gettempdir()) / f'sofia_ros-test-domain-{domain_id}.lock'
+        try:
+            descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        except PermissionError:
+            continue
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            release_ros_domain(claim_ros_domain({'ROS_DOMAIN_ID': str(domain_id)}), {})
+        except (BlockingIOError, DomainBusyError):
+            os.close(descriptor)
+            continue
+        _RESERVATION.append(descriptor)  # held until the process exits
+        return domain_id
+    raise DomainBusyError(f'every ROS domain {DOMAIN_IDS.start}-{DOMAIN_IDS.stop - 1} is reserved by tests or runs')
+
+
+_RESERVATION = []
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-_probe = claim_ros_domain({}, rng=random.SystemRandom())
-release_ros_domain(_probe, {})
-os.environ['ROS_DOMAIN_ID'] = str(_probe.domain_id)
+os.environ['ROS_DOMAIN_ID'] = str(_reserve_test_domain())
 
 
 import pytest  # noqa: E402  (the DDS environment must be set before anything imports rclpy)
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 def record_reduced_alignment(bag_path, *, seed, effect=None, scenario=None):
     """A reduced alignment campaign (2 repetitions, 1 verification) in direct mode: nominal truth plus one effect."""
-    from pathlib import Path
-
     import yaml
 
     from sofia_ros.campaigns.alignment import run_alignment
     from sofia_ros.config import parse_effect_config
     from sofia_ros.sim.calibration import AlignmentPlan
 
-    document = yaml.safe_load((Path(__file__).resolve().parents[1] / 'config' / 'truth' / 'nominal.yaml').read_text())
+    document = yaml.safe_load((ROOT / 'config' / 'truth' / 'nominal.yaml').read_text())
     if effect:
         document['effects'][effect] = {}
     if scenario:
@@ -39,15 +69,90 @@ def record_reduced_alignment(bag_path, *, seed, effect=None, scenario=None):
     return bag_path
 
 
-@pytest.fixture(scope='session')
-def nominal_alignment_bags(tmp_path_factory):
-    """Untouched reduced alignment bags of the nominal truth, seeds 3-7, recorded once per session (two at a time)."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+class CampaignBags:
+    """Bags recorded once per session into one folder that every xdist worker of the session sees.
 
-    folder = tmp_path_factory.mktemp('nominal_alignment')
-    seeds = (3, 4, 5, 6, 7)
-    # Spawned, not forked: the test process may hold rclpy's threads.
-    with ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context('spawn')) as pool:
-        futures = {seed: pool.submit(record_reduced_alignment, folder / f'seed{seed}', seed=seed) for seed in seeds}
-        return {seed: future.result() for seed, future in futures.items()}
+    A bag is recorded under an exclusive lock of its own; a marker file says it is complete. A
+    recording that failed leaves no marker and no folder, so the next test that asks tries again
+    (and fails with the real error).
+    """
+
+    def __init__(self, folder):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def get(self, key, record):
+        """The bag ``key``; ``record(path)`` writes it there when no process of the session has yet."""
+        import shutil
+
+        bag = self.folder / key
+        done = self.folder / f'{key}.done'
+        with open(self.folder / f'{key}.lock', 'w') as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not done.exists():
+                shutil.rmtree(bag, ignore_errors=True)
+                record(bag)
+                done.touch()
+        return bag
+
+    def reduced_alignment(self, *, seed=3, effect=None, scenario=None):
+        """A bag of :func:`record_reduced_alignment`, once per session."""
+        key = '-'.join(['alignment', f'seed{seed}', effect or 'nominal',
+                        *(f'{name}={value}' for name, value in sorted((scenario or {}).items()))])
+        return self.get(key, lambda path: record_reduced_alignment(path, seed=seed, effect=effect, scenario=scenario))
+
+
+def _xdist_worker():
+    return os.environ.get('PYTEST_XDIST_WORKER')
+
+
+@pytest.fixture(scope='session')
+def campaign_bags(tmp_path_factory):
+    """The session's shared campaign bags (under xdist, the workers' base folders share a parent)."""
+    base = tmp_path_factory.getbasetemp()
+    return CampaignBags((base.parent if _xdist_worker() else base) / 'campaign_bags')
+
+
+# --- xdist (scripts/run-tests runs the suite with `-n 2 --dist loadscope --no-loadscope-reorder`) ------
+#
+# A module is one unit of work (its module fixtures run once) unless it is listed in SPREAD: those
+# modules' expensive bags come from the session's CampaignBags, so their tests go to whichever worker
+# is free. The DDS modules share one unit, so no two live graphs start at once. Units are handed out
+# in collection order, and the workers collect the units of FIRST first (the longest, as measured).
+# The units are this file's own scheduler's scopes (pytest_xdist_make_scheduler), not xdist_group
+# marks: loadgroup reads those from mutated node ids, which pytest 9.2 no longer allows
+# (pytest-xdist issue 1386).
+
+#: modules whose tests are handed out one by one
+SPREAD = frozenset({'test_compare', 'test_discovery', 'test_fuzz_inputs'})
+#: modules that share a unit of work with others (module -> unit)
+UNITS = {'test_live_graph': 'dds', 'test_run_signals': 'dds', 'test_star_hop_processes': 'dds'}
+#: units handed out first, in this order; every other unit follows in collection order
+FIRST = ('dds', 'test_star_hop')
+
+
+def _unit_of(nodeid):
+    """The unit of work of a test: its module's, the one it shares (UNITS), or its own (SPREAD)."""
+    module = nodeid.split('::', 1)[0].rsplit('/', 1)[-1].removesuffix('.py')
+    if module in SPREAD:
+        return nodeid
+    return UNITS.get(module, module)
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """With --dist loadscope, this file's units (else xdist's own scheduler)."""
+    if config.getoption('dist') != 'loadscope':
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class UnitScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid):
+            return _unit_of(nodeid)
+
+    return UnitScheduling(config, log)
+
+
+def pytest_collection_modifyitems(config, items):
+    if _xdist_worker():
+        rank = {unit: index for index, unit in enumerate(FIRST)}
+        items.sort(key=lambda item: rank.get(_unit_of(item.nodeid), len(rank)))  # stable otherwise

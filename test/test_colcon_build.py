@@ -2,7 +2,7 @@
 
 import importlib.metadata
 import json
-import random
+import os
 import re
 import select
 import shutil
@@ -73,7 +73,8 @@ def test_installed_sofia_executable_runs(colcon_install, tmp_path):
 
 def test_an_installed_node_starts_from_the_install_tree(colcon_install, tmp_path):
     env = isolated_env(tmp_path / 'isolation', _site_packages(colcon_install))
-    env.update(ROS_DOMAIN_ID=str(random.SystemRandom().randint(1, 101)), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    # This test process's reserved domain (conftest): no other worker's live graph can hear the plant.
+    env.update(ROS_DOMAIN_ID=os.environ['ROS_DOMAIN_ID'], ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     truth = colcon_install / 'share' / 'sofia_ros' / 'config' / 'truth' / 'nominal.yaml'
     node = subprocess.Popen(
         [str(colcon_install / 'lib' / 'sofia_ros' / 'plant'), '--ros-args', '-p', f'truth_file:={truth}'],

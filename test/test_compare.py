@@ -1,8 +1,9 @@
 """`sofia compare` on reduced alignment campaigns: hidden effects found, null test, degeneracy, bad input.
 
 Each campaign is the real Table 3.4 sequence in direct mode with 2 repetitions (instead of 6)
-and 1 verification; the truth is config/truth/nominal.yaml plus one effect at its thesis
-default, the model is config/model/nominal.yaml. Expected parameter values are those
+and 1 verification (conftest.record_reduced_alignment, recorded once per session and shared with
+the other modules that read the same bag); the truth is config/truth/nominal.yaml plus one effect
+at its thesis default, the model is config/model/nominal.yaml. Expected parameter values are those
 defaults (sofia_ros/effects: eq. 6.1, 3.3.1 footnote, Table 2.6, 6.2), checked within 3 sigma.
 """
 
@@ -10,19 +11,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
-from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.cli import main
 from sofia_ros.compare.run import compare_bag
-from sofia_ros.config import load_effect_config, parse_effect_config
+from sofia_ros.config import load_effect_config
 from sofia_ros.effects import resolve_params
-from sofia_ros.sim.calibration import AlignmentPlan
 
 ROOT = Path(__file__).resolve().parents[1]
-NOMINAL_TRUTH = ROOT / 'config' / 'truth' / 'nominal.yaml'
+#: A hidden-effect test records its campaign (or waits for the worker that records it) and compares it.
+pytestmark = pytest.mark.timeout(600)
 NOMINAL_MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
-PLAN = AlignmentPlan(repetitions=2, verification_repetitions=1)
 #: A gyro box warming at 10 C/h: the swapped calibrations' temperature slope becomes visible (6.3).
 WARMING = {'temperature_slope_c_per_h': 10.0}
 HIDDEN = {
@@ -37,34 +35,19 @@ HIDDEN = {
 }
 
 
-def _truth_with(effect=None, scenario=None):
-    document = yaml.safe_load(NOMINAL_TRUTH.read_text())
-    if effect:
-        document['effects'][effect] = {}
-    if scenario:
-        document['scenario'] = scenario
-    return parse_effect_config(yaml.safe_dump(document), f'nominal + {effect}')
-
-
-def _campaign(folder, effect=None, scenario=None, seed=3):
-    bag = folder / 'bag'
-    run_alignment(_truth_with(effect, scenario), seed=seed, bag_path=bag, plan=PLAN, mode='direct')
-    return bag
-
-
 @pytest.fixture(scope='module')
 def model():
     return load_effect_config(NOMINAL_MODEL)
 
 
 @pytest.fixture(scope='module')
-def null_bag(tmp_path_factory):
-    return _campaign(tmp_path_factory.mktemp('null'))
+def null_bag(campaign_bags):
+    return campaign_bags.reduced_alignment()
 
 
 @pytest.mark.parametrize('effect', sorted(HIDDEN))
-def test_hidden_effect_is_the_top_candidate_within_three_sigma_and_brings_the_floor(tmp_path, model, effect):
-    bag = _campaign(tmp_path, effect, HIDDEN[effect])
+def test_hidden_effect_is_the_top_candidate_within_three_sigma_and_brings_the_floor(campaign_bags, model, effect):
+    bag = campaign_bags.reduced_alignment(effect=effect, scenario=HIDDEN[effect])
     document = compare_bag(bag, model).document
     top = document['candidates'][0]
     assert top['effect'] == effect, [(c['effect'], round(c['delta_bic'], 1)) for c in document['candidates'][:3]]
@@ -92,16 +75,16 @@ def test_null_truth_equals_model_no_candidate_and_rms_at_the_floor(null_bag, mod
     assert document['verdict']['status'] == 'explained', document['verdict']['text']
 
 
-def test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scale_factor(tmp_path, model):
+def test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scale_factor(campaign_bags, model):
     # Without a temperature change the swap is +s on EL and -s on XEL: a scale-factor error (6.3).
-    bag = _campaign(tmp_path, 'gyro_axis_swap')
+    bag = campaign_bags.reduced_alignment(effect='gyro_axis_swap')
     document = compare_bag(bag, model).document
     assert ['gyro_axis_swap', 'gyro_scale_factor'] in document['degenerate']
     assert {c['effect'] for c in document['candidates'][:2]} == {'gyro_axis_swap', 'gyro_scale_factor'}
 
 
-def test_cli_loop_compare_add_compare_shows_the_error_falling(tmp_path, capsys):
-    bag = _campaign(tmp_path, 'fpi_internal_flexure')
+def test_cli_loop_compare_add_compare_shows_the_error_falling(campaign_bags, tmp_path, capsys):
+    bag = campaign_bags.reduced_alignment(effect='fpi_internal_flexure')  # the hidden-effect test's bag
     model_path = tmp_path / 'model.yaml'
     model_path.write_text(NOMINAL_MODEL.read_text())
     report = tmp_path / 'report'

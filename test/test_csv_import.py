@@ -3,22 +3,17 @@
 import pytest
 
 from sofia_ros.bag.csv_logs import export_csv_logs
-from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.cli import main
 from sofia_ros.compare.run import compare_bag
 from sofia_ros.config import load_effect_config
-from sofia_ros.sim.calibration import AlignmentPlan
 
 CANDIDATES = ['gyro_scale_factor', 'timestamp_offset', 'imager_rotation_of_field']
 
 
 @pytest.fixture(scope='module')
-def campaign(tmp_path_factory):
-    folder = tmp_path_factory.mktemp('campaign')
-    bag = folder / 'bag'
-    run_alignment(load_effect_config('config/truth/nominal.yaml'), seed=3, bag_path=bag,
-                  plan=AlignmentPlan(repetitions=2, verification_repetitions=1), mode='direct')
-    return bag
+def campaign(campaign_bags):
+    """The session's reduced nominal alignment bag, seed 3 (2 repetitions, 1 verification, direct mode)."""
+    return campaign_bags.reduced_alignment()
 
 
 @pytest.mark.timeout(600)

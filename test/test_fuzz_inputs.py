@@ -1,7 +1,7 @@
 """Generated bad inputs: configs, CLI numbers, damaged bags, missing topics (issue 13).
 
 Each one exits 2 with one line on stderr: never a traceback, never a half-written output.
-Run in-process through ``sofia_ros.cli.main``; the one bag is recorded once for the module.
+Run in-process through ``sofia_ros.cli.main``; the one bag is recorded once per session (conftest.CampaignBags).
 """
 
 import shutil
@@ -110,13 +110,15 @@ def test_a_bad_cli_number_is_one_line(args, value, tmp_path, capsys):
     assert not bag.exists()
 
 
-@pytest.fixture(scope='module')
-def bag(tmp_path_factory):
-    """A 40 s direct alignment run."""
-    path = tmp_path_factory.mktemp('fuzz') / 'bag'
+def _record_40_s(path):
     assert main(['run', 'alignment', '--direct', '--truth', TRUTH, '--bag', str(path), '--repetitions', '2',
                  '--verification-repetitions', '1', '--max-sim-s', '40']) == 0
-    return path
+
+
+@pytest.fixture(scope='module')
+def bag(campaign_bags):
+    """A 40 s direct alignment run, recorded once per session (the tests below read copies of it)."""
+    return campaign_bags.get('fuzz-alignment-40s', _record_40_s)
 
 
 def _copy(bag, folder):

@@ -166,14 +166,16 @@ def read_observations(bag_path):
             scenario = scenario_from_document(bag.document(SCENARIO_TOPIC))
             camera_topics = [f'/{camera}/centroids' for camera in cameras]
             optional = [topic for topic in (TASCU_TOPICS['motion_status'].name, _RESULT_TOPIC) if topic in names]
-            records = bag.messages_by_topic(IMU_TOPIC.name, *REQUIRED_TOPICS[1:-1], *optional, *camera_topics,
-                                            imu=(IMU_TOPIC.name,))
+            records = bag.messages_by_topic(IMU_TOPIC.name, TEMPERATURE_TOPIC.name, PLANT_TOPICS['joint_states'].name,
+                                            *optional, *camera_topics, imu=(IMU_TOPIC.name,))
+            # Only the TASCU's first attitude is used (a starting guess): not every tick's decoded.
+            first_attitude = next(bag.messages(TASCU_TOPICS['attitude'].name), None)
     except ConfigError as err:
         raise BagError(f'{bag_path}: {err}') from err
     rows = _centroid_rows([records[topic] for topic in camera_topics])
     gyro = _gyro_samples(records[IMU_TOPIC.name], records[TEMPERATURE_TOPIC.name])
     joint_s, joints = _series(records[PLANT_TOPICS['joint_states'].name], m.joint_positions_of)
-    attitude_s, quaternions = _series(records[TASCU_TOPICS['attitude'].name],
+    attitude_s, quaternions = _series(([first_attitude[1]], [first_attitude[2]]) if first_attitude else ([], []),
                                       lambda msg: m.quaternion_xyzw_of(msg.quaternion))
     motion_s, motion_codes = _motion_series(records.get(TASCU_TOPICS['motion_status'].name, ([], [])))
     if len(rows['hip']) == 0:

@@ -196,3 +196,42 @@ def test_tick_attitudes_are_the_sequential_product_of_the_tick_rotations():
     for rotation_vector in increments:
         expected.append(Rotation.from_rotvec(rotation_vector).as_matrix().T @ expected[-1])
     np.testing.assert_allclose(propagate_tick_attitudes(increments, start), np.array(expected), atol=1e-13)
+
+
+def test_right_jacobian_composes_a_small_change_of_a_rotation_vector():
+    # R(phi + v) = R(phi) R(J_r(phi) v) to first order, for large and for tiny rotations (series branch).
+    from scipy.spatial.transform import Rotation
+
+    from sofia_ros.compare.predict import right_jacobians
+
+    rng = np.random.default_rng(7)
+    rotvecs = np.vstack([rng.normal(0.0, 1.0, (20, 3)), rng.normal(0.0, 1e-6, (20, 3))])
+    change = rng.normal(0.0, 1e-7, (40, 3))
+    exact = (Rotation.from_rotvec(rotvecs).inv() * Rotation.from_rotvec(rotvecs + change)).as_rotvec()
+    np.testing.assert_allclose(np.einsum('nij,nj->ni', right_jacobians(rotvecs), change), exact, rtol=0, atol=1e-13)
+
+
+def test_linearized_gyro_columns_match_the_propagated_attitude(null_bag, model):
+    # The attitude change a gyro parameter step makes, linearized over the ticks, against propagating again.
+    from scipy.spatial.transform import Rotation
+
+    from sofia_ros.compare.observations import read_observations
+    from sofia_ros.compare.predict import Predictor
+
+    effects = {name: dict(params) for name, params in model.effects.items()}
+    predictor = Predictor(read_observations(null_bag))
+    predictor.align_initial_attitude(effects)
+    times = predictor.row_times_s(effects)
+    steps = [('gyro_bias', 'el_deg_per_h', 1e-3), ('gyro_misalignment', 'about_los_arcsec', 1.0),
+             ('gyro_misalignment', 'about_xel_arcsec', 1.0)]
+    changed = []
+    for effect, param, step in steps:
+        changed.append({name: dict(params) for name, params in effects.items()})
+        changed[-1][effect][param] += step
+    linearized = predictor.attitude_changes_irf(effects, changed, times)
+    base = predictor.attitudes(effects, times)
+    for other, change in zip(changed, linearized):
+        moved = predictor.attitudes(other, times)
+        exact = Rotation.from_matrix(np.swapaxes(moved, 1, 2) @ base).as_rotvec()
+        assert np.max(np.abs(exact)) > 1e-7
+        np.testing.assert_allclose(change, exact, rtol=0, atol=1e-5 * np.max(np.abs(exact)))

@@ -21,7 +21,8 @@ from sofia_ros.errors import InvalidArgumentError
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['ImuArrays', 'decode_imu_cdr', 'decode_imu_blocks', 'decode_imu_rows', 'with_angular_velocity']
+__all__ = ['ImuArrays', 'decode_imu_cdr', 'decode_imu_blocks', 'decode_imu_rows', 'merge_imu_blocks',
+           'with_angular_velocity']
 
 _ENCAPSULATION_CDR_LE = (0, 1)
 _DOUBLES_BYTES = 37 * 8
@@ -64,12 +65,19 @@ def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArr
 
 def decode_imu_blocks(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> ImuArrays:
     """Decode (log stamps ns, 2-D uint8 rows of equal-length Imu CDR) blocks into ImuArrays in log-time order."""
-    decoded = [(stamps, *decode_imu_rows(rows)) for stamps, rows in blocks if len(stamps)]
+    return merge_imu_blocks([(stamps, decode_imu_rows(rows)) for stamps, rows in blocks])
+
+
+def merge_imu_blocks(blocks: Sequence[tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]]) -> ImuArrays:
+    """ImuArrays in log-time order from (log stamps ns, decode_imu_rows of the block's rows) blocks."""
+    decoded = [(stamps, *columns) for stamps, columns in blocks if len(stamps)]
     if not decoded:
         empty = np.empty((0, 3))
         return ImuArrays(np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), empty, empty.copy())
     stamps, header_stamps, angular, linear = (np.concatenate(column) for column in zip(*decoded))
     order = np.argsort(stamps, kind='stable')
+    if np.all(order[1:] > order[:-1]):  # already in time order (one chunk after another): no copies
+        return ImuArrays(stamps, header_stamps, angular, linear)
     return ImuArrays(
         stamp_ns=stamps[order],
         header_stamp_ns=header_stamps[order],

@@ -44,11 +44,13 @@ _FOOTER = struct.Struct('<BQQQI')
 _MAGIC = b'\x89MCAP0\r\n'
 
 
-def indexed_records(mcap_path, topics, packed=()):
+def indexed_records(mcap_path, topics, packed=(), decode_block=None):
     """topic -> (log times ns, CDR payloads) in log-time order, read through the message indexes; None without them.
 
     Topics in ``packed`` come back as a list of (log times ns, 2-D uint8 array of equal-length
-    payloads) blocks instead, for bulk decoding without a Python object per message.
+    payloads) blocks instead, for bulk decoding without a Python object per message; with
+    ``decode_block`` each block comes back as (log times ns, decode_block(rows)), decoded as it is
+    cut, so that only one chunk's payloads are alive at a time (a star hop's gyro payloads are 0.8 GB).
     """
     with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
         summary = make_reader(file).get_summary()
@@ -67,11 +69,13 @@ def indexed_records(mcap_path, topics, packed=()):
                 topic = channel_topic[channel]
                 log_ns, starts, ends = _channel_messages(data, chunk.message_index_offsets[channel], channel, records)
                 if topic in blocks:
-                    blocks[topic].extend(_equal_length_blocks(records, log_ns, starts, ends))
+                    cut = _equal_length_blocks(records, log_ns, starts, ends)
+                    blocks[topic].extend(cut if decode_block is None
+                                         else ((stamps, decode_block(rows)) for stamps, rows in cut))
                 else:
                     found[topic][0].append(log_ns)
-                    view = memoryview(records)
-                    found[topic][1].extend(view[start:end] for start, end in zip(starts.tolist(), ends.tolist()))
+                    # Copies, not views: a view would keep the whole decompressed chunk alive.
+                    found[topic][1].extend(records[start:end] for start, end in zip(starts.tolist(), ends.tolist()))
     return {**{topic: _in_time_order(stamps, payloads) for topic, (stamps, payloads) in found.items()}, **blocks}
 
 

@@ -14,7 +14,7 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import ReaderError
 
-from sofia_ros.bag.imu import ImuArrays, decode_imu_blocks, decode_imu_cdr
+from sofia_ros.bag.imu import ImuArrays, decode_imu_cdr, decode_imu_rows, merge_imu_blocks
 from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, check_summary_crc, first_damaged_chunk, indexed_records
 from sofia_ros.bag.msgtypes import (
     DOCUMENT_MSGTYPE,
@@ -205,8 +205,7 @@ class BagReader:
             try:
                 if topic in imu:
                     records = collected[topic]
-                    arrays = (decode_imu_blocks(records) if isinstance(records, list)
-                              else decode_imu_cdr(*records))
+                    arrays = merge_imu_blocks(records) if isinstance(records, list) else decode_imu_cdr(*records)
                     collected[topic] = ImuArrays(arrays.stamp_ns - self.origin_ns,
                                                  arrays.header_stamp_ns - self.origin_ns,
                                                  arrays.angular_velocity_rad_per_s,
@@ -263,7 +262,9 @@ class BagReader:
         if len(files) != 1:
             return None
         try:
-            return indexed_records(files[0], topics, packed)
+            return indexed_records(files[0], topics, packed, decode_block=decode_imu_rows)
+        except InvalidArgumentError as err:  # payloads that are not Imu CDR, found while decoding them
+            raise BagError(f'topic {", ".join(packed)} in bag {self.path}: {err}') from err
         except INDEX_DAMAGE_ERRORS as err:
             raise _damaged(self.path, err) from err
 

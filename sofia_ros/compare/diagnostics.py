@@ -159,7 +159,8 @@ def _prior_freedom(fit, tarf_from_irf):
     weighted = scipy.sparse.diags(root) @ jacobian
     inverse = _normal_inverse((weighted.T @ weighted).toarray())
     prior = weighted[data_rows:].toarray().reshape(-1, 3, jacobian.shape[1])
-    hat_blocks = np.einsum('kip,pq,kjq->kij', prior, inverse, prior)
+    # (prior inverse) first, through BLAS: a three-operand einsum loops over k, i, j, p, q in one C loop.
+    hat_blocks = np.einsum('kiq,kjq->kij', (prior.reshape(-1, prior.shape[2]) @ inverse).reshape(prior.shape), prior)
     residual_blocks = np.eye(3) - hat_blocks
     rotated = np.einsum('kia,kab,kjb->kij', tarf_from_irf, residual_blocks, tarf_from_irf)
     return np.clip(np.diagonal(rotated, axis1=1, axis2=2), 0.0, 1.0)

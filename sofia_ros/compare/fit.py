@@ -127,17 +127,16 @@ class WhitenedProblem:
         """A change of predicted pixels in units of each camera's noise, flattened like the residuals."""
         return (delta_px * self.arcsec_per_px / self.row_sigma).ravel()
 
-    def anchor_columns(self, effects, anchors, predicted):
-        """Sparse d prediction / d anchor knot rotations: the derivative against an IRF rotation, times the
-        hat-function weights of the two knots around each row (six non-zeros per residual)."""
+    def irf_derivative(self, effects, anchors, predicted):
+        """Whitened d prediction / d IRF rotation (N, 2, 3), forward differences (units of noise per rad)."""
+        derivative = self.predictor.irf_derivative_px(effects, anchors, predicted, _IRF_STEP_RAD)
+        return derivative * (self.arcsec_per_px / self.row_sigma)[:, :, None]
+
+    def anchor_columns(self, effects, derivative):
+        """Sparse d prediction / d anchor knot rotations: the derivative against an IRF rotation (irf_derivative),
+        times the hat-function weights of the two knots around each row (six non-zeros per residual)."""
         times = self.predictor.row_times_s(effects)
         index, fraction = self.predictor.anchor_weights(times)
-        derivative = np.empty((len(times), 2, 3))
-        for axis in range(3):
-            rotation = np.zeros(3)
-            rotation[axis] = _IRF_STEP_RAD
-            moved = self.predictor.predict_px(effects, anchors, irf_rotation_rad=rotation)
-            derivative[:, :, axis] = (moved - predicted) / _IRF_STEP_RAD * self.arcsec_per_px / self.row_sigma
         weights = np.stack([1.0 - fraction, fraction], axis=1)  # (N, 2 knots)
         data = (derivative[:, :, None, :] * weights[:, None, :, None]).reshape(2 * len(times), 6)
         knot_columns = 3 * np.stack([index, index + 1], axis=1)[:, :, None] + np.arange(3)  # (N, 2 knots, 3)
@@ -145,14 +144,32 @@ class WhitenedProblem:
         return scipy.sparse.csr_matrix((data.ravel(), columns.ravel(), np.arange(0, data.size + 1, 6)),
                                        shape=(2 * len(times), 3 * self.predictor.anchor_count))
 
-    def parameter_columns(self, effects, free, values, anchors, predicted):
-        """Forward-difference columns d prediction / d free parameter at values, whitened (units of noise per unit)."""
+    def parameter_columns(self, effects, free, values, anchors, predicted, derivative):
+        """Forward-difference columns d prediction / d free parameter at values, whitened (units of noise per unit).
+
+        A parameter that moves only the gyro attitude (rows, stars and cameras as they were) gets its
+        column from the attitude change the step makes, linearized over the ticks
+        (Predictor.attitude_changes_irf), through ``derivative`` (irf_derivative): the gyro track is
+        not propagated again for each step.
+        """
         columns = np.empty((predicted.size, len(free)))
+        projection = self.predictor.projection_key(effects)
+        stepped_effects, attitude_only = [], []
         for index, parameter in enumerate(free):
             stepped = values.copy()
             stepped[index] += parameter.step
-            moved = self.predictor.predict_px(_with_values(effects, free, stepped), anchors)
-            columns[:, index] = self.scaled(moved - predicted) / parameter.step
+            stepped_effects.append(_with_values(effects, free, stepped))
+            attitude_only.append(self.predictor.projection_key(stepped_effects[-1]) == projection)
+        changes = self.predictor.attitude_changes_irf(
+            effects, [moved for moved, only in zip(stepped_effects, attitude_only) if only],
+            self.predictor.row_times_s(effects))
+        changes = iter(changes)
+        for index, (parameter, moved_effects, only) in enumerate(zip(free, stepped_effects, attitude_only)):
+            if only:
+                columns[:, index] = np.einsum('nai,ni->na', derivative, next(changes)).ravel() / parameter.step
+            else:
+                moved = self.predictor.predict_px(moved_effects, anchors)
+                columns[:, index] = self.scaled(moved - predicted) / parameter.step
         return columns
 
 
@@ -178,10 +195,10 @@ def _robust_cost(whitened):
     return float(np.sum(np.where(magnitude <= HUBER_K, 0.5 * magnitude**2, HUBER_K * magnitude - 0.5 * HUBER_K**2)))
 
 
-def _try_whitened(problem, effects, free, values, anchors):
-    """Whitened residuals at a trial point, or None where the model sends a star off a detector."""
+def _try_predicted(problem, effects, free, values, anchors):
+    """Predicted pixels at a trial point, or None where the model sends a star off a detector."""
     try:
-        return problem.whiten(problem.predictor.predict_px(_with_values(effects, free, values), anchors))
+        return problem.predictor.predict_px(_with_values(effects, free, values), anchors)
     except InvalidArgumentError:
         return None
 
@@ -201,15 +218,15 @@ def fit_model(predictor, effects, free, sigma_arcsec, walk_sigma_rad, *, anchors
         prior = problem.prior @ trial_anchors.ravel()
         return _robust_cost(whitened_rows) + 0.5 * float(prior @ prior)
 
-    whitened = _try_whitened(problem, effects, free, values, anchors)
-    if whitened is None:
+    predicted = _try_predicted(problem, effects, free, values, anchors)
+    if predicted is None:
         raise FitError('the model\'s starting values put stars off their detectors; give closer values')
+    whitened = problem.whiten(predicted)
     for iteration in range(1, _MAX_ITERATIONS + 1):
         current = _with_values(effects, free, values)
-        predicted = predictor.predict_px(current, anchors)
-        jacobian = scipy.sparse.hstack([problem.anchor_columns(current, anchors, predicted),
-                                        problem.parameter_columns(current, free, values, anchors, predicted)],
-                                       format='csr')
+        derivative = problem.irf_derivative(current, anchors, predicted)
+        columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
+        jacobian = scipy.sparse.hstack([problem.anchor_columns(current, derivative), columns], format='csr')
         residual, system = problem.augmented(whitened, jacobian, anchors)
         root = np.concatenate([np.sqrt(_huber_weights(whitened)), np.ones(len(residual) - len(whitened))])
         step = linear_fit(root * residual, scipy.sparse.diags(root) @ system, [''] * system.shape[1])
@@ -217,14 +234,16 @@ def fit_model(predictor, effects, free, sigma_arcsec, walk_sigma_rad, *, anchors
         parameter_step = step.step[anchors.size:]
         current_cost, scale = cost(whitened, anchors), 1.0
         for _ in range(8):
-            trial = _try_whitened(problem, effects, free, values + scale * parameter_step,
-                                  anchors + scale * anchor_step)
-            if trial is not None and cost(trial, anchors + scale * anchor_step) <= current_cost * (1.0 + 1e-12):
+            trial = _try_predicted(problem, effects, free, values + scale * parameter_step,
+                                   anchors + scale * anchor_step)
+            if trial is not None and cost(problem.whiten(trial), anchors + scale * anchor_step) <= current_cost * (
+                    1.0 + 1e-12):
                 break
             scale /= 2.0
         else:
             break
-        anchors, values, whitened = anchors + scale * anchor_step, values + scale * parameter_step, trial
+        anchors, values, predicted = anchors + scale * anchor_step, values + scale * parameter_step, trial
+        whitened = problem.whiten(predicted)
         sigma = step.sigma[anchors.size:]
         small = np.all(np.abs(parameter_step) <= 1e-2 * np.where(np.isfinite(sigma), sigma, np.inf))
         if small and np.max(np.abs(anchor_step), initial=0.0) < 1e-8:

@@ -173,14 +173,16 @@ def read_observations(bag_path):
             scenario = scenario_from_document(bag.document(SCENARIO_DOCUMENT.name))
             camera_topics = [CENTROIDS[camera].name for camera in cameras]
             optional = [topic for topic in (MOTION_STATUS.name, CALIBRATION_RESULT.name) if topic in names]
-            records = bag.messages_by_topic(GYRO_IMU.name, *REQUIRED_TOPICS[1:-1], *optional, *camera_topics,
-                                            imu=(GYRO_IMU.name,))
+            records = bag.messages_by_topic(GYRO_IMU.name, GYRO_TEMPERATURE.name, JOINT_STATES.name,
+                                            *optional, *camera_topics, imu=(GYRO_IMU.name,))
+            # Only the TASCU's first attitude is used (a starting guess): not every tick's decoded.
+            first_attitude = next(bag.messages(TASCU_ATTITUDE.name), None)
     except ConfigError as err:
         raise BagError(f'{bag_path}: {err}') from err
     rows = _centroid_rows([records[topic] for topic in camera_topics])
     gyro = _gyro_samples(records[GYRO_IMU.name], records[GYRO_TEMPERATURE.name])
     joint_s, joints = _series(records[JOINT_STATES.name], m.joint_positions_of)
-    attitude_s, quaternions = _series(records[TASCU_ATTITUDE.name],
+    attitude_s, quaternions = _series(([first_attitude[1]], [first_attitude[2]]) if first_attitude else ([], []),
                                       lambda msg: m.quaternion_xyzw_of(msg.quaternion))
     motion_s, motion_codes = _motion_series(records.get(MOTION_STATUS.name, ([], [])))
     if len(rows['hip']) == 0:

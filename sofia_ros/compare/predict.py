@@ -18,6 +18,7 @@ The prediction reuses the truth simulator's own physics with the model's paramet
 from __future__ import annotations
 
 import dataclasses
+from collections import OrderedDict
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -47,6 +48,9 @@ __all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means'
 
 #: Star places are evaluated on this grid and interpolated; unrefracted places move < 0.003" per minute in IRF.
 _PLACE_EPOCH_S = 300.0
+#: Cached gyro tracks, star places and camera models, least recently used dropped first (a star hop's
+#: gyro track is 2.5 MB; a fit steps through a few new ones per iteration).
+_CACHE_ENTRIES = 32
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -68,13 +72,39 @@ def propagate_tick_attitudes(increments_rad, initial_dcm):
     return np.concatenate([np.asarray(initial_dcm)[None], prefix @ initial_dcm])
 
 
-def attitudes_at(times_s, tick_end_s, tick_attitudes, increments_rad):
-    """Attitudes at times inside the ticks: the tick's constant rate applied for the elapsed fraction."""
+def _tick_fractions(times_s, tick_end_s):
+    """The tick each time falls in (index of its end) and the elapsed fraction of that tick."""
     index = np.clip(np.searchsorted(tick_end_s, times_s, side='left'), 1, len(tick_end_s) - 1)
     start_s, end_s = tick_end_s[index - 1], tick_end_s[index]
-    fraction = (times_s - start_s) / (end_s - start_s)
+    return index, (times_s - start_s) / (end_s - start_s)
+
+
+def attitudes_at(times_s, tick_end_s, tick_attitudes, increments_rad):
+    """Attitudes at times inside the ticks: the tick's constant rate applied for the elapsed fraction."""
+    index, fraction = _tick_fractions(times_s, tick_end_s)
     partial = _dcms_from_rotvecs(increments_rad[index - 1] * fraction[:, None])
     return partial @ tick_attitudes[index - 1]
+
+
+def right_jacobians(rotvecs):
+    """J_r(phi) (N, 3, 3) of rows of rotation vectors: R(phi + v) = R(phi) R(J_r(phi) v) to first order (SO(3))."""
+    angle = np.linalg.norm(rotvecs, axis=1)[:, None, None]
+    small = angle < 1e-4
+    safe = np.where(small, 1.0, angle)
+    # (1 - cos a) / a^2 and (a - sin a) / a^3, by their series where a is small.
+    first = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    second = np.where(small, 1.0 / 6.0 - angle**2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    cross = np.zeros((len(rotvecs), 3, 3))
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -rotvecs[:, 2], rotvecs[:, 1], -rotvecs[:, 0]
+    cross -= np.swapaxes(cross, 1, 2)
+    return np.eye(3) - first * cross + second * (cross @ cross)
+
+
+def _contiguous(indices):
+    """A slice for sorted, gap-free row indices (views instead of copies), else the indices."""
+    if len(indices) and indices[-1] - indices[0] + 1 == len(indices):
+        return slice(int(indices[0]), int(indices[-1]) + 1)
+    return indices
 
 
 class Predictor:
@@ -91,7 +121,9 @@ class Predictor:
         self._first_tick = int(np.searchsorted(gyro.tick_end_s, observations.initial_time_s, side='left'))
         self._tick_end_s = gyro.tick_end_s[self._first_tick:]
         self._directions_irf = self._catalogue_directions()
-        self._cache = {}
+        self._camera_rows = [_contiguous(np.flatnonzero(centroids.camera_index == index))
+                             for index in range(len(centroids.cameras))]
+        self._cache = OrderedDict()
         self.initial_dcm = observations.initial_tarf_from_irf
 
     @property
@@ -121,14 +153,21 @@ class Predictor:
         return np.stack([star_directions_irf(stars, self.scene, epoch * _PLACE_EPOCH_S) for epoch in epochs])
 
     def _cached(self, key, compute):
-        if key not in self._cache:
-            if len(self._cache) > 256:
-                self._cache.clear()
+        if key in self._cache:
+            self._cache.move_to_end(key)
+        else:
             self._cache[key] = compute()
+            if len(self._cache) > _CACHE_ENTRIES:
+                self._cache.popitem(last=False)
         return self._cache[key]
 
     def _tick_track(self, gyro_effects):
-        """Tick-end attitudes and per-tick increments of the gyro data under the model's gyro errors.
+        """Tick-end attitudes and per-tick increments of the gyro data under the model's gyro errors."""
+        increments = self._tick_increments(gyro_effects)
+        return propagate_tick_attitudes(increments, self.initial_dcm), increments
+
+    def _tick_increments(self, gyro_effects):
+        """Per-tick TARF rotation vectors of the gyro data under the model's gyro errors (K, 3).
 
         The plant holds its rate over a tick and the error model is linear in the rate, so the
         tick means of the samples give the exact tick increments; only vibration lines, fast
@@ -144,14 +183,50 @@ class Predictor:
             means = means - tick_means(per_sample, gyro.tick_start_index)
         force_tarf = gyro.tick_mean_specific_force_m_per_s2 @ errors.tarf_from_gyrf.T
         rates = true_rates_tarf_rad_per_s(errors, means, gyro.tick_mean_time_s, gyro.tick_temperature_c, force_tarf)
-        increments = (rates * (gyro.tick_sample_count * gyro.sample_period_s)[:, None])[self._first_tick + 1:]
-        return propagate_tick_attitudes(increments, self.initial_dcm), increments
+        return (rates * (gyro.tick_sample_count * gyro.sample_period_s)[:, None])[self._first_tick + 1:]
+
+    @staticmethod
+    def _gyro_effects(effects):
+        return {name: effects[name] for name in gyro_effect_names(effects) if name in effects}
+
+    def _gyro_track(self, effects):
+        gyro_effects = self._gyro_effects(effects)
+        return self._cached(('gyro', repr(gyro_effects)), lambda: self._tick_track(gyro_effects))
 
     def attitudes(self, effects, times_s):
         """A_TARF,IRF the model believes at times (gyro propagation only, no anchors)."""
-        gyro_effects = {name: effects[name] for name in gyro_effect_names(effects) if name in effects}
-        tick_attitudes, increments = self._cached(('gyro', repr(gyro_effects)), lambda: self._tick_track(gyro_effects))
+        tick_attitudes, increments = self._gyro_track(effects)
         return attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)
+
+    def attitude_changes_irf(self, effects, changed, times_s):
+        """The small IRF rotations c (P, N, 3), A_changed(t) = A(t) R(c)^T, that each of the P effect sets ``changed``
+        makes of the attitudes at times through its gyro errors.
+
+        The propagation (3.20, B.23) to first order in the change of the tick increments d phi_k:
+        c(t) = sum over ticks of A_k^T J_r(phi_k) d phi_k (J_r the right Jacobian of SO(3)), the tick
+        of t counted for its elapsed fraction: a column per gyro parameter without propagating the
+        gyro track again.
+        """
+        tick_attitudes, increments = self._gyro_track(effects)
+        index, fraction = _tick_fractions(times_s, self._tick_end_s)
+        attitude = attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)
+        # A body rotation b after tick k is the IRF rotation A_k+1^T b from then on: per tick A_k+1^T J_r(phi_k),
+        # per row A(t)^T J_r(f phi) f for the elapsed fraction f of its tick.
+        per_tick_map = np.swapaxes(tick_attitudes[1:], 1, 2) @ right_jacobians(increments)
+        per_row_map = (np.swapaxes(attitude, 1, 2) @ right_jacobians(increments[index - 1] * fraction[:, None])
+                       * fraction[:, None, None])
+        changes = np.empty((len(changed), len(times_s), 3))
+        for number, other in enumerate(changed):
+            delta = self._tick_increments(self._gyro_effects(other)) - increments
+            per_tick = np.einsum('kij,kj->ki', per_tick_map, delta)
+            cumulative = np.concatenate([np.zeros((1, 3)), np.cumsum(per_tick, axis=0)])
+            changes[number] = cumulative[index - 1] + np.einsum('nij,nj->ni', per_row_map, delta[index - 1])
+        return changes
+
+    def projection_key(self, effects):
+        """What a prediction depends on besides the gyro attitude: row times, star places, camera models."""
+        return (repr(effects.get('timestamp_offset')), self._star_key(effects),
+                tuple(self._mount_key(effects, index)[0] for index in range(len(self.observations.centroids.cameras))))
 
     def _star_directions(self, effects, times_s):
         """Model IRF directions of each row's star at times: refraction and Earth rate as the model has them."""
@@ -228,15 +303,19 @@ class Predictor:
         return CameraContext(centroids.cameras[camera_index], times_s[rows], centroids.elevation_deg[rows],
                              centroids.temperature_c[rows], force_tarf, centroids.fd_los_deg[rows])
 
+    def _mount_key(self, effects, index):
+        """The cache key of one camera's model under effects, and its errors."""
+        errors = camera_errors(self.observations.centroids.cameras[index], effects)
+        hooked = bool(errors.plugins or errors.shift_plugins)
+        # A hook's context depends on the row times (HIPO clock offset) and the misalignment (forces in TARF).
+        return ('mount', self.observations.centroids.cameras[index], repr(errors),
+                repr((effects.get('timestamp_offset'), effects.get('gyro_misalignment'))) if hooked else None), errors
+
     def _camera_model(self, effects, index, times_s):
         """A_CAM,TARF of one camera's rows and its errors; hooks see the rows' context (cached per effect set)."""
         centroids = self.observations.centroids
-        camera = centroids.cameras[index]
-        errors = camera_errors(camera, effects)
-        hooked = bool(errors.plugins or errors.shift_plugins)
-        # A hook's context depends on the row times (HIPO clock offset) and the misalignment (forces in TARF).
-        key = ('mount', camera, repr(errors),
-               repr((effects.get('timestamp_offset'), effects.get('gyro_misalignment'))) if hooked else None)
+        key, errors = self._mount_key(effects, index)
+        hooked = key[3] is not None
 
         def compute():
             rows = centroids.camera_index == index
@@ -246,32 +325,58 @@ class Predictor:
         mounting, context = self._cached(key, compute)
         return errors, mounting, context
 
-    def predict_px(self, effects, anchors_rad=None, irf_rotation_rad=None):
-        """Predicted centroids (N, 2) px; anchors (knots, 3) rad; an extra IRF rotation for derivatives."""
-        centroids = self.observations.centroids
-        times = self.row_times_s(effects)
-        attitude = self.attitudes(effects, times)
-        correction = np.zeros((len(times), 3))
-        if anchors_rad is not None:
-            correction += self.anchor_rotations_rad(anchors_rad, times)
-        if irf_rotation_rad is not None:
-            correction += np.asarray(irf_rotation_rad)
-        if np.any(correction):
-            attitude = attitude @ _dcms_from_rotvecs(correction)
+    @staticmethod
+    def _star_key(effects):
         # The directions depend on the sky effects and the row times (the HIPO clock offset) only.
-        key = ('stars', repr(effects.get('atmospheric_refraction')), repr(effects.get('earth_rotation')),
-               repr(effects.get('timestamp_offset')))
-        directions = self._cached(key, lambda: self._star_directions(effects, times))
-        in_tarf = np.einsum('nij,nj->ni', attitude, directions)
+        return ('stars', repr(effects.get('atmospheric_refraction')), repr(effects.get('earth_rotation')),
+                repr(effects.get('timestamp_offset')))
+
+    def _directions(self, effects, times):
+        return self._cached(self._star_key(effects), lambda: self._star_directions(effects, times))
+
+    def _anchor_correction(self, anchors_rad, times):
+        if anchors_rad is None:
+            return np.zeros((len(times), 3))
+        return self.anchor_rotations_rad(anchors_rad, times)
+
+    def _project_px(self, effects, in_tarf, times):
+        """Pixels (N, 2) of TARF star directions through each camera's model."""
+        centroids = self.observations.centroids
         predicted = np.empty((len(times), 2))
-        for index in range(len(centroids.cameras)):
-            rows = centroids.camera_index == index
+        for index, rows in enumerate(self._camera_rows):
             errors, mounting, context = self._camera_model(effects, index, times)
             in_camera = np.einsum('nij,nj->ni', mounting, in_tarf[rows])
             predicted[rows] = vector_to_pixel(in_camera, errors.detector)
             if errors.shift_plugins:
                 predicted[rows] = shifted_centroids_px(errors, predicted[rows], context, centroids.hip[rows])
         return predicted
+
+    def predict_px(self, effects, anchors_rad=None, irf_rotation_rad=None):
+        """Predicted centroids (N, 2) px; anchors (knots, 3) rad; an extra IRF rotation for derivatives."""
+        times = self.row_times_s(effects)
+        correction = self._anchor_correction(anchors_rad, times)
+        if irf_rotation_rad is not None:
+            correction += np.asarray(irf_rotation_rad)
+        directions = self._directions(effects, times)
+        if np.any(correction):
+            directions = np.einsum('nij,nj->ni', _dcms_from_rotvecs(correction), directions)
+        return self._project_px(effects, np.einsum('nij,nj->ni', self.attitudes(effects, times), directions), times)
+
+    def irf_derivative_px(self, effects, anchors_rad, predicted_px, step_rad):
+        """Forward differences d predicted px / d IRF rotation (N, 2, 3), as predict_px with irf_rotation_rad
+        step_rad along each axis would give, sharing the attitudes, star places and camera models."""
+        times = self.row_times_s(effects)
+        correction = self._anchor_correction(anchors_rad, times)
+        attitude = self.attitudes(effects, times)
+        directions = self._directions(effects, times)
+        derivative = np.empty((len(times), 2, 3))
+        for axis in range(3):
+            moved = correction.copy()
+            moved[:, axis] += step_rad
+            in_tarf = np.einsum('nij,nj->ni', attitude,
+                                np.einsum('nij,nj->ni', _dcms_from_rotvecs(moved), directions))
+            derivative[:, :, axis] = (self._project_px(effects, in_tarf, times) - predicted_px) / step_rad
+        return derivative
 
 
 def tick_means(per_sample, tick_start_index):

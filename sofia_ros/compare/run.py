@@ -79,6 +79,8 @@ def _linearized_candidates(predictor, fit, noise_arcsec, walk_sigma_rad, names):
     """CandidateTerms linearized where each effect vanishes: scaling parameters 0, shaping ones at default."""
     problem = WhitenedProblem(predictor, noise_arcsec, walk_sigma_rad)
     base = predictor.predict_px(fit.effects, fit.anchors_rad)
+    # Shared by every candidate: the attitude derivative at the fit (each term starts where it vanishes).
+    derivative = problem.irf_derivative(fit.effects, fit.anchors_rad, base)
     terms = []
     for name in names:
         free = free_parameters([name])
@@ -88,7 +90,7 @@ def _linearized_candidates(predictor, fit, noise_arcsec, walk_sigma_rad, names):
         start = np.array([spec.parameter(p.name).default if spec.parameter(p.name).shape else 0.0 for p in free])
         switched = {**fit.effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
         at_start = predictor.predict_px(switched, fit.anchors_rad)
-        columns = problem.parameter_columns(switched, free, start, fit.anchors_rad, at_start)
+        columns = problem.parameter_columns(switched, free, start, fit.anchors_rad, at_start, derivative)
         shift = problem.scaled(at_start - base)
         # The anchors' prior rows do not depend on any effect: zeros there.
         prior_rows = len(fit.prior_residual)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from sofia_ros.atlas.stats import (CONFIDENCE, TABLE_6_5, confusions, detectable_sizes, detection_curves,
                                    fit_calibration, table_6_5_slice, thesis_sigmas_arcsec)
-from sofia_ros.compare.report import _table as html_table
+from sofia_ros.compare.report import html_table
 
 __all__ = ['AtlasSummary', 'summarize', 'text_table', 'write_html']
 

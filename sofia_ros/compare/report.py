@@ -26,7 +26,7 @@ from sofia_ros.compare.diagnostics import FRAME_VARIABLES, distinct_findings, ro
 from sofia_ros.compare.star_hop import hold_rows  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
 
-__all__ = ['write_report']
+__all__ = ['html_table', 'write_report']
 
 _LEDGER = 'ledger.json'
 _GRID = 8
@@ -253,7 +253,8 @@ def _signature_plot(result, document, path):
     plt.close(figure)
 
 
-def _table(headers, rows):
+def html_table(headers, rows):
+    """An HTML table of ``rows`` under ``headers``, every cell escaped."""
     head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in headers)
     body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>' for row in rows)
     return f'<table><tr>{head}</tr>{body}</table>'
@@ -297,22 +298,22 @@ Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {docume
 {document["outliers"]} outliers flagged.</p>
 <h2>Verdict: {html.escape(verdict["status"])}</h2><p>{html.escape(verdict["text"])}</p>
 <h2>Every observable against its own floor</h2>
-{_table(["observable", "kind", "RMS [arcsec]", "floor [arcsec]", "ratio", "explained", "structure"], observable_rows)}
+{html_table(["observable", "kind", "RMS [arcsec]", "floor [arcsec]", "ratio", "explained", "structure"], observable_rows)}
 <h2>Structure in the residual</h2><p>Family-wise significance over {document["signature"]["tests_run"]} tests
 (structure from {document["signature"]["detection_sigma"]:g} sigma; listed from 3).</p>
-{_table(["observable", "variable or period", "same as (here)", "amplitude [arcsec]", "sigma"], finding_rows)}
+{html_table(["observable", "variable or period", "same as (here)", "amplitude [arcsec]", "sigma"], finding_rows)}
 {'<img src="signature.png" alt="strongest findings">' if finding_rows else ''}
 <h2>Fitted terms that change between halves of the data</h2>
-{_table(["term", "split", "one half", "other half", "sigma"], consistency_rows) if consistency_rows else '<p>none</p>'}
+{html_table(["term", "split", "one half", "other half", "sigma"], consistency_rows) if consistency_rows else '<p>none</p>'}
 <h2>Where the model fails</h2><img src="residuals.png" alt="residuals against variables">
 <img src="vectors.png" alt="residual vectors in the detector planes">
 {'<h2>Star hop (6.2, 6.3)</h2><img src="star_hop.png" alt="star hop">' if 'star_hop' in document else ''}
 {'<img src="star_hop_drift.png" alt="FPI centroid drift per hold">' if drift_plot else ''}
-<h2>Ledger of this run</h2>{_table(["step", "total", *[c.upper() for c in cameras]], ledger_rows)}
+<h2>Ledger of this run</h2>{html_table(["step", "total", *[c.upper() for c in cameras]], ledger_rows)}
 <h2>Ledger across runs</h2><img src="ledger.png" alt="ledger across runs">
-{_table(["run", "model", "last fitted term", "RMS", "floor", "top candidate"], run_rows)}
-<h2>Fitted terms</h2>{_table(["effect", "parameter", "value", "sigma", "unit"], term_rows)}
-<h2>Candidates</h2>{_table(["effect", "delta-BIC", "RMS after", "parameters", "fit"], candidate_rows)}
+{html_table(["run", "model", "last fitted term", "RMS", "floor", "top candidate"], run_rows)}
+<h2>Fitted terms</h2>{html_table(["effect", "parameter", "value", "sigma", "unit"], term_rows)}
+<h2>Candidates</h2>{html_table(["effect", "delta-BIC", "RMS after", "parameters", "fit"], candidate_rows)}
 <p>Not observable in this campaign: {html.escape(", ".join(document["unobservable"]) or "none")}.</p>
 <ul>{degenerate}</ul>
 </body></html>

@@ -3,7 +3,7 @@
 import pytest
 
 from sofia_ros.campaigns import graph_params
-from sofia_ros.campaigns.registry import CAMPAIGNS, campaign_named, graph_campaign_of_plan
+from sofia_ros.campaigns.registry import CAMPAIGNS, campaign_named
 from sofia_ros.errors import ConfigError
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.star_hop import StarHopPlan
@@ -22,9 +22,7 @@ def test_reduced_variants_are_the_plans_the_tests_fly():
 
 
 def test_a_plan_names_its_campaign():
-    assert graph_campaign_of_plan(StarHopPlan()).name == 'star-hop'
-    with pytest.raises(ConfigError, match='dict is no campaign plan; plans are AlignmentPlan, StarHopPlan'):
-        graph_campaign_of_plan({})
+    assert StarHopPlan().campaign == 'star-hop' and AlignmentPlan().campaign == 'alignment'
 
 
 def test_unknown_campaign_and_variant_are_one_line():

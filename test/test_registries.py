@@ -8,7 +8,7 @@ import pytest
 
 from sofia_ros import graph_nodes, topics
 from sofia_ros.campaigns import graph_params
-from sofia_ros.campaigns.registry import CAMPAIGNS, graph_campaign_of_plan
+from sofia_ros.campaigns.registry import CAMPAIGNS
 from sofia_ros.config import load_effect_config
 from sofia_ros.nodes import executables
 from sofia_ros.sim.graph import build_core, build_cores, graph_topics
@@ -72,7 +72,7 @@ def test_every_campaign_is_runnable_and_named_everywhere():
         assert callable(spec.run) and set(spec.analyses) <= {'compare', 'noise'}
     for spec in GRAPH_CAMPAIGNS:
         plan = spec.plan()
-        assert plan.campaign == spec.name and graph_campaign_of_plan(plan) is spec
+        assert plan.campaign == spec.name and CAMPAIGNS[plan.campaign] is spec
         assert spec.name in graph_params.CAMPAIGNS
     assert set(graph_params.CAMPAIGNS) == {spec.name for spec in GRAPH_CAMPAIGNS}
 

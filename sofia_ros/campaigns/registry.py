@@ -12,7 +12,7 @@ from typing import Any, Callable, Mapping
 
 from sofia_ros.errors import ConfigError
 
-__all__ = ['CAMPAIGNS', 'CampaignSpec', 'campaign_named', 'graph_campaign_of_plan']
+__all__ = ['CAMPAIGNS', 'CampaignSpec', 'campaign_named']
 
 
 @dataclass(frozen=True)
@@ -86,11 +86,3 @@ def campaign_named(name: str) -> CampaignSpec:
     except KeyError as err:
         raise ConfigError(f'unknown campaign {name!r}; available: {", ".join(CAMPAIGNS)}') from err
 
-
-def graph_campaign_of_plan(plan: Any) -> CampaignSpec:
-    """The campaign whose plan dataclass ``plan`` is an instance of; ConfigError for any other object."""
-    for spec in CAMPAIGNS.values():
-        if spec.plan_type is not None and type(plan) is spec.plan_type:
-            return spec
-    raise ConfigError(f'{type(plan).__name__} is no campaign plan; plans are '
-                      f'{", ".join(spec.plan_type.__name__ for spec in CAMPAIGNS.values() if spec.plan_type)}')

@@ -12,7 +12,8 @@ byte-identical) and checks the loop a user runs, against config/model/nominal.ya
    model brings the residual to 1.2 times the floor or less, with its parameter within 3 sigma
    of the value written into the bag.
 
-Untouched bags of five seeds must be judged explained: no false alarm.
+Untouched bags of five seeds must be judged explained: no false alarm; so must a bag whose bias
+wanders as far as the model's rate random walk allows, and one that wanders further must not.
 """
 
 import importlib
@@ -173,6 +174,49 @@ def test_untouched_bags_are_explained_no_false_alarm(campaign_bags, seed):
     document = compare_bag(campaign_bags.reduced_alignment(seed=seed), _model()).document
     assert document['verdict']['status'] == 'explained', document['verdict']['text']
     assert all(entry['explained'] for entry in document['verdict']['observables'].values())
+
+
+#: Thirty times Table 5.1's rate random walk K (0.00216 deg/h^1.5, gyro_noise's default): over the
+#: reduced campaign's 14 min the bias wanders by about 0.03 deg/h, some 0.9" per 30 s anchor interval
+#: against the 0.07" of the angle random walk. The nominal 96-min star hop wanders as far per interval.
+LOUD_RRW = {'rrw_deg_per_h_sqrt_h': 30 * 0.00216}
+
+
+def _record_loud_rrw(bag_path):
+    from sofia_ros.campaigns.alignment import run_alignment
+    from sofia_ros.sim.calibration import AlignmentPlan
+
+    document = yaml.safe_load(open(__file__.rsplit('/test/', 1)[0] + '/config/truth/nominal.yaml').read())
+    document['effects']['gyro_noise'] = LOUD_RRW
+    truth = parse_effect_config(yaml.safe_dump(document), 'nominal, K x30')
+    run_alignment(truth, seed=3, bag_path=bag_path, mode='direct',
+                  plan=AlignmentPlan(repetitions=2, verification_repetitions=1))
+
+
+@pytest.fixture(scope='module')
+def wandering_bias_bag(campaign_bags):
+    """The reduced seed-3 alignment campaign with the truth's rate random walk thirty times Table 5.1's."""
+    return campaign_bags.get('alignment-seed3-rrw-x30', _record_loud_rrw)
+
+
+def _model_with_noise(gyro_noise):
+    document = {'effects': {**NOMINAL_MODEL['effects'], 'gyro_noise': gyro_noise}}
+    return parse_effect_config(yaml.safe_dump(document), f'nominal + gyro_noise {gyro_noise}')
+
+
+def test_a_bias_wander_the_models_rate_random_walk_allows_is_no_false_alarm(wandering_bias_bag):
+    document = compare_bag(wandering_bias_bag, _model_with_noise(LOUD_RRW)).document
+    assert document['verdict']['status'] == 'explained', document['verdict']['text']
+    assert document['consistency'] == []
+    gyro = [entry for name, entry in document['verdict']['observables'].items() if name.startswith('gyro.')]
+    assert len(gyro) == 3 and all(entry['explained'] for entry in gyro)
+
+
+def test_a_bias_wander_beyond_the_models_rate_random_walk_is_flagged_on_a_gyro_axis(wandering_bias_bag):
+    document = compare_bag(wandering_bias_bag, _model_with_noise({})).document
+    assert document['verdict']['status'] != 'explained', document['verdict']['text']
+    assert any(not entry['explained'] for name, entry in document['verdict']['observables'].items()
+               if name.startswith('gyro.'))
 
 
 @pytest.mark.parametrize('body, message', [

@@ -13,6 +13,7 @@ from sofia_ros.sensors.gyro_noise import (
     TABLE_5_1,
     GyroNoiseStream,
     NoiseCoefficients,
+    angle_increment_covariance_rad2,
     arw_arcsec_per_sqrt_s_to_deg_per_sqrt_h,
     arw_deg_per_sqrt_h_to_arcsec_per_sqrt_s,
     deg_per_h_to_arcsec_per_s,
@@ -159,3 +160,33 @@ def test_table_5_1_four_hour_record_variance_is_the_sum_of_2_12():
 def test_bad_input_raises_invalid_argument_naming_it(call, match):
     with pytest.raises(InvalidArgumentError, match=match):
         call()
+
+
+def test_angle_increment_covariance_matches_the_generators_arw_and_rrw():
+    """Eq. 4.16 + 4.20 between knots against 3000 records of the generator (20 Hz, ARW and RRW only).
+
+    Sample covariances of 3000 x 3 increments scatter by about sqrt(2 / 9000) = 1.5 % of the
+    diagonal; 6 % is four of those. The off-diagonal terms are the RRW's bias wander alone.
+    """
+    sample_rate_hz, knots_s = 20.0, np.array([0.0, 30.0, 60.0, 90.0, 125.0])
+    coefficients = NoiseCoefficients(arw_deg_per_sqrt_h=0.0003, rrw_deg_per_h_sqrt_h=0.05)
+    arw = arw_deg_per_sqrt_h_to_arcsec_per_sqrt_s(coefficients.arw_deg_per_sqrt_h) * RAD_PER_ARCSEC
+    rrw = rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s(coefficients.rrw_deg_per_h_sqrt_h) * RAD_PER_ARCSEC
+    samples = int(knots_s[-1] * sample_rate_hz)
+    increments = []
+    for seed in range(3000):
+        rate = gyro_rate_rad_per_s(coefficients, samples, sample_rate_hz, rng=seed)
+        angle = np.concatenate([np.zeros((1, 3)), np.cumsum(rate, axis=0) / sample_rate_hz])
+        increments.append(np.diff(angle[np.rint(knots_s * sample_rate_hz).astype(int)], axis=0).T)
+    measured = np.cov(np.concatenate(increments), rowvar=False)
+    expected = angle_increment_covariance_rad2(knots_s, arw, rrw)
+    scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
+    np.testing.assert_array_less(np.abs(measured - expected) / scale, 0.06)
+    assert expected[0, 3] > 0.2 * scale[0, 3]  # the wander correlates intervals 90 s apart (0.28)
+
+
+def test_angle_increment_covariance_without_rrw_is_white_and_refuses_bad_knots():
+    covariance = angle_increment_covariance_rad2([0.0, 30.0, 90.0], 2e-6, 0.0)
+    np.testing.assert_allclose(covariance, np.diag([30.0, 60.0]) * 4e-12)
+    with pytest.raises(InvalidArgumentError, match='knots_s must be at least two increasing times'):
+        angle_increment_covariance_rad2([0.0, 30.0, 30.0], 2e-6, 0.0)

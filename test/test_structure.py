@@ -11,6 +11,8 @@ import pytest
 from scipy import stats
 
 from sofia_ros.analysis.structure import category_test, period_test, sigma_of_probability, trend_test
+from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.sensors.gyro_noise import angle_increment_covariance_rad2
 
 #: A campaign-like time axis: 1 s frames with a 300 s gap (a slew without stars).
 TIMES_S = np.concatenate([np.arange(0.0, 600.0, 1.0), np.arange(900.0, 1800.0, 1.0)])
@@ -63,6 +65,45 @@ def test_a_smooth_trend_is_found_and_its_shape_measured():
     assert sigma_of_probability(found.p_value) >= 5.0
     # Half the range of the true shape over 23-59 deg: 0.5 (cos^4 23 - cos^4 59) / 2.
     assert abs(found.amplitude - 0.25 * (np.cos(np.radians(23.0)) ** 4 - np.cos(np.radians(59.0)) ** 4)) <= 0.03
+
+
+def _wandering_increments(rng, knots_s, count):
+    """``count`` series of anchor increments under ARW and a strong RRW (unit: rad), and their whitening."""
+    covariance = angle_increment_covariance_rad2(knots_s, 1.0, 0.05)
+    factor = np.linalg.cholesky(covariance)
+    return factor @ rng.standard_normal((len(knots_s) - 1, count)), np.linalg.inv(factor)
+
+
+def test_the_gls_trend_test_is_calibrated_on_a_wandering_bias_and_the_ols_one_is_not():
+    """Increments whose bias wanders (RRW) hold no trend; read as white they follow time at once."""
+    rng = np.random.default_rng(15)
+    knots_s = np.arange(0.0, 30.0 * 101, 30.0)
+    middle = (knots_s[:-1] + knots_s[1:]) / 2.0
+    increments, whitening = _wandering_increments(rng, knots_s, TRIALS)
+    gls = [trend_test(middle, whitening @ series, whitening=whitening).p_value for series in increments.T]
+    ols = np.array([trend_test(middle, series).p_value for series in increments.T])
+    assert stats.kstest(gls, 'uniform').pvalue > 1e-3
+    assert np.mean(ols < 0.01) > 0.5
+
+
+def test_the_gls_trend_test_finds_a_trend_of_the_increments_and_measures_it():
+    """A gyro error that follows elevation, hopping between 23 and 59 deg every 90 s: faster than any wander."""
+    rng = np.random.default_rng(16)
+    knots_s = np.arange(0.0, 30.0 * 101, 30.0)
+    increments, whitening = _wandering_increments(rng, knots_s, 1)
+    elevation_deg = np.where(np.arange(len(knots_s) - 1) // 3 % 2 == 0, 23.0, 59.0)
+    # +-8 about the middle, 1.5 times the ARW's 5.5 per interval: lost in the wander by eye, found by GLS.
+    shape = 8.0 * (elevation_deg - 41.0) / 18.0
+    found = trend_test(elevation_deg, whitening @ (increments[:, 0] + shape), whitening=whitening)
+    assert sigma_of_probability(found.p_value) >= 5.0
+    assert found.amplitude == pytest.approx(8.0, abs=2.5)
+
+
+def test_a_whitening_of_the_wrong_shape_is_refused():
+    with pytest.raises(InvalidArgumentError, match=r'whitening of shape \(3, 3\) for 20 residuals of 20'):
+        trend_test(np.arange(20.0), np.zeros(20), whitening=np.eye(3))
+    with pytest.raises(InvalidArgumentError, match='19 variable values for 20 residuals'):
+        trend_test(np.arange(19.0), np.zeros(20))
 
 
 def test_sigma_of_probability_is_the_two_sided_gaussian():

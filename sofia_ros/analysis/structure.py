@@ -26,6 +26,8 @@ import numpy as np
 from numpy.polynomial import legendre
 from scipy import optimize, stats
 
+from sofia_ros.errors import InvalidArgumentError
+
 __all__ = ['TrendTest', 'PeriodTest', 'trend_test', 'category_test', 'period_test', 'sigma_of_probability',
            'TREND_DEGREE']
 
@@ -68,10 +70,20 @@ def _weighted_rss(design, values, weights):
     return float(weights @ residual**2), coefficients
 
 
-def trend_test(variable, values, weights=None, degree=TREND_DEGREE):
-    """F-test of Legendre P0..P_degree of the variable against a constant; None where it cannot be tested."""
+def trend_test(variable, values, weights=None, degree=TREND_DEGREE, *, whitening=None):
+    """F-test of Legendre P0..P_degree of the variable against a constant; None where it cannot be tested.
+
+    With ``whitening`` (rows of values x rows of variable), the values are already whitened
+    residuals of correlated data and the test is generalized least squares: the Legendre columns
+    are whitened the same way (the trend is then a shape of the data before whitening).
+    """
     variable, values = np.asarray(variable, dtype=float), np.asarray(values, dtype=float)
     weights = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
+    if whitening is None and len(variable) != len(values):
+        raise InvalidArgumentError(f'{len(variable)} variable values for {len(values)} residuals')
+    if whitening is not None and np.shape(whitening) != (len(values), len(variable)):
+        raise InvalidArgumentError(f'whitening of shape {np.shape(whitening)} for {len(values)} residuals of '
+                                   f'{len(variable)} variable values')
     if len(values) < _MIN_ROWS:
         return None
     low, high = float(np.min(variable)), float(np.max(variable))
@@ -79,7 +91,8 @@ def trend_test(variable, values, weights=None, degree=TREND_DEGREE):
     if high <= low or degree < 1:
         return None
     scaled = 2.0 * (variable - low) / (high - low) - 1.0
-    design = np.column_stack([legendre.legval(scaled, np.eye(degree + 1)[k]) for k in range(degree + 1)])
+    shape_columns = np.column_stack([legendre.legval(scaled, np.eye(degree + 1)[k]) for k in range(degree + 1)])
+    design = shape_columns if whitening is None else np.asarray(whitening) @ shape_columns
     rss_constant, _ = _weighted_rss(design[:, :1], values, weights)
     rss_shape, coefficients = _weighted_rss(design, values, weights)
     dof = len(values) - degree - 1
@@ -89,7 +102,7 @@ def trend_test(variable, values, weights=None, degree=TREND_DEGREE):
     centres = np.linspace(low, high, 25)
     grid = 2.0 * (centres - low) / (high - low) - 1.0
     shape = legendre.legval(grid, coefficients)
-    fitted = design @ coefficients
+    fitted = shape_columns @ coefficients
     return TrendTest(float(stats.f.sf(max(f_value, 0.0), degree, dof)), float(np.ptp(fitted) / 2.0), centres, shape)
 
 

@@ -9,10 +9,13 @@ Observables:
   rows themselves against the detector position and the star; periods on the frame means,
   from twice the frame spacing up to half the record.
 - a gyro axis (``gyro.el``, ``gyro.xel``, ``gyro.los``): what the attitude anchors had to add to
-  the model's gyro propagation over each anchor interval, turned into TARF axes and divided by
-  its expected scatter under the random-walk prior (studentized with the hat matrix of the
-  whole fit). A gyro error the model lacks makes the anchors walk systematically: too far, or
-  with elevation, temperature, specific force, time, or a period.
+  the model's gyro propagation over each anchor interval, in TARF axes, whitened by the
+  covariance the gyro noise gives those increments (angle and rate random walk, compare.prior)
+  and studentized with the hat matrix of the whole fit: a unit normal under the null, shown in
+  units of one interval's own walk. A gyro error the model lacks makes the anchors walk
+  systematically: too far, or with elevation, temperature, specific force, time, or a period.
+  Trends are tested by generalized least squares (the trend's columns whitened as the
+  innovations are), so a bias wander the rate random walk allows is no trend with time.
 
 Every test's p-value is corrected for the number of tests run (Bonferroni), so a finding's
 ``significance_sigma`` already accounts for the look-elsewhere effect; findings at
@@ -150,32 +153,29 @@ def _normal_inverse(gram):
         return np.linalg.pinv(gram, hermitian=True)
 
 
-def _prior_freedom(fit, tarf_from_irf):
-    """Per anchor interval and TARF axis: the increment's variance under the null in units of the prior's,
-    diag(A (I - H_k) A^T) with H_k the interval's 3x3 block of the whole fit's hat matrix, (K-1, 3)."""
+def _prior_freedom(fit):
+    """Per prior row (anchor interval and TARF axis): its residual's variance under the null, 1 - H_rr with H
+    the whole fit's hat matrix, in units of the prior's (K-1, 3)."""
     data_rows = len(fit.whitened)
     jacobian = scipy.sparse.csr_matrix(fit.jacobian)
     root = np.concatenate([np.sqrt(fit.weights), np.ones(jacobian.shape[0] - data_rows)])
     weighted = scipy.sparse.diags(root) @ jacobian
     inverse = _normal_inverse((weighted.T @ weighted).toarray())
-    prior = weighted[data_rows:].toarray().reshape(-1, 3, jacobian.shape[1])
-    # (prior inverse) first, through BLAS: a three-operand einsum loops over k, i, j, p, q in one C loop.
-    hat_blocks = np.einsum('kiq,kjq->kij', (prior.reshape(-1, prior.shape[2]) @ inverse).reshape(prior.shape), prior)
-    residual_blocks = np.eye(3) - hat_blocks
-    rotated = np.einsum('kia,kab,kjb->kij', tarf_from_irf, residual_blocks, tarf_from_irf)
-    return np.clip(np.diagonal(rotated, axis1=1, axis2=2), 0.0, 1.0)
+    prior = weighted[data_rows:].toarray()
+    hat = np.einsum('rq,rq->r', prior @ inverse, prior)
+    return np.clip(1.0 - hat, 0.0, 1.0).reshape(-1, 3)
 
 
-def _gyro_series(observations, fit, predictor, walk_sigma_rad):
-    """Per gyro axis: the anchors' increments in TARF (arcsec), studentized, with the variables at mid-interval."""
-    knots = predictor.anchor_knots_s
-    if len(knots) < 3 or len(fit.prior_residual) == 0:
+def _gyro_series(observations, fit, prior):
+    """Per gyro axis: the anchors' innovations in TARF (arcsec; compare.prior), studentized, the variables at
+    mid-interval (every interval), the whitening of the tested rows and the tested intervals."""
+    if len(prior.knots_s) < 3 or len(fit.prior_residual) == 0:
         return
-    anchors = np.asarray(fit.anchors_rad).reshape(-1, 3)
-    middle = (knots[:-1] + knots[1:]) / 2.0
-    attitude = predictor.attitudes(fit.effects, middle)
-    increments_tarf = np.einsum('nij,nj->ni', attitude, np.diff(anchors, axis=0)) * ARCSEC_PER_RAD
-    freedom = _prior_freedom(fit, attitude)
+    unit_arcsec = prior.unit_rad * ARCSEC_PER_RAD
+    # What the anchors added beyond the gyro noise, whitened: a unit normal under the null, here in arcsec.
+    innovations = -fit.prior_residual.reshape(-1, 3) * unit_arcsec
+    freedom = _prior_freedom(fit)
+    middle = prior.middle_s
     centroids, gyro = observations.centroids, observations.gyro
     order = np.argsort(centroids.stamp_s)
     force = np.column_stack([np.interp(middle, gyro.tick_mean_time_s, gyro.tick_mean_specific_force_m_per_s2[:, i])
@@ -185,16 +185,15 @@ def _gyro_series(observations, fit, predictor, walk_sigma_rad):
         'elevation': np.interp(middle, centroids.stamp_s[order], centroids.elevation_deg[order]),
         'time': middle, 'temperature': np.interp(middle, gyro.tick_end_s, gyro.tick_temperature_c),
         'specific_force_el': force_g[:, 0], 'specific_force_xel': force_g[:, 1], 'specific_force_los': force_g[:, 2]}
-    walk_arcsec = walk_sigma_rad * ARCSEC_PER_RAD
     for axis_index, axis in enumerate(GYRO_AXES):
         informed = freedom[:, axis_index] >= _MIN_FREEDOM
         if np.count_nonzero(informed) < 3:
             continue
-        floor = walk_arcsec * float(np.sqrt(np.mean(freedom[informed, axis_index])))
-        # In arcsec, with the prior's scatter walk_arcsec under the null whatever the interval's freedom.
-        studentized = increments_tarf[informed, axis_index] / np.sqrt(freedom[informed, axis_index])
-        yield (f'gyro.{axis}', floor, studentized, {key: values[informed] for key, values in frame_variables.items()},
-               increments_tarf[informed, axis_index], walk_arcsec)
+        floor = unit_arcsec * float(np.sqrt(np.mean(freedom[informed, axis_index])))
+        # In arcsec, with the prior's scatter unit_arcsec under the null whatever the interval's freedom.
+        studentized = innovations[informed, axis_index] / np.sqrt(freedom[informed, axis_index])
+        yield (f'gyro.{axis}', floor, studentized, frame_variables, innovations[informed, axis_index], unit_arcsec,
+               prior.whitening[informed], middle[informed])
 
 
 def _ranges(values_by_variable, names):
@@ -214,7 +213,7 @@ def _equivalents(frame_variables, variable):
     return same
 
 
-def residual_diagnostics(observations, fit, predictor, noise_arcsec, walk_sigma_rad):
+def residual_diagnostics(observations, fit, predictor, noise_arcsec, prior):
     """Judge every camera and gyro axis of a fit: RMS against floor, trends and periods (family-wise sigmas)."""
     variables = row_variables(observations, fit, predictor)
     tests, observables = [], {}
@@ -230,14 +229,16 @@ def residual_diagnostics(observations, fit, predictor, noise_arcsec, walk_sigma_
             tests.append(('trend', name, key, test, None, values))
         tests.append(('period', name, 'time', period_test(frame_variables['time'], frame_residual, weights), None,
                       None))
-    for name, floor, studentized, frame_variables, increments, walk_arcsec in _gyro_series(
-            observations, fit, predictor, walk_sigma_rad):
-        rms = float(np.sqrt(np.mean(increments**2)))
+    for name, floor, studentized, frame_variables, innovations, unit_arcsec, whitening, times in _gyro_series(
+            observations, fit, prior):
+        rms = float(np.sqrt(np.mean(innovations**2)))
         observables[name] = {'kind': 'gyro', 'rms_arcsec': rms, 'floor_arcsec': floor, 'ratio': rms / floor,
-                             'rows': int(len(increments)), 'chi2': float(np.sum((studentized / walk_arcsec) ** 2))}
+                             'rows': int(len(innovations)), 'chi2': float(np.sum((studentized / unit_arcsec) ** 2))}
+        # Generalized least squares: a shape of the increments, whitened as the innovations are.
         for key, values in frame_variables.items():
-            tests.append(('trend', name, key, trend_test(values, studentized), frame_variables, values))
-        tests.append(('period', name, 'time', period_test(frame_variables['time'], studentized), None, None))
+            tests.append(('trend', name, key, trend_test(values, studentized, whitening=whitening), frame_variables,
+                          values))
+        tests.append(('period', name, 'time', period_test(times, studentized), None, None))
     count = sum(1 for test in tests if test[3] is not None)
     trends, periods = [], []
     for kind, name, key, test, frame_variables, tested in tests:

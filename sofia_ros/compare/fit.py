@@ -7,11 +7,12 @@ forward differences of the prediction, the anchors' columns follow from the pred
 derivative with respect to a rotation of IRF. Huber weights (k = 3 sigma) keep a bad
 centroid from steering the fit; rows beyond 5 sigma are flagged as outliers and reported.
 
-The anchors are not free: the gyro attitude error is a random walk (4.2.3), so consecutive
-knots differ by a rotation of variance N^2 dt + K^2 dt^3 / 3 per axis (angle random walk N
-measured from the bag's own samples, rate random walk K from the model's gyro_noise). These
-prior rows keep a gap without stars (a long slew) from freeing the attitude, which is what
-lets a star hop measure the gyros across its moves (6.3).
+The anchors are not free: between knots they may add only what the gyro noise allows (4.2.3):
+angle random walk N (measured from the bag's own samples) and rate random walk K (from the
+model's gyro_noise), whose bias wander correlates the increments of a long record
+(compare.prior: generalized least squares). These prior rows keep a gap without stars (a long
+slew) from freeing the attitude, which is what lets a star hop measure the gyros across its
+moves (6.3).
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ class ModelFit:
 
     @property
     def augmented_residual(self):
-        """Whitened data rows followed by the anchor random-walk prior rows (what the Jacobian's rows are)."""
+        """Whitened data rows followed by the anchors' gyro-noise prior rows (what the Jacobian's rows are)."""
         return np.concatenate([self.whitened, self.prior_residual])
 
     @property
@@ -103,12 +104,12 @@ def _with_values(effects, free, values):
 class WhitenedProblem:
     """Whitened residuals and Jacobians of one predictor for one set of free parameters."""
 
-    def __init__(self, predictor, sigma_arcsec, walk_sigma_rad):
+    def __init__(self, predictor, sigma_arcsec, anchor_prior):
         centroids = predictor.observations.centroids
         self.predictor = predictor
         self.arcsec_per_px = centroids.arcsec_per_px()[:, None]
         self.row_sigma = np.asarray(sigma_arcsec)[centroids.camera_index][:, None]
-        self.prior = _random_walk_prior(predictor.anchor_count, walk_sigma_rad)
+        self.prior = anchor_prior.matrix
 
     def augmented(self, whitened, jacobian, anchors):
         """Data rows and prior rows stacked: residuals and Jacobian of the whole least-squares problem."""
@@ -173,17 +174,6 @@ class WhitenedProblem:
         return columns
 
 
-def _random_walk_prior(knot_count, walk_sigma_rad):
-    """Rows (a_k+1 - a_k) / sigma per axis: the anchors' random-walk prior, sparse (3(K-1), 3K)."""
-    rows = 3 * (knot_count - 1)
-    if rows <= 0:
-        return scipy.sparse.csr_matrix((0, 3 * knot_count))
-    index = np.arange(rows)
-    data = np.concatenate([np.full(rows, 1.0), np.full(rows, -1.0)]) / walk_sigma_rad
-    columns = np.concatenate([index + 3, index])
-    return scipy.sparse.csr_matrix((data, (np.concatenate([index, index]), columns)), shape=(rows, 3 * knot_count))
-
-
 def _huber_weights(whitened):
     magnitude = np.abs(whitened)
     return np.where(magnitude <= HUBER_K, 1.0, HUBER_K / np.maximum(magnitude, 1e-300))
@@ -203,13 +193,13 @@ def _try_predicted(problem, effects, free, values, anchors):
         return None
 
 
-def fit_model(predictor, effects, free, sigma_arcsec, walk_sigma_rad, *, anchors_rad=None):
-    """Robust Gauss-Newton over the anchors (under their random-walk prior) and the free parameters.
+def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_rad=None):
+    """Robust Gauss-Newton over the anchors (under their gyro-noise prior, compare.prior) and the free parameters.
 
     Starts from the effects' given values. A step that raises the cost (or sends a star off
     its detector) is halved, up to eight times; a fit that cannot improve stops where it is.
     """
-    problem = WhitenedProblem(predictor, sigma_arcsec, walk_sigma_rad)
+    problem = WhitenedProblem(predictor, sigma_arcsec, anchor_prior)
     free = tuple(free)
     values = np.array([effects[p.effect][p.name] for p in free], dtype=float)
     anchors = np.zeros((predictor.anchor_count, 3)) if anchors_rad is None else np.array(anchors_rad)

@@ -22,9 +22,10 @@ import numpy as np
 
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC, CandidateTerm, degenerate_pairs, rank_candidates
 from sofia_ros.compare.fit import WhitenedProblem, fit_model, free_parameters
-from sofia_ros.compare.floor import anchor_walk_sigma_rad, angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
+from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
+from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
 from sofia_ros.compare.verdict import empirical_candidate_names, judge
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
@@ -75,9 +76,9 @@ def _term_table(fit):
             for p, value, sigma in zip(fit.free, fit.values, fit.sigma)]
 
 
-def _linearized_candidates(predictor, fit, noise_arcsec, walk_sigma_rad, names):
+def _linearized_candidates(predictor, fit, noise_arcsec, prior, names):
     """CandidateTerms linearized where each effect vanishes: scaling parameters 0, shaping ones at default."""
-    problem = WhitenedProblem(predictor, noise_arcsec, walk_sigma_rad)
+    problem = WhitenedProblem(predictor, noise_arcsec, prior)
     base = predictor.predict_px(fit.effects, fit.anchors_rad)
     # Shared by every candidate: the attitude derivative at the fit (each term starts where it vanishes).
     derivative = problem.irf_derivative(fit.effects, fit.anchors_rad, base)
@@ -140,8 +141,9 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     # Rate random walk from the model's noise terms, else Table 5.1 (gyro_noise defaults).
     rrw_deg_per_h_sqrt_h = effects.get('gyro_noise', resolve_params('gyro_noise', {}))['rrw_deg_per_h_sqrt_h']
     rrw = rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s(rrw_deg_per_h_sqrt_h) / ARCSEC_PER_RAD
-    walk_sigma_rad = anchor_walk_sigma_rad(arw, rrw, float(np.diff(predictor.anchor_knots_s[:2])[0]))
     predictor.align_initial_attitude(effects)
+    knots = predictor.anchor_knots_s
+    prior = anchor_prior(knots, predictor.attitudes(effects, (knots[:-1] + knots[1:]) / 2.0), arw, rrw)
     fitted_order = [name for name in model.effects if name in model.fitted]
 
     # The ledger, as a pointing-model fit prints it: the fixed effects alone, then each fitted term
@@ -153,7 +155,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         else:
             free = free + free_parameters([step_name])
             start = {**fit.effects, step_name: effects[step_name]}
-        fit = fit_model(predictor, start, free, noise_arcsec, walk_sigma_rad,
+        fit = fit_model(predictor, start, free, noise_arcsec, prior,
                         anchors_rad=None if fit is None else fit.anchors_rad)
         ledger.append({'term': step_name or 'fixed effects only (attitude anchors fitted)',
                        'residual_rms_arcsec': _rms_by_camera(fit, centroids), 'bic': fit.bic})
@@ -161,14 +163,14 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     rms = _rms_by_camera(final, centroids)
 
     diagnostics_started = time.perf_counter()
-    diagnostics = residual_diagnostics(observations, final, predictor, noise_arcsec, walk_sigma_rad)
+    diagnostics = residual_diagnostics(observations, final, predictor, noise_arcsec, prior)
     consistency = split_consistency(observations, final, predictor)
     diagnostics_s = time.perf_counter() - diagnostics_started
     names = [name for name in (candidate_names or CATALOGUE) if name not in effects and name not in NOISE_EFFECTS]
     names += [name for name in empirical_candidate_names(diagnostics, observations.centroids.cameras)
               if name not in effects]
     linear_started = time.perf_counter()
-    terms = _linearized_candidates(predictor, final, noise_arcsec, walk_sigma_rad, names)
+    terms = _linearized_candidates(predictor, final, noise_arcsec, prior, names)
     # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
     # "outliers", and the Huber weights that protect the fit would hide that failure from the ranking.
     ranked = rank_candidates(final.augmented_residual, final.jacobian, terms)
@@ -186,7 +188,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         trial_effects = {**final.effects, candidate.name: dict(resolve_params(candidate.name, {}), **candidate.params)}
         try:
             trial = fit_model(predictor, trial_effects, final.free + free_parameters([candidate.name]), noise_arcsec,
-                              walk_sigma_rad, anchors_rad=final.anchors_rad)
+                              prior, anchors_rad=final.anchors_rad)
         except FitError:
             continue  # the linearized entry stands
         extra = trial.free[len(final.free):]
@@ -203,7 +205,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     after_best = None
     if best_fit is not None:
         diagnostics_started = time.perf_counter()
-        after_best = (residual_diagnostics(observations, best_fit, predictor, noise_arcsec, walk_sigma_rad),
+        after_best = (residual_diagnostics(observations, best_fit, predictor, noise_arcsec, prior),
                       split_consistency(observations, best_fit, predictor))
         diagnostics_s += time.perf_counter() - diagnostics_started
     document = {
@@ -227,7 +229,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         'verdict': judge(diagnostics, consistency, candidates, degenerate, best_name, after_best,
                          rms_arcsec=rms['total'], significant_delta_bic=SIGNIFICANT_DELTA_BIC, model_source=model.source),
         'anchor_spacing_s': anchor_spacing_s,
-        'anchor_walk_sigma_arcsec': walk_sigma_rad * ARCSEC_PER_RAD,
+        'anchor_walk_sigma_arcsec': prior.unit_rad * ARCSEC_PER_RAD,
         'angle_random_walk_arcsec_per_sqrt_s': arw * ARCSEC_PER_RAD,
         'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4), 'diagnostics': round(diagnostics_s, 3)},
     }

@@ -67,9 +67,10 @@ def test_a_smooth_trend_is_found_and_its_shape_measured():
     assert abs(found.amplitude - 0.25 * (np.cos(np.radians(23.0)) ** 4 - np.cos(np.radians(59.0)) ** 4)) <= 0.03
 
 
-def _wandering_increments(rng, knots_s, count):
-    """``count`` series of anchor increments under ARW and a strong RRW (unit: rad), and their whitening."""
-    covariance = angle_increment_covariance_rad2(knots_s, 1.0, 0.05)
+def _wandering_increments(rng, knots_s, count, rrw=0.05):
+    """``count`` series of anchor increments under unit ARW and an RRW that dominates from minutes on (the
+    star hop's at 0.005: Table 5.1's N and K cross near 7 min), and their whitening."""
+    covariance = angle_increment_covariance_rad2(knots_s, 1.0, rrw)
     factor = np.linalg.cholesky(covariance)
     return factor @ rng.standard_normal((len(knots_s) - 1, count)), np.linalg.inv(factor)
 
@@ -99,11 +100,34 @@ def test_the_gls_trend_test_finds_a_trend_of_the_increments_and_measures_it():
     assert found.amplitude == pytest.approx(8.0, abs=2.5)
 
 
+def test_the_gls_period_test_is_calibrated_on_a_wandering_bias_and_finds_a_fast_wobble():
+    """The whitened periodogram's false-alarm probability on RRW + ARW increments, and a 150 s wobble found."""
+    rng = np.random.default_rng(17)
+    knots_s = np.arange(0.0, 30.0 * 201, 30.0)
+    middle = (knots_s[:-1] + knots_s[1:]) / 2.0
+    increments, whitening = _wandering_increments(rng, knots_s, TRIALS)
+    probabilities = np.array([period_test(middle, whitening @ series, whitening=whitening).false_alarm_probability
+                              for series in increments.T])
+    for p in (0.05, 0.2):
+        assert abs(np.mean(probabilities < p) - p) <= _rate_tolerance(p), (p, np.mean(probabilities < p))
+    # Read as white, the same increments are periodic at once (the wander's red spectrum).
+    assert np.mean([period_test(middle, series).false_alarm_probability < 0.01 for series in increments.T]) > 0.5
+    # A 150 s wobble of the increments at 0.9 of the ARW's 5.5 per interval, under Table 5.1's proportions.
+    increments, whitening = _wandering_increments(rng, knots_s, 1, rrw=0.005)
+    wobble = 5.0 * np.sin(2.0 * np.pi * middle / 150.0)
+    found = period_test(middle, whitening @ (increments[:, 0] + wobble), whitening=whitening)
+    assert sigma_of_probability(found.false_alarm_probability) >= 5.0
+    assert found.period == pytest.approx(150.0, rel=0.01)
+    assert found.amplitude == pytest.approx(5.0, abs=1.5)
+
+
 def test_a_whitening_of_the_wrong_shape_is_refused():
     with pytest.raises(InvalidArgumentError, match=r'whitening of shape \(3, 3\) for 20 residuals of 20'):
         trend_test(np.arange(20.0), np.zeros(20), whitening=np.eye(3))
     with pytest.raises(InvalidArgumentError, match='19 variable values for 20 residuals'):
         trend_test(np.arange(19.0), np.zeros(20))
+    with pytest.raises(InvalidArgumentError, match=r'whitening of shape \(20, 3\) for 20 residuals at 20 times'):
+        period_test(np.arange(20.0), np.zeros(20), whitening=np.ones((20, 3)))
 
 
 def test_sigma_of_probability_is_the_two_sided_gaussian():

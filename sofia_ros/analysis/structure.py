@@ -126,26 +126,63 @@ def category_test(categories, values, weights=None):
                      labels.astype(float), means - grand)
 
 
-def _sinusoid_rss(times, values, weights, period):
+def _sinusoid_rss(times, values, weights, period, whitening=None):
     phase = 2.0 * np.pi * times / period
     design = np.column_stack([np.sin(phase), np.cos(phase), np.ones(len(times))])
-    return _weighted_rss(design, values, weights)
+    return _weighted_rss(design if whitening is None else whitening @ design, values, weights)
 
 
-def period_test(times, values, weights=None, *, min_period=None, max_period=None):
-    """The strongest period between the shortest the sampling resolves and half the record; None if too short."""
-    times, values = np.asarray(times, dtype=float), np.asarray(values, dtype=float)
-    weights = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
-    order = np.argsort(times)
-    times, values, weights = times[order], values[order], weights[order]
-    if len(times) < _MIN_ROWS:
-        return None
+def _search_band(times, min_period, max_period):
+    """(span, spacing, shortest and longest period searched) of sorted times, or None where nothing can be searched."""
     span = float(times[-1] - times[0])
     step = float(np.median(np.diff(times)))
     min_period = max(2.0 * step, min_period or 0.0)
     max_period = min(span / 2.0, max_period or np.inf)
     if step <= 0.0 or max_period <= min_period:
         return None
+    return span, step, min_period, max_period
+
+
+def _false_alarm(z, span, min_period, max_period):
+    """Probability that the highest of the band's independent frequencies reaches normalized power z (Scargle 1982)."""
+    independent = max(_FREQUENCIES_PER_RESOLUTION * span * (1.0 / min_period - 1.0 / max_period), 1.0)
+    return float(-np.expm1(independent * np.log1p(-np.exp(-z)))) if z < 700 else 0.0
+
+
+def _refined(times, values, weights, frequencies, best, min_period, max_period, whitening=None):
+    """The period and amplitude of the exact least-squares sinusoid within one padded bin of the peak."""
+    bin_width = frequencies[1]
+    result = optimize.minimize_scalar(
+        lambda frequency: _sinusoid_rss(times, values, weights, 1.0 / frequency, whitening)[0],
+        bounds=(max(frequencies[best] - bin_width, 1.0 / max_period), min(frequencies[best] + bin_width,
+                                                                            1.0 / min_period)),
+        method='bounded', options={'xatol': bin_width * 1e-3})
+    period = 1.0 / float(result.x)
+    _, coefficients = _sinusoid_rss(times, values, weights, period, whitening)
+    return period, float(np.hypot(coefficients[0], coefficients[1]))
+
+
+def period_test(times, values, weights=None, *, min_period=None, max_period=None, whitening=None):
+    """The strongest period between the shortest the sampling resolves and half the record; None if too short.
+
+    With ``whitening`` (rows of values x times), the values are whitened residuals of correlated
+    data: the power at each frequency is then the generalized least-squares one (the sinusoid's
+    columns whitened like the values, the reduction of the residual sum of squares over a
+    constant, halved and in units of the residual variance: Exp(1) under the null as the
+    classical power is), and the amplitude is the sinusoid's before whitening.
+    """
+    if whitening is not None:
+        return _whitened_period_test(times, values, whitening, min_period, max_period)
+    times, values = np.asarray(times, dtype=float), np.asarray(values, dtype=float)
+    weights = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
+    order = np.argsort(times)
+    times, values, weights = times[order], values[order], weights[order]
+    if len(times) < _MIN_ROWS:
+        return None
+    band_limits = _search_band(times, min_period, max_period)
+    if band_limits is None:
+        return None
+    span, step, min_period, max_period = band_limits
     centred = values - float(weights @ values / weights.sum())
     variance = float(weights @ centred**2) / (len(values) - 1)
     if variance <= 0.0:
@@ -162,15 +199,48 @@ def period_test(times, values, weights=None, *, min_period=None, max_period=None
         return None
     best = np.flatnonzero(band)[np.argmax(power[band])]
     z = float(power[best])
-    independent = max(_FREQUENCIES_PER_RESOLUTION * span * (1.0 / min_period - 1.0 / max_period), 1.0)
-    false_alarm = float(-np.expm1(independent * np.log1p(-np.exp(-z)))) if z < 700 else 0.0
-    # Refine within one padded bin on the exact least-squares sinusoid of the irregular samples.
-    bin_width = frequencies[1]
-    result = optimize.minimize_scalar(
-        lambda frequency: _sinusoid_rss(times, centred, weights, 1.0 / frequency)[0],
-        bounds=(max(frequencies[best] - bin_width, 1.0 / max_period), min(frequencies[best] + bin_width,
-                                                                            1.0 / min_period)),
-        method='bounded', options={'xatol': bin_width * 1e-3})
-    period = 1.0 / float(result.x)
-    _, coefficients = _sinusoid_rss(times, centred, weights, period)
-    return PeriodTest(period, float(np.hypot(coefficients[0], coefficients[1])), z, false_alarm)
+    period, amplitude = _refined(times, centred, weights, frequencies, best, min_period, max_period)
+    return PeriodTest(period, amplitude, z, _false_alarm(z, span, min_period, max_period))
+
+
+def _whitened_period_test(times, values, whitening, min_period, max_period):
+    """period_test's generalized least-squares branch: whitened values, their whitening (rows x times)."""
+    times, values, whitening = np.asarray(times, dtype=float), np.asarray(values, dtype=float), np.asarray(whitening)
+    if whitening.shape != (len(values), len(times)):
+        raise InvalidArgumentError(f'whitening of shape {whitening.shape} for {len(values)} residuals at '
+                                   f'{len(times)} times')
+    if len(values) < _MIN_ROWS or np.any(np.diff(times) <= 0.0):
+        return None
+    band_limits = _search_band(times, min_period, max_period)
+    if band_limits is None:
+        return None
+    span, step, min_period, max_period = band_limits
+    length = _OVERSAMPLING * (int(np.rint(span / step)) + 1)
+    frequencies = np.fft.rfftfreq(length, step)
+    band = np.flatnonzero((frequencies >= 1.0 / max_period) & (frequencies <= 1.0 / min_period))
+    if not len(band):
+        return None
+    # Everything relative to the whitened constant: the null model is a constant before whitening.
+    constant = whitening @ np.ones(len(times))
+    norm = float(constant @ constant)
+    project = (lambda columns: columns - np.outer(constant, constant @ columns) / norm) if norm > 0 else (
+        lambda columns: columns)
+    centred = project(values[:, None])[:, 0]
+    dof = len(values) - (1 if norm > 0 else 0)
+    variance = float(centred @ centred) / max(dof, 1)
+    if variance <= 0.0:
+        return None
+    phase = 2.0 * np.pi * np.outer(times, frequencies[band])
+    sine, cosine = project(whitening @ np.sin(phase)), project(whitening @ np.cos(phase))
+    ss, cc, sc = np.sum(sine**2, axis=0), np.sum(cosine**2, axis=0), np.sum(sine * cosine, axis=0)
+    sv, cv = sine.T @ centred, cosine.T @ centred
+    determinant = ss * cc - sc**2
+    usable = determinant > 1e-12 * np.maximum(ss * cc, 1e-300)
+    reduction = np.where(usable, (cc * sv**2 - 2.0 * sc * sv * cv + ss * cv**2) / np.where(usable, determinant, 1.0),
+                         0.0)
+    power = reduction / (2.0 * variance)
+    peak = int(np.argmax(power))
+    z = float(power[peak])
+    period, amplitude = _refined(times, values, np.ones(len(values)), frequencies, band[peak], min_period, max_period,
+                                 whitening)
+    return PeriodTest(period, amplitude, z, _false_alarm(z, span, min_period, max_period))

@@ -65,7 +65,8 @@ GYRO_VARIABLES = ('elevation', 'time', 'temperature', 'specific_force_el', 'spec
 GYRO_AXES = ('el', 'xel', 'los')
 #: Two variables this correlated cannot be told apart by the data (e.g. elevation and the LOS load).
 _EQUIVALENT_CORRELATION = 0.95
-#: Anchor intervals whose increment the data determine less than this (a slew without stars) are not tested.
+#: Directions of the anchor innovations that the fit leaves less free than this (inside a slew without stars)
+#: are not tested.
 _MIN_FREEDOM = 0.05
 _MIN_SPLIT_FRACTION = 0.1
 
@@ -153,28 +154,32 @@ def _normal_inverse(gram):
         return np.linalg.pinv(gram, hermitian=True)
 
 
-def _prior_freedom(fit):
-    """Per prior row (anchor interval and TARF axis): its residual's variance under the null, 1 - H_rr with H
-    the whole fit's hat matrix, in units of the prior's (K-1, 3)."""
+def _prior_residual_covariance(fit):
+    """The prior rows' residuals' covariance under the null, (I - H) over those rows with H the whole fit's hat
+    matrix, in units of the prior's (3(K-1), 3(K-1))."""
     data_rows = len(fit.whitened)
     jacobian = scipy.sparse.csr_matrix(fit.jacobian)
     root = np.concatenate([np.sqrt(fit.weights), np.ones(jacobian.shape[0] - data_rows)])
     weighted = scipy.sparse.diags(root) @ jacobian
     inverse = _normal_inverse((weighted.T @ weighted).toarray())
     prior = weighted[data_rows:].toarray()
-    hat = np.einsum('rq,rq->r', prior @ inverse, prior)
-    return np.clip(1.0 - hat, 0.0, 1.0).reshape(-1, 3)
+    return np.eye(len(prior)) - (prior @ inverse) @ prior.T
 
 
 def _gyro_series(observations, fit, prior):
-    """Per gyro axis: the anchors' innovations in TARF (arcsec; compare.prior), studentized, the variables at
-    mid-interval (every interval), the whitening of the tested rows and the tested intervals."""
+    """Per gyro axis: the anchors' innovations in TARF (arcsec; compare.prior), the same decorrelated (unit normal
+    times the prior's unit under the null), the variables at mid-interval and the decorrelation of the increments.
+
+    The fitted innovations r share what the fit took from them: Cov(r) = (I - H) over the prior rows.
+    Over its eigenvectors U with eigenvalues l >= _MIN_FREEDOM (directions the data leave free; a
+    gap without stars leaves only its total free), z = l^-1/2 U^T r is white, and a shape s of the
+    increments enters as l^1/2 U^T W s (W the prior's whitening): every test runs on z with that design.
+    """
     if len(prior.knots_s) < 3 or len(fit.prior_residual) == 0:
         return
     unit_arcsec = prior.unit_rad * ARCSEC_PER_RAD
-    # What the anchors added beyond the gyro noise, whitened: a unit normal under the null, here in arcsec.
-    innovations = -fit.prior_residual.reshape(-1, 3) * unit_arcsec
-    freedom = _prior_freedom(fit)
+    innovations = -fit.prior_residual.reshape(-1, 3)
+    covariance = _prior_residual_covariance(fit)
     middle = prior.middle_s
     centroids, gyro = observations.centroids, observations.gyro
     order = np.argsort(centroids.stamp_s)
@@ -186,14 +191,17 @@ def _gyro_series(observations, fit, prior):
         'time': middle, 'temperature': np.interp(middle, gyro.tick_end_s, gyro.tick_temperature_c),
         'specific_force_el': force_g[:, 0], 'specific_force_xel': force_g[:, 1], 'specific_force_los': force_g[:, 2]}
     for axis_index, axis in enumerate(GYRO_AXES):
-        informed = freedom[:, axis_index] >= _MIN_FREEDOM
-        if np.count_nonzero(informed) < 3:
+        axis_covariance = covariance[axis_index::3, axis_index::3]
+        eigenvalues, vectors = np.linalg.eigh(axis_covariance)
+        free = eigenvalues >= _MIN_FREEDOM
+        if np.count_nonzero(free) < 3:
             continue
-        floor = unit_arcsec * float(np.sqrt(np.mean(freedom[informed, axis_index])))
-        # In arcsec, with the prior's scatter unit_arcsec under the null whatever the interval's freedom.
-        studentized = innovations[informed, axis_index] / np.sqrt(freedom[informed, axis_index])
-        yield (f'gyro.{axis}', floor, studentized, frame_variables, innovations[informed, axis_index], unit_arcsec,
-               prior.whitening[informed], middle[informed])
+        root = np.sqrt(eigenvalues[free])
+        decorrelated = vectors[:, free].T @ innovations[:, axis_index] / root * unit_arcsec
+        design = root[:, None] * (vectors[:, free].T @ prior.whitening)
+        floor = unit_arcsec * float(np.sqrt(np.mean(np.diag(axis_covariance))))
+        yield (f'gyro.{axis}', floor, decorrelated, frame_variables, innovations[:, axis_index] * unit_arcsec,
+               unit_arcsec, design)
 
 
 def _ranges(values_by_variable, names):
@@ -229,16 +237,18 @@ def residual_diagnostics(observations, fit, predictor, noise_arcsec, prior):
             tests.append(('trend', name, key, test, None, values))
         tests.append(('period', name, 'time', period_test(frame_variables['time'], frame_residual, weights), None,
                       None))
-    for name, floor, studentized, frame_variables, innovations, unit_arcsec, whitening, times in _gyro_series(
+    for name, floor, decorrelated, frame_variables, innovations, unit_arcsec, design in _gyro_series(
             observations, fit, prior):
         rms = float(np.sqrt(np.mean(innovations**2)))
+        # The excess over the floor counts the decorrelated components (what the data leave free).
         observables[name] = {'kind': 'gyro', 'rms_arcsec': rms, 'floor_arcsec': floor, 'ratio': rms / floor,
-                             'rows': int(len(innovations)), 'chi2': float(np.sum((studentized / unit_arcsec) ** 2))}
-        # Generalized least squares: a shape of the increments, whitened as the innovations are.
+                             'rows': int(len(decorrelated)), 'chi2': float(np.sum((decorrelated / unit_arcsec) ** 2))}
+        # Generalized least squares: a shape of the increments, decorrelated as the innovations are.
         for key, values in frame_variables.items():
-            tests.append(('trend', name, key, trend_test(values, studentized, whitening=whitening), frame_variables,
+            tests.append(('trend', name, key, trend_test(values, decorrelated, whitening=design), frame_variables,
                           values))
-        tests.append(('period', name, 'time', period_test(times, studentized), None, None))
+        tests.append(('period', name, 'time', period_test(frame_variables['time'], decorrelated, whitening=design),
+                      None, None))
     count = sum(1 for test in tests if test[3] is not None)
     trends, periods = [], []
     for kind, name, key, test, frame_variables, tested in tests:

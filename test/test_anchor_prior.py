@@ -12,6 +12,8 @@ KNOTS_S = np.arange(0.0, 30.0 * 41, 30.0)
 #: Table 5.1's ARW (0.00022 deg/sqrt(h)) and thirty times its K, in rad: the wander dominates after minutes.
 ARW_RAD_PER_SQRT_S = 0.0132 / 206264.806
 RRW_RAD_PER_S_SQRT_S = 30 * 0.00216 / 60.0 / 206264.806
+#: The bias wanders from the record's middle (the fitted gyro_bias holds there).
+MIDDLE_S = (KNOTS_S[0] + KNOTS_S[-1]) / 2.0
 
 
 def _attitudes(count, seed=1):
@@ -25,7 +27,7 @@ def test_the_prior_rows_are_the_tarf_increments_whitened_by_their_covariance():
     increments_tarf = np.einsum('kij,kj->ki', attitudes, np.diff(anchors, axis=0))
     expected = prior.whitening @ increments_tarf / prior.unit_rad
     np.testing.assert_allclose((prior.matrix @ anchors.ravel()).reshape(-1, 3), expected, rtol=1e-10, atol=1e-12)
-    covariance = angle_increment_covariance_rad2(KNOTS_S, ARW_RAD_PER_SQRT_S, RRW_RAD_PER_S_SQRT_S)
+    covariance = angle_increment_covariance_rad2(KNOTS_S, ARW_RAD_PER_SQRT_S, RRW_RAD_PER_S_SQRT_S, MIDDLE_S)
     whitened = prior.whitening @ covariance @ prior.whitening.T / prior.unit_rad**2
     np.testing.assert_allclose(whitened, np.eye(len(KNOTS_S) - 1), atol=1e-9)
     assert prior.unit_rad == pytest.approx(np.sqrt(ARW_RAD_PER_SQRT_S**2 * 30 + RRW_RAD_PER_S_SQRT_S**2 * 30**3 / 3))
@@ -36,7 +38,7 @@ def test_a_simulated_arw_and_rrw_walk_gives_unit_normal_uncorrelated_rows():
     rng = np.random.default_rng(3)
     attitudes = _attitudes(len(KNOTS_S) - 1)
     prior = anchor_prior(KNOTS_S, attitudes, ARW_RAD_PER_SQRT_S, RRW_RAD_PER_S_SQRT_S)
-    covariance = angle_increment_covariance_rad2(KNOTS_S, ARW_RAD_PER_SQRT_S, RRW_RAD_PER_S_SQRT_S)
+    covariance = angle_increment_covariance_rad2(KNOTS_S, ARW_RAD_PER_SQRT_S, RRW_RAD_PER_S_SQRT_S, MIDDLE_S)
     factor = np.linalg.cholesky(covariance)
     rows, naive = [], []
     for _ in range(400):

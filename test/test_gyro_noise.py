@@ -162,27 +162,39 @@ def test_bad_input_raises_invalid_argument_naming_it(call, match):
         call()
 
 
-def test_angle_increment_covariance_matches_the_generators_arw_and_rrw():
+@pytest.mark.parametrize('reference_s', [None, 60.0], ids=['from-the-first-knot', 'from-the-middle'])
+def test_angle_increment_covariance_matches_the_generators_arw_and_rrw(reference_s):
     """Eq. 4.16 + 4.20 between knots against 3000 records of the generator (20 Hz, ARW and RRW only).
 
     Sample covariances of 3000 x 3 increments scatter by about sqrt(2 / 9000) = 1.5 % of the
-    diagonal; 6 % is four of those. The off-diagonal terms are the RRW's bias wander alone.
+    diagonal; 6 % is four of those. The off-diagonal terms are the RRW's bias wander alone. The
+    generator's walk starts at zero at the record's start; measured from a later reference, the
+    walk's value there (a constant rate: what the fitted bias takes) is subtracted, read off an
+    RRW-only stream whose rate is the walk itself.
     """
     sample_rate_hz, knots_s = 20.0, np.array([0.0, 30.0, 60.0, 90.0, 125.0])
     coefficients = NoiseCoefficients(arw_deg_per_sqrt_h=0.0003, rrw_deg_per_h_sqrt_h=0.05)
     arw = arw_deg_per_sqrt_h_to_arcsec_per_sqrt_s(coefficients.arw_deg_per_sqrt_h) * RAD_PER_ARCSEC
     rrw = rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s(coefficients.rrw_deg_per_h_sqrt_h) * RAD_PER_ARCSEC
     samples = int(knots_s[-1] * sample_rate_hz)
+    white = NoiseCoefficients(arw_deg_per_sqrt_h=coefficients.arw_deg_per_sqrt_h)
+    walk = NoiseCoefficients(rrw_deg_per_h_sqrt_h=coefficients.rrw_deg_per_h_sqrt_h)
     increments = []
     for seed in range(3000):
-        rate = gyro_rate_rad_per_s(coefficients, samples, sample_rate_hz, rng=seed)
+        bias = gyro_rate_rad_per_s(walk, samples, sample_rate_hz, rng=2 * seed)
+        if reference_s is not None:
+            bias -= bias[int(reference_s * sample_rate_hz)]
+        rate = gyro_rate_rad_per_s(white, samples, sample_rate_hz, rng=2 * seed + 1) + bias
         angle = np.concatenate([np.zeros((1, 3)), np.cumsum(rate, axis=0) / sample_rate_hz])
         increments.append(np.diff(angle[np.rint(knots_s * sample_rate_hz).astype(int)], axis=0).T)
     measured = np.cov(np.concatenate(increments), rowvar=False)
-    expected = angle_increment_covariance_rad2(knots_s, arw, rrw)
+    expected = angle_increment_covariance_rad2(knots_s, arw, rrw, reference_s=reference_s)
     scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
     np.testing.assert_array_less(np.abs(measured - expected) / scale, 0.06)
-    assert expected[0, 3] > 0.2 * scale[0, 3]  # the wander correlates intervals 90 s apart (0.28)
+    if reference_s is None:
+        assert expected[0, 3] > 0.2 * scale[0, 3]  # the wander correlates intervals 90 s apart (0.28)
+    else:
+        assert expected[0, 3] == 0.0 and expected[2, 3] > 0.2 * scale[2, 3]  # not across the reference
 
 
 def test_angle_increment_covariance_without_rrw_is_white_and_refuses_bad_knots():

@@ -3,7 +3,8 @@
 The anchors correct the model's gyro attitude at knots 30 s apart; between two knots they may add
 only what the gyros' own noise could have done. Angle random walk N makes the increments white;
 rate random walk K wanders the bias, so the increments of intervals far apart are correlated
-(sensors.gyro_noise.angle_increment_covariance_rad2). The prior is generalized least squares: each
+(sensors.gyro_noise.angle_increment_covariance_rad2), wandering away from the record's middle, where
+the fitted gyro_bias holds. The prior is generalized least squares: each
 interval's increment is turned into TARF axes (the gyros are fixed there, and their noise is the
 same on every axis) and the increments of one axis are whitened by the Cholesky factor of their
 covariance, so every prior row is a unit normal under the null. Treating the increments as
@@ -60,7 +61,11 @@ def anchor_prior(knots_s, tarf_from_irf, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_
     if not unit_rad > 0.0:
         raise BagError('the gyro noise allows the anchors no movement (angle and rate random walk both zero); '
                        'give the model\'s gyro_noise a rate random walk')
-    covariance = angle_increment_covariance_rad2(knots, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s) / unit_rad**2
+    # The bias wanders away from the record's middle both ways: the fitted gyro_bias is the bias there, and two
+    # halves of the record each see it across half the record, not one of them across all of it.
+    middle_s = (knots[0] + knots[-1]) / 2.0
+    covariance = angle_increment_covariance_rad2(knots, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s,
+                                                 reference_s=middle_s) / unit_rad**2
     factor = scipy.linalg.cholesky(covariance, lower=True)
     whitening = scipy.linalg.solve_triangular(factor, np.eye(intervals), lower=True)
     # Increments in TARF: row 3k + j of R D is sum_i A_k[j, i] (a_k+1,i - a_k,i).

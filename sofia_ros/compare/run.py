@@ -167,7 +167,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     consistency = split_consistency(observations, final, predictor)
     diagnostics_s = time.perf_counter() - diagnostics_started
     names = [name for name in (candidate_names or CATALOGUE) if name not in effects and name not in NOISE_EFFECTS]
-    names += [name for name in empirical_candidate_names(diagnostics, observations.centroids.cameras)
+    names += [name for name in empirical_candidate_names(diagnostics, observations.centroids.cameras, consistency)
               if name not in effects]
     linear_started = time.perf_counter()
     terms = _linearized_candidates(predictor, final, noise_arcsec, prior, names)

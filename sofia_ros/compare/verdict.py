@@ -13,7 +13,7 @@
 
 from __future__ import annotations
 
-from sofia_ros.compare.diagnostics import DETECTION_SIGMA, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
+from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
 from sofia_ros.effects.empirical import CAMERA_OBSERVABLES, GYRO_VARIABLES, VARIABLES, empirical_name
 
 __all__ = ['empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
@@ -30,18 +30,34 @@ def _expressible(finding, gyro):
     return next((variable for variable in group if variable in allowed), None)
 
 
-def empirical_candidate_names(diagnostics, cameras):
+def _implicated_observables(consistency, cameras):
+    """Observables whose fitted term changes between halves: a gyro term's axis, a camera term's two axes."""
+    implicated = set()
+    for entry in consistency:
+        # Parameters name their axis or camera first (gyro_bias.el_deg_per_h, imager_boresight_offset.ffi_el_arcsec).
+        prefix = entry['param'].split('.', 1)[1].split('_', 1)[0]
+        if prefix in GYRO_AXES:
+            implicated.add(f'gyro.{prefix}')
+        elif prefix in cameras:
+            implicated.update((f'{prefix}.x', f'{prefix}.y'))
+    return implicated
+
+
+def empirical_candidate_names(diagnostics, cameras, consistency=()):
     """Empirical terms for the strongest shapes the diagnostics found: one per observable and kind of finding.
 
     A shape is structure from DETECTION_SIGMA on; on an observable already known to be wrong (its
-    RMS is beyond its floor) a listed finding (from REPORT_SIGMA) is the best hint of its shape,
-    and is tried too: the ranking's delta-BIC then decides whether it explains anything.
+    RMS is beyond its floor, or a fitted term of its axis changes between halves of the data) a
+    listed finding (from REPORT_SIGMA) is the best hint of its shape, and is tried too: the
+    ranking's delta-BIC then decides whether it explains anything.
     """
+    implicated = _implicated_observables(consistency, cameras)
     names, seen = [], set()
     for finding in distinct_findings([*diagnostics.trends, *diagnostics.periods]):
         observable = finding['observable']
         entry = diagnostics.observables.get(observable, {})
-        if finding['significance_sigma'] < DETECTION_SIGMA and entry.get('explained', True):
+        if (finding['significance_sigma'] < DETECTION_SIGMA and entry.get('explained', True)
+                and observable not in implicated):
             continue
         gyro = observable.startswith('gyro.')
         if not gyro and (observable not in CAMERA_OBSERVABLES or observable.split('.')[0] not in cameras):

@@ -96,22 +96,25 @@ def deg_per_h_to_arcsec_per_s(rate_deg_per_h):
     return rate_deg_per_h * 1.0
 
 
-def angle_increment_covariance_rad2(knots_s, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s):
+def angle_increment_covariance_rad2(knots_s, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s, reference_s=None):
     """Covariance of one gyro axis' angle increments between consecutive knots under ARW and RRW (4.2.3, 4.16, 4.20).
 
     ARW adds white rate noise: N^2 (t_k+1 - t_k) on the diagonal. RRW is a rate (bias) random walk
-    b(t) = K W(t), taken as zero at the first knot (the bias there is a fitted constant); its angle
-    B(t) = integral of b has Cov(B(s), B(t)) = K^2 (m^2 M / 2 - m^3 / 6) with m, M the smaller and
-    larger of s, t from the first knot, so increments of intervals far apart are correlated: one
-    interval's own variance is N^2 h + K^2 (h^3 / 3 + a h^2) at a seconds from the first knot.
+    b(t) = K W(t), zero at ``reference_s`` (default: the first knot; the bias there is a fitted
+    constant) and wandering away from it both ways; its angle B(t) = integral of b from the reference
+    has Cov(B(s), B(t)) = K^2 (m^2 M / 2 - m^3 / 6) for s, t on the same side of the reference (m, M
+    the smaller and larger distance from it) and 0 across it, so increments of intervals far apart
+    are correlated: one interval's own variance is N^2 h + K^2 (h^3 / 3 + a h^2) at a seconds from it.
     """
     knots = np.asarray(knots_s, dtype=float)
     if knots.ndim != 1 or len(knots) < 2 or np.any(np.diff(knots) <= 0.0):
         raise InvalidArgumentError('knots_s must be at least two increasing times')
-    elapsed = knots - knots[0]
-    smaller = np.minimum.outer(elapsed, elapsed)
-    larger = np.maximum.outer(elapsed, elapsed)
-    angle = rrw_rad_per_s_sqrt_s**2 * (smaller**2 * larger / 2.0 - smaller**3 / 6.0)
+    elapsed = knots - (knots[0] if reference_s is None else float(reference_s))
+    distance = np.abs(elapsed)
+    smaller = np.minimum.outer(distance, distance)
+    larger = np.maximum.outer(distance, distance)
+    same_side = np.equal.outer(np.sign(elapsed), np.sign(elapsed))
+    angle = rrw_rad_per_s_sqrt_s**2 * np.where(same_side, smaller**2 * larger / 2.0 - smaller**3 / 6.0, 0.0)
     # Increments: second differences of the angle covariance over both knot indices.
     covariance = angle[1:, 1:] - angle[1:, :-1] - angle[:-1, 1:] + angle[:-1, :-1]
     covariance[np.diag_indices_from(covariance)] += arw_rad_per_sqrt_s**2 * np.diff(knots)

@@ -14,6 +14,7 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import ReaderError
 
+from sofia_ros.bag.columns import decode_columns
 from sofia_ros.bag.imu import ImuArrays, decode_imu_cdr, decode_imu_rows, merge_imu_blocks
 from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, check_summary_crc, first_damaged_chunk, indexed_records
 from sofia_ros.bag.msgtypes import (
@@ -179,10 +180,11 @@ class BagReader:
         return ((connection.topic, stamp_ns, data) for connection, stamp_ns, data in records)
 
     def messages_by_topic(
-        self, *topics: str, raw: tuple[str, ...] = (), imu: tuple[str, ...] = ()
+        self, *topics: str, raw: tuple[str, ...] = (), imu: tuple[str, ...] = (), columns: tuple[str, ...] = ()
     ) -> dict[str, Any]:
         """One pass over ``topics``: topic -> (log stamps ns, messages); topics in ``raw`` keep CDR bytes,
-        topics in ``imu`` come back as ImuArrays decoded in bulk.
+        topics in ``imu`` come back as ImuArrays decoded in bulk, topics in ``columns`` as MessageColumns
+        (bag.columns: every field an array, without a Python object per message).
 
         Read through the MCAP message indexes where the file has them (mcap_index), else record by record.
         """
@@ -210,6 +212,8 @@ class BagReader:
                                                  arrays.header_stamp_ns - self.origin_ns,
                                                  arrays.angular_velocity_rad_per_s,
                                                  arrays.linear_acceleration_m_per_s2)
+                elif topic in columns:
+                    collected[topic] = decode_columns(*collected[topic], self.topic(topic).msgtype, typestore)
                 elif topic not in raw:
                     msgtype = self.topic(topic).msgtype
                     collected[topic] = (collected[topic][0],

@@ -40,7 +40,7 @@ from sensor_msgs.msg import Imu, JointState, Temperature
 from std_msgs.msg import Header, String
 
 from sofia_ros.bag import TYPESTORE, BagReader, BagWriter, recover_bag, wire_cdr
-from sofia_ros.bag.columns import decode_columns
+from sofia_ros.bag.columns import decode_columns, payload_blocks
 from sofia_ros.bag.imu import decode_imu_cdr
 from sofia_ros.bag.msgtypes import msgtype_of
 from sofia_ros.errors import BagError, InvalidArgumentError
@@ -441,9 +441,9 @@ def test_columns_match_per_message_decoding(round_trip):
 def test_columns_reject_payloads_that_are_not_their_type():
     good = bytes(wire_cdr(sample('sensor_msgs/msg/JointState', 1)))
     with pytest.raises(ValueError, match='ends inside'):
-        decode_columns([0], [good[:30]], 'sensor_msgs/msg/JointState', TYPESTORE)
+        decode_columns(payload_blocks([0], [good[:30]]), 'sensor_msgs/msg/JointState', TYPESTORE)
     with pytest.raises(InvalidArgumentError, match='not little-endian CDR'):
-        decode_columns([0], [b'\x00\x00' + good[2:]], 'sensor_msgs/msg/JointState', TYPESTORE)
+        decode_columns(payload_blocks([0], [b'\x00\x00' + good[2:]]), 'sensor_msgs/msg/JointState', TYPESTORE)
 
 
 def test_imu_decoding_rejects_payloads_that_are_not_imu():

@@ -20,7 +20,7 @@ from rosbags.interfaces import Nodetype
 from sofia_ros.bag.timebase import NS_PER_S
 from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['MessageColumns', 'decode_columns']
+__all__ = ['MessageColumns', 'decode_columns', 'payload_blocks']
 
 _ENCAPSULATION_CDR_LE = (0, 1)
 #: The 4-byte encapsulation header before the CDR body, from whose start alignment counts.
@@ -60,20 +60,40 @@ class MessageColumns:
         return self.values[path]
 
 
-def decode_columns(stamp_ns, payloads, msgtype, typestore):
-    """MessageColumns of little-endian CDR ``payloads`` of ``msgtype`` logged at ``stamp_ns`` (kept in their order).
-
-    ValueError where a payload is not the CDR of ``msgtype`` (too short for its own length prefixes).
-    """
+def payload_blocks(stamp_ns, payloads):
+    """(log stamps ns, 2-D uint8 rows) per payload length of CDR ``payloads`` logged at ``stamp_ns``."""
     count = len(payloads)
     if len(stamp_ns) != count:
         raise InvalidArgumentError(f'got {len(stamp_ns)} stamps for {count} payloads')
-    kinds = _leaf_kinds(msgtype, typestore)
+    stamps = np.asarray(stamp_ns, dtype=np.int64)
     lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=count)
-    groups = []  # (message indices, leaf -> (rows, occurrences) values)
+    blocks = []
     for length in np.unique(lengths):
-        indices = np.flatnonzero(lengths == length)
-        rows = np.frombuffer(b''.join(payloads[index] for index in indices), dtype=np.uint8).reshape(-1, length)
+        rows = np.flatnonzero(lengths == length)
+        # One length for the whole topic is the rule: then no payload is picked out.
+        chosen = payloads if len(rows) == count else [payloads[row] for row in rows]
+        blocks.append((stamps[rows], np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(-1, length)))
+    return blocks
+
+
+def decode_columns(blocks, msgtype, typestore):
+    """MessageColumns of (log stamps ns, 2-D uint8 rows of equal-length little-endian CDR) blocks of ``msgtype``.
+
+    The messages come out in log-time order (stable). ValueError where a payload is not the CDR of
+    ``msgtype`` (too short for its own length prefixes).
+    """
+    kinds = _leaf_kinds(msgtype, typestore)
+    stamps = np.concatenate([block_stamps for block_stamps, _ in blocks]) if blocks else np.empty(0, dtype=np.int64)
+    order = np.argsort(stamps, kind='stable')
+    # Each block's messages, numbered by their place in log-time order.
+    place = np.empty(len(order), dtype=np.int64)
+    place[order] = np.arange(len(order))
+    numbers = np.split(place, np.cumsum([len(block_stamps) for block_stamps, _ in blocks])[:-1]) if blocks else []
+    widths = sorted({rows.shape[1] for _, rows in blocks})
+    groups = []  # (message numbers, leaf -> (rows, occurrences) values), one per layout
+    for width in widths:
+        rows = np.concatenate([rows for _, rows in blocks if rows.shape[1] == width])
+        indices = np.concatenate([index for index, (_, rows) in zip(numbers, blocks) if rows.shape[1] == width])
         if np.any(rows[:, :2] != _ENCAPSULATION_CDR_LE):
             raise InvalidArgumentError(f'{msgtype} payloads are not little-endian CDR')
         while len(rows):
@@ -85,7 +105,7 @@ def decode_columns(stamp_ns, payloads, msgtype, typestore):
             rows, indices = rows[~same], indices[~same]
     values, counts = {}, {}
     for path, kind in kinds.items():
-        counts[path] = np.zeros(count, dtype=np.int64)
+        counts[path] = np.zeros(len(order), dtype=np.int64)
         for indices, leaves in groups:
             counts[path][indices] = leaves[path].shape[1] if path in leaves else 0
         starts = np.cumsum(counts[path]) - counts[path]
@@ -93,7 +113,7 @@ def decode_columns(stamp_ns, payloads, msgtype, typestore):
         for indices, leaves in groups:
             if path in leaves and leaves[path].size:
                 values[path][starts[indices][:, None] + np.arange(leaves[path].shape[1])] = leaves[path]
-    return MessageColumns(np.asarray(stamp_ns, dtype=np.int64), values, counts)
+    return MessageColumns(stamps[order], values, counts)
 
 
 @lru_cache(maxsize=64)

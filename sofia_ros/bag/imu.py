@@ -11,11 +11,11 @@ length share one layout and decode as columns of a 2-D byte array.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import compress
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sofia_ros.bag.columns import payload_blocks
 from sofia_ros.errors import InvalidArgumentError
 
 if TYPE_CHECKING:
@@ -48,19 +48,7 @@ class ImuArrays:
 
 def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArrays:
     """Decode little-endian Imu CDR ``payloads`` logged at ``stamp_ns`` into ImuArrays."""
-    count = len(payloads)
-    if len(stamp_ns) != count:
-        raise InvalidArgumentError(f'got {len(stamp_ns)} stamps for {count} Imu payloads')
-    stamps = np.asarray(stamp_ns, dtype=np.int64)
-    lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=count)
-    unique_lengths = np.unique(lengths)
-    blocks = []
-    for length in unique_lengths:
-        rows = lengths == length
-        # One frame_id for the whole topic is the rule: then no row selection is needed.
-        chosen = payloads if len(unique_lengths) == 1 else compress(payloads, rows)
-        blocks.append((stamps[rows], np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(-1, length)))
-    return decode_imu_blocks(blocks)
+    return decode_imu_blocks(payload_blocks(stamp_ns, payloads))
 
 
 def decode_imu_blocks(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> ImuArrays:

@@ -51,10 +51,11 @@ _BATCH_BYTES = 2 << 20
 def indexed_records(mcap_path, topics, packed=None):
     """topic -> (log times ns, CDR payloads) in log-time order, read through the message indexes; None without them.
 
-    Topics in ``packed`` (topic -> block decoder or None) come back as a list of (log times ns, 2-D
+    Topics in ``packed`` (topic -> payload decoder or None) come back as a list of (log times ns, 2-D
     uint8 array of equal-length payloads) blocks instead, for bulk decoding without a Python object
-    per message; with a decoder each block comes back as (log times ns, decoder(rows)), decoded as
-    it is cut, so that only one batch of chunks is alive at a time (a star hop's gyro payloads are 0.8 GB).
+    per message; with a decoder each block comes back as (log times ns, decoder(batch bytes, payload
+    starts, payload length)), decoded as it is cut, so that only one batch of chunks is alive at a time
+    (a star hop's gyro payloads are 0.8 GB) and only the bytes the decoder reads are gathered.
     """
     packed = packed or {}
     with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
@@ -68,13 +69,15 @@ def indexed_records(mcap_path, topics, packed=None):
 
         def cut(batch):
             records = b''.join(chunk_records for chunk_records, _ in batch)
+            raw = np.frombuffer(records, dtype=np.uint8)
             log_ns, starts, ends, channels = (np.concatenate(column) for column in zip(*(index for _, index in batch)))
             for channel in np.unique(channels).tolist():
                 topic, mine = channel_topic[channel], channels == channel
                 if topic in blocks:
-                    pieces = _equal_length_blocks(records, log_ns[mine], starts[mine], ends[mine])
-                    decode = packed[topic]
-                    blocks[topic].extend(pieces if decode is None else ((stamps, decode(rows)) for stamps, rows in pieces))
+                    decode = packed[topic] or _rows
+                    blocks[topic].extend((stamps, decode(raw, group_starts, length))
+                                         for stamps, group_starts, length in
+                                         _equal_length_groups(log_ns[mine], starts[mine], ends[mine]))
                 else:
                     found[topic][0].append(log_ns[mine])
                     # Copies, not views: a view would keep the whole batch alive.
@@ -177,17 +180,16 @@ def _chunk_messages(data, index_offsets, channels, records):
     return log_ns, starts, ends, np.repeat(np.asarray(channels, dtype=np.int64), counts)
 
 
-def _equal_length_blocks(records, log_ns, starts, ends):
-    """(log times, rows) per payload length: each row one message's bytes, gathered at once."""
-    raw = np.frombuffer(records, dtype=np.uint8)
+def _equal_length_groups(log_ns, starts, ends):
+    """(log times, payload starts, payload length) per payload length."""
     lengths = ends - starts
-    blocks = []
-    for length in np.unique(lengths):
-        rows = lengths == length
-        # Row k of the window view is raw[k:k + length]: picking rows copies only the payloads.
-        windows = np.lib.stride_tricks.sliding_window_view(raw, int(length))
-        blocks.append((log_ns[rows], windows[starts[rows]]))
-    return blocks
+    return [(log_ns[lengths == length], starts[lengths == length], int(length)) for length in np.unique(lengths)]
+
+
+def _rows(raw, starts, length):
+    """Equal-length payloads at ``starts`` of a byte buffer as rows of a 2-D array, gathered at once."""
+    # Row k of the window view is raw[k:k + length]: picking rows copies only the payloads.
+    return np.lib.stride_tricks.sliding_window_view(raw, length)[starts]
 
 
 def _in_time_order(stamp_blocks, payloads):

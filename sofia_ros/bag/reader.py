@@ -15,7 +15,7 @@ from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import ReaderError
 
 from sofia_ros.bag.columns import decode_columns, payload_blocks
-from sofia_ros.bag.imu import ImuArrays, decode_imu_cdr, decode_imu_rows, merge_imu_blocks
+from sofia_ros.bag.imu import ImuArrays, decode_imu_cdr, decode_imu_payloads, merge_imu_blocks
 from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, check_summary_crc, first_damaged_chunk, indexed_records
 from sofia_ros.bag.msgtypes import (
     DOCUMENT_MSGTYPE,
@@ -193,7 +193,7 @@ class BagReader:
                 raise BagError(f'topic {topic} in bag {self.path} holds {msgtype}, not {IMU_MSGTYPE}')
         tables = tuple(topic for topic in columns if topic in topics)
         collected = self._indexed(topics, {**{topic: None for topic in tables},
-                                           **{topic: decode_imu_rows for topic in imu}})
+                                           **{topic: decode_imu_payloads for topic in imu}})
         if collected is None:
             # _raw gives campaign time already.
             collected = {topic: ([], []) for topic in topics}
@@ -322,7 +322,8 @@ class BagReader:
         if not self.origin_ns:
             return stamps_ns, rows
         try:
-            return stamps_ns - self.origin_ns, shift_stamps(rows, -self.origin_ns) if has_leading_stamp(msgtype) else rows
+            shifted = shift_stamps(rows, -self.origin_ns) if has_leading_stamp(msgtype) else rows
+            return stamps_ns - self.origin_ns, shifted
         except ValueError as err:
             raise BagError(f'{msgtype} in bag {self.path}: {err}') from err
 

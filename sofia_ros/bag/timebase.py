@@ -50,7 +50,7 @@ def shift_stamp(data: bytes | memoryview, offset_ns: int) -> bytes:
 
 
 def shift_stamps(rows: np.ndarray, offset_ns: int) -> np.ndarray:
-    """Equal-length little-endian CDR rows (2-D uint8) whose leading stamps are moved by ``offset_ns``, as shift_stamp."""
+    """Equal-length little-endian CDR rows (2-D uint8) with the leading stamps moved by ``offset_ns`` (shift_stamp)."""
     if np.any(rows[:, 1] != 1):
         raise ValueError('the payloads are not little-endian CDR')
     stamp_ns = (np.ascontiguousarray(rows[:, 4:8]).view('<i4')[:, 0].astype(np.int64) * NS_PER_S

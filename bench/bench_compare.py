@@ -59,11 +59,12 @@ def read_record_by_record(bag_path, topics):
 
 
 def compare_in_a_process(bag, json_path, checkout=ROOT):
-    """`sofia compare` of ``checkout`` in its own process: (wall s, CPU s of user + system, peak RSS MB, load before)."""
+    """`sofia compare` of ``checkout`` in its own process: (wall s, CPU s of user + system, peak MB, load before)."""
     load = _load()
     started = time.perf_counter()
-    process = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'compare', str(bag), '--model', str(MODEL),
-                                '--json', str(json_path)], stdout=subprocess.DEVNULL,
+    # Run from the checkout: `python -m` puts the working directory first on sys.path, before PYTHONPATH.
+    process = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'compare', str(Path(bag).resolve()), '--model',
+                                str(MODEL), '--json', str(json_path)], stdout=subprocess.DEVNULL, cwd=checkout,
                                env={**os.environ, 'PYTHONPATH': str(checkout)})
     _, status, usage = os.wait4(process.pid, 0)
     wall_s = time.perf_counter() - started
@@ -76,7 +77,8 @@ def compare_in_a_process(bag, json_path, checkout=ROOT):
 def disagreements(before, after):
     """What differs between two compare documents beyond numerical noise (verdict, candidates, terms), as lines."""
     lines = []
-    if (before['verdict']['status'], before['verdict']['text']) != (after['verdict']['status'], after['verdict']['text']):
+    verdicts = [(document['verdict']['status'], document['verdict']['text']) for document in (before, after)]
+    if verdicts[0] != verdicts[1]:
         lines.append(f'verdict {before["verdict"]["status"]!r} became {after["verdict"]["status"]!r}')
     for key in ('degenerate', 'unobservable'):
         if before[key] != after[key]:

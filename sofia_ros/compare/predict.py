@@ -65,15 +65,26 @@ def _dcms_from_rotvecs(rotvecs):
 def propagate_tick_attitudes(increments_rad, initial_dcm):
     """A_TARF,IRF at every tick end from per-tick body rotation vectors, A_k = R(phi_k)^T A_k-1 (3.20, B.23).
 
-    The running product is an inclusive scan (Hillis-Steele): log2(N) rounds of batched 3x3
-    products instead of N sequential ones; the same products, grouped differently (rounding ~1e-15).
+    The running product in blocks of about sqrt(N) ticks: the products within every block advance
+    together (one batched 3x3 product per tick of a block), then each block is carried by the
+    product of the blocks before it - about 3N products in 3 sqrt(N) numpy calls, where a scan
+    takes N log2(N) and a loop N calls; the same products, grouped differently (rounding ~1e-15).
     """
-    prefix = _dcms_from_rotvecs(increments_rad)
-    shift = 1
-    while shift < len(prefix):
-        prefix[shift:] = prefix[shift:] @ prefix[:-shift]
-        shift *= 2
-    return np.concatenate([np.asarray(initial_dcm)[None], prefix @ initial_dcm])
+    initial_dcm = np.asarray(initial_dcm, dtype=float)
+    steps = _dcms_from_rotvecs(increments_rad)
+    count = len(steps)
+    size = max(int(np.sqrt(count)), 1)
+    blocks = max(-(-count // size), 1)
+    prefix = np.concatenate([steps, np.broadcast_to(np.eye(3), (blocks * size - count, 3, 3))])
+    prefix = prefix.reshape(blocks, size, 3, 3)
+    for tick in range(1, size):
+        prefix[:, tick] = prefix[:, tick] @ prefix[:, tick - 1]
+    carry = np.empty((blocks, 3, 3))
+    carry[0] = initial_dcm
+    for block in range(1, blocks):
+        carry[block] = prefix[block - 1, -1] @ carry[block - 1]
+    attitudes = (prefix @ carry[:, None]).reshape(-1, 3, 3)[:count]
+    return np.concatenate([initial_dcm[None], attitudes])
 
 
 def _tick_fractions(times_s, tick_end_s):

@@ -6,16 +6,21 @@ the 17-observation star hop (`sofia run star-hop --truth config/truth/nominal.ya
 --direct --bag B`). Each comparison runs as `sofia compare BAG --model config/model/nominal.yaml`
 in its own process, as a user runs it: printed are its wall time, its CPU time (user + system, all
 threads) and its peak memory, with the machine's load beside them, against the targets of issue 14
-(alignment <= 5 s, star hop <= 20 s, <= 1 GB); then the parts the comparison reports itself. The old
-comparison path is gone (no dead code for a bench), so there is no old-vs-new ratio here. Beside it,
-the observables' topics read through the MCAP message indexes against the same topics record by
-record through rosbags (what `read_observations` did before), measured in one run, as a ratio.
+(alignment <= 5 s, star hop <= 20 s, <= 1 GB); then the parts the comparison reports itself. With
+``--baseline CHECKOUT`` (another checkout of the repository, e.g. ``git worktree add /tmp/base main``)
+the same comparison also runs from that checkout, alternating with this one ``--rounds`` times, and
+the ratios are printed (the faster round of each kept): before and after under the same load. The
+two JSON outputs are then checked to agree: the same verdict, candidates and degenerate pairs, every
+fitted term within 1e-3 of its sigma. Beside it, the observables' topics read through the MCAP
+message indexes against the same topics record by record through rosbags (what `read_observations`
+did before), measured in one run, as a ratio.
 
-Run: .venv/bin/python bench/bench_compare.py [ALIGNMENT_BAG [STAR_HOP_BAG]]
+Run: .venv/bin/python bench/bench_compare.py [ALIGNMENT_BAG [STAR_HOP_BAG]] [--baseline CHECKOUT [--rounds N]]
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -37,6 +42,8 @@ MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
 #: Issue 14's targets: wall seconds per campaign on the 2-core machine, and peak memory.
 TARGET_S = {'alignment': 5.0, 'star-hop': 20.0}
 TARGET_MEMORY_MB = 1024.0
+#: A fitted value of the baseline and of this checkout may differ by this fraction of its sigma (numerical noise).
+AGREEMENT_SIGMA = 1e-3
 
 
 def _load():
@@ -51,18 +58,38 @@ def read_record_by_record(bag_path, topics):
     return imu, others
 
 
-def compare_in_a_process(bag, json_path):
-    """`sofia compare` in its own process: (wall s, CPU s of user + system, peak RSS MB, load before)."""
+def compare_in_a_process(bag, json_path, checkout=ROOT):
+    """`sofia compare` of ``checkout`` in its own process: (wall s, CPU s of user + system, peak MB, load before)."""
     load = _load()
     started = time.perf_counter()
-    process = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'compare', str(bag), '--model', str(MODEL),
-                                '--json', str(json_path)], stdout=subprocess.DEVNULL)
+    # Run from the checkout: `python -m` puts the working directory first on sys.path, before PYTHONPATH.
+    process = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'compare', str(Path(bag).resolve()), '--model',
+                                str(MODEL), '--json', str(json_path)], stdout=subprocess.DEVNULL, cwd=checkout,
+                               env={**os.environ, 'PYTHONPATH': str(checkout)})
     _, status, usage = os.wait4(process.pid, 0)
     wall_s = time.perf_counter() - started
     process.returncode = os.waitstatus_to_exitcode(status)
     if process.returncode != 0:
-        raise SystemExit(f'sofia compare {bag} failed with exit code {process.returncode}')
+        raise SystemExit(f'sofia compare {bag} ({checkout}) failed with exit code {process.returncode}')
     return wall_s, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0, load
+
+
+def disagreements(before, after):
+    """What differs between two compare documents beyond numerical noise (verdict, candidates, terms), as lines."""
+    lines = []
+    verdicts = [(document['verdict']['status'], document['verdict']['text']) for document in (before, after)]
+    if verdicts[0] != verdicts[1]:
+        lines.append(f'verdict {before["verdict"]["status"]!r} became {after["verdict"]["status"]!r}')
+    for key in ('degenerate', 'unobservable'):
+        if before[key] != after[key]:
+            lines.append(f'{key}: {before[key]} became {after[key]}')
+    if [c['effect'] for c in before['candidates']] != [c['effect'] for c in after['candidates']]:
+        lines.append('the candidates are ranked differently')
+    for old, new in zip(before['terms'], after['terms']):
+        shift = abs(new['value'] - old['value']) / old['sigma']
+        if shift > AGREEMENT_SIGMA:
+            lines.append(f'{old["effect"]}.{old["param"]} moved by {shift:.2g} sigma')
+    return lines
 
 
 def bench_reading(bag):
@@ -84,13 +111,27 @@ def bench_reading(bag):
           f'through rosbags: {rosbags_s:.2f} s ({rosbags_s / read_s:.1f}x; {_load()})')
 
 
-def bench_compare(campaign, bag, folder):
+def bench_compare(campaign, bag, folder, baseline=None, rounds=1):
     json_path = Path(folder) / f'{campaign}.json'
-    wall_s, cpu_s, peak_mb, load = compare_in_a_process(bag, json_path)
+    runs = {}  # checkout -> the fastest (wall s, CPU s, peak MB, load) of its rounds
+    for _ in range(rounds):
+        for checkout in ([baseline] if baseline else []) + [ROOT]:
+            path = json_path.with_suffix('.baseline.json') if checkout == baseline else json_path
+            figures = compare_in_a_process(bag, path, checkout)
+            runs[checkout] = min(runs.get(checkout, figures), figures)
     document = json.loads(json_path.read_text())
     print(f'{campaign}: {sum(document["observations"].values())} centroids, {len(document["candidates"])} candidates')
+    wall_s, cpu_s, peak_mb, load = runs[ROOT]
     print(f'  sofia compare: {wall_s:.2f} s wall, {cpu_s:.2f} s CPU (target <= {TARGET_S[campaign]:g} s wall; '
           f'{load} before, {_load()} after); peak memory {peak_mb:.0f} MB (target <= {TARGET_MEMORY_MB:.0f} MB)')
+    if baseline:
+        old_wall_s, old_cpu_s, old_peak_mb, old_load = runs[baseline]
+        print(f'  baseline {baseline}: {old_wall_s:.2f} s wall, {old_cpu_s:.2f} s CPU, {old_peak_mb:.0f} MB '
+              f'({old_load} before); this checkout is {old_wall_s / wall_s:.2f}x faster in wall time, '
+              f'{old_cpu_s / cpu_s:.2f}x in CPU time, {old_peak_mb / peak_mb:.2f}x in memory (best of {rounds})')
+        lines = disagreements(json.loads(json_path.with_suffix('.baseline.json').read_text()), document)
+        print('  results: ' + ('; '.join(lines) if lines else f'the same verdict and candidates, every fitted term '
+                                                               f'within {AGREEMENT_SIGMA:g} sigma of the baseline'))
     seconds = document['seconds']
     print(f'  inside it (wall): comparison {seconds["total"]:.2f} s, of which diagnostics {seconds["diagnostics"]:.2f} s, '
           f'{seconds["per_candidate"] * 1000:.0f} ms per linearized candidate')
@@ -101,9 +142,14 @@ def bench_compare(campaign, bag, folder):
 
 
 def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('bags', nargs='*', type=Path, help='the alignment bag and, optionally, the star-hop bag')
+    parser.add_argument('--baseline', type=Path, help='another checkout of the repository to compare against')
+    parser.add_argument('--rounds', type=int, default=1, help='runs of each checkout, alternating; the fastest kept')
+    args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix='bench_compare_') as folder:
-        if len(sys.argv) > 1:
-            bags = dict(zip(('alignment', 'star-hop'), map(Path, sys.argv[1:3])))
+        if args.bags:
+            bags = dict(zip(('alignment', 'star-hop'), args.bags))
         else:
             bags = {'alignment': Path(folder) / 'alignment'}
             started = time.perf_counter()
@@ -111,7 +157,7 @@ def main():
                           mode='direct')
             print(f'campaign (direct mode) recorded in {time.perf_counter() - started:.1f} s: {bags["alignment"]}')
         for campaign, bag in bags.items():
-            bench_compare(campaign, bag, folder)
+            bench_compare(campaign, bag, folder, args.baseline and args.baseline.resolve(), args.rounds)
 
 
 if __name__ == '__main__':

@@ -40,6 +40,7 @@ from sensor_msgs.msg import Imu, JointState, Temperature
 from std_msgs.msg import Header, String
 
 from sofia_ros.bag import TYPESTORE, BagReader, BagWriter, recover_bag, wire_cdr
+from sofia_ros.bag.columns import decode_columns, payload_blocks
 from sofia_ros.bag.imu import decode_imu_cdr
 from sofia_ros.bag.msgtypes import msgtype_of
 from sofia_ros.errors import BagError, InvalidArgumentError
@@ -398,6 +399,51 @@ def test_imu_arrays_match_per_message_decoding(tmp_path):
     np.testing.assert_array_equal(arrays.angular_velocity_rad_per_s, gyro)
     np.testing.assert_array_equal(arrays.linear_acceleration_m_per_s2, accel)
     np.testing.assert_array_equal(window.stamp_ns, IMU_PERIOD_NS * np.arange(10, 20))
+
+
+def column_leaves(value: object, path: str, sequences: dict) -> list[tuple[str, object]]:
+    """(leaf path, value) of a plain() message in field order, as bag.columns names them; a sequence also its length."""
+    if isinstance(value, dict):
+        return [leaf for name, item in value.items()
+                for leaf in column_leaves(item, f'{path}.{name}' if path else name, sequences)]
+    if isinstance(value, list):
+        items = [leaf for item in value for leaf in column_leaves(item, f'{path}[]', sequences)]
+        return [(path, len(value)), *items] if path in sequences else items
+    return [(path, value)]
+
+
+def test_columns_match_per_message_decoding(round_trip):
+    path, written, _ = round_trip
+    with BagReader(path) as bag:
+        names = tuple(info.name for info in bag.topics)
+        columns = bag.messages_by_topic(*names, columns=names)
+        decoded = bag.messages_by_topic(*names)
+    for name in names:
+        stamps, messages = decoded[name]
+        table = columns[name]
+        np.testing.assert_array_equal(table.stamp_ns, stamps)
+        expected: dict[str, list] = {leaf: [] for leaf in table.values}
+        counts: dict[str, list] = {leaf: [] for leaf in table.values}
+        for message in messages:
+            leaves = column_leaves(plain(message), '', table.values)
+            for leaf in table.values:
+                found = [value for where, value in leaves if where == leaf]
+                expected[leaf].extend(found)
+                counts[leaf].append(len(found))
+        for leaf in table.values:
+            assert table.values[leaf].tolist() == expected[leaf], (name, leaf)
+            assert table.counts[leaf].tolist() == counts[leaf], (name, leaf)
+    poses = columns[topic_name('raw', 'geometry_msgs/msg/PoseArray')]
+    assert poses.counts['poses[].position.x'].tolist() == [1, 2, 3]  # three layouts in one topic
+    np.testing.assert_array_equal(poses.time_ns('header.stamp'), [(1000 + i) * 10**9 + 123 + i for i in range(3)])
+
+
+def test_columns_reject_payloads_that_are_not_their_type():
+    good = bytes(wire_cdr(sample('sensor_msgs/msg/JointState', 1)))
+    with pytest.raises(ValueError, match='ends inside'):
+        decode_columns(payload_blocks([0], [good[:30]]), 'sensor_msgs/msg/JointState', TYPESTORE)
+    with pytest.raises(InvalidArgumentError, match='not little-endian CDR'):
+        decode_columns(payload_blocks([0], [b'\x00\x00' + good[2:]]), 'sensor_msgs/msg/JointState', TYPESTORE)
 
 
 def test_imu_decoding_rejects_payloads_that_are_not_imu():

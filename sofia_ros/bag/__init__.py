@@ -47,6 +47,8 @@ Reading::
         for topic, stamp_ns, msg in bag.messages('/tascu/attitude', '/clock'):
             ...
         imu = bag.imu_arrays('/gyro_box/imu')       # numpy, decoded in bulk
+        joints = bag.messages_by_topic('/ta/joint_states', columns=('/ta/joint_states',))['/ta/joint_states']
+        joints.values['position[]'], joints.counts['position[]']   # any type as columns (bag.columns)
 """
 
 from sofia_ros.bag.imu import ImuArrays

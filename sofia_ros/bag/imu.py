@@ -11,18 +11,18 @@ length share one layout and decode as columns of a 2-D byte array.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import compress
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sofia_ros.bag.columns import payload_blocks
 from sofia_ros.errors import InvalidArgumentError
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
 
-__all__ = ['ImuArrays', 'decode_imu_cdr', 'decode_imu_blocks', 'decode_imu_rows', 'merge_imu_blocks',
-           'with_angular_velocity']
+__all__ = ['ImuArrays', 'decode_imu_cdr', 'decode_imu_blocks', 'decode_imu_payloads', 'decode_imu_rows',
+           'merge_imu_blocks', 'with_angular_velocity']
 
 _ENCAPSULATION_CDR_LE = (0, 1)
 _DOUBLES_BYTES = 37 * 8
@@ -48,19 +48,7 @@ class ImuArrays:
 
 def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArrays:
     """Decode little-endian Imu CDR ``payloads`` logged at ``stamp_ns`` into ImuArrays."""
-    count = len(payloads)
-    if len(stamp_ns) != count:
-        raise InvalidArgumentError(f'got {len(stamp_ns)} stamps for {count} Imu payloads')
-    stamps = np.asarray(stamp_ns, dtype=np.int64)
-    lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=count)
-    unique_lengths = np.unique(lengths)
-    blocks = []
-    for length in unique_lengths:
-        rows = lengths == length
-        # One frame_id for the whole topic is the rule: then no row selection is needed.
-        chosen = payloads if len(unique_lengths) == 1 else compress(payloads, rows)
-        blocks.append((stamps[rows], np.frombuffer(b''.join(chosen), dtype=np.uint8).reshape(-1, length)))
-    return decode_imu_blocks(blocks)
+    return decode_imu_blocks(payload_blocks(stamp_ns, payloads))
 
 
 def decode_imu_blocks(blocks: Sequence[tuple[np.ndarray, np.ndarray]]) -> ImuArrays:
@@ -88,7 +76,7 @@ def merge_imu_blocks(blocks: Sequence[tuple[np.ndarray, tuple[np.ndarray, np.nda
 
 def with_angular_velocity(block: np.ndarray, angular_velocity_rad_per_s: np.ndarray) -> np.ndarray:
     """Equal-length Imu CDR rows (2-D uint8) with angular_velocity set to the (rows, 3) values, every other byte kept."""
-    start = _doubles_start(block) + _ANGULAR_VELOCITY_OFFSET
+    start = _doubles_start(_row_bytes(block), block.shape[1]) + _ANGULAR_VELOCITY_OFFSET
     rates = np.ascontiguousarray(angular_velocity_rad_per_s, dtype='<f8')
     if rates.shape != (block.shape[0], 3):
         raise InvalidArgumentError(f'need {block.shape[0]} x 3 angular velocities, got {rates.shape}')
@@ -99,37 +87,52 @@ def with_angular_velocity(block: np.ndarray, angular_velocity_rad_per_s: np.ndar
 
 def decode_imu_rows(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Header stamps (ns), angular velocities (N x 3), linear accelerations (N x 3) of equal-length rows, in row order."""
-    start = _doubles_start(block)
-    sec = _column(block, 4, '<i4')[:, 0].astype(np.int64)
-    nanosec = _column(block, 8, '<u4')[:, 0].astype(np.int64)
+    return _decoded(_row_bytes(block), block.shape[1])
+
+
+def _row_bytes(block):
+    """bytes_at(offset, width) of 2-D rows: those bytes of every row."""
+    return lambda offset, width: block[:, offset:offset + width]
+
+
+def decode_imu_payloads(raw: np.ndarray, starts: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """decode_imu_rows of the equal-length payloads at ``starts`` of the byte buffer ``raw``, gathering only the
+    bytes decoded (a star hop's 0.8 GB of gyro payloads are not copied whole)."""
+    return _decoded(lambda offset, width: np.lib.stride_tricks.sliding_window_view(raw, width)[starts + offset],
+                    length)
+
+
+def _decoded(bytes_at, length):
+    """decode_imu_rows through ``bytes_at(offset, width)``: those bytes of every payload, (rows, width) uint8."""
+    start = _doubles_start(bytes_at, length)
+
+    def column(offset, dtype, count=1):
+        return np.ascontiguousarray(bytes_at(offset, np.dtype(dtype).itemsize * count)).view(dtype)
+
+    sec = column(4, '<i4')[:, 0].astype(np.int64)
+    nanosec = column(8, '<u4')[:, 0].astype(np.int64)
     return (
         sec * 1_000_000_000 + nanosec,
-        _column(block, start + _ANGULAR_VELOCITY_OFFSET, '<f8', 3),
-        _column(block, start + _LINEAR_ACCELERATION_OFFSET, '<f8', 3),
+        column(start + _ANGULAR_VELOCITY_OFFSET, '<f8', 3),
+        column(start + _LINEAR_ACCELERATION_OFFSET, '<f8', 3),
     )
 
 
-def _doubles_start(block: np.ndarray) -> int:
-    """Byte offset of the 37 doubles in equal-length Imu rows; InvalidArgumentError if they are not Imu CDR."""
-    if block.shape[1] < _MIN_BYTES:
+def _doubles_start(bytes_at, length: int) -> int:
+    """Byte offset of the 37 doubles in equal-length Imu payloads; InvalidArgumentError if they are not Imu CDR."""
+    if length < _MIN_BYTES:
         raise InvalidArgumentError(
-            f'Imu payload of {block.shape[1]} bytes is shorter than the sensor_msgs/msg/Imu layout'
+            f'Imu payload of {length} bytes is shorter than the sensor_msgs/msg/Imu layout'
         )
-    if np.any(block[:, :2] != _ENCAPSULATION_CDR_LE):
+    if np.any(bytes_at(0, 2) != _ENCAPSULATION_CDR_LE):
         raise InvalidArgumentError(
             'Imu payloads are not little-endian CDR; read them with messages()'
         )
-    frame_id_bytes = _column(block, 12, '<u4')[:, 0].astype(np.int64)
+    frame_id_bytes = np.ascontiguousarray(bytes_at(12, 4)).view('<u4')[:, 0].astype(np.int64)
     # Doubles align to 8 bytes counted from the end of the encapsulation header.
     doubles_at = 4 + (12 + frame_id_bytes + 7) // 8 * 8
-    if np.any(doubles_at + _DOUBLES_BYTES != block.shape[1]):
+    if np.any(doubles_at + _DOUBLES_BYTES != length):
         raise InvalidArgumentError(
             'Imu payload length does not match the sensor_msgs/msg/Imu layout'
         )
     return int(doubles_at[0])
-
-
-def _column(block: np.ndarray, offset: int, dtype: str, count: int = 1) -> np.ndarray:
-    """Read ``count`` ``dtype`` values at byte ``offset`` of each row as a (rows, count) array."""
-    width = np.dtype(dtype).itemsize * count
-    return np.ascontiguousarray(block[:, offset:offset + width]).view(dtype)

@@ -14,7 +14,8 @@ from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import ReaderError
 
-from sofia_ros.bag.imu import ImuArrays, decode_imu_cdr, decode_imu_rows, merge_imu_blocks
+from sofia_ros.bag.columns import decode_columns, payload_blocks
+from sofia_ros.bag.imu import ImuArrays, decode_imu_cdr, decode_imu_payloads, merge_imu_blocks
 from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, check_summary_crc, first_damaged_chunk, indexed_records
 from sofia_ros.bag.msgtypes import (
     DOCUMENT_MSGTYPE,
@@ -23,7 +24,7 @@ from sofia_ros.bag.msgtypes import (
     TopicInfo,
     decode_cdr,
 )
-from sofia_ros.bag.timebase import epoch_ns_of, has_leading_stamp, shift_stamp
+from sofia_ros.bag.timebase import epoch_ns_of, has_leading_stamp, shift_stamp, shift_stamps
 from sofia_ros.errors import BagError, InvalidArgumentError
 from sofia_ros.topics import SCENARIO_DOCUMENT
 
@@ -179,26 +180,35 @@ class BagReader:
         return ((connection.topic, stamp_ns, data) for connection, stamp_ns, data in records)
 
     def messages_by_topic(
-        self, *topics: str, raw: tuple[str, ...] = (), imu: tuple[str, ...] = ()
+        self, *topics: str, raw: tuple[str, ...] = (), imu: tuple[str, ...] = (), columns: tuple[str, ...] = ()
     ) -> dict[str, Any]:
         """One pass over ``topics``: topic -> (log stamps ns, messages); topics in ``raw`` keep CDR bytes,
-        topics in ``imu`` come back as ImuArrays decoded in bulk.
+        topics in ``imu`` come back as ImuArrays decoded in bulk, topics in ``columns`` as MessageColumns
+        (bag.columns: every field an array, without a Python object per message).
 
         Read through the MCAP message indexes where the file has them (mcap_index), else record by record.
         """
         for topic in imu:
             if (msgtype := self.topic(topic).msgtype) != IMU_MSGTYPE:
                 raise BagError(f'topic {topic} in bag {self.path} holds {msgtype}, not {IMU_MSGTYPE}')
-        collected = self._indexed(topics, imu)
+        tables = tuple(topic for topic in columns if topic in topics)
+        collected = self._indexed(topics, {**{topic: None for topic in tables},
+                                           **{topic: decode_imu_payloads for topic in imu}})
         if collected is None:
             # _raw gives campaign time already.
             collected = {topic: ([], []) for topic in topics}
             for connection, stamp_ns, data in self._raw(topics, None, None):
                 collected[connection.topic][0].append(stamp_ns)
                 collected[connection.topic][1].append(data)
+            for topic in tables:
+                collected[topic] = payload_blocks(*collected[topic])
         else:
             for topic in topics:
-                if topic not in imu:
+                if topic in tables:
+                    msgtype = self.topic(topic).msgtype
+                    collected[topic] = [self._block_to_campaign_time(msgtype, stamps, rows)
+                                        for stamps, rows in collected[topic]]
+                elif topic not in imu:
                     collected[topic] = self._to_campaign_time(self.topic(topic).msgtype, *collected[topic])
         typestore = self._reader.typestore
         for topic in topics:
@@ -210,6 +220,8 @@ class BagReader:
                                                  arrays.header_stamp_ns - self.origin_ns,
                                                  arrays.angular_velocity_rad_per_s,
                                                  arrays.linear_acceleration_m_per_s2)
+                elif topic in tables:
+                    collected[topic] = decode_columns(collected[topic], self.topic(topic).msgtype, typestore)
                 elif topic not in raw:
                     msgtype = self.topic(topic).msgtype
                     collected[topic] = (collected[topic][0],
@@ -253,7 +265,7 @@ class BagReader:
         return ImuArrays(imu.stamp_ns[keep], imu.header_stamp_ns[keep], imu.angular_velocity_rad_per_s[keep],
                          imu.linear_acceleration_m_per_s2[keep])
 
-    def _indexed(self, topics: tuple[str, ...], packed: tuple[str, ...]) -> dict[str, Any] | None:
+    def _indexed(self, topics: tuple[str, ...], packed: dict[str, Any]) -> dict[str, Any] | None:
         """The raw records of ``topics`` read through the message indexes of a one-file bag, or None."""
         self._require_open()
         for topic in topics:
@@ -262,9 +274,10 @@ class BagReader:
         if len(files) != 1:
             return None
         try:
-            return indexed_records(files[0], topics, packed, decode_block=decode_imu_rows)
+            return indexed_records(files[0], topics, packed)
         except InvalidArgumentError as err:  # payloads that are not Imu CDR, found while decoding them
-            raise BagError(f'topic {", ".join(packed)} in bag {self.path}: {err}') from err
+            decoded = [topic for topic, decode in packed.items() if decode is not None]
+            raise BagError(f'topic {", ".join(decoded)} in bag {self.path}: {err}') from err
         except INDEX_DAMAGE_ERRORS as err:
             raise _damaged(self.path, err) from err
 
@@ -303,6 +316,16 @@ class BagReader:
         if has_leading_stamp(msgtype):
             payloads = [shift_stamp(data, -self.origin_ns) for data in payloads]
         return [stamp_ns - self.origin_ns for stamp_ns in stamps_ns], payloads
+
+    def _block_to_campaign_time(self, msgtype: str, stamps_ns: np.ndarray, rows: np.ndarray) -> tuple:
+        """Log times and equal-length CDR rows of one topic moved to campaign time."""
+        if not self.origin_ns:
+            return stamps_ns, rows
+        try:
+            shifted = shift_stamps(rows, -self.origin_ns) if has_leading_stamp(msgtype) else rows
+            return stamps_ns - self.origin_ns, shifted
+        except ValueError as err:
+            raise BagError(f'{msgtype} in bag {self.path}: {err}') from err
 
     def _decoded(self, records: RawRecords) -> Iterator[tuple[str, int, Any]]:
         """Decode ``records`` into (topic, stamp_ns, message)."""

@@ -97,43 +97,43 @@ class Observations:
     calibration_result: str | None = None
 
 
-def _series(records, value_of):
-    """Stamps (header stamp when the message has one, else log time) in s and values of one topic."""
-    stamps, values = [], []
-    for log_ns, message in zip(*records):
-        stamp_ns = m.stamp_ns_of(message.header.stamp) if hasattr(message, 'header') else log_ns
-        stamps.append(stamp_ns / m.NS_PER_S)
-        values.append(value_of(message))
-    return np.asarray(stamps), values
+def _motion_series(table):
+    """Log times (s) and MOTION_STATES codes of the TASCU's motion status messages that name a motion state."""
+    messages = table.per_message('message')
+    codes = np.select([messages == state for state in MOTION_STATES], range(len(MOTION_STATES)), -1)
+    known = codes >= 0
+    return table.stamp_ns[known] / m.NS_PER_S, codes[known].astype(np.int8)
 
 
-def _motion_series(records):
-    stamps, codes = [], []
-    for log_ns, message in zip(*records):
-        if message.message in MOTION_STATES:
-            stamps.append(log_ns / m.NS_PER_S)
-            codes.append(MOTION_STATES.index(message.message))
-    return np.asarray(stamps), np.asarray(codes, dtype=np.int8)
+def _joint_deg(joints, name):
+    """Each JointState's position of joint ``name`` in deg; BagError unless every message has it once."""
+    per_message = np.repeat(np.arange(len(joints)), joints.counts['name[]'])
+    at = np.flatnonzero(joints.values['name[]'] == name)
+    if (not np.array_equal(joints.counts['name[]'], joints.counts['position[]'])
+            or not np.array_equal(per_message[at], np.arange(len(joints)))):
+        raise BagError(f'{JOINT_STATES.name} does not give joint {name} a position in every message; the bag is damaged')
+    return joints.values['position[]'][at] * DEG_PER_RAD
 
 
-def _centroid_rows(records_by_camera):
-    rows = {key: [] for key in ('camera', 'hip', 'x', 'y', 'stamp', 'frame')}
-    frame = 0
-    for index, (_, messages) in enumerate(records_by_camera):
-        for message in messages:
-            stamp_s = m.stamp_ns_of(message.header.stamp) / m.NS_PER_S
-            for hip, x_px, y_px in m.centroids_of(message):
-                for key, value in zip(rows, (index, hip, x_px, y_px, stamp_s, frame)):
-                    rows[key].append(value)
-            frame += 1
-    return {key: np.asarray(values) for key, values in rows.items()}
+def _centroid_rows(tables):
+    """One row per star per frame, camera by camera: camera index, HIP, x and y (px), stamp (s), frame number."""
+    stars = np.concatenate([table.per_message('poses') for table in tables]).astype(np.int64)
+    cameras = np.concatenate([np.full(len(table), index) for index, table in enumerate(tables)])
+    stamps_s = np.concatenate([table.time_ns('header.stamp') for table in tables]) / m.NS_PER_S
+
+    def poses(field):
+        return np.concatenate([table.values[f'poses[].position.{field}'] for table in tables])
+
+    # position.z carries the HIP number (messages.centroid_array).
+    return {'camera': np.repeat(cameras, stars), 'hip': np.rint(poses('z')), 'x': poses('x'), 'y': poses('y'),
+            'stamp': np.repeat(stamps_s, stars), 'frame': np.repeat(np.arange(len(stars)), stars)}
 
 
-def _gyro_samples(imu, temperature_records):
+def _gyro_samples(imu, temperature):
     time_s = imu.header_stamp_ns / m.NS_PER_S
     if len(time_s) < 2 or np.any(np.diff(time_s) <= 0):
         raise BagError(f'{GYRO_IMU.name} holds {len(time_s)} samples out of time order; the bag is damaged')
-    tick_end_s, temperatures = _series(temperature_records, lambda msg: msg.temperature)
+    tick_end_s, temperatures = temperature.time_ns('header.stamp') / m.NS_PER_S, temperature.per_message('temperature')
     if len(tick_end_s) == 0:
         raise BagError(f'{GYRO_TEMPERATURE.name} is empty; `sofia compare` needs the gyro-box tick stamps')
     # A sample in (t_k-1, t_k] belongs to tick k, whose temperature the box used (sim.gyro_box).
@@ -142,7 +142,6 @@ def _gyro_samples(imu, temperature_records):
     tick, time_s = tick[keep], time_s[keep]
     starts = np.searchsorted(tick, np.arange(len(tick_end_s)), side='left')
     period_s = float(np.median(np.diff(time_s)))
-    temperatures = np.asarray(temperatures, dtype=float)
     rates = imu.angular_velocity_rad_per_s[keep]
     counts = np.diff(np.append(starts, len(time_s)))
     return GyroSamples(time_s, rates, tick_end_s, temperatures, starts, period_s,
@@ -172,30 +171,34 @@ def read_observations(bag_path):
                 raise BagError(f'{bag_path} has no /<camera>/centroids topic; nothing to compare')
             scenario = scenario_from_document(bag.document(SCENARIO_DOCUMENT.name))
             camera_topics = [CENTROIDS[camera].name for camera in cameras]
-            optional = [topic for topic in (MOTION_STATUS.name, CALIBRATION_RESULT.name) if topic in names]
-            records = bag.messages_by_topic(GYRO_IMU.name, GYRO_TEMPERATURE.name, JOINT_STATES.name,
-                                            *optional, *camera_topics, imu=(GYRO_IMU.name,))
+            tables = (GYRO_TEMPERATURE.name, JOINT_STATES.name, *camera_topics,
+                      *(topic for topic in (MOTION_STATUS.name,) if topic in names))
+            results = [topic for topic in (CALIBRATION_RESULT.name,) if topic in names]
+            records = bag.messages_by_topic(GYRO_IMU.name, *tables, *results, imu=(GYRO_IMU.name,), columns=tables)
             # Only the TASCU's first attitude is used (a starting guess): not every tick's decoded.
             first_attitude = next(bag.messages(TASCU_ATTITUDE.name), None)
     except ConfigError as err:
         raise BagError(f'{bag_path}: {err}') from err
     rows = _centroid_rows([records[topic] for topic in camera_topics])
     gyro = _gyro_samples(records[GYRO_IMU.name], records[GYRO_TEMPERATURE.name])
-    joint_s, joints = _series(records[JOINT_STATES.name], m.joint_positions_of)
-    attitude_s, quaternions = _series(([first_attitude[1]], [first_attitude[2]]) if first_attitude else ([], []),
-                                      lambda msg: m.quaternion_xyzw_of(msg.quaternion))
-    motion_s, motion_codes = _motion_series(records.get(MOTION_STATUS.name, ([], [])))
+    joints = records[JOINT_STATES.name]
+    joint_s = joints.time_ns('header.stamp') / m.NS_PER_S
+    if MOTION_STATUS.name in records:
+        motion_s, motion_codes = _motion_series(records[MOTION_STATUS.name])
+    else:
+        motion_s, motion_codes = np.empty(0), np.empty(0, dtype=np.int8)
     if len(rows['hip']) == 0:
         raise BagError(f'{bag_path}: the cameras recorded no star; nothing to compare')
-    if len(attitude_s) == 0:
+    if first_attitude is None:
         raise BagError(f'{bag_path}: {TASCU_ATTITUDE.name} is empty; the TASCU never ran')
-    initial_time_s = float(attitude_s[0])
+    attitude = first_attitude[2]
+    initial_time_s = m.stamp_ns_of(attitude.header.stamp) / m.NS_PER_S
     # Frames must lie where the gyros cover them: after the first attitude, before the last tick.
     keep = (rows['stamp'] > initial_time_s) & (rows['stamp'] < gyro.tick_end_s[-1])
     rows = {key: values[keep] for key, values in rows.items()}
     stamps = rows['stamp']
-    elevation_deg = _at(stamps, joint_s, [joint[CD_JOINT] * DEG_PER_RAD for joint in joints], 'joint-state')
-    fd_los_deg = _at(stamps, joint_s, [joint[FD_JOINTS[2]] * DEG_PER_RAD for joint in joints], 'joint-state')
+    elevation_deg = _at(stamps, joint_s, _joint_deg(joints, CD_JOINT), 'joint-state')
+    fd_los_deg = _at(stamps, joint_s, _joint_deg(joints, FD_JOINTS[2]), 'joint-state')
     temperature_c = _at(stamps, gyro.tick_end_s, gyro.tick_temperature_c, 'temperature')
     if len(motion_s):
         motion_code = motion_codes[np.clip(np.searchsorted(motion_s, stamps, side='right') - 1, 0, None)]
@@ -207,5 +210,6 @@ def read_observations(bag_path):
     transient = motion_codes == MOTION_STATES.index('transient')
     move_start_s = motion_s[transient & ~np.concatenate([[False], transient[:-1]])]
     results = records.get(CALIBRATION_RESULT.name, ([], []))[1]
-    return Observations(bag_path, scenario, centroids, gyro, initial_time_s, dcm_from_quaternion(quaternions[0]),
+    return Observations(bag_path, scenario, centroids, gyro, initial_time_s,
+                        dcm_from_quaternion(m.quaternion_xyzw_of(attitude.quaternion)),
                         move_start_s, results[-1].data if results else None)

@@ -18,6 +18,7 @@ The prediction reuses the truth simulator's own physics with the model's paramet
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from collections import OrderedDict
 
 import numpy as np
@@ -51,6 +52,9 @@ _PLACE_EPOCH_S = 300.0
 #: Cached gyro tracks, star places and camera models, least recently used dropped first (a star hop's
 #: gyro track is 2.5 MB; a fit steps through a few new ones per iteration).
 _CACHE_ENTRIES = 32
+#: Cached attitudes at the rows and their linearization maps (a star hop's are 9 MB each): a Gauss-Newton step
+#: evaluates the same rows under the same gyro errors for its prediction, its derivatives and its columns.
+_ROW_CACHE_ENTRIES = 4
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -61,15 +65,26 @@ def _dcms_from_rotvecs(rotvecs):
 def propagate_tick_attitudes(increments_rad, initial_dcm):
     """A_TARF,IRF at every tick end from per-tick body rotation vectors, A_k = R(phi_k)^T A_k-1 (3.20, B.23).
 
-    The running product is an inclusive scan (Hillis-Steele): log2(N) rounds of batched 3x3
-    products instead of N sequential ones; the same products, grouped differently (rounding ~1e-15).
+    The running product in blocks of about sqrt(N) ticks: the products within every block advance
+    together (one batched 3x3 product per tick of a block), then each block is carried by the
+    product of the blocks before it - about 3N products in 3 sqrt(N) numpy calls, where a scan
+    takes N log2(N) and a loop N calls; the same products, grouped differently (rounding ~1e-15).
     """
-    prefix = _dcms_from_rotvecs(increments_rad)
-    shift = 1
-    while shift < len(prefix):
-        prefix[shift:] = prefix[shift:] @ prefix[:-shift]
-        shift *= 2
-    return np.concatenate([np.asarray(initial_dcm)[None], prefix @ initial_dcm])
+    initial_dcm = np.asarray(initial_dcm, dtype=float)
+    steps = _dcms_from_rotvecs(increments_rad)
+    count = len(steps)
+    size = max(int(np.sqrt(count)), 1)
+    blocks = max(-(-count // size), 1)
+    prefix = np.concatenate([steps, np.broadcast_to(np.eye(3), (blocks * size - count, 3, 3))])
+    prefix = prefix.reshape(blocks, size, 3, 3)
+    for tick in range(1, size):
+        prefix[:, tick] = prefix[:, tick] @ prefix[:, tick - 1]
+    carry = np.empty((blocks, 3, 3))
+    carry[0] = initial_dcm
+    for block in range(1, blocks):
+        carry[block] = prefix[block - 1, -1] @ carry[block - 1]
+    attitudes = (prefix @ carry[:, None]).reshape(-1, 3, 3)[:count]
+    return np.concatenate([initial_dcm[None], attitudes])
 
 
 def _tick_fractions(times_s, tick_end_s):
@@ -123,7 +138,7 @@ class Predictor:
         self._directions_irf = self._catalogue_directions()
         self._camera_rows = [_contiguous(np.flatnonzero(centroids.camera_index == index))
                              for index in range(len(centroids.cameras))]
-        self._cache = OrderedDict()
+        self._cache, self._row_cache = OrderedDict(), OrderedDict()
         self.initial_dcm = observations.initial_tarf_from_irf
 
     @property
@@ -152,14 +167,20 @@ class Predictor:
         self._epoch_origin = epochs[0]
         return np.stack([star_directions_irf(stars, self.scene, epoch * _PLACE_EPOCH_S) for epoch in epochs])
 
-    def _cached(self, key, compute):
-        if key in self._cache:
-            self._cache.move_to_end(key)
+    def _cached(self, key, compute, *, rows=False):
+        """compute() kept under key: in the cache of row-sized arrays with ``rows``, else in the main one."""
+        cache, entries = (self._row_cache, _ROW_CACHE_ENTRIES) if rows else (self._cache, _CACHE_ENTRIES)
+        if key in cache:
+            cache.move_to_end(key)
         else:
-            self._cache[key] = compute()
-            if len(self._cache) > _CACHE_ENTRIES:
-                self._cache.popitem(last=False)
-        return self._cache[key]
+            cache[key] = compute()
+            if len(cache) > entries:
+                cache.popitem(last=False)
+        return cache[key]
+
+    def _clear_caches(self):
+        self._cache.clear()
+        self._row_cache.clear()
 
     def _tick_track(self, gyro_effects):
         """Tick-end attitudes and per-tick increments of the gyro data under the model's gyro errors."""
@@ -196,7 +217,29 @@ class Predictor:
     def attitudes(self, effects, times_s):
         """A_TARF,IRF the model believes at times (gyro propagation only, no anchors)."""
         tick_attitudes, increments = self._gyro_track(effects)
-        return attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)
+        return self._cached(self._times_key('attitudes', effects, times_s),
+                            lambda: _read_only(attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)),
+                            rows=True)
+
+    def _times_key(self, what, effects, times_s):
+        # The times by a digest of their bytes: the same rows under other model terms come as new arrays.
+        digest = hashlib.blake2b(np.ascontiguousarray(times_s, dtype=float).tobytes(), digest_size=16).digest()
+        return what, repr(self._gyro_effects(effects)), digest
+
+    def _change_maps(self, effects, times_s):
+        """What attitude_changes_irf maps tick increment changes with: per tick A_k+1^T J_r(phi_k), per time
+        A(t)^T J_r(f phi) f for the elapsed fraction f of its tick, and each time's tick and fraction."""
+        tick_attitudes, increments = self._gyro_track(effects)
+
+        def compute():
+            index, fraction = _tick_fractions(times_s, self._tick_end_s)
+            attitude = self.attitudes(effects, times_s)
+            per_tick_map = np.swapaxes(tick_attitudes[1:], 1, 2) @ right_jacobians(increments)
+            per_row_map = (np.swapaxes(attitude, 1, 2) @ right_jacobians(increments[index - 1] * fraction[:, None])
+                           * fraction[:, None, None])
+            return _read_only(per_tick_map), _read_only(per_row_map), _read_only(index)
+
+        return self._cached(self._times_key('change maps', effects, times_s), compute, rows=True)
 
     def attitude_changes_irf(self, effects, changed, times_s):
         """The small IRF rotations c (P, N, 3), A_changed(t) = A(t) R(c)^T, that each of the P effect sets ``changed``
@@ -207,14 +250,9 @@ class Predictor:
         of t counted for its elapsed fraction: a column per gyro parameter without propagating the
         gyro track again.
         """
-        tick_attitudes, increments = self._gyro_track(effects)
-        index, fraction = _tick_fractions(times_s, self._tick_end_s)
-        attitude = attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)
-        # A body rotation b after tick k is the IRF rotation A_k+1^T b from then on: per tick A_k+1^T J_r(phi_k),
-        # per row A(t)^T J_r(f phi) f for the elapsed fraction f of its tick.
-        per_tick_map = np.swapaxes(tick_attitudes[1:], 1, 2) @ right_jacobians(increments)
-        per_row_map = (np.swapaxes(attitude, 1, 2) @ right_jacobians(increments[index - 1] * fraction[:, None])
-                       * fraction[:, None, None])
+        _, increments = self._gyro_track(effects)
+        # A body rotation b after tick k is the IRF rotation A_k+1^T b from then on (_change_maps).
+        per_tick_map, per_row_map, index = self._change_maps(effects, times_s)
         changes = np.empty((len(changed), len(times_s), 3))
         for number, other in enumerate(changed):
             delta = self._tick_increments(self._gyro_effects(other)) - increments
@@ -275,13 +313,13 @@ class Predictor:
     def align_initial_attitude(self, effects):
         """Set the start attitude that best maps the model's stars onto all measured ones (Wahba's problem)."""
         self.initial_dcm = np.eye(3)
-        self._cache.clear()
+        self._clear_caches()
         times = self.row_times_s(effects)
         # With A = A_rel(t) A_0: A_rel(t)^T v_TARF = A_0 d_IRF for every row.
         at_start = np.einsum('nji,nj->ni', self.attitudes(effects, times), self.measured_directions_tarf(effects))
         rotation, _ = Rotation.align_vectors(at_start, self._star_directions(effects, times))
         self.initial_dcm = rotation.as_matrix()
-        self._cache.clear()
+        self._clear_caches()
 
     def row_times_s(self, effects):
         """Each row's exposure-midpoint time on the TA clock: the stamp less the model's HIPO clock offset (6.2)."""
@@ -385,6 +423,12 @@ def tick_means(per_sample, tick_start_index):
     sums = np.add.reduceat(per_sample, np.minimum(tick_start_index, len(per_sample) - 1), axis=0)
     sums[counts == 0] = 0.0
     return sums / np.maximum(counts, 1)[:, None]
+
+
+def _read_only(array):
+    """The array, locked: cached arrays are shared by every caller."""
+    array.flags.writeable = False
+    return array
 
 
 def _knots(start_s, end_s, spacing_s):

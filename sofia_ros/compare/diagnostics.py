@@ -42,6 +42,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
 from sofia_ros.analysis.structure import category_test, period_test, sigma_of_probability, trend_test
+from sofia_ros.compare.fit import rows_scaled
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.units import ARCSEC_PER_RAD, STANDARD_GRAVITY_M_PER_S2
 
@@ -160,7 +161,7 @@ def _prior_residual_covariance(fit):
     data_rows = len(fit.whitened)
     jacobian = scipy.sparse.csr_matrix(fit.jacobian)
     root = np.concatenate([np.sqrt(fit.weights), np.ones(jacobian.shape[0] - data_rows)])
-    weighted = scipy.sparse.diags(root) @ jacobian
+    weighted = rows_scaled(jacobian, root)
     inverse = _normal_inverse((weighted.T @ weighted).toarray())
     prior = weighted[data_rows:].toarray()
     return np.eye(len(prior)) - (prior @ inverse) @ prior.T
@@ -343,7 +344,7 @@ def _split_step(fit, keep_rows):
     weights = np.concatenate([fit.weights * mask, np.ones(len(fit.prior_residual))])
     residual = fit.augmented_residual
     jacobian = scipy.sparse.csr_matrix(fit.jacobian)
-    weighted = scipy.sparse.diags(np.sqrt(weights)) @ jacobian
+    weighted = rows_scaled(jacobian, np.sqrt(weights))
     gram = (weighted.T @ weighted).toarray()
     # A parameter the subset does not touch (another camera's term) is decoupled and gets no comparison.
     determined = np.diag(gram) > 0

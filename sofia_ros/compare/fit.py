@@ -26,7 +26,7 @@ from sofia_ros.analysis.ranking import bic, linear_fit
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
-__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'OUTLIER_SIGMA']
+__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'rows_scaled', 'OUTLIER_SIGMA']
 
 HUBER_K = 3.0
 OUTLIER_SIGMA = 5.0
@@ -174,6 +174,13 @@ class WhitenedProblem:
         return columns
 
 
+def rows_scaled(matrix, scale):
+    """A CSR matrix with row i multiplied by scale[i]: its data scaled in place of a product with a diagonal matrix."""
+    scaled = scipy.sparse.csr_matrix(matrix, copy=True)
+    scaled.data *= np.repeat(scale, np.diff(scaled.indptr))
+    return scaled
+
+
 def _huber_weights(whitened):
     magnitude = np.abs(whitened)
     return np.where(magnitude <= HUBER_K, 1.0, HUBER_K / np.maximum(magnitude, 1e-300))
@@ -219,7 +226,7 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
         jacobian = scipy.sparse.hstack([problem.anchor_columns(current, derivative), columns], format='csr')
         residual, system = problem.augmented(whitened, jacobian, anchors)
         root = np.concatenate([np.sqrt(_huber_weights(whitened)), np.ones(len(residual) - len(whitened))])
-        step = linear_fit(root * residual, scipy.sparse.diags(root) @ system, [''] * system.shape[1])
+        step = linear_fit(root * residual, rows_scaled(system, root), [''] * system.shape[1])
         anchor_step = step.step[:anchors.size].reshape(anchors.shape)
         parameter_step = step.step[anchors.size:]
         current_cost, scale = cost(whitened, anchors), 1.0
@@ -243,7 +250,7 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
     residual, system = problem.augmented(whitened, jacobian, anchors)
     weights = _huber_weights(whitened)
     root = np.concatenate([np.sqrt(weights), np.ones(len(residual) - len(whitened))])
-    final = linear_fit(root * residual, scipy.sparse.diags(root) @ system, [''] * system.shape[1])
+    final = linear_fit(root * residual, rows_scaled(system, root), [''] * system.shape[1])
     parameters = slice(anchors.size, None)
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)

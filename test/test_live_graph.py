@@ -1,4 +1,7 @@
-"""The node graph over DDS: one process under an executor, one process per node, and its faults."""
+"""The node graph over DDS: one process under an executor, one process per node, the recorder stopped, replays.
+
+A node killed mid-run is test_run_signals.py's (`sofia run --processes`, the same stall watchdog).
+"""
 
 import signal
 import time
@@ -11,13 +14,17 @@ from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.campaigns.run_parameters import graph_parameters
 from sofia_ros.config import load_effect_config
-from sofia_ros.nodes.launch import start_graph_processes, stop_graph, wait_for_graph
+from sofia_ros.nodes.launch import start_graph_processes, stop_graph
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
 from sofia_ros.topics import DEFAULT_TICK_NS
 
 NOMINAL = load_effect_config('config/truth/nominal.yaml')
-SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=10.0)
+# The whole sequence in 443 s of sim time (691 s with three frames per position and four elevations):
+# one frame, and a boresight series of two elevations, which still publishes on every topic of the
+# full plan (the coarse drive's commands and MTBS_INERTIAL only in the series).
+SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=10.0, frames_per_position=1,
+                      flexure_elevations_deg=(23.0, 59.0))
 
 
 @pytest.fixture(scope='module')
@@ -46,7 +53,9 @@ def test_live_graph_reproduces_the_lock_step_run(direct_run, tmp_path, mode):
     assert live.summary['accepted'] == direct_run.summary['accepted'] is True
     np.testing.assert_array_equal(yaml.safe_load(live.result_yaml)['tarf_from_gyrf'],
                                   yaml.safe_load(direct_run.result_yaml)['tarf_from_gyrf'])
-    assert _topic_counts(live.bag_path) == _topic_counts(direct_run.bag_path)
+    counts = _topic_counts(live.bag_path)
+    assert counts == _topic_counts(direct_run.bag_path)
+    assert all(counts.values()), counts  # every topic of the graph carried messages (SHORT above)
 
 
 def _wait_until_running(graph, sim_s=5.0, timeout_s=180.0):
@@ -76,32 +85,10 @@ def _truth_file(tmp_path):
     return path
 
 
-def _parameters(tmp_path, seed, bag, **options):
+def _parameters(tmp_path, seed, bag):
     """The graph parameters of a SHORT alignment run recorded to ``bag``."""
     return graph_parameters(_truth_file(tmp_path), seed, SHORT, tick_ns=DEFAULT_TICK_NS, max_sim_s=DEFAULT_MAX_SIM_S,
-                            bag_path=bag, **options)
-
-
-@pytest.mark.timeout(300)
-@STARTUP_RERUNS
-def test_a_killed_sensor_node_stops_the_run_with_one_clear_reason(tmp_path):
-    bag = tmp_path / 'fault'
-    graph = start_graph_processes(_parameters(tmp_path, 3, bag, stall_timeout_s=5.0), bag)
-    try:
-        _wait_until_running(graph)
-        graph.processes['gyro_box'].kill()
-        started = time.monotonic()
-        wait_for_graph(graph, timeout_s=60)
-        assert time.monotonic() - started < 30.0
-    finally:
-        stop_graph(graph)
-    with BagReader(bag) as reader:
-        reason = reader.document('/result/stop')
-        counts = {topic.name: topic.count for topic in reader.topics}
-    assert reason.startswith('gyro_box stopped reporting at tick') and 'the node is gone' in reason
-    assert counts['/gyro_box/imu'] > 0 and counts['/clock'] > 0
-    # Everything up to the fault is there: the gyro box's samples stop where it was killed.
-    assert counts['/gyro_box/imu'] <= round(400 * DEFAULT_TICK_NS / 1e9) * counts['/truth/imu']
+                            bag_path=bag)
 
 
 @pytest.mark.timeout(300)

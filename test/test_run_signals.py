@@ -16,6 +16,7 @@ from sofia_ros.bag import BagReader
 from sofia_ros.cli import main
 from sofia_ros.errors import ConfigError, DomainBusyError
 from sofia_ros.nodes.domain import claim_ros_domain, domain_lock_path, release_ros_domain
+from sofia_ros.topics import DEFAULT_TICK_NS
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = str(ROOT / 'config' / 'truth' / 'nominal.yaml')
@@ -269,9 +270,20 @@ def test_a_node_that_dies_under_processes_is_a_fault_exit_3(tmp_path):
                 if b'gyro_box' in Path(f'/proc/{pid}/cmdline').read_bytes()]
     assert len(gyro_box) == 1, _children(process.pid)
     os.kill(gyro_box[0], signal.SIGKILL)
+    killed = time.monotonic()
     _, err = process.communicate(timeout=180)
+    stopped_after_s = time.monotonic() - killed
     assert process.returncode == 3, err
     assert 'Traceback' not in err and 'gyro_box stopped reporting' in err
     summary = json.loads((bag / 'summary.json').read_text())
     assert summary['stopped'] == 'fault' and 'gyro_box stopped reporting' in summary['reason']
     assert (bag / 'metadata.yaml').exists()
+    with BagReader(bag) as reader:
+        reason = reader.document('/result/stop')
+        counts = {topic.name: topic.count for topic in reader.topics}
+    assert reason.startswith('gyro_box stopped reporting at tick') and 'the node is gone' in reason
+    # The clock's watchdog names the node after the stall timeout the reason states; the run ends soon after.
+    assert stopped_after_s < float(re.search(r' for ([0-9.]+) s: ', reason).group(1)) + 25.0
+    assert counts['/gyro_box/imu'] > 0 and counts['/clock'] > 0
+    # Everything up to the fault is there: the gyro box's samples stop where it was killed.
+    assert counts['/gyro_box/imu'] <= round(400 * DEFAULT_TICK_NS / 1e9) * counts['/truth/imu']

@@ -6,6 +6,9 @@ default (400 ppm, sofia_ros/effects/gyro.py), Table 3.3 (FEM flexure), the track
 (6.3: 2.2 px, 5.2 min).
 """
 
+import contextlib
+import io
+import json
 import shutil
 from pathlib import Path
 
@@ -58,8 +61,20 @@ def swapped_bag(tmp_path_factory):
 
 
 @pytest.fixture(scope='module')
-def nominal_document(nominal_bag):
-    return compare_bag(nominal_bag, _nominal_model()).document
+def nominal_compare(nominal_bag, tmp_path_factory):
+    """`sofia compare` of the nominal bag with --json and --report: (the JSON document, what it printed, the report)."""
+    out = tmp_path_factory.mktemp('nominal_compare')
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(['compare', str(nominal_bag), '--model', str(ROOT / 'config/model/nominal.yaml'),
+                     '--json', str(out / 'compare.json'), '--report', str(out / 'report')])
+    assert code == 0
+    return json.loads((out / 'compare.json').read_text()), printed.getvalue(), out / 'report'
+
+
+@pytest.fixture(scope='module')
+def nominal_document(nominal_compare):
+    return nominal_compare[0]
 
 
 @pytest.fixture(scope='module')
@@ -209,11 +224,8 @@ def test_fpi_internal_flexure_is_named_and_measures_about_1_1_arcsec_over_23_to_
     assert highest['fpi'][1] > 0.5 and flexure['fem_change_23_to_60_deg_arcsec']['fpi'] == [0.0, 0.0]
 
 
-def test_star_hop_report_has_the_distance_and_flexure_plots(nominal_bag, tmp_path, capsys):
-    report = tmp_path / 'report'
-    assert main(['compare', str(nominal_bag), '--model', str(ROOT / 'config/model/nominal.yaml'),
-                 '--report', str(report)]) == 0
-    out = capsys.readouterr().out
+def test_star_hop_report_has_the_distance_and_flexure_plots(nominal_compare):
+    _, out, report = nominal_compare
     assert 'star hop: measured' in out and 'Fig. 6.11' in out
     assert 'short moves: deviation =' in out and 'FPI centroid drift in 4 holds (6.3)' in out
     assert (report / 'star_hop.png').stat().st_size > 10_000

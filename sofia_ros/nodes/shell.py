@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import importlib
+import struct
 from collections import Counter
+from functools import lru_cache
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
@@ -47,7 +49,7 @@ class LockstepNode(Node):
         self.done_publisher = self.create_publisher(String, done_topic(name), SYNC_QOS)
         self.create_subscription(String, STOP_TOPIC, self._on_stop, SYNC_QOS)
         for node in self.upstream:
-            self.create_subscription(String, done_topic(node), self._done_callback(node), SYNC_QOS)
+            self.create_subscription(String, done_topic(node), self._done_callback(node), SYNC_QOS, raw=True)
         self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall_clock())
 
     def _wall_clock(self):
@@ -57,10 +59,11 @@ class LockstepNode(Node):
 
     # --- handshake -----------------------------------------------------------------------------
     def _done_callback(self, node):
-        def callback(message):
-            report = _parse_done(message.data)
-            self.states[node].announce(report['tick'], report['counts'], report['finished'], report['failed'])
-            self._requirements = None
+        state = self.states[node]
+
+        def callback(cdr):
+            state.announce(*_parse_done(cdr))
+            # Requirements already worked out for the next tick stand: a later report is about later ticks.
             self.try_ticks()
         return callback
 
@@ -144,11 +147,17 @@ class LockstepNode(Node):
         self.published[topic] += 1
 
 
-def _parse_done(text):
-    tick, finished, failed, counts = text.split(';', 3)
+_CDR_STRING_LENGTH = struct.Struct('<I')
+
+
+@lru_cache(maxsize=64)
+def _parse_done(cdr):
+    """(tick, counts, finished, failed) of a done report's std_msgs/String CDR; in one process several nodes
+    read each report, so it is parsed once (the counts mapping is shared: read it, never change it)."""
+    length, = _CDR_STRING_LENGTH.unpack_from(cdr, 4)
+    tick, finished, failed, counts = cdr[8:7 + length].decode().split(';', 3)
     pairs = (item.rsplit('=', 1) for item in counts.split(',') if item)
-    return {'tick': int(tick), 'finished': finished == '1', 'failed': failed,
-            'counts': {topic: int(count) for topic, count in pairs}}
+    return int(tick), {topic: int(count) for topic, count in pairs}, finished == '1', failed
 
 
 class CoreNode(LockstepNode):

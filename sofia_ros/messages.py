@@ -118,8 +118,8 @@ def joint_state(stamp_ns, positions, velocities=None):
 
 
 def joint_positions_of(msg):
-    """name -> position of a JointState."""
-    return dict(zip(msg.name, msg.position))
+    """name -> position (float) of a JointState, an rclpy message or one decoded from CDR (numpy positions)."""
+    return dict(zip(msg.name, msg.position.tolist()))
 
 
 def temperature_msg(stamp_ns, frame_id, temperature_c):

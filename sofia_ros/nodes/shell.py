@@ -14,6 +14,7 @@ from rclpy.parameter_client import AsyncParameterClient
 from std_msgs.msg import String
 
 from sofia_ros import messages as m
+from sofia_ros.bag.msgtypes import decode_cdr
 from sofia_ros.errors import ConfigError
 from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic, parse_stop
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
@@ -180,10 +181,10 @@ class CoreNode(LockstepNode):
             if wire.name in inputs:
                 # /clock is transient-local: a reader that matches late still gets the current tick.
                 qos = SYNC_QOS if spec.msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
-                # A tick's samples arrive raw in one block and reach the core as one ImuBlock.
-                raw = spec.name == core.imu_block_input
+                # Every input arrives raw: a tick's samples in one block that reaches the core as one
+                # ImuBlock, the rest decoded by the typestore (2-4x faster than rclpy's own conversion).
                 self.create_subscription(message_class(wire.msgtype), wire.name,
-                                         self._input_callback(spec.name, wire.name), qos, raw=raw)
+                                         self._input_callback(spec, wire.name), qos, raw=True)
         self.sample_publishers = {}
         for spec in core.outputs():
             wire = _wire(spec)
@@ -218,13 +219,15 @@ class CoreNode(LockstepNode):
                 return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
-    def _input_callback(self, topic, wire_topic):
-        block = topic == self.core.imu_block_input
+    def _input_callback(self, spec, wire_topic):
+        topic, msgtype, block = spec.name, spec.msgtype, spec.name == self.core.imu_block_input
 
-        def callback(message):
+        def callback(cdr):
             self.received[wire_topic] += 1
             if block:
-                message = m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(message))
+                message = m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(cdr))
+            else:
+                message = decode_cdr(cdr, msgtype)
             self.core.receive(topic, message)
             if self._requirements is not None and wire_topic in self._requirements:
                 self.try_ticks()

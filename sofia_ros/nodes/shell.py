@@ -60,12 +60,14 @@ class LockstepNode(Node):
 
     # --- handshake -----------------------------------------------------------------------------
     def _done_callback(self, node):
-        state = self.states[node]
+        state, lag = self.states[node], self.upstream.get(node)
 
         def callback(cdr):
-            state.announce(*_parse_done(cdr))
-            # Requirements already worked out for the next tick stand: a later report is about later ticks.
-            self.try_ticks()
+            report = _parse_done(cdr)
+            state.announce(*report)
+            # Only the report the next tick waits for can let it run; requirements already worked out stand.
+            if lag is not None and report[0] == self.next_tick - lag:
+                self.try_ticks()
         return callback
 
     def _on_stop(self, message):

@@ -31,8 +31,8 @@ class ClockNode(LockstepNode):
 
         The next tick waits on the recorder's done report alone, and on those of ``ending``: the recorder's
         done(k) follows every node's done(k) and every message of tick k. Every participant's reports are
-        read only while the graph starts and when it stalls, to name who is missing; a report per node and
-        tick costs the live graph more than its clock.
+        read only while the graph starts and when it seems to stall, to name who is missing: each is one more
+        DDS delivery per tick.
         """
         super().__init__('clock', upstream=[(name, 1) for name in (*ending, 'recorder')], tick_ns=tick_ns,
                          expected_outputs={CLOCK.name: subscribers})
@@ -60,8 +60,8 @@ class ClockNode(LockstepNode):
         self._watching = []
 
     def run_tick(self, tick):
-        if tick == 1:
-            # Every node has connected; from here the recorder's reports stand for all of them.
+        if self._watching:
+            # Every node has connected, or the graph moves on: the recorder's reports stand for all of them.
             self._stop_watching()
         for name, state in self.states.items():
             if state.finished or state.failed:

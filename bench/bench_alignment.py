@@ -9,7 +9,8 @@ imports and DDS discovery included), CPU time is that of the run's process and o
 processes. The cold run compiles every module afresh (PYTHONPYCACHEPREFIX set to an empty folder),
 as the first `scripts/run-main` on a new machine does; the warm runs use the bytecode cache. The
 machine is shared, so the ratios, measured in the same run, are the figures to compare; the load
-average is printed beside every absolute time. About 6 min with the defaults on an idle 2-core machine.
+average is printed beside every absolute time. Last, the bags of every run are compared topic by topic
+(bag_digest.py). About 6 min with the defaults on an idle 2-core machine.
 """
 
 import argparse
@@ -19,6 +20,10 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from bag_digest import topic_digests
+
+from sofia_ros.topics import STOP_DOCUMENT
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,6 +78,7 @@ def main():
     print(f'{"run":<16} {"sim s":>7} {"wall s":>7} {"CPU s":>7} {"load":>5} {"x real":>7} {"x real CPU":>10} '
           f'{"wall/direct":>11} {"CPU/direct":>10} {"peak MB":>8} {"accepted":>8}')
     direct = None
+    bags = {}
     with tempfile.TemporaryDirectory(prefix='bench_alignment_') as folder:
         for mode, cold in runs:
             name = f'{mode} (cold)' if cold else mode
@@ -84,6 +90,12 @@ def main():
                   f'{figures["load"]:>5.1f} {figures["sim_s"] / figures["wall_s"]:>7.1f} '
                   f'{figures["sim_s"] / figures["cpu_s"]:>10.1f} {ratios} {figures["peak_mb"]:>8.0f} '
                   f'{str(figures["accepted"]):>8}', flush=True)
+            bags[name] = topic_digests(Path(folder) / name.replace(' (cold)', '_cold'))
+        # The modes' bags, topic by topic (type, QoS, count, log times, bytes); /result/stop is the live runs' own.
+        differing = sorted({topic for digest in bags.values() for topic in digest if topic != STOP_DOCUMENT.name
+                            and len({digest.get(topic) for digest in bags.values()}) > 1})
+        print(f'bags of {", ".join(bags)}: ' + (f'differ in {", ".join(differing)}' if differing
+                                                 else 'identical on every topic'))
     print('wall/direct, CPU/direct: ratio to direct mode in this run (issue 14: executor <= 1.25); '
           'load: 1-min load average during the run; x real CPU: sim s per CPU s')
 

@@ -2,9 +2,10 @@
 
 Units follow REP-103 (rad, rad/s, m/s^2); ``frame_id`` names the reference frame.
 The 400 Hz gyro stream travels as an :class:`ImuBlock` (one tick of samples) inside
-the lock-step runner and as one ``sensor_msgs/Imu`` per sample over DDS; both
-become the same CDR bytes in a bag (:func:`imu_block_cdr` is pinned against the
-typestore's serializer by a test).
+the lock-step runner and, over DDS, as one message per tick holding each sample's
+``sensor_msgs/Imu`` CDR (:func:`sample_block_cdr`); both become the same CDR bytes in
+a bag, one record per sample (:func:`imu_block_cdr` is pinned against the typestore's
+serializer by a test).
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ __all__ = [
     'STAMPED_MSGTYPES',
     'log_stamp_ns',
     'imu_block_from_cdr',
+    'sample_block_cdr',
+    'samples_of_block_cdr',
 ]
 
 NS_PER_S = 1_000_000_000
@@ -115,8 +118,8 @@ def joint_state(stamp_ns, positions, velocities=None):
 
 
 def joint_positions_of(msg):
-    """name -> position of a JointState."""
-    return dict(zip(msg.name, msg.position))
+    """name -> position (float) of a JointState, an rclpy message or one decoded from CDR (numpy positions)."""
+    return dict(zip(msg.name, msg.position.tolist()))
 
 
 def temperature_msg(stamp_ns, frame_id, temperature_c):
@@ -272,3 +275,36 @@ def imu_block_from_cdr(frame_id, samples):
         rates.append(values[13:16])
         forces.append(values[25:28])
     return ImuBlock(frame_id, np.array(stamps, dtype=np.int64), np.array(rates), np.array(forces))
+
+
+# A block is a std_msgs/UInt8MultiArray: layout.dim = [samples (size n, stride n * L), sample CDR (size L,
+# stride L)], data_offset 0, data = the n samples' CDR one after the other (each L bytes: every sample of a
+# block has the same frame_id, hence the same length). ros2 topic echo shows the layout.
+_BLOCK_LABELS = (b'samples\0', b'imu_cdr\0')
+_UINT32 = struct.Struct('<I')
+
+
+def sample_block_cdr(samples):
+    """CDR of a std_msgs/UInt8MultiArray carrying equal-length CDR ``samples`` back to back (one tick's block)."""
+    count = len(samples)
+    length = len(samples[0]) if samples else 0
+    parts = [b'\x00\x01\x00\x00', _UINT32.pack(2)]
+    for label, (size, stride) in zip(_BLOCK_LABELS, ((count, count * length), (length, length))):
+        # Each label is a multiple of 4 bytes long with its NUL, so no padding follows it.
+        parts += [_UINT32.pack(len(label)), label, _UINT32.pack(size), _UINT32.pack(stride)]
+    parts += [_UINT32.pack(0), _UINT32.pack(count * length), *samples]
+    return b''.join(parts)
+
+
+_BLOCK_HEADER = struct.Struct('<4sI I8sII I8sII I I')
+
+
+def samples_of_block_cdr(data):
+    """The sample CDRs of a block written by :func:`sample_block_cdr`, as memoryviews into ``data``."""
+    fields = _BLOCK_HEADER.unpack_from(data) if len(data) >= _BLOCK_HEADER.size else (None,) * 12
+    count, length, total = fields[4], fields[8], fields[11]
+    if (fields[1] != 2 or (fields[3], fields[7]) != _BLOCK_LABELS or count * length != total
+            or len(data) < _BLOCK_HEADER.size + total):
+        raise ValueError('not a sample block: expected the layout of messages.sample_block_cdr')
+    view = memoryview(data)[_BLOCK_HEADER.size:]
+    return [view[index * length:(index + 1) * length] for index in range(count)]

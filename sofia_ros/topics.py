@@ -24,7 +24,7 @@ __all__ = [
     'CENTROIDS', 'centroid_topic',
     'TRUTH_DOCUMENT', 'MODEL_DOCUMENT', 'SCENARIO_DOCUMENT', 'PLAN_DOCUMENT', 'CASE_DOCUMENT',
     'STOP_DOCUMENT', 'SUBSYSTEM_STATUS', 'PARAMETER_EVENTS',
-    'GRAPH_TOPICS', 'BAG_DOCUMENTS',
+    'GRAPH_TOPICS', 'BAG_DOCUMENTS', 'GYRO_IMU_BLOCK', 'SAMPLE_BLOCKS',
 ]
 
 #: 0.2 s: the servo and the sensors exchange once per tick (a 5 Hz position loop with a 2/s gain
@@ -61,6 +61,13 @@ JOINT_STATES = TopicSpec('/ta/joint_states', 'sensor_msgs/msg/JointState',
 
 GYRO_IMU = TopicSpec('/gyro_box/imu', 'sensor_msgs/msg/Imu',
                      'one 400 Hz sample: FOG rates (rad/s) and accelerations (m/s^2) in GYRF', 'gyro_box')
+#: Over DDS, inside the graph, a tick's /gyro_box/imu samples travel as one message: a DDS message and
+#: its Python callbacks per 400 Hz sample cost the live graph more than the simulation itself. The
+#: recorder writes the samples, each as its own /gyro_box/imu record; the gyro box publishes them one by
+#: one on /gyro_box/imu as well while a subscriber outside the graph listens there (ros2 topic echo,
+#: ros2 bag record). Under /sim/ with the handshake: the graph's own transport, never in a bag.
+GYRO_IMU_BLOCK = TopicSpec('/sim/blocks/gyro_box/imu', 'std_msgs/msg/UInt8MultiArray',
+                           "one tick of /gyro_box/imu: each sample's sensor_msgs/Imu CDR, back to back", 'gyro_box')
 GYRO_TEMPERATURE = TopicSpec('/gyro_box/temperature', 'sensor_msgs/msg/Temperature',
                              'gyro box temperature (deg C), once per tick', 'gyro_box')
 
@@ -128,6 +135,8 @@ GRAPH_TOPICS: tuple[TopicSpec, ...] = (
     MOVE_RELATIVE, MTBS_CENTROID, MTBS_INERTIAL, TRACK,
     CALIBRATION_PROGRESS, CALIBRATION_RESULT, CALIBRATION_MANEUVERS,
 )
+#: sample topic -> the topic its samples travel on inside the live graph, one message per tick
+SAMPLE_BLOCKS: Mapping[str, TopicSpec] = MappingProxyType({GYRO_IMU.name: GYRO_IMU_BLOCK})
 #: the one-shot documents a bag may hold beside the graph's topics
 BAG_DOCUMENTS: tuple[TopicSpec, ...] = (TRUTH_DOCUMENT, MODEL_DOCUMENT, SCENARIO_DOCUMENT, PLAN_DOCUMENT,
                                         CASE_DOCUMENT, STOP_DOCUMENT, SUBSYSTEM_STATUS)

@@ -3,8 +3,10 @@
 A node killed mid-run is test_run_signals.py's (`sofia run --processes`, the same stall watchdog).
 """
 
+import importlib.util
 import signal
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,9 +19,10 @@ from sofia_ros.config import load_effect_config
 from sofia_ros.nodes.launch import start_graph_processes, stop_graph
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
-from sofia_ros.topics import DEFAULT_TICK_NS
+from sofia_ros.topics import DEFAULT_TICK_NS, GYRO_IMU, STOP_DOCUMENT
 
-NOMINAL = load_effect_config('config/truth/nominal.yaml')
+ROOT = Path(__file__).resolve().parents[1]
+NOMINAL = load_effect_config(ROOT / 'config/truth/nominal.yaml')
 # The whole sequence in 443 s of sim time (691 s with three frames per position and four elevations):
 # one frame, and a boresight series of two elevations, which still publishes on every topic of the
 # full plan (the coarse drive's commands and MTBS_INERTIAL only in the series).
@@ -31,6 +34,14 @@ SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=1
 def direct_run(tmp_path_factory):
     return run_alignment(NOMINAL, seed=21, bag_path=tmp_path_factory.mktemp('direct') / 'bag', plan=SHORT,
                          mode='direct')
+
+
+def _topic_digests():
+    """bench/bag_digest.py's topic_digests (topic -> type, latched, count, sha256 of log times and bytes)."""
+    spec = importlib.util.spec_from_file_location('bag_digest', ROOT / 'bench' / 'bag_digest.py')
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.topic_digests
 
 
 def _topic_counts(path):
@@ -47,15 +58,21 @@ STARTUP_RERUNS = pytest.mark.flaky(reruns=2)
 @pytest.mark.timeout(600)
 @STARTUP_RERUNS
 @pytest.mark.parametrize('mode', ['executor', 'processes'])
-def test_live_graph_reproduces_the_lock_step_run(direct_run, tmp_path, mode):
-    # The same cores with the same seeds behind DDS: the same messages, the same accepted matrix.
+def test_live_graph_writes_the_lock_step_runs_bag(direct_run, tmp_path, mode):
+    # The same cores with the same seeds behind DDS: the same accepted matrix and the same bag, every
+    # topic with the same type, QoS, count, log times and bytes (bench/bag_digest.py). /result/stop
+    # (why a live run stopped) exists over DDS only (docs/bag.md).
     live = run_alignment(NOMINAL, seed=21, bag_path=tmp_path / mode, plan=SHORT, mode=mode, timeout_s=500)
     assert live.summary['accepted'] == direct_run.summary['accepted'] is True
     np.testing.assert_array_equal(yaml.safe_load(live.result_yaml)['tarf_from_gyrf'],
                                   yaml.safe_load(direct_run.result_yaml)['tarf_from_gyrf'])
+    digests, direct = _topic_digests()(live.bag_path), _topic_digests()(direct_run.bag_path)
+    assert set(digests) - {STOP_DOCUMENT.name} == set(direct)
+    for topic, digest in direct.items():
+        assert digests[topic] == digest, f'{topic}: {mode} differs from direct'
     counts = _topic_counts(live.bag_path)
-    assert counts == _topic_counts(direct_run.bag_path)
     assert all(counts.values()), counts  # every topic of the graph carried messages (SHORT above)
+    assert direct[GYRO_IMU.name][2] == 400 * round(live.summary['sim_seconds'])  # every 400 Hz sample
 
 
 def _wait_until_running(graph, sim_s=5.0, timeout_s=180.0):

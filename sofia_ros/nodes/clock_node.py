@@ -10,7 +10,7 @@ from std_msgs.msg import String
 from sofia_ros import interrupts
 from sofia_ros import messages as m
 from sofia_ros.nodes.shell import LockstepNode
-from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS, done_topic, stop_text
+from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic, stop_text
 from sofia_ros.topics import CLOCK
 from rosgraph_msgs.msg import Clock
 
@@ -25,10 +25,21 @@ _STARTUP_TIMEOUT_S = 120.0
 class ClockNode(LockstepNode):
     """Publishes /clock per tick; ends the run when a node finishes or fails, or the graph stalls."""
 
-    def __init__(self, participants, *, tick_ns, max_sim_s, stall_timeout_s=15.0, subscribers=1):
-        """``participants`` in tick order: the first silent one of them is the likely culprit of a stall."""
-        super().__init__('clock', upstream=[(name, 1) for name in participants], tick_ns=tick_ns,
+    def __init__(self, participants, *, tick_ns, max_sim_s, stall_timeout_s=15.0, subscribers=1, ending=()):
+        """``participants`` in tick order, the recorder among them: the first silent one is the likely culprit of a
+        stall. ``ending``: the nodes whose reports can end the run (finished or failed).
+
+        The next tick waits on the recorder's done report alone, and on those of ``ending``: the recorder's
+        done(k) follows every node's done(k) and every message of tick k. Every participant's reports are
+        read only while the graph starts and when it seems to stall, to name who is missing: each is one more
+        DDS delivery per tick.
+        """
+        super().__init__('clock', upstream=[(name, 1) for name in (*ending, 'recorder')], tick_ns=tick_ns,
                          expected_outputs={CLOCK.name: subscribers})
+        self.participants = list(participants)
+        self.states.update((name, UpstreamState()) for name in self.participants if name not in self.states)
+        self._watching = []
+        self._watch_every_participant()
         self.publishers_by_topic[CLOCK.name] = self.create_publisher(
             Clock, CLOCK.name, SYNC_QOS)
         self.stop_publisher = self.create_publisher(String, STOP_TOPIC, SYNC_QOS)
@@ -37,7 +48,21 @@ class ClockNode(LockstepNode):
         self.last_progress = time.monotonic()
         self.create_timer(0.5, self._watchdog, clock=self._wall_clock())
 
+    def _watch_every_participant(self):
+        """Read every participant's done reports; the latest arrives at once (transient-local)."""
+        self._watching = [self.create_subscription(String, done_topic(name), self._done_callback(name), SYNC_QOS,
+                                                   raw=True)
+                          for name in self.participants if name not in self.upstream]
+
+    def _stop_watching(self):
+        for subscription in self._watching:
+            self.destroy_subscription(subscription)
+        self._watching = []
+
     def run_tick(self, tick):
+        if self._watching:
+            # Every node has connected, or the graph moves on: the recorder's reports stand for all of them.
+            self._stop_watching()
         for name, state in self.states.items():
             if state.finished or state.failed:
                 reason = state.failed or f'{name} finished'
@@ -65,6 +90,9 @@ class ClockNode(LockstepNode):
             self._stop(self.next_tick - 1, f'interrupted by {signal.Signals(signum).name}', complete=False)
             return
         waited_s = time.monotonic() - self.last_progress
+        if self.next_tick > 1 and waited_s > self.stall_timeout_s / 2.0 and not self._watching:
+            # Possibly stalling: learn where every node is before the timeout names the culprit.
+            self._watch_every_participant()
         if self.next_tick <= 1:
             # Starting up: every process imports, discovers and connects; allow for a slow machine.
             if waited_s > max(self.stall_timeout_s, _STARTUP_TIMEOUT_S):
@@ -75,7 +103,7 @@ class ClockNode(LockstepNode):
             return
         if waited_s > self.stall_timeout_s:
             waiting = self.next_tick - 1
-            silent = [name for name, state in self.states.items() if state.latest_tick < waiting]
+            silent = [name for name in self.participants if self.states[name].latest_tick < waiting]
             # A node whose handshake topic has lost its publisher is gone; otherwise the first silent
             # node in tick order is the one the others wait for.
             gone = [name for name in silent if self.count_publishers(done_topic(name)) == 0]

@@ -53,7 +53,8 @@ def _build(executable, values):
     participants = [core.name for core in cores if core.name != 'clock']
     if executable == 'clock':
         return ClockNode([*participants, 'recorder'], tick_ns=config.tick_ns, max_sim_s=values['max_sim_s'],
-                         stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics[CLOCK.name][2]) + 1)
+                         stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics[CLOCK.name][2]) + 1,
+                         ending=[core.name for core in cores if core.ends_run])
     if executable == 'recorder':
         if not values['bag_path']:
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')

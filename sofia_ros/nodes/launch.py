@@ -60,7 +60,7 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
         nodes = [CoreNode(core, graph_topics=topics, tick_ns=config.tick_ns) for core in cores if core.name != 'clock']
         clock_subscribers = len(topics[CLOCK.name][2]) + 1
         clock = ClockNode([*_participants(cores), 'recorder'], tick_ns=config.tick_ns, max_sim_s=max_sim_s,
-                          subscribers=clock_subscribers)
+                          subscribers=clock_subscribers, ending=[core.name for core in cores if core.ends_run])
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,
                                 epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents)
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor with this many entities.

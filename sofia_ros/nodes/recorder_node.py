@@ -7,11 +7,18 @@ from rclpy.task import Future
 
 from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
+from sofia_ros.bag.msgtypes import TYPESTORE, decode_cdr
 from sofia_ros.nodes.shell import LockstepNode, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
-from sofia_ros.topics import PARAMETER_EVENTS, STOP_DOCUMENT
+from sofia_ros.topics import PARAMETER_EVENTS, SAMPLE_BLOCKS, STOP_DOCUMENT
 
 __all__ = ['RecorderNode']
+
+
+def _canonical_cdr(cdr, msgtype):
+    """The bytes direct mode writes for a message rclpy serialized (bag.wire_cdr): its padding zeroed (rmw_fastrtps
+    leaves it uninitialised) and its length exact (between processes the payload arrives padded to 4 bytes)."""
+    return TYPESTORE.serialize_cdr(decode_cdr(cdr, msgtype), msgtype, little_endian=True)
 
 
 class RecorderNode(LockstepNode):
@@ -20,8 +27,11 @@ class RecorderNode(LockstepNode):
     def __init__(self, bag_path, graph_topics, participants, *, tick_ns, epoch_ns, documents=()):
         """Record into a new bag at ``bag_path``; ``epoch_ns``: the campaign's start in UTC ns (BagWriter)."""
         topics = {name: msgtype for name, (msgtype, publisher, _) in graph_topics.items() if publisher}
+        # A sample topic arrives as its per-tick blocks (topics.SAMPLE_BLOCKS); the bag holds the samples.
+        wires = {name: (SAMPLE_BLOCKS[name].name, SAMPLE_BLOCKS[name].msgtype) if name in SAMPLE_BLOCKS
+                 else (name, msgtype) for name, msgtype in topics.items()}
         super().__init__('recorder', upstream=[(name, 0) for name in participants], tick_ns=tick_ns,
-                         expected_inputs=list(topics))
+                         expected_inputs=[wire for wire, _ in wires.values()])
         self.bag = BagWriter(bag_path, epoch_ns=epoch_ns)
         self.bag.open()
         self.msgtypes = dict(topics)
@@ -34,9 +44,10 @@ class RecorderNode(LockstepNode):
         self.clock_ns = 0
         self.closed = False
         self.finished = Future()
-        for topic, msgtype in topics.items():
+        for topic, (wire, msgtype) in wires.items():
             qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
-            self.create_subscription(message_class(msgtype), topic, self._record_callback(topic), qos, raw=True)
+            callback = self._block_callback(topic, wire) if wire != topic else self._record_callback(topic)
+            self.create_subscription(message_class(msgtype), wire, callback, qos, raw=True)
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
                                  self._record_callback(PARAMETER_EVENTS.name, False), DATA_QOS, raw=True)
 
@@ -47,13 +58,32 @@ class RecorderNode(LockstepNode):
             stamp_ns = m.log_stamp_ns(msgtype, cdr, self.clock_ns)
             if msgtype == 'rosgraph_msgs/msg/Clock':
                 self.clock_ns = stamp_ns
-            self.bag.write_raw(topic, cdr, stamp_ns)
+            self.bag.write_raw(topic, _canonical_cdr(cdr, msgtype), stamp_ns)
             if counted:
-                self.received[topic] += 1
-                if self._requirements is not None and topic in self._requirements:
-                    self.try_ticks()
-            self._close_if_complete()
+                self._count(topic)
+            else:
+                self._close_if_complete()
         return callback
+
+    def _block_callback(self, topic, block_topic):
+        msgtype = self.msgtypes[topic]
+
+        def callback(block):
+            # Each sample its own record, at its own stamp: the bag direct mode writes.
+            for sample in m.samples_of_block_cdr(block):
+                self.bag.write_raw(topic, sample, m.log_stamp_ns(msgtype, sample, self.clock_ns))
+            self._count(block_topic)
+        return callback
+
+    def _count(self, topic):
+        self.received[topic] += 1
+        if self._requirements is not None and topic in self._requirements:
+            self.try_ticks()
+        self._close_if_complete()
+
+    def extra_ready(self):
+        # The clock starts the first tick on the recorder's done(0): it must mean that every node has connected.
+        return all(state.latest_tick >= 0 for state in self.states.values())
 
     def run_tick(self, tick):
         self.publish_done(tick)

@@ -38,8 +38,8 @@ class NodeCore:
     ends_run = False
     #: the nodes this core sets parameters on (SET_PARAMETERS requests; parameter clients in the live graph)
     parameter_targets = ()
-    #: an input topic of sensor_msgs/Imu samples that the core takes as one ImuBlock per tick (the live
-    #: shell subscribes to it raw and decodes a tick's samples in one go), or None
+    #: an input topic of sensor_msgs/Imu samples that the core takes as one ImuBlock per tick (over DDS the
+    #: samples arrive as one block message, topics.SAMPLE_BLOCKS, decoded in one go), or None
     imu_block_input = None
 
     def __init__(self):

@@ -91,9 +91,10 @@ class LockstepRunner:
                 reasons[name] = ''
             except ConfigError as err:
                 reasons[name] = str(err)
-        changed = {name: value for name, value in request.values.items() if not reasons[name]}
-        if changed:
-            self._record(PARAMETER_EVENTS.name, m.parameter_event(self.stamp_ns, request.node, changed))
+        for name, value in request.values.items():
+            # One event per parameter, as rclpy's set_parameters service publishes them over DDS.
+            if not reasons[name]:
+                self._record(PARAMETER_EVENTS.name, m.parameter_event(self.stamp_ns, request.node, {name: value}))
         return ParameterResult(request.node, reasons)
 
     def _record(self, topic, message):

@@ -1,0 +1,77 @@
+"""The gyro samples' block transport inside the live graph (the three modes' identical bags: test_live_graph.py)."""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import UInt8MultiArray
+
+from sofia_ros import messages as m
+from sofia_ros.topics import GYRO_IMU
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _block(count=80):
+    rng = np.random.default_rng(4)
+    return m.ImuBlock('gyrf', np.arange(1, count + 1, dtype=np.int64) * 2_500_000, rng.normal(size=(count, 3)),
+                      rng.normal(size=(count, 3)))
+
+
+@pytest.mark.parametrize('count', [80, 1, 0])
+def test_a_sample_block_is_the_uint8_multi_array_rclpy_writes(count):
+    samples = m.imu_block_cdr(_block(count))
+    data = m.sample_block_cdr(samples)
+    message = deserialize_message(data, UInt8MultiArray)
+    assert bytes(serialize_message(message)) == data
+    assert [(dim.label, dim.size) for dim in message.layout.dim] == [('samples', count),
+                                                                     ('imu_cdr', len(samples[0]) if samples else 0)]
+    assert [bytes(sample) for sample in m.samples_of_block_cdr(data)] == samples
+
+
+def test_a_block_decodes_to_the_block_it_was_made_of():
+    block = _block()
+    back = m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(m.sample_block_cdr(m.imu_block_cdr(block))))
+    np.testing.assert_array_equal(back.stamp_ns, block.stamp_ns)
+    np.testing.assert_array_equal(back.angular_velocity_rad_per_s, block.angular_velocity_rad_per_s)
+    np.testing.assert_array_equal(back.linear_acceleration_m_per_s2, block.linear_acceleration_m_per_s2)
+
+
+def test_something_else_than_a_sample_block_is_refused_in_one_line():
+    with pytest.raises(ValueError, match='not a sample block'):
+        m.samples_of_block_cdr(serialize_message(UInt8MultiArray(data=b'\x01\x02')))
+
+
+@pytest.mark.timeout(300)
+def test_a_listener_outside_the_graph_gets_standard_imu_samples(tmp_path):
+    # Inside the graph the samples travel in blocks; a subscriber from outside (ros2 topic echo) gets
+    # each one as its own sensor_msgs/Imu on /gyro_box/imu.
+    import rclpy
+    from sensor_msgs.msg import Imu
+
+    from sofia_ros.nodes.sync import DATA_QOS
+
+    run = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'run', 'alignment', '--truth',
+                            str(ROOT / 'config/truth/nominal.yaml'), '--seed', '3', '--bag', str(tmp_path / 'bag'),
+                            '--repetitions', '2', '--verification-repetitions', '1', '--drift-track-s', '10'],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    rclpy.init()
+    try:
+        node = rclpy.create_node('imu_listener')
+        samples = []
+        node.create_subscription(Imu, GYRO_IMU.name, samples.append, DATA_QOS)
+        deadline = time.monotonic() + 240.0
+        while len(samples) < 800:
+            assert time.monotonic() < deadline and run.poll() is None, 'no samples from the live graph'
+            rclpy.spin_once(node, timeout_sec=0.1)
+    finally:
+        rclpy.try_shutdown()
+        run.terminate()
+        run.communicate(timeout=60)
+    stamps_ns = np.array([m.stamp_ns_of(sample.header.stamp) for sample in samples])
+    assert {sample.header.frame_id for sample in samples} == {'gyrf'}
+    assert set(np.diff(stamps_ns)) == {2_500_000}  # every sample, 400 Hz, in order

@@ -172,7 +172,14 @@ SIGNAL_CASES = [('direct', signal.SIGTERM), ('executor', signal.SIGINT), ('proce
                 ('gyro-stability', signal.SIGINT), ('star-hop direct', signal.SIGINT)]
 
 
+#: Eleven processes starting at once occasionally do not all discover each other (rmw_fastrtps: seen with
+#: 4 of 11 nodes never connecting, once even on a quiet machine); the clock then ends the run with this
+#: line, and only such a run is retried (any other failure fails at once). Open defect: README, Tests.
+STARTUP_RERUNS = pytest.mark.flaky(reruns=2, only_rerun=['did not connect within'])
+
+
 @pytest.mark.timeout(420)
+@STARTUP_RERUNS
 @pytest.mark.parametrize('mode, signum', SIGNAL_CASES,
                          ids=[f'{mode}-{signal.Signals(signum).name}' for mode, signum in SIGNAL_CASES])
 def test_a_signal_closes_the_bag_writes_the_summary_and_exits_128_plus_signal(mode, signum, tmp_path):
@@ -228,6 +235,7 @@ def test_recover_of_a_folder_without_a_bag_is_one_line(tmp_path, capsys):
 
 
 @pytest.mark.timeout(420)
+@STARTUP_RERUNS
 def test_a_killed_recorder_is_named_and_the_run_exits_3(tmp_path):
     process, bag = _start_run(tmp_path, MODES['processes'])
     recorder = [pid for pid in _children(process.pid)
@@ -285,6 +293,7 @@ def test_when_every_domain_is_held_the_run_is_told_to_wait(held_domain, monkeypa
 
 
 @pytest.mark.timeout(420)
+@STARTUP_RERUNS
 def test_a_node_that_dies_under_processes_is_a_fault_exit_3(tmp_path):
     process, bag = _start_run(tmp_path, MODES['processes'])
     time.sleep(3.0)  # past the start-up watchdog's first tick

@@ -10,7 +10,7 @@ processes. The cold run compiles every module afresh (PYTHONPYCACHEPREFIX set to
 as the first `scripts/run-main` on a new machine does; the warm runs use the bytecode cache. The
 machine is shared, so the ratios, measured in the same run, are the figures to compare; the load
 average is printed beside every absolute time. Last, the bags of every run are compared topic by topic
-(bag_digest.py). About 6 min with the defaults on an idle 2-core machine.
+(sofia_ros.bag.digest). About 6 min with the defaults on an idle 2-core machine.
 """
 
 import argparse
@@ -21,8 +21,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bag_digest import topic_digests
-
+from sofia_ros.bag.digest import topic_digests
 from sofia_ros.topics import STOP_DOCUMENT
 
 ROOT = Path(__file__).resolve().parents[1]

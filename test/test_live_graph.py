@@ -3,7 +3,6 @@
 A node killed mid-run is test_run_signals.py's (`sofia run --processes`, the same stall watchdog).
 """
 
-import importlib.util
 import signal
 import time
 from pathlib import Path
@@ -13,6 +12,7 @@ import pytest
 import yaml
 
 from sofia_ros.bag import BagReader
+from sofia_ros.bag.digest import topic_digests
 from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.campaigns.run_parameters import graph_parameters
 from sofia_ros.config import load_effect_config
@@ -36,14 +36,6 @@ def direct_run(tmp_path_factory):
                          mode='direct')
 
 
-def _topic_digests():
-    """bench/bag_digest.py's topic_digests (topic -> type, latched, count, sha256 of log times and bytes)."""
-    spec = importlib.util.spec_from_file_location('bag_digest', ROOT / 'bench' / 'bag_digest.py')
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.topic_digests
-
-
 def _topic_counts(path):
     with BagReader(path) as bag:
         return {topic.name: topic.count for topic in bag.topics if not topic.name.startswith(('/config', '/result'))
@@ -60,13 +52,13 @@ STARTUP_RERUNS = pytest.mark.flaky(reruns=2)
 @pytest.mark.parametrize('mode', ['executor', 'processes'])
 def test_live_graph_writes_the_lock_step_runs_bag(direct_run, tmp_path, mode):
     # The same cores with the same seeds behind DDS: the same accepted matrix and the same bag, every
-    # topic with the same type, QoS, count, log times and bytes (bench/bag_digest.py). /result/stop
+    # topic with the same type, QoS, count, log times and bytes (sofia_ros.bag.digest). /result/stop
     # (why a live run stopped) exists over DDS only (docs/bag.md).
     live = run_alignment(NOMINAL, seed=21, bag_path=tmp_path / mode, plan=SHORT, mode=mode, timeout_s=500)
     assert live.summary['accepted'] == direct_run.summary['accepted'] is True
     np.testing.assert_array_equal(yaml.safe_load(live.result_yaml)['tarf_from_gyrf'],
                                   yaml.safe_load(direct_run.result_yaml)['tarf_from_gyrf'])
-    digests, direct = _topic_digests()(live.bag_path), _topic_digests()(direct_run.bag_path)
+    digests, direct = topic_digests(live.bag_path), topic_digests(direct_run.bag_path)
     assert set(digests) - {STOP_DOCUMENT.name} == set(direct)
     for topic, digest in direct.items():
         assert digests[topic] == digest, f'{topic}: {mode} differs from direct'

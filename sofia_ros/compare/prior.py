@@ -35,14 +35,13 @@ class AnchorPrior:
     normal under the null. ``whitening`` (K-1, K-1): per axis, TARF increments in units of
     ``unit_rad`` to innovations in the same units (the identity where ARW dominates).
     ``unit_rad``: one interval's own scatter, sqrt(N^2 dt + K^2 dt^3 / 3), the unit the gyro
-    observables are shown in. ``tarf_from_irf`` (K-1, 3, 3): the attitude at each interval's middle.
+    observables are shown in.
     """
 
     matrix: scipy.sparse.csr_matrix
     whitening: np.ndarray
     unit_rad: float
     knots_s: np.ndarray
-    tarf_from_irf: np.ndarray
 
     @property
     def middle_s(self):
@@ -55,8 +54,7 @@ def anchor_prior(knots_s, tarf_from_irf, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_
     knots = np.asarray(knots_s, dtype=float)
     intervals = len(knots) - 1
     if intervals < 1:
-        return AnchorPrior(scipy.sparse.csr_matrix((0, 3 * len(knots))), np.zeros((0, 0)), 1.0, knots,
-                           np.zeros((0, 3, 3)))
+        return AnchorPrior(scipy.sparse.csr_matrix((0, 3 * len(knots))), np.zeros((0, 0)), 1.0, knots)
     unit_rad = anchor_walk_sigma_rad(arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s, float(np.median(np.diff(knots))))
     if not unit_rad > 0.0:
         raise BagError('the gyro noise allows the anchors no movement (angle and rate random walk both zero); '
@@ -76,4 +74,4 @@ def anchor_prior(knots_s, tarf_from_irf, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_
     increments = scipy.sparse.csr_matrix((values.ravel(), (rows, columns.ravel())),
                                          shape=(3 * intervals, 3 * len(knots)))
     matrix = scipy.sparse.kron(scipy.sparse.csr_matrix(whitening), scipy.sparse.identity(3)) @ increments / unit_rad
-    return AnchorPrior(scipy.sparse.csr_matrix(matrix), whitening, unit_rad, knots, np.asarray(tarf_from_irf))
+    return AnchorPrior(scipy.sparse.csr_matrix(matrix), whitening, unit_rad, knots)

@@ -123,11 +123,11 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
                                                       'explained', 'structure', 'kind')}
                    for name, entry in diagnostics.observables.items()}
     # A term of an axis that changes between halves is structure of that axis: the axis is not explained.
+    prefixes = {name.split('.')[0] for name in observables}
     for entry in consistency:
-        for name in _implicated_observables([entry], tuple(name.split('.')[0] for name in observables)):
-            if name in observables:
-                observables[name] = {**observables[name], 'explained': False, 'structure': [
-                    *observables[name]['structure'], f'{entry["param"]} changes with {entry["split"]}']}
+        for name in _implicated_observables([entry], prefixes) & observables.keys():
+            observables[name] = {**observables[name], 'explained': False, 'structure': [
+                *observables[name]['structure'], f'{entry["param"]} changes with {entry["split"]}']}
     verdict = {'observables': observables, 'inconsistent_terms': [entry['param'] for entry in consistency],
                'after_best': None}
     problems = _problems(diagnostics, consistency)

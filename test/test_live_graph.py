@@ -4,18 +4,24 @@ A node killed mid-run is test_run_signals.py's (`sofia run --processes`, the sam
 """
 
 import signal
+import subprocess
+import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from graph_startup import STARTUP_RERUNS
 from sofia_ros.bag import BagReader
 from sofia_ros.bag.digest import topic_digests
 from sofia_ros.campaigns.alignment import run_alignment
 from sofia_ros.campaigns.run_parameters import graph_parameters
 from sofia_ros.config import load_effect_config
+from sofia_ros.errors import GraphRunError
+from sofia_ros.nodes import launch
 from sofia_ros.nodes.launch import start_graph_processes, stop_graph
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
@@ -42,9 +48,38 @@ def _topic_counts(path):
                 and topic.name != '/parameter_events'}
 
 
-# Eleven processes starting at once on a loaded 2-core machine occasionally do not come up
-# (an rclpy EventsExecutor timer crash or a missed discovery at start-up); such a run is retried.
-STARTUP_RERUNS = pytest.mark.flaky(reruns=2)
+#: A node outside the graph in the same ROS domain that sets its own parameter ten times a second: parameter
+#: events stamped in wall time (about 1.8e9 s, past int32 once the campaign's epoch is added), as a user's tool
+#: or the executables' parameter readers publish them. The recorder keeps them out of the bag.
+_VISITOR = '''
+import rclpy, rclpy.parameter
+rclpy.init()
+node = rclpy.create_node('visitor')
+node.declare_parameter('count', 0)
+count = 0
+def bump():
+    global count
+    count += 1
+    node.set_parameters([rclpy.parameter.Parameter('count', value=count)])
+node.create_timer(0.1, bump)
+rclpy.spin(node)
+'''
+
+
+@contextmanager
+def _parameter_visitor(tmp_path):
+    """Run _VISITOR for the body of the with-statement."""
+    with open(tmp_path / 'visitor.log', 'w') as log:
+        visitor = subprocess.Popen([sys.executable, '-c', _VISITOR], stdout=log, stderr=subprocess.STDOUT)
+    try:
+        yield
+    finally:
+        visitor.send_signal(signal.SIGINT)
+        try:
+            visitor.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            visitor.kill()
+            visitor.wait()
 
 
 @pytest.mark.timeout(600)
@@ -54,7 +89,8 @@ def test_live_graph_writes_the_lock_step_runs_bag(direct_run, tmp_path, mode):
     # The same cores with the same seeds behind DDS: the same accepted matrix and the same bag, every
     # topic with the same type, QoS, count, log times and bytes (sofia_ros.bag.digest). /result/stop
     # (why a live run stopped) exists over DDS only (docs/bag.md).
-    live = run_alignment(NOMINAL, seed=21, bag_path=tmp_path / mode, plan=SHORT, mode=mode, timeout_s=500)
+    with _parameter_visitor(tmp_path):
+        live = run_alignment(NOMINAL, seed=21, bag_path=tmp_path / mode, plan=SHORT, mode=mode, timeout_s=500)
     assert live.summary['accepted'] == direct_run.summary['accepted'] is True
     np.testing.assert_array_equal(yaml.safe_load(live.result_yaml)['tarf_from_gyrf'],
                                   yaml.safe_load(direct_run.result_yaml)['tarf_from_gyrf'])
@@ -82,7 +118,8 @@ def _wait_until_running(graph, sim_s=5.0, timeout_s=180.0):
         deadline = time.monotonic() + timeout_s
         while latest[0] < sim_s:
             assert time.monotonic() < deadline, f'the graph did not start; logs in {graph.workdir}'
-            assert graph.processes['clock'].poll() is None, f'the clock exited; logs in {graph.workdir}'
+            assert graph.processes['clock'].poll() is None, \
+                f'the clock exited ({(graph.workdir / "clock.log").read_text()}); logs in {graph.workdir}'
             rclpy.spin_once(node, timeout_sec=0.1)
     finally:
         rclpy.try_shutdown()
@@ -121,8 +158,6 @@ def test_recorder_stopped_by_sigint_closes_a_complete_bag(tmp_path):
 
 @pytest.mark.timeout(120)
 def test_replay_publishes_a_bag_into_a_live_graph(direct_run):
-    import subprocess
-    import sys
 
     import rclpy
     from geometry_msgs.msg import QuaternionStamped
@@ -174,8 +209,6 @@ def test_a_campaign_bag_runs_on_the_campaigns_utc_time(direct_run):
 
 @pytest.mark.timeout(120)
 def test_a_replay_re_latches_the_documents_for_a_late_subscriber(direct_run):
-    import subprocess
-    import sys
 
     import rclpy
     from rosgraph_msgs.msg import Clock
@@ -216,3 +249,20 @@ def test_a_replay_re_latches_the_documents_for_a_late_subscriber(direct_run):
             replay.kill()
             replay.communicate(timeout=10)
         rclpy.try_shutdown()
+
+
+@pytest.mark.timeout(60)
+def test_a_recorder_that_never_heard_the_stop_is_stopped_once_the_clock_has_exited(tmp_path, monkeypatch):
+    # A recorder that never connected does not hear /sim/stop; before, `sofia run --processes` then waited on it
+    # for the whole wall-time limit. Stand-ins: a clock that logged its reason and exited 3, a recorder that waits.
+    monkeypatch.setattr(launch, 'RECORDER_GRACE_S', 1.0)
+    (tmp_path / 'clock.log').write_text('[INFO] [clock]: stopping: recorder did not connect within 120 s\n')
+    processes = {'clock': subprocess.Popen([sys.executable, '-c', 'raise SystemExit(3)']),
+                 'recorder': subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])}
+    graph = launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag')
+    started = time.monotonic()
+    with pytest.raises(GraphRunError, match=r'the recorder did not close the bag within 1 s of the clock stopping '
+                                            r'the run \(clock: .*recorder did not connect within 120 s\); logs in'):
+        launch.wait_for_graph(graph, timeout_s=50)
+    assert time.monotonic() - started < 20
+    assert processes['recorder'].poll() is not None

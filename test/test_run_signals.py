@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from graph_startup import STARTUP_RERUNS
 from sofia_ros.bag import BagReader
 from sofia_ros.cli import main
 from sofia_ros.errors import ConfigError, DomainBusyError
@@ -143,15 +144,18 @@ def _start_run(tmp_path, campaign_args, startup_s=240.0):
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     deadline = time.monotonic() + startup_s
     try:
-        while _recorded_samples(bag) <= 400:
-            assert process.poll() is None, process.communicate()
-            assert time.monotonic() < deadline, f'the run did not start recording within {startup_s:g} s'
+        while _recorded_samples(bag) <= 400 and process.poll() is None and time.monotonic() < deadline:
             time.sleep(0.5)
     except BaseException:
         # Never leave a run behind: it would hold this session's ROS domain.
         process.send_signal(signal.SIGTERM)
         process.communicate(timeout=120)
         raise
+    if _recorded_samples(bag) <= 400:
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=120)
+        raise AssertionError(f'the run did not start recording within {startup_s:g} s '
+                             f'(exit code {process.returncode}): {err[-2000:]}')
     time.sleep(1.0)
     return process, bag
 
@@ -170,12 +174,6 @@ MODES = {
 #: executor's SIGTERM is the two-runs test's first run.
 SIGNAL_CASES = [('direct', signal.SIGTERM), ('executor', signal.SIGINT), ('processes', signal.SIGTERM),
                 ('gyro-stability', signal.SIGINT), ('star-hop direct', signal.SIGINT)]
-
-
-#: Eleven processes starting at once occasionally do not all discover each other (rmw_fastrtps: seen with
-#: 4 of 11 nodes never connecting, once even on a quiet machine); the clock then ends the run with this
-#: line, and only such a run is retried (any other failure fails at once). Open defect: README, Tests.
-STARTUP_RERUNS = pytest.mark.flaky(reruns=2, only_rerun=['did not connect within'])
 
 
 @pytest.mark.timeout(420)

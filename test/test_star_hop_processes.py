@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from graph_startup import STARTUP_RERUNS
 from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.graph_params import graph_config_from_parameters, plan_from_parameters
 from sofia_ros.campaigns.run_parameters import graph_parameters, plan_parameters
@@ -66,16 +67,15 @@ def _params(**plan_values):
     return values
 
 
-# Eleven processes starting at once on a loaded 2-core machine occasionally do not come up
-# (as in test_live_graph.py); such a run is retried.
 @pytest.mark.timeout(600)
-@pytest.mark.flaky(reruns=2)
+@STARTUP_RERUNS
 def test_processes_run_records_what_the_direct_run_records(direct_bag, tmp_path, capsys):
     bag = tmp_path / 'processes'
     log_folders = set(Path(tempfile.gettempdir()).glob('sofia_graph_*'))
     code = main(['run', 'star-hop', '--truth', str(TRUTH_FILE), '--seed', str(SEED), '--bag', str(bag),
                  '--processes', *CLI_PLAN])
-    assert code == 0 and '3 observations' in capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert code == 0 and '3 observations' in out, err
     # The node logs of a finished run are cleaned up.
     assert set(Path(tempfile.gettempdir()).glob('sofia_graph_*')) <= log_folders
     summary = yaml.safe_load((bag / 'summary.json').read_text())

@@ -88,6 +88,10 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
         rclpy.try_shutdown()
 
 
+#: How long the recorder may take to close its bag once the clock has stopped the run and exited.
+RECORDER_GRACE_S = 30.0
+
+
 @dataclass
 class GraphProcesses:
     """The node processes of one run and the folder with their params file and logs."""
@@ -158,6 +162,7 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
     """Wait until the recorder has closed the bag, or a signal asks to stop (sofia_ros.interrupts);
     then stop every remaining node. GraphRunError when the recorder died or the time ran out."""
     start = time.monotonic()
+    clock, clock_stopped = graph.processes['clock'], None
     try:
         with interrupts.graceful():
             while graph.processes['recorder'].poll() is None and interrupts.requested() is None:
@@ -166,6 +171,13 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
                     progress(None, max_sim_s)
                 if time.monotonic() - start > timeout_s:
                     raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; '
+                                        f'logs in {graph.workdir}')
+                if clock_stopped is None and clock.poll() is not None:
+                    clock_stopped = time.monotonic()
+                # A recorder that never connected does not hear /sim/stop: the clock's exit ends the run too.
+                if clock_stopped is not None and time.monotonic() - clock_stopped > RECORDER_GRACE_S:
+                    raise GraphRunError(f'the recorder did not close the bag within {RECORDER_GRACE_S:g} s of the '
+                                        f'clock stopping the run (clock: {_last_log_line(graph, "clock")}); '
                                         f'logs in {graph.workdir}')
     finally:
         stop_graph(graph)
@@ -176,6 +188,15 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
                else f'exited with code {recorder.returncode}')
         raise GraphRunError(f'the recorder node {how}; its bag is not closed: rebuild it with '
                             f'`sofia recover {graph.bag_path}`; logs in {graph.workdir}')
+
+
+def _last_log_line(graph, node):
+    """The last line a node process logged (its stop reason, for the clock), or a note that it logged nothing."""
+    try:
+        lines = (graph.workdir / f'{node}.log').read_text(errors='replace').strip().splitlines()
+    except OSError:
+        lines = []
+    return lines[-1] if lines else 'nothing logged'
 
 
 def stop_graph(graph):

@@ -49,7 +49,8 @@ class RecorderNode(LockstepNode):
             callback = self._block_callback(topic, wire) if wire != topic else self._record_callback(topic)
             self.create_subscription(message_class(msgtype), wire, callback, qos, raw=True)
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
-                                 self._record_callback(PARAMETER_EVENTS.name, False), DATA_QOS, raw=True)
+                                 self._parameter_event_callback({f'/{name}' for name in participants}),
+                                 DATA_QOS, raw=True)
 
     def _record_callback(self, topic, counted=True):
         msgtype = self.msgtypes[topic]
@@ -63,6 +64,19 @@ class RecorderNode(LockstepNode):
                 self._count(topic)
             else:
                 self._close_if_complete()
+        return callback
+
+    def _parameter_event_callback(self, graph_nodes):
+        record = self._record_callback(PARAMETER_EVENTS.name, False)
+
+        def callback(cdr):
+            # Only parameters set on a graph node, as direct mode records them. Every node's own declarations
+            # (new_parameters, seen or not depending on start-up order) and any other node in the domain (the
+            # executables' parameter readers, a user's tool; their stamps are wall time) stay out of the bag.
+            event = decode_cdr(cdr, PARAMETER_EVENTS.msgtype)
+            if event.node in graph_nodes and event.changed_parameters and not (event.new_parameters
+                                                                               or event.deleted_parameters):
+                record(cdr)
         return callback
 
     def _block_callback(self, topic, block_topic):

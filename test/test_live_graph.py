@@ -261,8 +261,22 @@ def test_a_recorder_that_never_heard_the_stop_is_stopped_once_the_clock_has_exit
                  'recorder': subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])}
     graph = launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag')
     started = time.monotonic()
-    with pytest.raises(GraphRunError, match=r'the recorder did not close the bag within 1 s of the clock stopping '
-                                            r'the run \(clock: .*recorder did not connect within 120 s\); logs in'):
+    with pytest.raises(GraphRunError, match=r'the recorder did not close the bag within 1 s of the clock stopping the '
+                                            r'run \(clock exited with code 3: .*did not connect within 120 s\)'):
         launch.wait_for_graph(graph, timeout_s=50)
+    assert time.monotonic() - started < 20
+    assert processes['recorder'].poll() is not None
+
+
+@pytest.mark.timeout(60)
+def test_a_recorder_that_closed_its_bag_but_does_not_exit_is_stopped(tmp_path, monkeypatch):
+    # Stuck destroying its DDS entities after the bag is complete: the run ends, without an error.
+    monkeypatch.setattr(launch, 'RECORDER_GRACE_S', 1.0)
+    (tmp_path / 'bag').mkdir()
+    (tmp_path / 'bag' / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    processes = {'clock': subprocess.Popen([sys.executable, '-c', 'pass']),
+                 'recorder': subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])}
+    started = time.monotonic()
+    launch.wait_for_graph(launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag'), timeout_s=50)
     assert time.monotonic() - started < 20
     assert processes['recorder'].poll() is not None

@@ -10,7 +10,9 @@ from pathlib import Path
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
-from rclpy.node import Node
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_rosout_default
 
 import sofia_ros
 from sofia_ros.campaigns.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
@@ -25,16 +27,21 @@ __all__ = ['main', *EXECUTABLES]
 
 def _read_parameters(executable):
     """Graph parameters as given by --ros-args (params file or -p), with their defaults, and every plan.* given."""
-    reader = Node(f'{executable}_parameters', automatically_declare_parameters_from_overrides=True,
-                  allow_undeclared_parameters=True)
+    context = rclpy.get_default_context()
+    # The overrides rcl resolves for this node's name (after any __node remap), read from a bare rcl node: an rclpy
+    # Node would create and destroy DDS writers here, and Fast DDS 3.2 can deadlock destroying a writer while the
+    # graph's other processes are still being discovered (seen: ~TimedEvent waiting forever, the node never up).
+    with context.handle:
+        reader = _rclpy.Node(f'{executable}_parameters', '', context.handle, None, True, False,
+                             qos_profile_rosout_default.get_c_qos_profile())
+        try:
+            overrides = {name: parameter.value for name, parameter in reader.get_parameters(Parameter).items()}
+        finally:
+            reader.destroy_when_not_in_use()
     values = {name: default for name, (default, _) in GRAPH_PARAMETERS.items()}
     values['camera'] = ''
-    for name in list(values):
-        if reader.has_parameter(name):
-            values[name] = reader.get_parameter(name).value
-    plan = reader.get_parameters_by_prefix('plan')
-    values.update({f'plan.{name}': parameter.value for name, parameter in plan.items()})
-    reader.destroy_node()
+    values.update((name, overrides[name]) for name in list(values) if name in overrides)
+    values.update((name, value) for name, value in overrides.items() if name.startswith('plan.'))
     return values
 
 

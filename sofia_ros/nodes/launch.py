@@ -148,9 +148,11 @@ def _start_graph_processes(parameters, bag_path, domain):
             with open(workdir / f'{name}.log', 'w') as log:
                 group = next(iter(processes.values())).pid if processes else 0
                 processes[name] = subprocess.Popen(
-                    [sys.executable, '-m', 'sofia_ros.nodes.executables', executable, '--ros-args', '--params-file',
-                     str(params), *extra], stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy(),
-                    process_group=group, preexec_fn=_die_with_parent)
+                    # faulthandler: a node that dies in native code (rmw, Fast DDS) leaves its Python stack in its log
+                    [sys.executable, '-X', 'faulthandler', '-m', 'sofia_ros.nodes.executables', executable,
+                     '--ros-args', '--params-file', str(params), *extra],
+                    stdout=log, stderr=subprocess.STDOUT, env=os.environ.copy(), process_group=group,
+                    preexec_fn=_die_with_parent)
     except BaseException:
         stop_graph(graph)
         shutil.rmtree(workdir, ignore_errors=True)
@@ -162,32 +164,48 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
     """Wait until the recorder has closed the bag, or a signal asks to stop (sofia_ros.interrupts);
     then stop every remaining node. GraphRunError when the recorder died or the time ran out."""
     start = time.monotonic()
-    clock, clock_stopped = graph.processes['clock'], None
+    clock, clock_stopped, bag_closed = graph.processes['clock'], None, None
     try:
         with interrupts.graceful():
             while graph.processes['recorder'].poll() is None and interrupts.requested() is None:
                 time.sleep(0.2)
                 if progress is not None:
                     progress(None, max_sim_s)
-                if time.monotonic() - start > timeout_s:
+                now = time.monotonic()
+                if now - start > timeout_s:
                     raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; '
                                         f'logs in {graph.workdir}')
                 if clock_stopped is None and clock.poll() is not None:
-                    clock_stopped = time.monotonic()
+                    clock_stopped = now
+                if bag_closed is None and _bag_is_closed(graph):
+                    bag_closed = now
+                # A recorder that closed its bag but does not exit (stuck destroying its DDS entities) is stopped.
+                if bag_closed is not None and now - bag_closed > RECORDER_GRACE_S:
+                    break
                 # A recorder that never connected does not hear /sim/stop: the clock's exit ends the run too.
-                if clock_stopped is not None and time.monotonic() - clock_stopped > RECORDER_GRACE_S:
+                if bag_closed is None and clock_stopped is not None and now - clock_stopped > RECORDER_GRACE_S:
                     raise GraphRunError(f'the recorder did not close the bag within {RECORDER_GRACE_S:g} s of the '
-                                        f'clock stopping the run (clock: {_last_log_line(graph, "clock")}); '
-                                        f'logs in {graph.workdir}')
+                                        f'clock stopping the run (clock {_exit_text(clock.returncode)}: '
+                                        f'{_last_log_line(graph, "clock")}); logs in {graph.workdir}')
     finally:
         stop_graph(graph)
     recorder = graph.processes['recorder']
     # Stopped by a signal, a recorder that had not started yet exits non-zero too; that is no fault.
-    if recorder.returncode not in (0, None) and interrupts.requested() is None:
-        how = (f'was killed by {signal.Signals(-recorder.returncode).name}' if recorder.returncode < 0
-               else f'exited with code {recorder.returncode}')
-        raise GraphRunError(f'the recorder node {how}; its bag is not closed: rebuild it with '
-                            f'`sofia recover {graph.bag_path}`; logs in {graph.workdir}')
+    if recorder.returncode not in (0, None) and interrupts.requested() is None and not _bag_is_closed(graph):
+        raise GraphRunError(f'the recorder node {_exit_text(recorder.returncode)}; its bag is not closed: '
+                            f'rebuild it with `sofia recover {graph.bag_path}`; logs in {graph.workdir}')
+
+
+def _bag_is_closed(graph):
+    """Whether the recorder has closed the bag (BagWriter.close writes metadata.yaml last)."""
+    return graph.bag_path is not None and (graph.bag_path / 'metadata.yaml').exists()
+
+
+def _exit_text(returncode):
+    """How a process ended, for an error line: 'exited with code 3', 'was killed by SIGSEGV'."""
+    if returncode < 0:
+        return f'was killed by {signal.Signals(-returncode).name}'
+    return f'exited with code {returncode}'
 
 
 def _last_log_line(graph, node):

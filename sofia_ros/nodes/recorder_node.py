@@ -8,7 +8,7 @@ from rclpy.task import Future
 from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.msgtypes import TYPESTORE, decode_cdr
-from sofia_ros.nodes.shell import LockstepNode, message_class
+from sofia_ros.nodes.shell import LockstepNode, decode_received, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
 from sofia_ros.topics import PARAMETER_EVENTS, SAMPLE_BLOCKS, STOP_DOCUMENT
 
@@ -18,7 +18,7 @@ __all__ = ['RecorderNode']
 def _canonical_cdr(cdr, msgtype):
     """The bytes direct mode writes for a message rclpy serialized (bag.wire_cdr): its padding zeroed (rmw_fastrtps
     leaves it uninitialised) and its length exact (between processes the payload arrives padded to 4 bytes)."""
-    return TYPESTORE.serialize_cdr(decode_cdr(cdr, msgtype), msgtype, little_endian=True)
+    return TYPESTORE.serialize_cdr(decode_received(cdr, msgtype), msgtype, little_endian=True)
 
 
 class RecorderNode(LockstepNode):

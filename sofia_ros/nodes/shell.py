@@ -20,13 +20,21 @@ from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, 
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
 from sofia_ros.topics import SAMPLE_BLOCKS
 
-__all__ = ['message_class', 'LockstepNode', 'CoreNode']
+__all__ = ['message_class', 'decode_received', 'LockstepNode', 'CoreNode']
 
 
 def message_class(msgtype):
     """The rclpy message class of a type string like 'sensor_msgs/msg/Imu'."""
     package, _, name = msgtype.split('/')
     return getattr(importlib.import_module(f'{package}.msg'), name)
+
+
+@lru_cache(maxsize=256)
+def decode_received(cdr, msgtype):
+    """A received message's CDR decoded once per process: under one executor every subscriber of a topic, the
+    recorder among them, gets the same bytes. The message is shared, as direct mode shares it: read it, never
+    change it."""
+    return decode_cdr(cdr, msgtype)
 
 
 class LockstepNode(Node):
@@ -229,7 +237,7 @@ class CoreNode(LockstepNode):
             if block:
                 message = m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(cdr))
             else:
-                message = decode_cdr(cdr, msgtype)
+                message = decode_received(cdr, msgtype)
             self.core.receive(topic, message)
             if self._requirements is not None and wire_topic in self._requirements:
                 self.try_ticks()

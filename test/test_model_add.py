@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from sofia_ros.cli import main
-from sofia_ros.compare.cli import write_text_atomically
+from sofia_ros.output_files import write_text_atomically
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import ConfigError
 

@@ -7,7 +7,6 @@ import io
 import json
 import os
 import sys
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -15,9 +14,10 @@ import numpy as np
 
 from sofia_ros.cli_args import number
 from sofia_ros.errors import ConfigError
+from sofia_ros.output_files import current_umask, json_ready, write_text_atomically
 
-__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'write_text_atomically',
-           'anchor_memory_bytes', 'MIN_ANCHOR_S']
+__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'anchor_memory_bytes',
+           'MIN_ANCHOR_S']
 
 
 #: Attitude anchors closer than ten frames of the slowest camera (0.2 s ticks, 1 s HIPO cadence and
@@ -50,62 +50,6 @@ def add_model_arguments(parser):
     parser.add_argument('action', choices=('add',), help='add: put a catalogue effect into a model as a fitted term')
     parser.add_argument('effect', help='catalogue effect name (sofia effects)')
     parser.add_argument('--model', required=True, help='model YAML to edit in place')
-
-
-def _umask():
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def write_text_atomically(path, text):
-    """Write a file whole or not at all (temporary file in the same directory, then rename).
-
-    A symlink is written through (its target is replaced, the link stays); the file keeps its
-    mode, a new one gets 0666 less the umask like any other output. ConfigError in one line when
-    the directory or file cannot be written.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise ConfigError(f'{path} is a directory; give a file name')
-    target = path.resolve() if path.is_symlink() else path
-    if target.parent and not target.parent.exists():
-        raise ConfigError(f'directory {target.parent} does not exist; create it or choose another path')
-    try:
-        mode = target.stat().st_mode & 0o7777
-    except FileNotFoundError:
-        mode = 0o666 & ~_umask()
-    try:
-        handle, temporary = tempfile.mkstemp(prefix=f'.{target.name}.', dir=target.parent)
-    except OSError as err:
-        raise ConfigError(f'cannot write {path}: {err.strerror} (directory {target.parent})') from err
-    try:
-        with os.fdopen(handle, 'w') as stream:
-            os.fchmod(stream.fileno(), mode)
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, target)
-    except OSError as err:
-        Path(temporary).unlink(missing_ok=True)
-        raise ConfigError(f'cannot write {path}: {err.strerror}') from err
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-
-
-def _json_ready(value):
-    if isinstance(value, dict):
-        return {key: _json_ready(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_ready(item) for item in value]
-    if isinstance(value, (np.floating, float)):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
 
 
 def _format_params(params, sigma, units):
@@ -274,7 +218,7 @@ def run_compare(args, out):
 
         return run_set_compare(args, out, model)
     result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
-    document = _json_ready(result.document)
+    document = json_ready(result.document)
     print_comparison(document, out)
     if args.json:
         write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
@@ -320,7 +264,7 @@ def _edit_lock(target):
     """Hold an exclusive flock on a sidecar file beside ``target`` (concurrent `sofia model add` wait in turn)."""
     lock_path = target.with_name(f'.{target.name}.lock')
     try:
-        descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+        descriptor = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o666 & ~current_umask())
     except OSError as err:
         raise ConfigError(f'cannot lock {target} for editing ({lock_path}: {err.strerror}); '
                           'is its directory writable?') from err

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sofia_ros.output_files import json_ready, write_text_atomically
+
 __all__ = ['print_set_comparison', 'write_set_report', 'run_set_compare']
 
 
@@ -169,13 +171,12 @@ def write_set_report(result, document, directory):
 
 def run_set_compare(args, out, model):
     """The measurement-set branch of `sofia compare` (dispatched from compare.cli on a .yaml/.yml path)."""
-    from sofia_ros.compare.cli import _json_ready, write_text_atomically
     from sofia_ros.measurements.compare import compare_measurement_set
     from sofia_ros.measurements.validate import load_measurement_set
 
     measurement_set = load_measurement_set(args.bag)
     result = compare_measurement_set(measurement_set, model)
-    document = _json_ready(result.document)
+    document = json_ready(result.document)
     print_set_comparison(document, out)
     if args.json:
         write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import json
-import math
-import os
-import tempfile
 from pathlib import Path
 
 from sofia_ros.errors import ConfigError
+from sofia_ros.output_files import json_ready, write_text_atomically
 
 __all__ = ['add_noise_arguments', 'run_noise']
 
@@ -30,34 +28,11 @@ def add_noise_arguments(parser):
                              '(4.2.5); the ARW is corrected back by 4.27 (default 1)')
 
 
-def _json_safe(value):
-    """The document with non-finite floats as null (strict JSON)."""
-    if isinstance(value, dict):
-        return {key: _json_safe(item) for key, item in value.items()}
-    if isinstance(value, list):
-        return [_json_safe(item) for item in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def _check_json_target(path):
     target = Path(path)
     if target.is_dir() or not target.parent.is_dir():
         raise ConfigError(f'cannot write --json {target}: give a file in an existing directory')
     return target
-
-
-def _write_json(document, target):
-    """Write the JSON beside its target and rename it into place (never half a file)."""
-    handle, temporary = tempfile.mkstemp(prefix=f'.{target.name}.', dir=target.parent)
-    try:
-        with os.fdopen(handle, 'w') as stream:
-            stream.write(json.dumps(_json_safe(document), indent=2, allow_nan=False) + '\n')
-        os.replace(temporary, target)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
 
 
 def run_noise(args):
@@ -78,7 +53,8 @@ def run_noise(args):
     if args.report:
         write_report(analysis, args.report)
     if json_target is not None:
-        _write_json(analysis.document, json_target)
+        text = json.dumps(json_ready(analysis.document), indent=2, allow_nan=False) + '\n'
+        write_text_atomically(json_target, text)
     _print_document(analysis.document)
     if args.report:
         print(f'report: {Path(args.report) / "index.html"}')

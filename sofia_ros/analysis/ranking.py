@@ -25,6 +25,7 @@ from sofia_ros.errors import InvalidArgumentError
 
 __all__ = [
     'SIGNIFICANT_DELTA_BIC',
+    'normal_pseudo_inverse',
     'LinearFit',
     'CandidateTerm',
     'RankedCandidate',
@@ -132,6 +133,12 @@ class _NormalInverse:
         covariance[:, self.unconstrained] = np.nan
         covariance[self.unconstrained, self.unconstrained] = np.inf
         return covariance
+
+
+def normal_pseudo_inverse(gram):
+    """Pseudo-inverse of a normal (Gram) matrix J^T J: Cholesky where that is the inverse, else eigh, combinations
+    below KEPT_EIGENVALUE_FRACTION of the largest eigenvalue left without a step."""
+    return _NormalInverse.of(gram).matrix
 
 
 def _well_conditioned_inverse(scaled):

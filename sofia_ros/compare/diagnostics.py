@@ -36,11 +36,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
+from sofia_ros.analysis.ranking import normal_pseudo_inverse
 from sofia_ros.analysis.structure import category_test, period_test, sigma_of_probability, trend_test
 from sofia_ros.compare.fit import rows_scaled
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
@@ -147,14 +147,6 @@ def _camera_series(observations, fit, noise_arcsec, variables):
                    dict(zip(FRAME_VARIABLES, frame_values[1:])))
 
 
-def _normal_inverse(gram):
-    """Inverse of a normal matrix: Cholesky where it is positive definite (a few times cheaper), else the pseudo-inverse."""
-    try:
-        return scipy.linalg.cho_solve(scipy.linalg.cho_factor(gram), np.eye(len(gram)))
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(gram, hermitian=True)
-
-
 def _prior_residual_covariance(fit):
     """The prior rows' residuals' covariance under the null, (I - H) over those rows with H the whole fit's hat
     matrix, in units of the prior's (3(K-1), 3(K-1))."""
@@ -162,7 +154,7 @@ def _prior_residual_covariance(fit):
     jacobian = scipy.sparse.csr_matrix(fit.jacobian)
     root = np.concatenate([np.sqrt(fit.weights), np.ones(jacobian.shape[0] - data_rows)])
     weighted = rows_scaled(jacobian, root)
-    inverse = _normal_inverse((weighted.T @ weighted).toarray())
+    inverse = normal_pseudo_inverse((weighted.T @ weighted).toarray())
     prior = weighted[data_rows:].toarray()
     return np.eye(len(prior)) - (prior @ inverse) @ prior.T
 
@@ -349,7 +341,7 @@ def _split_step(fit, keep_rows):
     # A parameter the subset does not touch (another camera's term) is decoupled and gets no comparison.
     determined = np.diag(gram) > 0
     gram[~determined, ~determined] = 1.0
-    inverse = _normal_inverse(gram)
+    inverse = normal_pseudo_inverse(gram)
     step = inverse @ (weighted.T @ (np.sqrt(weights) * residual))
     after = np.sqrt(weights) * residual - weighted @ step
     used = int(mask.sum()) + len(fit.prior_residual)

@@ -1,11 +1,12 @@
 """The one retry the DDS graph tests allow: a graph whose eleven node processes did not all come up.
 
-The flake these retries were written for had a cause, since fixed: the recorder recorded every
-/parameter_events message in the domain and crashed on a wall-time stamp from the executables'
-parameter readers (so the nodes that wait for it as a subscriber never connected). One start-up
-failure stays unexplained: on a loaded machine, a node process once logged nothing for two
-minutes. The clock then ends the run with "... did not connect within 120 s"; only such a run is
-retried, any other failure fails at once.
+The start-up failures these retries were written for had two causes, both fixed: the recorder
+recorded every /parameter_events message in the domain and crashed on a wall-time stamp (the
+nodes that wait for it as a subscriber then never connected), and a node process could deadlock
+in Fast DDS 3.2 destroying the writers of the temporary node that read its parameters. After the
+fixes, 36 short `--processes` runs three at a time all started. The retry stays as a guard for
+eleven processes discovering each other on a loaded machine: only a run whose clock reports nodes
+that "did not connect within" is retried, any other failure fails at once.
 """
 
 import pytest

@@ -16,7 +16,7 @@ import yaml
 
 from graph_startup import STARTUP_RERUNS
 from sofia_ros.bag import BagReader
-from sofia_ros.campaigns.graph_params import graph_config_from_parameters, plan_from_parameters
+from sofia_ros.campaigns.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters, plan_from_parameters
 from sofia_ros.campaigns.run_parameters import graph_parameters, plan_parameters
 from sofia_ros.campaigns.star_hop import run_star_hop
 from sofia_ros.cli import main
@@ -140,3 +140,27 @@ def test_shipped_star_hop_params_file_builds_the_table_d3_graph():
     document = yaml.safe_load((ROOT / 'config' / 'star_hop.params.yaml').read_text())
     config = graph_config_from_parameters(document['/**']['ros__parameters'])
     assert config.plan == StarHopPlan() and config.tick_ns == DEFAULT_TICK_NS
+
+
+@pytest.mark.timeout(60)
+def test_a_node_process_reads_its_parameters_as_rcl_resolves_them_for_its_remapped_name(tmp_path):
+    # The params file's wildcard section, the section of the node's remapped name, -p on top; read without an rclpy
+    # Node of its own (whose writers, destroyed at start-up, could deadlock Fast DDS: nodes.executables).
+    import rclpy
+
+    from sofia_ros.nodes.executables import _read_parameters
+
+    params = tmp_path / 'params.yaml'
+    write_params_file(params, {'seed': 5, 'max_sim_s': 99.0, 'plan.hold_s': 30.0},
+                      per_node={'fpi': {'camera': 'fpi'}, 'ffi': {'camera': 'ffi'}})
+    rclpy.init(args=['imager', '--ros-args', '--params-file', str(params), '-p', 'max_sim_s:=12.5',
+                     '-r', '__node:=fpi'])
+    try:
+        values = _read_parameters('imager')
+        observer = rclpy.create_node('observer', use_global_arguments=False)
+        names = observer.get_node_names()
+    finally:
+        rclpy.try_shutdown()
+    assert (values['seed'], values['max_sim_s'], values['camera'], values['plan.hold_s']) == (5, 12.5, 'fpi', 30.0)
+    assert values['campaign'] == GRAPH_PARAMETERS['campaign'][0]  # not given: its default
+    assert names == ['observer']  # the reader left nothing in the graph

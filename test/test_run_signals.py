@@ -307,6 +307,10 @@ def test_a_node_that_dies_under_processes_is_a_fault_exit_3(tmp_path):
     summary = json.loads((bag / 'summary.json').read_text())
     assert summary['stopped'] == 'fault' and 'gyro_box stopped reporting' in summary['reason']
     assert (bag / 'metadata.yaml').exists()
+    # A fault keeps the node logs and says where (and which node, if any, logged nothing at all).
+    logs = Path(re.search(r'node logs in (\S+)', summary['reason']).group(1))
+    assert (logs / 'gyro_box.log').read_text().startswith('[INFO]') and 'nothing logged' not in summary['reason']
+    shutil.rmtree(logs)
     with BagReader(bag) as reader:
         reason = reader.document('/result/stop')
         counts = {topic.name: topic.count for topic in reader.topics}

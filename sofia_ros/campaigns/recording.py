@@ -76,8 +76,8 @@ def finish_run(bag_path: str | PathLike[str], summary: dict, fault: str | None =
         name = signal.Signals(signum).name
         summary.update(stopped='interrupted', reason=f'interrupted by {name}')
     elif fault:
-        summary['stopped'] = 'fault'
-        summary.setdefault('reason', fault)
+        # The fault is why the run stopped, with what the recorder could not know (where the node logs are).
+        summary.update(stopped='fault', reason=fault)
     if Path(bag_path).is_dir():
         write_summary(bag_path, summary)
     sim = '' if summary.get('sim_seconds') is None else f' at sim {summary["sim_seconds"]:.1f} s'
@@ -135,7 +135,7 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
     from sofia_ros.bag import BagReader
     from sofia_ros.campaigns.run_parameters import graph_parameters
     from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
-    from sofia_ros.nodes.launch import run_graph_in_processes
+    from sofia_ros.nodes.launch import run_graph_in_processes, silent_nodes
 
     with tempfile.TemporaryDirectory(prefix='sofia_run_') as folder:
         truth_file, model_file = Path(folder) / 'truth.yaml', Path(folder) / 'model.yaml'
@@ -149,7 +149,9 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
     if graph.processes['clock'].returncode != STALLED_EXIT_CODE:
         return None
     with BagReader(bag_path) as bag:
-        return bag.document(STOP_DOCUMENT.name)
+        reason = bag.document(STOP_DOCUMENT.name)
+    silent = silent_nodes(graph)
+    return f'{reason}; node logs in {graph.workdir}' + (f' (nothing logged: {", ".join(silent)})' if silent else '')
 
 
 def _run_direct(config, bag_path, documents, max_sim_s, progress):

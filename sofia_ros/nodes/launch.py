@@ -24,7 +24,7 @@ from sofia_ros import interrupts
 from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.errors import GraphRunError
 from sofia_ros.graph_nodes import EXECUTABLES
-from sofia_ros.nodes.clock_node import ClockNode
+from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE, ClockNode
 from sofia_ros.nodes.domain import claim_ros_domain, claimed_ros_domain, release_ros_domain
 from sofia_ros.nodes.recorder_node import RecorderNode
 from sofia_ros.nodes.shell import CoreNode
@@ -33,7 +33,7 @@ from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, build_cores, graph_topics
 from sofia_ros.topics import CLOCK
 
 __all__ = ['run_graph_in_process', 'run_graph_in_processes', 'start_graph_processes', 'write_params_file',
-           'wait_for_graph', 'stop_graph', 'GraphProcesses']
+           'wait_for_graph', 'stop_graph', 'silent_nodes', 'GraphProcesses']
 
 
 def _participants(cores):
@@ -242,8 +242,8 @@ def run_graph_in_processes(parameters: Mapping[str, Any], bag_path: str | os.Pat
     """Each node as its own process (start_graph_processes); return the GraphProcesses after the recorder
     closed the bag.
 
-    The node logs and params file are removed once the bag is closed; a run that fails keeps
-    them, and its GraphRunError names the folder.
+    The node logs and params file are removed once the bag is closed; a run that fails (a GraphRunError, which
+    names the folder, or a fault the clock stopped the run for) keeps them.
     """
     graph = start_graph_processes(parameters, bag_path)
     try:
@@ -254,5 +254,12 @@ def run_graph_in_processes(parameters: Mapping[str, Any], bag_path: str | os.Pat
         # A second signal or a bug in this process: the nodes are down, their logs say nothing new.
         shutil.rmtree(graph.workdir, ignore_errors=True)
         raise
-    shutil.rmtree(graph.workdir, ignore_errors=True)
+    if graph.processes['clock'].returncode != STALLED_EXIT_CODE:
+        shutil.rmtree(graph.workdir, ignore_errors=True)
     return graph
+
+
+def silent_nodes(graph):
+    """The nodes whose process logged nothing (never got as far as its first line): names for a fault's error line."""
+    return sorted(name for name in graph.processes
+                  if not (graph.workdir / f'{name}.log').exists() or not (graph.workdir / f'{name}.log').stat().st_size)

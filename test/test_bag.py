@@ -246,12 +246,17 @@ def test_bag_reader_gives_back_what_was_written_in_time_order(round_trip):
     assert read == {topic: sorted(messages) for topic, messages in written.items()}
 
 
+def _every_topic(bag, view):
+    """The names of every topic of ``bag``, all of them read through the message indexes as ``view`` ('raw' or
+    'columns'), and the same decoded message by message."""
+    names = tuple(info.name for info in bag.topics)
+    return names, bag.messages_by_topic(*names, **{view: names}), bag.messages_by_topic(*names)
+
+
 def test_reading_through_the_message_indexes_equals_reading_record_by_record(round_trip):
     path, _, _ = round_trip
     with BagReader(path) as bag:
-        names = tuple(info.name for info in bag.topics)
-        by_index = bag.messages_by_topic(*names, raw=names)
-        decoded = bag.messages_by_topic(*names)
+        names, by_index, decoded = _every_topic(bag, 'raw')
         record_by_record: dict[str, tuple[list, list, list]] = {name: ([], [], []) for name in names}
         for topic, stamp_ns, data in bag.raw_messages():
             record_by_record[topic][0].append(stamp_ns)
@@ -415,9 +420,7 @@ def column_leaves(value: object, path: str, sequences: dict) -> list[tuple[str, 
 def test_columns_match_per_message_decoding(round_trip):
     path, written, _ = round_trip
     with BagReader(path) as bag:
-        names = tuple(info.name for info in bag.topics)
-        columns = bag.messages_by_topic(*names, columns=names)
-        decoded = bag.messages_by_topic(*names)
+        names, columns, decoded = _every_topic(bag, 'columns')
     for name in names:
         stamps, messages = decoded[name]
         table = columns[name]

@@ -7,7 +7,7 @@ from rclpy.task import Future
 
 from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
-from sofia_ros.bag.msgtypes import TYPESTORE, decode_cdr
+from sofia_ros.bag.msgtypes import TYPESTORE
 from sofia_ros.nodes.shell import LockstepNode, decode_received, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
 from sofia_ros.topics import PARAMETER_EVENTS, SAMPLE_BLOCKS, STOP_DOCUMENT
@@ -73,7 +73,7 @@ class RecorderNode(LockstepNode):
             # Only parameters set on a graph node, as direct mode records them. Every node's own declarations
             # (new_parameters, seen or not depending on start-up order) and any other node in the domain (the
             # executables' parameter readers, a user's tool; their stamps are wall time) stay out of the bag.
-            event = decode_cdr(cdr, PARAMETER_EVENTS.msgtype)
+            event = decode_received(cdr, PARAMETER_EVENTS.msgtype)  # decoded once: recording re-serializes it
             if event.node in graph_nodes and event.changed_parameters and not (event.new_parameters
                                                                                or event.deleted_parameters):
                 record(cdr)

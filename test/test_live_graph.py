@@ -12,7 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rclpy
 import yaml
+from rclpy.experimental import EventsExecutor
+from rosgraph_msgs.msg import Clock
 
 from graph_startup import STARTUP_RERUNS
 from sofia_ros.bag import BagReader
@@ -22,7 +25,8 @@ from sofia_ros.campaigns.run_parameters import graph_parameters
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import GraphRunError
 from sofia_ros.nodes import launch
-from sofia_ros.nodes.launch import start_graph_processes, stop_graph
+from sofia_ros.nodes.launch import share_time_source, start_graph_processes, stop_graph
+from sofia_ros.nodes.shell import LockstepNode
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
 from sofia_ros.topics import DEFAULT_TICK_NS, GYRO_IMU, STOP_DOCUMENT
@@ -280,3 +284,35 @@ def test_a_recorder_that_closed_its_bag_but_does_not_exit_is_stopped(tmp_path, m
     launch.wait_for_graph(launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag'), timeout_s=50)
     assert time.monotonic() - started < 20
     assert processes['recorder'].poll() is not None
+
+
+@pytest.mark.timeout(60)
+def test_one_clock_subscription_drives_every_nodes_sim_time():
+    """Under one executor the nodes share the first node's /clock subscription (launch.share_time_source):
+    every node's clock still reads the sim time /clock gives, and use_sim_time stays true."""
+    rclpy.init()
+    try:
+        nodes = [LockstepNode(name, upstream=[], tick_ns=DEFAULT_TICK_NS) for name in ('keeper', 'first', 'second')]
+        share_time_source(nodes[0], nodes[1:])
+        clock = rclpy.create_node('clock_source')
+        publisher = clock.create_publisher(Clock, '/clock', 10)
+        executor = EventsExecutor()
+        for node in (*nodes, clock):
+            executor.add_node(node)
+        stamp_ns = 1234 * DEFAULT_TICK_NS
+        deadline = time.monotonic() + 30.0
+        while (any(node.get_clock().now().nanoseconds != stamp_ns for node in nodes)
+               and time.monotonic() < deadline):
+            publisher.publish(Clock(clock=rclpy.time.Time(nanoseconds=stamp_ns).to_msg()))
+            executor.spin_once(timeout_sec=0.1)
+        assert [node.get_clock().now().nanoseconds for node in nodes] == [stamp_ns] * 3
+        subscribed = [node.get_name() for node in nodes
+                      if any(topic == '/clock' for topic, _ in
+                             node.get_subscriber_names_and_types_by_node(node.get_name(), '/'))]
+        assert subscribed == ['keeper']
+        assert all(node.get_parameter('use_sim_time').value for node in nodes)
+        executor.shutdown()
+        for node in (*nodes, clock):
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()

@@ -1,6 +1,7 @@
 """The 400 Hz samples' own CDR path is the same bytes as the typestore's serializer (bag equivalence)."""
 
 import numpy as np
+import pytest
 
 from sofia_ros import messages as m
 from sofia_ros.bag import wire_cdr
@@ -23,6 +24,17 @@ def test_imu_block_round_trips_through_cdr():
     np.testing.assert_array_equal(back.stamp_ns, block.stamp_ns)
     np.testing.assert_array_equal(back.angular_velocity_rad_per_s, block.angular_velocity_rad_per_s)
     np.testing.assert_array_equal(back.linear_acceleration_m_per_s2, block.linear_acceleration_m_per_s2)
+
+
+def test_imu_samples_of_two_lengths_are_not_one_block():
+    samples = m.imu_block_cdr(_block())[:2] + m.imu_block_cdr(m.ImuBlock('a_much_longer_frame', *_block_arrays()))[:1]
+    with pytest.raises(ValueError, match='of one frame_id'):
+        m.imu_block_from_cdr('gyrf', samples)
+
+
+def _block_arrays():
+    block = _block()
+    return block.stamp_ns, block.angular_velocity_rad_per_s, block.linear_acceleration_m_per_s2
 
 
 def test_log_stamp_is_the_header_stamp_for_stamped_types_only():

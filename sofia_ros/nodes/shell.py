@@ -118,7 +118,8 @@ class LockstepNode(Node):
             report = self.states[node].reports.get(needed)
             if report is None:
                 return None
-            needed_counts.update((topic, count) for topic, count in report.items() if topic in inputs)
+            for topic in inputs & report.keys():
+                needed_counts[topic] = report[topic]
         return needed_counts
 
     def counted_inputs(self):

@@ -45,6 +45,7 @@ class LockstepNode(Node):
         self.tick_ns = tick_ns
         self.upstream = dict(upstream)
         self.states = {node: UpstreamState() for node in self.upstream}
+        self._upstream_states = [(self.states[node], lag) for node, lag in self.upstream.items()]
         self.received = Counter()
         self.published = Counter()
         self.next_tick = 1
@@ -108,16 +109,17 @@ class LockstepNode(Node):
         """{topic: count} to receive before tick ``tick``, or None while an upstream report is missing."""
         if not self.ready or self.stop_reason is not None:
             return None
-        inputs = self.counted_inputs()
-        needed_counts = {}
-        for node, lag in self.upstream.items():
-            needed = tick - lag
-            if needed < 0:
-                continue
+        reports = []
+        # Every report first: until the last one is in (each arriving report calls this) no counts are merged.
+        for state, lag in self._upstream_states:
             # done(0) means connected: nothing starts before every upstream node is.
-            report = self.states[node].reports.get(needed)
+            report = state.reports.get(tick - lag) if tick >= lag else {}
             if report is None:
                 return None
+            reports.append(report)
+        inputs = self.counted_inputs()
+        needed_counts = {}
+        for report in reports:
             for topic in inputs & report.keys():
                 needed_counts[topic] = report[topic]
         return needed_counts

@@ -44,8 +44,9 @@ class UpstreamState:
         self.latest_tick = max(self.latest_tick, tick)
         self.finished = self.finished or finished
         self.failed = self.failed or failed
-        for old in [t for t in self.reports if t < tick - 2]:
-            del self.reports[old]
+        # Reports arrive in tick order, so the oldest comes first: drop those before the last three.
+        while next(iter(self.reports)) < tick - 2:
+            del self.reports[next(iter(self.reports))]
 
 
 def stop_text(last_tick, complete, reason):

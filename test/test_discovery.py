@@ -70,6 +70,12 @@ CASES = {
     # A WFI distortion: rows bend with the square of the column offset (1" at the chip's edges).
     'detector': Case('wfi.y', '2e-7*(detector_x_px - 511.5)**2 * 20.36', 'arcsec', ('detector_x',), None,
                      'camera_shift_px', "shift[:, 1] = params['k'] * (context.detector_x_px - 511.5)**2", 2e-7),
+    # A WFI saddle: columns shift with the product of the offsets from the chip's centre (1.1" at its corners),
+    # which averages away along x or y alone: only the detector field names it.
+    'field': Case('wfi.x', '2e-7*(detector_x_px - 511.5)*(detector_y_px - 511.5) * 20.36', 'arcsec',
+                  ('detector_field',), None, 'camera_shift_px',
+                  "shift[:, 0] = params['k'] * (context.detector_x_px - 511.5) * (context.detector_y_px - 511.5)",
+                  2e-7),
     # The FFI columns jump by 1" at 500 s (a knock on the mount).
     'step': Case('ffi.x', '1.0*(time_s > 500.0)', 'arcsec', ('time',), None, 'camera_shift_px',
                  "shift[:, 0] = params['k'] * (context.time_s > 500.0) / 4.07", 1.0),

@@ -7,6 +7,7 @@ out as the top candidate within 3 sigma of its truth value, as the built-in effe
 test_compare.py.
 """
 
+import dataclasses
 import importlib
 import os
 import subprocess
@@ -272,7 +273,19 @@ def test_empirical_names_resolve_to_hooked_effects_and_bad_ones_say_the_grammar(
     np.testing.assert_allclose(shift, [[0.0, -1.0], [0.0, 0.0], [0.0, 1.0]], atol=1e-12)
     assert get_effect('empirical:gyro.los:temperature:poly3').params[0].name == 'p1_deg_per_h'
     assert [p.name for p in get_effect('empirical:hipo.x:time:period_95.5s').params] == ['sin_arcsec', 'cos_arcsec']
+    field = get_effect('empirical:wfi.x:detector_field:poly3')
+    assert [p.name for p in field.params] == ['p00_arcsec', 'p10_arcsec', 'p01_arcsec', 'p20_arcsec', 'p11_arcsec',
+                                              'p02_arcsec', 'p30_arcsec', 'p21_arcsec', 'p12_arcsec', 'p03_arcsec']
+    corners = CameraContext.at_rest('wfi', [40.0] * 3)
+    corners = dataclasses.replace(corners, detector_x_px=np.array([-0.5, 511.5, 1023.5]),
+                                  detector_y_px=np.array([1023.5, 511.5, 1023.5]))
+    values = {param.name: 0.0 for param in field.params} | {'p11_arcsec': 20.36}
+    # P1(x) P1(y) over the chip (WFI 1024 px, 20.36"/px): -1, 0, +1 px along columns at two corners and the centre.
+    np.testing.assert_allclose(field.camera_shift_px(values, corners), [[-1.0, 0.0], [0.0, 0.0], [1.0, 0.0]],
+                               atol=1e-9)
     for name, message in (('empirical:ffi.y:slew:poly3', "variable 'slew' is not available"),
+                          ('empirical:gyro.el:detector_field:poly3', "variable 'detector_field' is not available"),
+                          ('empirical:wfi.x:detector_field:poly3@0..1023', 'a detector field spans the chip'),
                           ('empirical:gyro.el:detector_x:poly3', "variable 'detector_x' is not available"),
                           ('empirical:ffi.y:elevation:poly3@60..20', 'HIGH > LOW'),
                           ('empirical:ffi.y:elevation', 'empirical terms are named')):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from sofia_ros.analysis.structure import category_test, period_test, sigma_of_probability, trend_test
+from sofia_ros.analysis.structure import category_test, field_test, period_test, sigma_of_probability, trend_test
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.sensors.gyro_noise import angle_increment_covariance_rad2
 
@@ -39,7 +39,9 @@ def test_trend_and_category_p_values_are_uniform_on_white_noise():
     trend = [trend_test(TIMES_S, rng.normal(0.0, 0.3, len(TIMES_S))).p_value for _ in range(TRIALS)]
     stars = rng.integers(0, 12, len(TIMES_S))
     category = [category_test(stars, rng.normal(0.0, 0.3, len(TIMES_S))).p_value for _ in range(TRIALS)]
-    for values in (trend, category):
+    x_px, y_px = rng.uniform(0.0, 1024.0, (2, len(TIMES_S)))
+    field = [field_test(x_px, y_px, rng.normal(0.0, 0.3, len(TIMES_S))).p_value for _ in range(TRIALS)]
+    for values in (trend, category, field):
         # Kolmogorov-Smirnov against the uniform distribution (p-values of a calibrated test).
         assert stats.kstest(values, 'uniform').pvalue > 1e-3
 
@@ -65,6 +67,20 @@ def test_a_smooth_trend_is_found_and_its_shape_measured():
     assert sigma_of_probability(found.p_value) >= 5.0
     # Half the range of the true shape over 23-59 deg: 0.5 (cos^4 23 - cos^4 59) / 2.
     assert abs(found.amplitude - 0.25 * (np.cos(np.radians(23.0)) ** 4 - np.cos(np.radians(59.0)) ** 4)) <= 0.03
+
+
+def test_a_saddle_over_the_detector_is_a_field_that_neither_axis_alone_shows():
+    rng = np.random.default_rng(15)
+    # Stars over a 1024 px chip, symmetric about its centre: x y averages away along x and along y.
+    x_px, y_px = rng.uniform(0.0, 1024.0, (2, 4000))
+    saddle = 0.5 * (x_px - 512.0) * (y_px - 512.0) / 512.0**2
+    values = rng.normal(0.0, 0.3, len(x_px)) + saddle
+    assert sigma_of_probability(trend_test(x_px, values).p_value) < 3.0
+    assert sigma_of_probability(trend_test(y_px, values).p_value) < 3.0
+    found = field_test(x_px, y_px, values)
+    assert sigma_of_probability(found.p_value) >= 5.0
+    # Half the range of the saddle over the rows: 0.5" at the corners, +-.
+    assert found.amplitude == pytest.approx(0.5 * np.ptp(saddle), abs=0.05)
 
 
 def _wandering_increments(rng, knots_s, count, rrw=0.05):
@@ -126,6 +142,8 @@ def test_a_whitening_of_the_wrong_shape_is_refused():
         trend_test(np.arange(20.0), np.zeros(20), whitening=np.eye(3))
     with pytest.raises(InvalidArgumentError, match='19 variable values for 20 residuals'):
         trend_test(np.arange(19.0), np.zeros(20))
+    with pytest.raises(InvalidArgumentError, match='20 x and 19 y values for 20 residuals'):
+        field_test(np.arange(20.0), np.arange(19.0), np.zeros(20))
     with pytest.raises(InvalidArgumentError, match=r'whitening of shape \(20, 3\) for 20 residuals at 20 times'):
         period_test(np.arange(20.0), np.zeros(20), whitening=np.ones((20, 3)))
 
@@ -139,5 +157,7 @@ def test_sigma_of_probability_is_the_two_sided_gaussian():
 def test_too_little_data_is_not_tested():
     assert trend_test(np.arange(5.0), np.zeros(5)) is None
     assert trend_test(np.full(50, 3.0), np.zeros(50)) is None
+    assert field_test(np.arange(15.0), np.arange(15.0), np.zeros(15)) is None
+    assert field_test(np.arange(50.0), np.full(50, 3.0), np.zeros(50)) is None
     assert category_test(np.zeros(50), np.ones(50)) is None
     assert period_test(np.arange(5.0), np.zeros(5)) is None

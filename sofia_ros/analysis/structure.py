@@ -6,6 +6,9 @@ sigma (Bonferroni over every test they ran: the look-elsewhere effect):
 
 - a smooth trend with a variable: weighted least squares of Legendre polynomials P0..P3 of
   the variable against P0 alone, F-test (the TPOINT-style question "does it follow X?");
+- a smooth field over two variables (the detector position): products of Legendre polynomials
+  P_i(x) P_j(y), i + j <= 3, against P0 alone, F-test: a distortion such as x y or x r^2
+  averages away along either axis alone;
 - a dependence on a category (the star): one-way analysis of variance, F-test;
 - a period: the classical (Schuster) periodogram of the weighted series on a regular grid,
   normalized by the series' own variance so that each power is Exp(1) under the null, with
@@ -26,9 +29,10 @@ import numpy as np
 from numpy.polynomial import legendre
 from scipy import optimize, stats
 
+from sofia_ros.effects.empirical import field_columns, field_terms
 from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['TrendTest', 'PeriodTest', 'trend_test', 'category_test', 'period_test', 'sigma_of_probability',
+__all__ = ['TrendTest', 'PeriodTest', 'trend_test', 'field_test', 'category_test', 'period_test', 'sigma_of_probability',
            'TREND_DEGREE']
 
 TREND_DEGREE = 3
@@ -104,6 +108,30 @@ def trend_test(variable, values, weights=None, degree=TREND_DEGREE, *, whitening
     shape = legendre.legval(grid, coefficients)
     fitted = shape_columns @ coefficients
     return TrendTest(float(stats.f.sf(max(f_value, 0.0), degree, dof)), float(np.ptp(fitted) / 2.0), centres, shape)
+
+
+def field_test(x, y, values, weights=None, degree=TREND_DEGREE):
+    """F-test of the products P_i(x) P_j(y), i + j <= degree, against a constant; None where it cannot be tested.
+
+    Each variable is mapped onto [-1, 1] over the rows' range. The amplitude is half the range of the fitted
+    field over the rows (the shape grid of a one-variable trend has no meaning here: both are empty).
+    """
+    x, y, values = (np.asarray(array, dtype=float) for array in (x, y, values))
+    weights = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
+    if not len(x) == len(y) == len(values):
+        raise InvalidArgumentError(f'{len(x)} x and {len(y)} y values for {len(values)} residuals')
+    columns = len(field_terms(degree))
+    if len(values) < max(_MIN_ROWS, 2 * columns) or np.ptp(x) <= 0.0 or np.ptp(y) <= 0.0:
+        return None
+    design = field_columns(2.0 * (x - x.min()) / np.ptp(x) - 1.0, 2.0 * (y - y.min()) / np.ptp(y) - 1.0, degree)
+    rss_constant, _ = _weighted_rss(design[:, :1], values, weights)
+    rss_field, coefficients = _weighted_rss(design, values, weights)
+    dof = len(values) - columns
+    if rss_field <= 0.0:
+        return None
+    f_value = (rss_constant - rss_field) / (columns - 1) / (rss_field / dof)
+    return TrendTest(float(stats.f.sf(max(f_value, 0.0), columns - 1, dof)), float(np.ptp(design @ coefficients) / 2.0),
+                     np.zeros(0), np.zeros(0))
 
 
 def category_test(categories, values, weights=None):

@@ -6,7 +6,8 @@ Observables:
   judged against the camera's centroid noise (compare.floor). Trends are tested on frame means
   (a frame's stars share its moment; weight = stars in the frame) against elevation, time,
   temperature, specific force (TARF, in g), slew angle and fine-drive LOS angle, and on the
-  rows themselves against the detector position and the star; periods on the frame means,
+  rows themselves against the detector position (each axis, and the two together as a field)
+  and the star; periods on the frame means,
   from twice the frame spacing up to half the record.
 - a gyro axis (``gyro.el``, ``gyro.xel``, ``gyro.los``): what the attitude anchors had to add to
   the model's gyro propagation over each anchor interval, in TARF axes, whitened by the
@@ -41,12 +42,14 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
 from sofia_ros.analysis.ranking import normal_pseudo_inverse
-from sofia_ros.analysis.structure import category_test, period_test, sigma_of_probability, trend_test
+from sofia_ros.analysis.structure import category_test, field_test, period_test, sigma_of_probability, trend_test
 from sofia_ros.compare.fit import rows_scaled
+from sofia_ros.effects.empirical import DETECTOR_FIELD
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.units import ARCSEC_PER_RAD, STANDARD_GRAVITY_M_PER_S2
 
-__all__ = ['DETECTION_SIGMA', 'REPORT_SIGMA', 'RATIO_LIMIT', 'FRAME_VARIABLES', 'ROW_VARIABLES', 'GYRO_AXES',
+__all__ = ['DETECTION_SIGMA', 'REPORT_SIGMA', 'RATIO_LIMIT', 'FRAME_VARIABLES', 'ROW_VARIABLES', 'DETECTOR_FIELD',
+           'GYRO_AXES',
            'Diagnostics', 'NAMING_PREFERENCE', 'distinct_findings', 'row_variables', 'residual_diagnostics', 'split_consistency']
 
 #: Family-wise significance at which a finding is structure the model must explain.
@@ -228,6 +231,8 @@ def residual_diagnostics(observations, fit, predictor, noise_arcsec, prior):
         for key, values in row_values.items():
             test = category_test(values, residual) if key == 'star' else trend_test(values, residual)
             tests.append(('trend', name, key, test, None, values))
+        tests.append(('trend', name, DETECTOR_FIELD,
+                      field_test(row_values['detector_x'], row_values['detector_y'], residual), None, None))
         tests.append(('period', name, 'time', period_test(frame_variables['time'], frame_residual, weights), None,
                       None))
     for name, floor, decorrelated, frame_variables, innovations, unit_arcsec, design in _gyro_series(
@@ -257,12 +262,12 @@ def residual_diagnostics(observations, fit, predictor, noise_arcsec, prior):
         else:
             equivalents = _equivalents(frame_variables, key) if frame_variables else []
             ranges = _ranges(frame_variables, [key, *equivalents]) if frame_variables else (
-                {} if key == 'star' else {key: [float(np.min(tested)), float(np.max(tested))]})
+                {} if tested is None or key == 'star' else {key: [float(np.min(tested)), float(np.max(tested))]})
             trends.append({'observable': name, 'variable': key, 'amplitude_arcsec': test.amplitude,
                            'significance_sigma': sigma, 'equivalent_variables': equivalents, 'ranges': ranges,
                            'shape': {'centres': test.centres.tolist(), 'values_arcsec': test.shape.tolist()}})
-    trends.sort(key=lambda finding: -finding['significance_sigma'])
-    periods.sort(key=lambda finding: -finding['significance_sigma'])
+    trends.sort(key=_strongest_first)
+    periods.sort(key=_strongest_first)
     diagnostics = Diagnostics(observables, trends, periods, count)
     for name, entry in observables.items():
         # The excess over the floor: chi-square of the rows in units of the floor, family-wise over the observables.
@@ -274,6 +279,12 @@ def residual_diagnostics(observations, fit, predictor, noise_arcsec, prior):
     return diagnostics
 
 
+def _strongest_first(finding):
+    """Sort key: the most significant first; among findings past the float limit of a p-value (37 sigma, all
+    alike) the larger shape first."""
+    return -finding['significance_sigma'], -finding['amplitude_arcsec']
+
+
 def _finding_label(finding):
     if 'period_s' in finding:
         return f'period {finding["period_s"]:.4g} s'
@@ -283,7 +294,7 @@ def _finding_label(finding):
 
 #: Of variables the data cannot tell apart, the one named: the most direct physical quantity first.
 NAMING_PREFERENCE = ('elevation', 'time', 'temperature', 'los_angle', 'slew_angle', 'detector_x', 'detector_y',
-                     'specific_force_los', 'specific_force_xel', 'specific_force_el', 'star')
+                     DETECTOR_FIELD, 'specific_force_los', 'specific_force_xel', 'specific_force_el', 'star')
 
 
 def _preference(variable):
@@ -298,7 +309,7 @@ def distinct_findings(findings):
     """
     by_key = {(f['observable'], f.get('variable')): f for f in findings}
     named, kept = set(), []
-    order = sorted(findings, key=lambda f: (f.get('variable') == 'star', -f['significance_sigma']))
+    order = sorted(findings, key=lambda f: (f.get('variable') == 'star', *_strongest_first(f)))
     for finding in order:
         if 'period_s' in finding:
             kept.append(finding)
@@ -309,7 +320,7 @@ def distinct_findings(findings):
         named.update((finding['observable'], variable) for variable in group)
         primary = min(group, key=_preference)
         kept.append(by_key.get((finding['observable'], primary), finding))
-    return sorted(kept, key=lambda f: (f.get('variable') == 'star', -f['significance_sigma']))
+    return sorted(kept, key=lambda f: (f.get('variable') == 'star', *_strongest_first(f)))
 
 
 def _split_masks(variables, centroids):

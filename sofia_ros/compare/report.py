@@ -23,6 +23,7 @@ import numpy as np  # noqa: E402
 
 from sofia_ros.analysis.centroid_drift import line_and_sinusoid_px  # noqa: E402
 from sofia_ros.compare.diagnostics import FRAME_VARIABLES, distinct_findings, row_variables  # noqa: E402
+from sofia_ros.effects.empirical import DETECTOR_FIELD  # noqa: E402
 from sofia_ros.compare.star_hop import hold_rows  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
 
@@ -222,6 +223,13 @@ def _signature_plot(result, document, path):
                 centres, means = _binned_means(phase, residual)
                 axis.plot(centres, means, 'o-', color='k', ms=3)
                 axis.set_xlabel(f'phase of {finding["period_s"]:.4g} s')
+            elif finding['variable'] == DETECTOR_FIELD:
+                limit = float(np.max(np.abs(residual))) or 1.0
+                points = axis.scatter(variables['detector_x'][rows], variables['detector_y'][rows], c=residual, s=2,
+                                      cmap='coolwarm', vmin=-limit, vmax=limit)
+                figure.colorbar(points, ax=axis, label='residual ["]')
+                axis.set_xlabel('detector x [px]')
+                axis.set_ylabel('detector y [px]')
             else:
                 values = variables[finding['variable']][rows]
                 axis.plot(values, residual, ',', color='tab:red', alpha=0.3)
@@ -242,8 +250,9 @@ def _signature_plot(result, document, path):
                 axis.plot(shape['centres'], shape['values_arcsec'], '-', color='tab:blue')
                 axis.set_xlabel(finding['variable'])
             title += ' (anchor walk, studentized)'
-        axis.axhline(0.0, color='k', lw=0.5)
-        axis.set_ylabel('residual ["]')
+        if finding.get('variable') != DETECTOR_FIELD:
+            axis.axhline(0.0, color='k', lw=0.5)
+            axis.set_ylabel('residual ["]')
         axis.set_title(title, fontsize=9)
     for axis in axes.ravel()[len(findings):]:
         axis.set_visible(False)

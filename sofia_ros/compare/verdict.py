@@ -14,7 +14,7 @@
 from __future__ import annotations
 
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
-from sofia_ros.effects.empirical import CAMERA_OBSERVABLES, GYRO_VARIABLES, VARIABLES, empirical_name
+from sofia_ros.effects.empirical import CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name
 
 __all__ = ['empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
 
@@ -24,7 +24,7 @@ MAX_EMPIRICAL_CANDIDATES = 8
 
 def _expressible(finding, gyro):
     """The variable an empirical term can use for a trend finding (itself or an equivalent one), or None."""
-    allowed = GYRO_VARIABLES if gyro else tuple(VARIABLES)
+    allowed = GYRO_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD)
     group = sorted((finding['variable'], *finding.get('equivalent_variables', ())),
                    key=lambda v: NAMING_PREFERENCE.index(v) if v in NAMING_PREFERENCE else len(NAMING_PREFERENCE))
     return next((variable for variable in group if variable in allowed), None)
@@ -44,7 +44,8 @@ def _implicated_observables(consistency, cameras):
 
 
 def empirical_candidate_names(diagnostics, cameras, consistency=()):
-    """Empirical terms for the strongest shapes the diagnostics found: one per observable and kind of finding.
+    """Empirical terms for the strongest shapes the diagnostics found: one per observable and kind of finding
+    (a period, a trend of one variable, a field of the detector position).
 
     A shape is structure from DETECTION_SIGMA on; on an observable already known to be wrong (its
     RMS is beyond its floor, or a fitted term of its axis changes between halves of the data) a
@@ -68,8 +69,11 @@ def empirical_candidate_names(diagnostics, cameras, consistency=()):
             variable = _expressible(finding, gyro)
             if variable is None:
                 continue
-            key, name = (observable, 'trend'), empirical_name(observable, variable,
-                                                              range_=finding['ranges'].get(variable))
+            # A field of the detector position is tried beside the strongest one-variable trend: where
+            # it is the shape, a trend along x or y alone is what is left of it after averaging.
+            kind = 'field' if variable == DETECTOR_FIELD else 'trend'
+            key, name = (observable, kind), empirical_name(observable, variable,
+                                                           range_=finding['ranges'].get(variable))
         if key not in seen:
             seen.add(key)
             names.append(name)

@@ -9,11 +9,13 @@ empirical term is an effect whose name says what it is:
 
 - observable: a camera axis ``hipo.x``, ``fpi.y``, ... (pixel column X / row Y) or a gyro axis
   ``gyro.el``, ``gyro.xel``, ``gyro.los`` (GYRF);
-- variable: see VARIABLES (cameras) and GYRO_VARIABLES (gyros);
+- variable: see VARIABLES (cameras) and GYRO_VARIABLES (gyros), and for cameras
+  ``detector_field``, the detector position x and y together;
 - shape: ``poly3@LOW..HIGH`` (Legendre polynomials P0..P3 of the variable mapped from LOW..HIGH
   onto -1..1, the range the data covered; gyro terms leave out P0, which is gyro_bias), ``poly3``
-  (the same over the variable's nominal range, VARIABLES) or ``period_<P>s`` (a sinusoid of
-  period P seconds in time).
+  (the same over the variable's nominal range, VARIABLES; for ``detector_field`` the products
+  P_i(x) P_j(y), i + j <= 3, over the chip: a distortion of the field) or ``period_<P>s`` (a
+  sinusoid of period P seconds in time).
 
 Camera terms shift the centroids on the detector (arcsec along the pixel axis, through the
 camera's nominal scale); gyro terms add a rate (deg/h) to one gyro axis. Both are ordinary
@@ -33,7 +35,8 @@ from sofia_ros.errors import UnknownEffectError
 from sofia_ros.frames import AXES, FFI, FPI, HIPO_2004, WFI
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
-__all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_VARIABLES', 'POLY_DEGREE',
+__all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_VARIABLES', 'DETECTOR_FIELD',
+           'POLY_DEGREE', 'field_columns', 'field_terms',
            'empirical_spec', 'empirical_name', 'is_empirical', 'variable_values']
 
 PREFIX = 'empirical:'
@@ -62,6 +65,8 @@ VARIABLES = {
     'detector_y': (lambda c: c.detector_y_px, None, None, 'px'),
 }
 GYRO_VARIABLES = ('time', 'temperature', 'specific_force_el', 'specific_force_xel', 'specific_force_los')
+#: The detector position as one variable of a camera term: x and y together, over the chip.
+DETECTOR_FIELD = 'detector_field'
 _NUMBER = r'-?[0-9]+(?:\.[0-9]+)?(?:e-?[0-9]+)?'
 _NAME = re.compile(r'^empirical:(?P<observable>[a-z]+\.[a-z]+):(?P<variable>[a-z_]+):'
                    rf'(?P<shape>poly3(?:@(?P<low>{_NUMBER})\.\.(?P<high>{_NUMBER}))?|period_(?P<period>{_NUMBER})s)$')
@@ -96,13 +101,28 @@ def _scaled(variable, camera, values, range_):
     return (np.asarray(values, dtype=float) - centre) / half
 
 
+def field_columns(x, y, degree=POLY_DEGREE):
+    """Columns P_i(x) P_j(y) for i + j <= degree, (i, j) in ``field_terms(degree)`` order; x, y scaled to [-1, 1]."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    eye = np.eye(degree + 1)
+    return np.column_stack([legendre.legval(x, eye[i]) * legendre.legval(y, eye[j]) for i, j in field_terms(degree)])
+
+
+def field_terms(degree=POLY_DEGREE):
+    """The (i, j) degrees of a two-variable Legendre field, total degree first: (0, 0), (1, 0), (0, 1), (2, 0) ..."""
+    return [(total - j, j) for total in range(degree + 1) for j in range(total + 1)]
+
+
 def variable_values(variable, context):
     """The values of a variable in a hook context."""
     return np.asarray(VARIABLES[variable][0](context), dtype=float)
 
 
 def _basis(variable, camera, context, degrees, period_s, range_):
-    """Shape columns (N, k): Legendre P_degrees of the scaled variable, or sin/cos of time."""
+    """Shape columns (N, k): Legendre P_degrees of the scaled variable, sin/cos of time, or the detector field."""
+    if variable == DETECTOR_FIELD:
+        return field_columns(_scaled('detector_x', camera, context.detector_x_px, None),
+                             _scaled('detector_y', camera, context.detector_y_px, None), POLY_DEGREE)
     values = variable_values(variable, context)
     if period_s is not None:
         phase = 2.0 * np.pi * values / period_s
@@ -128,15 +148,20 @@ def empirical_spec(name):
     if observable not in CAMERA_OBSERVABLES and not gyro:
         raise UnknownEffectError(f'{name!r}: unknown observable {observable!r} (known: '
                                  f'{", ".join(CAMERA_OBSERVABLES + GYRO_OBSERVABLES)})')
-    allowed = ('time',) if period_s is not None else (GYRO_VARIABLES if gyro else tuple(VARIABLES))
+    allowed = ('time',) if period_s is not None else (GYRO_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD))
     if variable not in allowed:
         raise UnknownEffectError(f'{name!r}: variable {variable!r} is not available here (known: {", ".join(allowed)})')
+    if variable == DETECTOR_FIELD and range_ is not None:
+        raise UnknownEffectError(f'{name!r}: a detector field spans the chip; name it {empirical_name(observable, variable)}')
     if period_s is not None and period_s <= 0.0:
         raise UnknownEffectError(f'{name!r}: the period must be positive; {hint}')
     unit = 'deg/h' if gyro else 'arcsec'
     if period_s is not None:
         labels, degrees = ('sin', 'cos'), None
         what = f'a sinusoid of period {period_s:g} s'
+    elif variable == DETECTOR_FIELD:
+        labels, degrees = tuple(f'p{i}{j}' for i, j in field_terms(POLY_DEGREE)), None
+        what = f'Legendre products P_i(x) P_j(y), i + j <= {POLY_DEGREE}, of the detector position over the chip'
     else:
         degrees = tuple(range(1 if gyro else 0, POLY_DEGREE + 1))
         labels = tuple(f'p{degree}' for degree in degrees)

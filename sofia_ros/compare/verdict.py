@@ -14,7 +14,8 @@
 from __future__ import annotations
 
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
-from sofia_ros.effects.empirical import CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name
+from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name,
+                                         is_empirical)
 
 __all__ = ['empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
 
@@ -31,11 +32,17 @@ def _expressible(finding, gyro):
 
 
 def _implicated_observables(consistency, cameras):
-    """Observables whose fitted term changes between halves: a gyro term's axis, a camera term's two axes."""
+    """Observables whose fitted term changes between halves: a gyro term's axis, a camera term's two axes, an
+    empirical term's own observable."""
     implicated = set()
     for entry in consistency:
+        # A label is effect.parameter; an empirical effect's name holds dots of its own (poly3@23.01..59.05).
+        effect, _, parameter = entry['param'].rpartition('.')
+        if is_empirical(effect):
+            implicated.add(effect.split(':')[1])
+            continue
         # Parameters name their axis or camera first (gyro_bias.el_deg_per_h, imager_boresight_offset.ffi_el_arcsec).
-        prefix = entry['param'].split('.', 1)[1].split('_', 1)[0]
+        prefix = parameter.split('_', 1)[0]
         if prefix in GYRO_AXES:
             implicated.add(f'gyro.{prefix}')
         elif prefix in cameras:

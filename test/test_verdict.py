@@ -1,0 +1,55 @@
+"""Which empirical shapes a comparison tries, and which observables an inconsistent term implicates (compare.verdict)."""
+
+from sofia_ros.compare.diagnostics import Diagnostics
+from sofia_ros.compare.verdict import empirical_candidate_names, judge
+
+CAMERAS = ('hipo', 'fpi', 'ffi', 'wfi')
+
+
+def _finding(observable, variable, sigma, amplitude_arcsec=0.2, ranges=None):
+    return {'observable': observable, 'variable': variable, 'amplitude_arcsec': amplitude_arcsec,
+            'significance_sigma': sigma, 'equivalent_variables': [], 'ranges': ranges or {},
+            'shape': {'centres': [], 'values_arcsec': []}}
+
+
+def _observable(explained=True):
+    return {'kind': 'camera', 'rms_arcsec': 0.30, 'floor_arcsec': 0.30, 'ratio': 1.0, 'excess_sigma': 0.0,
+            'explained': explained, 'structure': []}
+
+
+def _inconsistent(param):
+    return {'param': param, 'split': 'elevation', 'halves': ['lower half', 'upper half'], 'values': [1.0, 0.5],
+            'sigmas': [0.01, 0.03], 'significance_sigma': 16.0}
+
+
+def test_an_inconsistent_empirical_term_implicates_its_own_observable():
+    # A 4-sigma hint on fpi.x is tried only once something says fpi.x is wrong: here its empirical term, whose
+    # name has dots of its own, changes with elevation.
+    diagnostics = Diagnostics({'fpi.x': _observable()}, [_finding('fpi.x', 'elevation', 4.0, ranges={
+        'elevation': [23.01, 59.05]})], [], 125)
+    assert empirical_candidate_names(diagnostics, CAMERAS) == []
+    term = 'empirical:fpi.x:time:poly3@1.2..1841.p2_arcsec'
+    assert empirical_candidate_names(diagnostics, CAMERAS, [_inconsistent(term)]) == [
+        'empirical:fpi.x:elevation:poly3@23.01..59.05']
+    verdict = judge(diagnostics, [_inconsistent(term)], [], [], None, None, rms_arcsec=0.3,
+                    significant_delta_bic=6.0, model_source='model.yaml')
+    assert not verdict['observables']['fpi.x']['explained']
+    assert verdict['observables']['fpi.x']['structure'] == [f'{term} changes with elevation']
+
+
+def test_a_catalogue_term_implicates_the_axis_or_camera_its_parameter_names():
+    diagnostics = Diagnostics({'gyro.el': _observable(), 'ffi.x': _observable(), 'ffi.y': _observable()}, [
+        _finding('gyro.el', 'temperature', 4.0, ranges={'temperature': [21.0, 23.0]}),
+        _finding('ffi.y', 'time', 4.0, ranges={'time': [0.0, 1800.0]})], [], 125)
+    names = empirical_candidate_names(diagnostics, CAMERAS, [_inconsistent('gyro_bias.el_deg_per_h'),
+                                                             _inconsistent('imager_boresight_offset.ffi_el_arcsec')])
+    assert names == ['empirical:gyro.el:temperature:poly3@21..23', 'empirical:ffi.y:time:poly3@0..1800']
+
+
+def test_a_detector_field_is_tried_beside_the_strongest_trend_of_one_variable():
+    diagnostics = Diagnostics({'wfi.x': _observable(explained=False)}, [
+        _finding('wfi.x', 'detector_field', 37.1, amplitude_arcsec=19.6),
+        _finding('wfi.x', 'detector_x', 37.1, amplitude_arcsec=10.3, ranges={'detector_x': [0.0, 1023.0]}),
+        _finding('wfi.x', 'detector_y', 37.1, amplitude_arcsec=7.1, ranges={'detector_y': [0.0, 1023.0]})], [], 125)
+    assert empirical_candidate_names(diagnostics, CAMERAS) == ['empirical:wfi.x:detector_field:poly3',
+                                                               'empirical:wfi.x:detector_x:poly3@0..1023']

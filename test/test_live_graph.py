@@ -25,6 +25,7 @@ from sofia_ros.campaigns.run_parameters import graph_parameters
 from sofia_ros.config import load_effect_config
 from sofia_ros.errors import GraphRunError
 from sofia_ros.nodes import launch
+from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
 from sofia_ros.nodes.launch import share_time_source, start_graph_processes, stop_graph
 from sofia_ros.nodes.shell import LockstepNode
 from sofia_ros.sim.calibration import AlignmentPlan
@@ -284,6 +285,22 @@ def test_a_recorder_that_closed_its_bag_but_does_not_exit_is_stopped(tmp_path, m
     launch.wait_for_graph(launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag'), timeout_s=50)
     assert time.monotonic() - started < 20
     assert processes['recorder'].poll() is not None
+
+
+@pytest.mark.timeout(60)
+def test_a_clock_still_exiting_when_the_recorder_is_done_keeps_its_exit_code(tmp_path):
+    # The clock stops the run, the recorder closes the bag and exits at once; the clock, still tearing down its
+    # DDS entities, then got the launcher's SIGINT and lost its exit code 3: a fault reported as a normal end.
+    (tmp_path / 'bag').mkdir()
+    (tmp_path / 'bag' / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+    clock = ('import signal, time\n'
+             'signal.signal(signal.SIGINT, lambda *_: (_ for _ in ()).throw(SystemExit(-2)))\n'
+             'time.sleep(1.5)\n'
+             'raise SystemExit(3)')
+    processes = {'clock': subprocess.Popen([sys.executable, '-c', clock]),
+                 'recorder': subprocess.Popen([sys.executable, '-c', 'pass'])}
+    launch.wait_for_graph(launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag'), timeout_s=50)
+    assert processes['clock'].returncode == STALLED_EXIT_CODE
 
 
 @pytest.mark.timeout(60)

@@ -320,3 +320,40 @@ def test_a_node_that_dies_under_processes_is_a_fault_exit_3(tmp_path):
     assert counts['/gyro_box/imu'] > 0 and counts['/clock'] > 0
     # Everything up to the fault is there: the gyro box's samples stop where it was killed.
     assert counts['/gyro_box/imu'] <= round(400 * DEFAULT_TICK_NS / 1e9) * counts['/truth/imu']
+
+
+_CLOCK_ALONE = '''
+import sys
+import sofia_ros.nodes.clock_node as clock_node
+clock_node._STARTUP_TIMEOUT_S = 1.0  # the graph's other nodes never come: stop after stall_timeout_s
+from sofia_ros.nodes.executables import main
+sys.exit(main('clock', ['clock', '--ros-args', '--params-file', sys.argv[1]]))
+'''
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize('delay_s', [0.0, 0.05])
+def test_a_sigint_while_the_clock_stops_the_run_keeps_its_fault_exit_code(tmp_path, delay_s):
+    # The launcher stops the graph (SIGINT) as soon as the recorder has closed the bag, which the clock's stop
+    # lets it do at once: the clock, still logging its reason or tearing down, exited 0 or -2 instead of 3, and
+    # `sofia run --processes` reported a run that never started as a normal end (exit 0).
+    from sofia_ros.campaigns.run_parameters import graph_parameters
+    from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
+    from sofia_ros.nodes.launch import write_params_file
+    from sofia_ros.sim.calibration import AlignmentPlan
+
+    parameters = graph_parameters(TRUTH, 1, AlignmentPlan(), tick_ns=DEFAULT_TICK_NS, max_sim_s=10.0,
+                                  bag_path=tmp_path / 'bag', stall_timeout_s=2.0)
+    write_params_file(tmp_path / 'params.yaml', parameters)
+    clock = subprocess.Popen([sys.executable, '-c', _CLOCK_ALONE, str(tmp_path / 'params.yaml')],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    log = []
+    for line in clock.stdout:
+        log.append(line)
+        if 'stopping:' in line:
+            time.sleep(delay_s)
+            clock.send_signal(signal.SIGINT)
+            break
+    log.append(clock.stdout.read())
+    assert clock.wait(timeout=60) == STALLED_EXIT_CODE, ''.join(log)
+    assert 'did not connect within 2 s' in ''.join(log)

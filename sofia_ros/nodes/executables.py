@@ -4,6 +4,7 @@ graph_nodes.EXECUTABLES: clock, plant, gyro_box, imager (fpi/ffi/wfi by the ``ca
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
@@ -82,26 +83,38 @@ def main(executable=None, argv=None):
     rclpy.init(args=argv)
     node = None
     try:
-        node = _build(executable, _read_parameters(executable))
-        # Which install runs is worth a line: a workspace can hold more than one sofia_ros.
-        package_dir = Path(sofia_ros.__file__).parent
-        node.get_logger().info(f'started from {package_dir}; waiting for the other nodes of the graph')
-        # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor.
-        executor = EventsExecutor()
-        executor.add_node(node)
-        while node.stop_reason is None or (hasattr(node, 'closed') and not node.closed):
-            executor.spin_once(timeout_sec=0.1)
-        # The clock tells its parent when it stopped the run for a fault (a stall) rather than its end.
-        return STALLED_EXIT_CODE if executable == 'clock' and not parse_stop(node.stop_reason)[1] else 0
-    except SofiaError as err:
-        print(f'{executable}: error: {err}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
-    finally:
-        if node is not None and hasattr(node, 'abort'):
-            node.abort()
-        rclpy.try_shutdown()
+        try:
+            node = _build(executable, _read_parameters(executable))
+            # Which install runs is worth a line: a workspace can hold more than one sofia_ros.
+            package_dir = Path(sofia_ros.__file__).parent
+            node.get_logger().info(f'started from {package_dir}; waiting for the other nodes of the graph')
+            # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor.
+            executor = EventsExecutor()
+            executor.add_node(node)
+            while node.stop_reason is None or (hasattr(node, 'closed') and not node.closed):
+                executor.spin_once(timeout_sec=0.1)
+        except SofiaError as err:
+            print(f'{executable}: error: {err}', file=sys.stderr)
+            return 2
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+        finally:
+            if node is not None and node.stop_reason is not None:
+                # How the run ended is decided: the launcher's SIGINT, stopping the graph while this node tears
+                # down its DDS entities, must not turn the clock's fault (exit 3) into an interruption.
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            if node is not None and hasattr(node, 'abort'):
+                node.abort()
+            rclpy.try_shutdown()
+    except KeyboardInterrupt:
+        pass
+    return _exit_code(executable, node)
+
+
+def _exit_code(executable, node):
+    """0, or for the clock STALLED_EXIT_CODE when it stopped the run for a fault (a stall) rather than its end."""
+    stopped = node is not None and node.stop_reason is not None
+    return STALLED_EXIT_CODE if executable == 'clock' and stopped and not parse_stop(node.stop_reason)[1] else 0
 
 
 def __getattr__(name):

@@ -103,6 +103,9 @@ def share_time_source(keeper, nodes):
 
 #: How long the recorder may take to close its bag once the clock has stopped the run and exited.
 RECORDER_GRACE_S = 30.0
+#: How long the clock may take to exit by itself once the recorder has closed the bag: the clock stopped the run
+#: first, and its exit code (3: a fault) is how the run ended; a SIGINT during its teardown would lose it.
+CLOCK_EXIT_GRACE_S = 10.0
 
 
 @dataclass
@@ -200,6 +203,11 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
                     raise GraphRunError(f'the recorder did not close the bag within {RECORDER_GRACE_S:g} s of the '
                                         f'clock stopping the run (clock {_exit_text(clock.returncode)}: '
                                         f'{_last_log_line(graph, "clock")}); logs in {graph.workdir}')
+            # The bag is closed because the clock stopped the run: let it exit with its own code first.
+            deadline = time.monotonic() + CLOCK_EXIT_GRACE_S
+            while (_bag_is_closed(graph) and clock.poll() is None and interrupts.requested() is None
+                   and time.monotonic() < deadline):
+                time.sleep(0.1)
     finally:
         stop_graph(graph)
     recorder = graph.processes['recorder']

@@ -76,7 +76,8 @@ def _build(executable, values):
 
 
 def main(executable=None, argv=None):
-    """Run one node until /sim/stop (or Ctrl-C); errors in its configuration exit with code 2."""
+    """Run one node until /sim/stop (or Ctrl-C); errors in its configuration exit with code 2. A process's entry
+    point: once the node's run has stopped, SIGINT is ignored until the process exits."""
     argv = list(sys.argv if argv is None else argv)
     if executable is None:
         executable = argv.pop(1)

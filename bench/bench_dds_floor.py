@@ -36,8 +36,8 @@ from sofia_ros.config import load_effect_config
 from sofia_ros.nodes.domain import claimed_ros_domain
 from sofia_ros.nodes.shell import message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, done_topic
-from sofia_ros.sim.graph import GraphConfig, build_cores, graph_topics
-from sofia_ros.topics import CLOCK, SAMPLE_BLOCKS
+from sofia_ros.sim.graph import build_cores, graph_topics
+from sofia_ros.topics import CLOCK, DEFAULT_TICK_NS, SAMPLE_BLOCKS
 
 ROOT = Path(__file__).resolve().parents[1]
 #: A done report as the nodes send it (nodes.shell.LockstepNode.publish_done), for its size.
@@ -50,7 +50,7 @@ def direct_baseline(sim_s, folder):
     started = time.perf_counter()
     run = run_alignment(truth, seed=1, bag_path=folder / 'direct', mode='direct', max_sim_s=sim_s)
     wall_s = time.perf_counter() - started
-    ticks = round(run.summary['sim_seconds'] * m.NS_PER_S / GraphConfig.tick_ns)
+    ticks = round(run.summary['sim_seconds'] * m.NS_PER_S / DEFAULT_TICK_NS)
     traffic = {}
     with BagReader(folder / 'direct') as bag:
         counts = {topic.name: topic.count for topic in bag.topics if topic.count}

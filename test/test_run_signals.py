@@ -347,13 +347,15 @@ def test_a_sigint_while_the_clock_stops_the_run_keeps_its_fault_exit_code(tmp_pa
     write_params_file(tmp_path / 'params.yaml', parameters)
     clock = subprocess.Popen([sys.executable, '-c', _CLOCK_ALONE, str(tmp_path / 'params.yaml')],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    log = []
+    log, signalled = [], False
     for line in clock.stdout:
         log.append(line)
         if 'stopping:' in line:
             time.sleep(delay_s)
             clock.send_signal(signal.SIGINT)
+            signalled = True
             break
     log.append(clock.stdout.read())
+    assert signalled, ''.join(log)
     assert clock.wait(timeout=60) == STALLED_EXIT_CODE, ''.join(log)
     assert 'did not connect within 2 s' in ''.join(log)

@@ -159,5 +159,14 @@ def test_too_little_data_is_not_tested():
     assert trend_test(np.full(50, 3.0), np.zeros(50)) is None
     assert field_test(np.arange(15.0), np.arange(15.0), np.zeros(15)) is None
     assert field_test(np.arange(50.0), np.full(50, 3.0), np.zeros(50)) is None
+
+
+def test_a_field_over_a_few_fixed_positions_counts_only_the_columns_they_leave():
+    # Three stars that never move: three independent columns, not ten; the F-test must still be calibrated.
+    rng = np.random.default_rng(16)
+    x_px = np.repeat([100.0, 500.0, 900.0], 200)
+    y_px = np.repeat([800.0, 200.0, 600.0], 200)
+    p_values = [field_test(x_px, y_px, rng.normal(0.0, 0.3, len(x_px))).p_value for _ in range(TRIALS)]
+    assert stats.kstest(p_values, 'uniform').pvalue > 1e-3
     assert category_test(np.zeros(50), np.ones(50)) is None
     assert period_test(np.arange(5.0), np.zeros(5)) is None

@@ -124,13 +124,17 @@ def field_test(x, y, values, weights=None, degree=TREND_DEGREE):
     if len(values) < max(_MIN_ROWS, 2 * columns) or np.ptp(x) <= 0.0 or np.ptp(y) <= 0.0:
         return None
     design = field_columns(2.0 * (x - x.min()) / np.ptp(x) - 1.0, 2.0 * (y - y.min()) / np.ptp(y) - 1.0, degree)
+    # Stars at a few fixed positions, or x following y, leave fewer independent columns: the F-test counts those.
+    rank = int(np.linalg.matrix_rank(design * np.sqrt(weights)[:, None]))
+    dof = len(values) - rank
+    if rank < 2 or dof <= 0:
+        return None
     rss_constant, _ = _weighted_rss(design[:, :1], values, weights)
     rss_field, coefficients = _weighted_rss(design, values, weights)
-    dof = len(values) - columns
     if rss_field <= 0.0:
         return None
-    f_value = (rss_constant - rss_field) / (columns - 1) / (rss_field / dof)
-    return TrendTest(float(stats.f.sf(max(f_value, 0.0), columns - 1, dof)), float(np.ptp(design @ coefficients) / 2.0),
+    f_value = (rss_constant - rss_field) / (rank - 1) / (rss_field / dof)
+    return TrendTest(float(stats.f.sf(max(f_value, 0.0), rank - 1, dof)), float(np.ptp(design @ coefficients) / 2.0),
                      np.zeros(0), np.zeros(0))
 
 

@@ -224,7 +224,8 @@ def _signature_plot(result, document, path):
                 axis.plot(centres, means, 'o-', color='k', ms=3)
                 axis.set_xlabel(f'phase of {finding["period_s"]:.4g} s')
             elif finding['variable'] == DETECTOR_FIELD:
-                limit = float(np.max(np.abs(residual))) or 1.0
+                # The 99th percentile: one outlier must not wash the map out.
+                limit = float(np.percentile(np.abs(residual), 99.0)) or 1.0
                 points = axis.scatter(variables['detector_x'][rows], variables['detector_y'][rows], c=residual, s=2,
                                       cmap='coolwarm', vmin=-limit, vmax=limit)
                 figure.colorbar(points, ax=axis, label='residual ["]')

@@ -108,7 +108,10 @@ def main(executable=None, argv=None):
                 node.abort()
             rclpy.try_shutdown()
     except KeyboardInterrupt:
-        pass
+        # A second SIGINT cut the teardown short (the recorder may not have closed its bag): not a clean end,
+        # unless the run had stopped and how it ended is decided.
+        if node is None or node.stop_reason is None:
+            return 128 + signal.SIGINT
     return _exit_code(executable, node)
 
 

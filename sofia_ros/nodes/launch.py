@@ -94,7 +94,8 @@ def share_time_source(keeper, nodes):
     node's own one (rclpy's TimeSource, one per node with use_sim_time) would take and convert each /clock
     message again, about 10 % of the graph's cost per tick. use_sim_time stays true on every node."""
     # Node._time_source is rclpy's own (pinned by the locks); test_live_graph checks that one /clock
-    # subscription serves the process and that every node's clock still reads sim time.
+    # subscription serves the process and that every node's clock still reads sim time. Setting use_sim_time
+    # false on the keeper would stop every node's clock: nothing does.
     time_source = keeper._time_source
     for node in nodes:
         node._time_source.detach_node()
@@ -204,7 +205,7 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
                                         f'clock stopping the run (clock {_exit_text(clock.returncode)}: '
                                         f'{_last_log_line(graph, "clock")}); logs in {graph.workdir}')
             # The bag is closed because the clock stopped the run: let it exit with its own code first.
-            deadline = time.monotonic() + CLOCK_EXIT_GRACE_S
+            deadline = min(time.monotonic() + CLOCK_EXIT_GRACE_S, start + timeout_s)
             while (_bag_is_closed(graph) and clock.poll() is None and interrupts.requested() is None
                    and time.monotonic() < deadline):
                 time.sleep(0.1)

@@ -93,13 +93,20 @@ class LockstepNode(Node):
         if self.ready:
             return
         inputs_ok = all(self.count_publishers(topic) > 0 for topic in self.expected_inputs)
-        outputs_ok = all(self.count_subscribers(topic) >= count for topic, count in self.expected_outputs.items())
+        outputs_ok = all(self._matched_subscriptions(topic) >= count for topic, count in self.expected_outputs.items())
         if inputs_ok and outputs_ok and self.extra_ready():
             self.ready = True
             self._ready_timer.cancel()
             self.get_logger().info('connected; waiting for ticks')
             self.publish_done(0)
             self.try_ticks()
+
+    def _matched_subscriptions(self, topic):
+        """Subscriptions this node's publisher of ``topic`` is matched with: the graph's count (count_subscribers)
+        can see a subscription before the DDS writer has matched its reader, and a volatile message written in
+        between never reaches it (a node then waits on tick 1 for good)."""
+        publisher = self.publishers_by_topic.get(topic)
+        return publisher.get_subscription_count() if publisher is not None else self.count_subscribers(topic)
 
     def extra_ready(self):
         """Subclasses add conditions (e.g. services available) before the first done(0)."""

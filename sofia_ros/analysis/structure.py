@@ -67,6 +67,11 @@ def sigma_of_probability(probability):
     return float(stats.norm.isf(np.clip(probability, 1e-300, 1.0) / 2.0))
 
 
+def _unit_interval(values):
+    """The values mapped linearly onto [-1, 1] over their own range (the Legendre polynomials' domain)."""
+    return 2.0 * (values - np.min(values)) / np.ptp(values) - 1.0
+
+
 def _weighted_rss(design, values, weights):
     root = np.sqrt(weights)
     coefficients, *_ = np.linalg.lstsq(design * root[:, None], values * root, rcond=None)
@@ -94,7 +99,7 @@ def trend_test(variable, values, weights=None, degree=TREND_DEGREE, *, whitening
     degree = min(degree, len(np.unique(np.round(variable, 9))) - 1)
     if high <= low or degree < 1:
         return None
-    scaled = 2.0 * (variable - low) / (high - low) - 1.0
+    scaled = _unit_interval(variable)
     shape_columns = np.column_stack([legendre.legval(scaled, np.eye(degree + 1)[k]) for k in range(degree + 1)])
     design = shape_columns if whitening is None else np.asarray(whitening) @ shape_columns
     rss_constant, _ = _weighted_rss(design[:, :1], values, weights)
@@ -123,7 +128,7 @@ def field_test(x, y, values, weights=None, degree=TREND_DEGREE):
     columns = len(field_terms(degree))
     if len(values) < max(_MIN_ROWS, 2 * columns) or np.ptp(x) <= 0.0 or np.ptp(y) <= 0.0:
         return None
-    design = field_columns(2.0 * (x - x.min()) / np.ptp(x) - 1.0, 2.0 * (y - y.min()) / np.ptp(y) - 1.0, degree)
+    design = field_columns(_unit_interval(x), _unit_interval(y), degree)
     # Stars at a few fixed positions, or x following y, leave fewer independent columns: the F-test counts those.
     rank = int(np.linalg.matrix_rank(design * np.sqrt(weights)[:, None]))
     dof = len(values) - rank

@@ -152,7 +152,8 @@ def empirical_spec(name):
     if variable not in allowed:
         raise UnknownEffectError(f'{name!r}: variable {variable!r} is not available here (known: {", ".join(allowed)})')
     if variable == DETECTOR_FIELD and range_ is not None:
-        raise UnknownEffectError(f'{name!r}: a detector field spans the chip; name it {empirical_name(observable, variable)}')
+        raise UnknownEffectError(f'{name!r}: a detector field spans the chip; '
+                                 f'name it {empirical_name(observable, variable)}')
     if period_s is not None and period_s <= 0.0:
         raise UnknownEffectError(f'{name!r}: the period must be positive; {hint}')
     unit = 'deg/h' if gyro else 'arcsec'

@@ -32,8 +32,8 @@ from sofia_ros.nodes.sync import parse_stop
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, build_cores, graph_topics
 from sofia_ros.topics import CLOCK
 
-__all__ = ['run_graph_in_process', 'share_time_source', 'run_graph_in_processes', 'start_graph_processes', 'write_params_file',
-           'wait_for_graph', 'stop_graph', 'silent_nodes', 'GraphProcesses']
+__all__ = ['run_graph_in_process', 'share_time_source', 'run_graph_in_processes', 'start_graph_processes',
+           'write_params_file', 'wait_for_graph', 'stop_graph', 'silent_nodes', 'GraphProcesses']
 
 
 def _participants(cores):
@@ -283,5 +283,5 @@ def run_graph_in_processes(parameters: Mapping[str, Any], bag_path: str | os.Pat
 
 def silent_nodes(graph):
     """The nodes whose process logged nothing (never got as far as its first line): names for a fault's error line."""
-    return sorted(name for name in graph.processes
-                  if not (graph.workdir / f'{name}.log').exists() or not (graph.workdir / f'{name}.log').stat().st_size)
+    logs = {name: graph.workdir / f'{name}.log' for name in graph.processes}
+    return sorted(name for name, log in logs.items() if not log.exists() or not log.stat().st_size)

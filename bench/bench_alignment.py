@@ -66,7 +66,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--repetitions', type=int, default=6,
                         help='LOS/EL/XEL repetitions of the plan (6: the full campaign)')
-    parser.add_argument('--modes', nargs='*', default=['direct', 'executor', 'processes'])
+    parser.add_argument('--modes', nargs='*', default=['direct', 'executor', 'executor-dds', 'processes'],
+                        help='executor: messages handed over in the process; executor-dds: every one over DDS')
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--no-cold', action='store_true', help="skip the cold (the checkout's bytecode removed) executor run")
     args = parser.parse_args()
@@ -97,7 +98,8 @@ def main():
                             and len({digest.get(topic) for digest in bags.values()}) > 1})
         print(f'bags of {", ".join(bags)}: ' + (f'differ in {", ".join(differing)}' if differing
                                                  else 'identical on every topic'))
-    print('wall/direct, CPU/direct: ratio to direct mode in this run (issue 14: executor <= 1.25); '
+    print('wall/direct, CPU/direct: ratio to direct mode in this run (issue 14: executor <= 1.25; executor-dds: the '
+          'same graph with every message over DDS, the old path); '
           'load: 1-min load average during the run; x real CPU: sim s per CPU s')
 
 

@@ -116,7 +116,10 @@ def _given(args, *names):
 
 
 def _mode(args):
-    """The run mode of --processes / --direct (default: every node in one process under an executor)."""
+    """The run mode of --processes / --direct / --all-dds (default: every node in one process under an
+    executor)."""
+    if args.all_dds:
+        return 'executor-dds'
     return 'processes' if args.processes else 'direct' if args.direct else 'executor'
 
 
@@ -126,9 +129,9 @@ def _run_gyro_stability(args):
 
     if args.case is None:
         raise ConfigError('gyro-stability needs --case TC-1|TC-2|TC-3|TC-4')
-    if args.processes or args.direct:
+    if args.processes or args.direct or args.all_dds:
         raise ConfigError('gyro-stability records the gyro box alone, without a node graph; '
-                          'drop --processes / --direct')
+                          'drop --processes / --direct / --all-dds')
     truth = load_effect_config(args.truth)
     progress = _Progress()
     try:
@@ -307,6 +310,9 @@ def build_parser():
     where = run.add_mutually_exclusive_group()
     where.add_argument('--processes', action='store_true', help='each node in its own process')
     where.add_argument('--direct', action='store_true', help='cores in one loop without DDS (fastest)')
+    where.add_argument('--all-dds', action='store_true',
+                       help='every node in one process as by default, but every message over DDS as between '
+                            'processes (by default the nodes hand messages over in the process)')
     # No defaults here: an option left out takes the plan dataclass' default (sim.calibration.AlignmentPlan,
     # sim.star_hop.StarHopPlan) or the campaign runner's (campaigns.recording.DEFAULT_MAX_SIM_S).
     run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'),

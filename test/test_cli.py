@@ -105,7 +105,7 @@ def test_replay_refuses_negative_rate_and_wait(tmp_path, option, value, message)
 def test_gyro_stability_refuses_a_graph_mode(tmp_path, mode):
     result = run_sofia('run', 'gyro-stability', '--case', 'TC-1', '--truth', 'config/truth/nominal.yaml',
                        '--bag', str(tmp_path / 'b'), mode)
-    assert result.returncode == 2 and 'without a node graph; drop --processes / --direct' in result.stderr
+    assert result.returncode == 2 and 'without a node graph; drop --processes / --direct / --all-dds' in result.stderr
     assert not (tmp_path / 'b').exists()
 
 

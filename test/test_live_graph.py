@@ -1,4 +1,5 @@
-"""The node graph over DDS: one process under an executor, one process per node, the recorder stopped, replays.
+"""The node graph over DDS: one process under an executor (messages handed over in it, or all over DDS), one
+process per node, the recorder stopped, replays.
 
 A node killed mid-run is test_run_signals.py's (`sofia run --processes`, the same stall watchdog).
 """
@@ -89,9 +90,10 @@ def _parameter_visitor(tmp_path):
 
 @pytest.mark.timeout(600)
 @STARTUP_RERUNS
-@pytest.mark.parametrize('mode', ['executor', 'processes'])
+@pytest.mark.parametrize('mode', ['executor', 'executor-dds', 'processes'])
 def test_live_graph_writes_the_lock_step_runs_bag(direct_run, tmp_path, mode):
-    # The same cores with the same seeds behind DDS: the same accepted matrix and the same bag, every
+    # The same cores with the same seeds behind DDS (in one process the messages handed over in it, or every
+    # one over DDS): the same accepted matrix and the same bag, every
     # topic with the same type, QoS, count, log times and bytes (sofia_ros.bag.digest). /result/stop
     # (why a live run stopped) exists over DDS only (docs/bag.md).
     with _parameter_visitor(tmp_path):

@@ -47,13 +47,19 @@ def test_something_else_than_a_sample_block_is_refused_in_one_line():
 
 
 @pytest.mark.timeout(300)
-def test_a_listener_outside_the_graph_gets_standard_imu_samples(tmp_path):
-    # Inside the graph the samples travel in blocks; a subscriber from outside (ros2 topic echo) gets
-    # each one as its own sensor_msgs/Imu on /gyro_box/imu.
+def test_a_listener_outside_the_graph_gets_standard_imu_samples_and_what_the_bag_holds(tmp_path):
+    # Inside the graph the samples travel in blocks and every message is handed over in the process
+    # (nodes.intra_process); a subscriber from outside (ros2 topic echo) gets each sample as its own
+    # sensor_msgs/Imu on /gyro_box/imu, and every other topic over DDS as the bag records it.
     import rclpy
+    from geometry_msgs.msg import QuaternionStamped
     from sensor_msgs.msg import Imu
+    from std_msgs.msg import String
 
-    from sofia_ros.nodes.sync import DATA_QOS
+    from sofia_ros.bag import BagReader
+    from sofia_ros.nodes.shell import _parse_done_text
+    from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, done_topic
+    from sofia_ros.topics import TASCU_ATTITUDE
 
     run = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'run', 'alignment', '--truth',
                             str(ROOT / 'config/truth/nominal.yaml'), '--seed', '3', '--bag', str(tmp_path / 'bag'),
@@ -62,10 +68,12 @@ def test_a_listener_outside_the_graph_gets_standard_imu_samples(tmp_path):
     rclpy.init()
     try:
         node = rclpy.create_node('imu_listener')
-        samples = []
+        samples, attitudes, reports = [], [], []
         node.create_subscription(Imu, GYRO_IMU.name, samples.append, DATA_QOS)
+        node.create_subscription(QuaternionStamped, TASCU_ATTITUDE.name, attitudes.append, DATA_QOS)
+        node.create_subscription(String, done_topic('tascu'), reports.append, SYNC_QOS)
         deadline = time.monotonic() + 240.0
-        while len(samples) < 800:
+        while len(samples) < 800 or len(attitudes) < 10:
             assert time.monotonic() < deadline and run.poll() is None, 'no samples from the live graph'
             rclpy.spin_once(node, timeout_sec=0.1)
     finally:
@@ -75,3 +83,15 @@ def test_a_listener_outside_the_graph_gets_standard_imu_samples(tmp_path):
     stamps_ns = np.array([m.stamp_ns_of(sample.header.stamp) for sample in samples])
     assert {sample.header.frame_id for sample in samples} == {'gyrf'}
     assert set(np.diff(stamps_ns)) == {2_500_000}  # every sample, 400 Hz, in order
+    heard = {m.stamp_ns_of(attitude.header.stamp): m.quaternion_xyzw_of(attitude) for attitude in attitudes}
+    assert set(np.diff(sorted(heard))) == {200_000_000}  # every tick's attitude, none lost
+    ticks = [_parse_done_text(report.data)[0] for report in reports]
+    # Handshake topics keep the last report (nodes.sync.SYNC_QOS): a slow listener skips some, never goes back.
+    assert ticks == sorted(set(ticks)) and len(ticks) >= 10
+    with BagReader(tmp_path / 'bag', campaign_time=True) as bag:  # the graph's sim time, as over DDS
+        recorded = {m.stamp_ns_of(message.header.stamp): m.quaternion_xyzw_of(message)
+                    for _, _, message in bag.messages(TASCU_ATTITUDE.name)}
+    both = sorted(set(heard) & set(recorded))
+    assert len(both) >= 10  # SIGTERM closed the bag with every completed tick
+    for stamp_ns in both:
+        np.testing.assert_array_equal(heard[stamp_ns], recorded[stamp_ns])

@@ -26,9 +26,11 @@ from sofia_ros.topics import MODEL_DOCUMENT, PLAN_DOCUMENT, SCENARIO_DOCUMENT, S
 __all__ = ['MODES', 'graph_documents', 'record_campaign', 'record_graph', 'new_bag_path', 'write_summary', 'finish_run',
            'summary_of_failed_run']
 
-#: 'executor': every node in this process under one executor, over DDS; 'processes': each node its
-#: own process, as `ros2 run` starts them; 'direct': the same cores in one loop without DDS.
-MODES = ('executor', 'processes', 'direct')
+#: 'executor': every node in this process under one executor, handing messages over in the process and
+#: over DDS what leaves it (nodes.intra_process); 'executor-dds': the same with every message over DDS;
+#: 'processes': each node its own process, as `ros2 run` starts them; 'direct': the same cores in one loop
+#: without DDS.
+MODES = ('executor', 'executor-dds', 'processes', 'direct')
 
 
 def new_bag_path(bag_path: str | PathLike[str]) -> Path:
@@ -118,11 +120,12 @@ def record_graph(config: GraphConfig, bag_path: Path, *, model_text: str | None,
     with interrupts.graceful():
         if mode == 'direct':
             return _run_direct(config, bag_path, graph_documents(config, model_text), max_sim_s, progress)
-        if mode == 'executor':
+        if mode in ('executor', 'executor-dds'):
             from sofia_ros.nodes.launch import run_graph_in_process
 
             _, reason, complete = run_graph_in_process(config, bag_path, documents=graph_documents(config, model_text),
-                                                       max_sim_s=max_sim_s, timeout_s=timeout_s, progress=progress)
+                                                       max_sim_s=max_sim_s, timeout_s=timeout_s, progress=progress,
+                                                       intra_process=mode == 'executor')
             return None if complete else reason
         if mode == 'processes':
             return _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)

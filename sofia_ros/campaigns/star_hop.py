@@ -50,7 +50,7 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
                  timeout_s=3600.0):
     """Fly the sequence, record the bag, and write truth.yaml, model.yaml, star_hop.yaml and summary.json.
 
-    ``mode``: one of recording.MODES ('executor', 'processes', 'direct'), as for the alignment campaign.
+    ``mode``: one of recording.MODES, as for the alignment campaign.
     """
     bag_path = new_bag_path(bag_path)
     config = star_hop_config(truth, seed, plan)

@@ -25,7 +25,7 @@ _STARTUP_TIMEOUT_S = 120.0
 class ClockNode(LockstepNode):
     """Publishes /clock per tick; ends the run when a node finishes or fails, or the graph stalls."""
 
-    def __init__(self, participants, *, tick_ns, max_sim_s, stall_timeout_s=15.0, subscribers=1, ending=()):
+    def __init__(self, participants, *, tick_ns, max_sim_s, stall_timeout_s=15.0, subscribers=1, ending=(), bus=None):
         """``participants`` in tick order, the recorder among them: the first silent one is the likely culprit of a
         stall. ``ending``: the nodes whose reports can end the run (finished or failed).
 
@@ -35,7 +35,7 @@ class ClockNode(LockstepNode):
         DDS delivery per tick.
         """
         super().__init__('clock', upstream=[(name, 1) for name in (*ending, 'recorder')], tick_ns=tick_ns,
-                         expected_outputs={CLOCK.name: subscribers})
+                         expected_outputs={CLOCK.name: subscribers}, bus=bus)
         self.participants = list(participants)
         self.states.update((name, UpstreamState()) for name in self.participants if name not in self.states)
         self._watching = []
@@ -46,17 +46,16 @@ class ClockNode(LockstepNode):
         self.max_tick = int(max_sim_s * m.NS_PER_S // tick_ns)
         self.stall_timeout_s = stall_timeout_s
         self.last_progress = time.monotonic()
-        self.create_timer(0.5, self._watchdog, clock=self._wall_clock())
+        self.create_timer(0.5, self.entry(self._watchdog), clock=self._wall_clock())
 
     def _watch_every_participant(self):
         """Read every participant's done reports; the latest arrives at once (transient-local)."""
-        self._watching = [self.create_subscription(String, done_topic(name), self._done_callback(name), SYNC_QOS,
-                                                   raw=True)
+        self._watching = [self.subscribe_graph_topic(String, done_topic(name), *self._done_callbacks(name), SYNC_QOS)
                           for name in self.participants if name not in self.upstream]
 
     def _stop_watching(self):
-        for subscription in self._watching:
-            self.destroy_subscription(subscription)
+        for handle in self._watching:
+            self.unsubscribe_graph_topic(handle)
         self._watching = []
 
     def run_tick(self, tick):

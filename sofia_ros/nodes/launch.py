@@ -26,6 +26,7 @@ from sofia_ros.errors import GraphRunError
 from sofia_ros.graph_nodes import EXECUTABLES
 from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE, ClockNode
 from sofia_ros.nodes.domain import claim_ros_domain, claimed_ros_domain, release_ros_domain
+from sofia_ros.nodes.intra_process import IntraProcessBus
 from sofia_ros.nodes.recorder_node import RecorderNode
 from sofia_ros.nodes.shell import CoreNode
 from sofia_ros.nodes.sync import parse_stop
@@ -41,28 +42,32 @@ def _participants(cores):
 
 
 def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=DEFAULT_MAX_SIM_S, timeout_s=3600.0,
-                         progress=None):
+                         progress=None, intra_process=True):
     """All nodes in one process under one executor; return the calibration core, the stop reason and
     whether the run ended by itself (False: a stall or a signal stopped it; the bag is closed either way).
+    ``intra_process``: the nodes hand their messages over in the process (nodes.intra_process), DDS carrying
+    only what a subscription outside the process takes; False: every message over DDS, as between processes.
 
     The ROS domain is claimed for the run (nodes.domain). SIGINT/SIGTERM are left to sofia_ros.interrupts:
     the clock stops the graph at the next watchdog check and the recorder closes the bag.
     """
     with claimed_ros_domain():
-        return _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, progress)
+        return _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, progress, intra_process)
 
 
-def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, progress):
+def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, progress, intra_process):
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
     try:
         cores = build_cores(config)
         topics = graph_topics(cores)
-        nodes = [CoreNode(core, graph_topics=topics, tick_ns=config.tick_ns) for core in cores if core.name != 'clock']
+        bus = IntraProcessBus() if intra_process else None
+        nodes = [CoreNode(core, graph_topics=topics, tick_ns=config.tick_ns, bus=bus)
+                 for core in cores if core.name != 'clock']
         clock_subscribers = len(topics[CLOCK.name][2]) + 1
         clock = ClockNode([*_participants(cores), 'recorder'], tick_ns=config.tick_ns, max_sim_s=max_sim_s,
-                          subscribers=clock_subscribers, ending=[core.name for core in cores if core.ends_run])
+                          subscribers=clock_subscribers, ending=[core.name for core in cores if core.ends_run], bus=bus)
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,
-                                epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents)
+                                epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents, bus=bus)
         share_time_source(nodes[0], (*nodes[1:], clock, recorder))
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor with this many entities.
         executor = EventsExecutor()

@@ -10,6 +10,7 @@ from sofia_ros.bag import BagWriter
 from sofia_ros.bag.msgtypes import TYPESTORE
 from sofia_ros.nodes.shell import LockstepNode, decode_received, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
+from sofia_ros.sim.runner import record_message
 from sofia_ros.topics import PARAMETER_EVENTS, SAMPLE_BLOCKS, STOP_DOCUMENT
 
 __all__ = ['RecorderNode']
@@ -24,14 +25,15 @@ def _canonical_cdr(cdr, msgtype):
 class RecorderNode(LockstepNode):
     """Records; reports done(k) once everything counted for tick k is in the bag."""
 
-    def __init__(self, bag_path, graph_topics, participants, *, tick_ns, epoch_ns, documents=()):
-        """Record into a new bag at ``bag_path``; ``epoch_ns``: the campaign's start in UTC ns (BagWriter)."""
+    def __init__(self, bag_path, graph_topics, participants, *, tick_ns, epoch_ns, documents=(), bus=None):
+        """Record into a new bag at ``bag_path``; ``epoch_ns``: the campaign's start in UTC ns (BagWriter);
+        ``bus``: as for LockstepNode."""
         topics = {name: msgtype for name, (msgtype, publisher, _) in graph_topics.items() if publisher}
         # A sample topic arrives as its per-tick blocks (topics.SAMPLE_BLOCKS); the bag holds the samples.
         wires = {name: (SAMPLE_BLOCKS[name].name, SAMPLE_BLOCKS[name].msgtype) if name in SAMPLE_BLOCKS
                  else (name, msgtype) for name, msgtype in topics.items()}
         super().__init__('recorder', upstream=[(name, 0) for name in participants], tick_ns=tick_ns,
-                         expected_inputs=[wire for wire, _ in wires.values()])
+                         expected_inputs=[wire for wire, _ in wires.values()], bus=bus)
         self.bag = BagWriter(bag_path, epoch_ns=epoch_ns)
         self.bag.open()
         self.msgtypes = dict(topics)
@@ -46,11 +48,23 @@ class RecorderNode(LockstepNode):
         self.finished = Future()
         for topic, (wire, msgtype) in wires.items():
             qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
-            callback = self._block_callback(topic, wire) if wire != topic else self._record_callback(topic)
-            self.create_subscription(message_class(msgtype), wire, callback, qos, raw=True)
+            on_cdr = self._block_callback(topic, wire) if wire != topic else self._record_callback(topic)
+            self.subscribe_graph_topic(message_class(msgtype), wire, on_cdr, self._message_callback(topic, wire), qos)
+        # rclpy publishes parameter events itself, over DDS in every mode.
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
-                                 self._parameter_event_callback({f'/{name}' for name in participants}),
+                                 self.entry(self._parameter_event_callback({f'/{name}' for name in participants})),
                                  DATA_QOS, raw=True)
+
+    def _message_callback(self, topic, wire):
+        msgtype = self.msgtypes[topic]
+
+        def callback(message):
+            # Handed over in the process: recorded as direct mode records it.
+            stamp_ns = record_message(self.bag, topic, msgtype, message, self.clock_ns)
+            if msgtype == 'rosgraph_msgs/msg/Clock':
+                self.clock_ns = stamp_ns
+            self._count(wire)
+        return callback
 
     def _record_callback(self, topic, counted=True):
         msgtype = self.msgtypes[topic]

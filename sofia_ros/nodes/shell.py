@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import struct
 from collections import Counter
-from functools import lru_cache
+from functools import lru_cache, wraps
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
@@ -40,8 +40,11 @@ def decode_received(cdr, msgtype):
 class LockstepNode(Node):
     """A node that takes part in the tick handshake: waits for its upstream, reports done(k)."""
 
-    def __init__(self, name, *, upstream, tick_ns, expected_inputs=(), expected_outputs=None):
+    def __init__(self, name, *, upstream, tick_ns, expected_inputs=(), expected_outputs=None, bus=None):
+        """``bus``: the graph's nodes.intra_process.IntraProcessBus when they share this process, else every message
+        travels over DDS."""
         super().__init__(name, parameter_overrides=[Parameter('use_sim_time', value=True)])
+        self.bus = bus
         self.tick_ns = tick_ns
         self.upstream = dict(upstream)
         self.states = {node: UpstreamState() for node in self.upstream}
@@ -56,28 +59,65 @@ class LockstepNode(Node):
         self._requirements = None  # what the next tick still waits for, once every report is in
         self.expected_outputs = dict(expected_outputs or {})  # topic -> number of subscribers
         self.publishers_by_topic = {}
-        self.done_publisher = self.create_publisher(String, done_topic(name), SYNC_QOS)
-        self.create_subscription(String, STOP_TOPIC, self._on_stop, SYNC_QOS)
+        self.done_topic = done_topic(name)
+        self.done_publisher = self.create_publisher(String, self.done_topic, SYNC_QOS)
+        self.create_subscription(String, STOP_TOPIC, self.entry(self._on_stop), SYNC_QOS)
         for node in self.upstream:
-            self.create_subscription(String, done_topic(node), self._done_callback(node), SYNC_QOS, raw=True)
-        self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall_clock())
+            self.subscribe_graph_topic(String, done_topic(node), *self._done_callbacks(node), SYNC_QOS)
+        self._ready_timer = self.create_timer(0.05, self.entry(self._check_ready), clock=self._wall_clock())
 
     def _wall_clock(self):
         from rclpy.clock import Clock, ClockType
 
         return Clock(clock_type=ClockType.STEADY_TIME)
 
+    # --- topics of the graph: over DDS, or handed over in the process --------------------------
+    def entry(self, callback):
+        """``callback`` as the executor is to call it (a timer, a DDS subscription, a service response): on a bus,
+        what it publishes is handed over once it has returned."""
+        if self.bus is None:
+            return callback
+        dispatch = self.bus.dispatch
+
+        @wraps(callback)  # the signature rclpy reads: a timer's callback takes no TimerInfo
+        def dispatched(*args):
+            dispatch(callback, *args)
+        return dispatched
+
+    def subscribe_graph_topic(self, message_type, topic, on_cdr, on_message, qos):
+        """Subscribe to a topic of the graph: ``on_cdr`` takes its CDR from DDS, or, on a bus, ``on_message`` the
+        published object (the DDS subscription stays, for the graph seen from outside, and drops DDS's copies).
+        Returns the handle :meth:`unsubscribe_graph_topic` takes."""
+        if self.bus is None:
+            return self.create_subscription(message_type, topic, on_cdr, qos, raw=True), topic, None
+        self.bus.subscribe(topic, on_message, qos)
+        return self.create_subscription(message_type, topic, _drop_copy, qos, raw=True), topic, on_message
+
+    def unsubscribe_graph_topic(self, handle):
+        """Undo :meth:`subscribe_graph_topic`."""
+        subscription, topic, on_message = handle
+        self.destroy_subscription(subscription)
+        if on_message is not None:
+            self.bus.unsubscribe(topic, on_message)
+
+    def _send(self, publisher, topic, message, wire=None):
+        """Publish ``message`` (over DDS as ``wire(message)`` when given), or hand it to the bus."""
+        if self.bus is None:
+            publisher.publish(message if wire is None else wire(message))
+        else:
+            self.bus.publish(publisher, topic, message, wire)
+
     # --- handshake -----------------------------------------------------------------------------
-    def _done_callback(self, node):
+    def _done_callbacks(self, node):
+        """(from CDR, from the message) callbacks of ``node``'s done reports."""
         state, lag = self.states[node], self.upstream.get(node)
 
-        def callback(cdr):
-            report = _parse_done(cdr)
+        def on_report(report):
             state.announce(*report)
             # Only the report the next tick waits for can let it run; requirements already worked out stand.
             if lag is not None and report[0] == self.next_tick - lag:
                 self.try_ticks()
-        return callback
+        return (lambda cdr: on_report(_parse_done(cdr))), (lambda message: on_report(_parse_done_text(message.data)))
 
     def _on_stop(self, message):
         self.stop_reason = message.data
@@ -160,11 +200,12 @@ class LockstepNode(Node):
     def publish_done(self, tick, finished=False, failed=''):
         """Report done(tick) with cumulative counts of everything published."""
         counts = ','.join(f'{topic}={count}' for topic, count in sorted(self.published.items()))
-        self.done_publisher.publish(String(data=f'{tick};{int(finished)};{failed.replace(";", ",")};{counts}'))
+        self._send(self.done_publisher, self.done_topic,
+                   String(data=f'{tick};{int(finished)};{failed.replace(";", ",")};{counts}'))
 
-    def publish(self, topic, message):
-        """Publish on an output topic, counting messages."""
-        self.publishers_by_topic[topic].publish(message)
+    def publish(self, topic, message, wire=None):
+        """Publish on an output topic (over DDS as ``wire(message)`` when given), counting messages."""
+        self._send(self.publishers_by_topic[topic], topic, message, wire)
         self.published[topic] += 1
 
 
@@ -176,15 +217,25 @@ def _parse_done(cdr):
     """(tick, counts, finished, failed) of a done report's std_msgs/String CDR; in one process several nodes
     read each report, so it is parsed once (the counts mapping is shared: read it, never change it)."""
     length, = _CDR_STRING_LENGTH.unpack_from(cdr, 4)
-    tick, finished, failed, counts = cdr[8:7 + length].decode().split(';', 3)
+    return _parse_done_text(cdr[8:7 + length].decode())
+
+
+@lru_cache(maxsize=64)
+def _parse_done_text(text):
+    """(tick, counts, finished, failed) of a done report's text (as :func:`_parse_done`)."""
+    tick, finished, failed, counts = text.split(';', 3)
     pairs = (item.rsplit('=', 1) for item in counts.split(',') if item)
     return int(tick), {topic: int(count) for topic, count in pairs}, finished == '1', failed
+
+
+def _drop_copy(cdr):
+    """A DDS copy of what the bus has handed over already."""
 
 
 class CoreNode(LockstepNode):
     """A ROS-free core (sofia_ros.sim) behind topics, parameters and the handshake."""
 
-    def __init__(self, core, *, graph_topics, tick_ns, upstream=None):
+    def __init__(self, core, *, graph_topics, tick_ns, upstream=None, bus=None):
         names = {node for _, (_, publisher, subscribers) in graph_topics.items() for node in (publisher, *subscribers)}
         upstream = upstream if upstream is not None else [(n, lag) for n, lag in core.upstream if n in names]
         # A sample topic (topics.SAMPLE_BLOCKS) is waited for, counted and sent as its per-tick blocks.
@@ -192,7 +243,7 @@ class CoreNode(LockstepNode):
                   if graph_topics.get(spec.name, (None, None))[1] is not None]
         outputs = {_wire(spec).name: len(graph_topics[spec.name][2]) + 1 for spec in core.outputs()}  # + recorder
         super().__init__(core.name, upstream=upstream, tick_ns=tick_ns, expected_inputs=inputs,
-                         expected_outputs=outputs)
+                         expected_outputs=outputs, bus=bus)
         self.core = core
         self.pending_calls = 0
         self.tick_in_progress = None
@@ -201,10 +252,8 @@ class CoreNode(LockstepNode):
             if wire.name in inputs:
                 # /clock is transient-local: a reader that matches late still gets the current tick.
                 qos = SYNC_QOS if spec.msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
-                # Every input arrives raw: a tick's samples in one block that reaches the core as one
-                # ImuBlock, the rest decoded by the typestore (2-4x faster than rclpy's own conversion).
-                self.create_subscription(message_class(wire.msgtype), wire.name,
-                                         self._input_callback(spec, wire.name), qos, raw=True)
+                self.subscribe_graph_topic(message_class(wire.msgtype), wire.name,
+                                           *self._input_callbacks(spec, wire.name), qos)
         self.sample_publishers = {}
         for spec in core.outputs():
             wire = _wire(spec)
@@ -239,19 +288,22 @@ class CoreNode(LockstepNode):
                 return SetParametersResult(successful=False, reason=str(err))
         return SetParametersResult(successful=True)
 
-    def _input_callback(self, spec, wire_topic):
+    def _input_callbacks(self, spec, wire_topic):
+        """(from CDR, from the message) callbacks of an input."""
         topic, msgtype, block = spec.name, spec.msgtype, spec.name == self.core.imu_block_input
 
-        def callback(cdr):
+        def on_message(message):
             self.received[wire_topic] += 1
-            if block:
-                message = m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(cdr))
-            else:
-                message = decode_received(cdr, msgtype)
             self.core.receive(topic, message)
             if self._requirements is not None and wire_topic in self._requirements:
                 self.try_ticks()
-        return callback
+
+        def on_cdr(cdr):
+            # Over DDS every input arrives raw: a tick's samples in one block that reaches the core as one
+            # ImuBlock, the rest decoded by the typestore (2-4x faster than rclpy's own conversion).
+            on_message(m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(cdr)) if block
+                       else decode_received(cdr, msgtype))
+        return on_cdr, on_message
 
     def busy(self):
         return self.pending_calls > 0
@@ -262,13 +314,11 @@ class CoreNode(LockstepNode):
             if topic == SET_PARAMETERS:
                 self._call_set_parameters(message)
             elif isinstance(message, m.ImuBlock):
-                # Serialized once by struct: the same bytes DDS would make, at a tenth of the cost.
-                samples = m.imu_block_cdr(message)
-                self.publish(SAMPLE_BLOCKS[topic].name, m.sample_block_cdr(samples))
+                self.publish(SAMPLE_BLOCKS[topic].name, message, wire=_sample_block_cdr)
                 sample_publisher = self.sample_publishers[topic]
                 # One message per sample only for a listener outside the graph (ros2 topic echo, bag record).
                 if sample_publisher.get_subscription_count():
-                    for sample in samples:
+                    for sample in m.imu_block_cdr(message):
                         sample_publisher.publish(sample)
             else:
                 self.publish(topic, message)
@@ -294,7 +344,13 @@ class CoreNode(LockstepNode):
                 self._finish_tick()
                 self.try_ticks()
 
-        client.set_parameters(parameters, callback=on_response)
+        client.set_parameters(parameters, callback=self.entry(on_response))
+
+
+def _sample_block_cdr(block):
+    """An ImuBlock as its block topic carries it over DDS, serialized by struct: the bytes DDS would make, at a
+    tenth of the cost."""
+    return m.sample_block_cdr(m.imu_block_cdr(block))
 
 
 def _wire(spec):

@@ -12,7 +12,7 @@ from sofia_ros.errors import ConfigError
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
 from sofia_ros.topics import PARAMETER_EVENTS
 
-__all__ = ['LockstepRunner', 'tick_order']
+__all__ = ['LockstepRunner', 'tick_order', 'record_message']
 
 
 def tick_order(cores):
@@ -98,11 +98,19 @@ class LockstepRunner:
         return ParameterResult(request.node, reasons)
 
     def _record(self, topic, message):
-        if self.bag is None:
-            return
-        if isinstance(message, m.ImuBlock):
-            for stamp_ns, data in zip(message.stamp_ns.tolist(), m.imu_block_cdr(message)):
-                self.bag.write_raw(topic, data, stamp_ns)
-        else:
-            cdr = wire_cdr(message)
-            self.bag.write_raw(topic, cdr, m.log_stamp_ns(self.msgtypes[topic], cdr, self.stamp_ns))
+        if self.bag is not None:
+            record_message(self.bag, topic, self.msgtypes[topic], message, self.stamp_ns)
+
+
+def record_message(bag, topic, msgtype, message, fallback_ns):
+    """Write a published message as a raw subscription receives it (an ImuBlock one record per sample, at its
+    stamp), logged at its own stamp or else ``fallback_ns``; return the log stamp of its last record."""
+    if isinstance(message, m.ImuBlock):
+        stamps_ns = message.stamp_ns.tolist()
+        for stamp_ns, data in zip(stamps_ns, m.imu_block_cdr(message)):
+            bag.write_raw(topic, data, stamp_ns)
+        return stamps_ns[-1] if stamps_ns else fallback_ns
+    cdr = wire_cdr(message)
+    stamp_ns = m.log_stamp_ns(msgtype, cdr, fallback_ns)
+    bag.write_raw(topic, cdr, stamp_ns)
+    return stamp_ns

@@ -57,8 +57,7 @@ def test_a_listener_outside_the_graph_gets_standard_imu_samples_and_what_the_bag
     from std_msgs.msg import String
 
     from sofia_ros.bag import BagReader
-    from sofia_ros.nodes.shell import _parse_done_text
-    from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, done_topic
+    from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, done_topic, parse_done_text
     from sofia_ros.topics import TASCU_ATTITUDE
 
     run = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'run', 'alignment', '--truth',
@@ -85,7 +84,7 @@ def test_a_listener_outside_the_graph_gets_standard_imu_samples_and_what_the_bag
     assert set(np.diff(stamps_ns)) == {2_500_000}  # every sample, 400 Hz, in order
     heard = {m.stamp_ns_of(attitude.header.stamp): m.quaternion_xyzw_of(attitude) for attitude in attitudes}
     assert set(np.diff(sorted(heard))) == {200_000_000}  # every tick's attitude, none lost
-    ticks = [_parse_done_text(report.data)[0] for report in reports]
+    ticks = [parse_done_text(report.data).tick for report in reports]
     # Handshake topics keep the last report (nodes.sync.SYNC_QOS): a slow listener skips some, never goes back.
     assert ticks == sorted(set(ticks)) and len(ticks) >= 10
     with BagReader(tmp_path / 'bag', campaign_time=True) as bag:  # the graph's sim time, as over DDS

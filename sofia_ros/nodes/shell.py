@@ -16,7 +16,8 @@ from std_msgs.msg import String
 from sofia_ros import messages as m
 from sofia_ros.bag.msgtypes import decode_cdr
 from sofia_ros.errors import ConfigError
-from sofia_ros.nodes.sync import DATA_QOS, STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic, parse_stop
+from sofia_ros.nodes.sync import (DATA_QOS, STOP_TOPIC, SYNC_QOS, DoneReport, UpstreamState, done_text, done_topic,
+                                  parse_done_text, parse_stop)
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
 from sofia_ros.topics import SAMPLE_BLOCKS
 
@@ -117,7 +118,7 @@ class LockstepNode(Node):
             # Only the report the next tick waits for can let it run; requirements already worked out stand.
             if lag is not None and report[0] == self.next_tick - lag:
                 self.try_ticks()
-        return (lambda cdr: on_report(_parse_done(cdr))), (lambda message: on_report(_parse_done_text(message.data)))
+        return (lambda cdr: on_report(_parse_done(cdr))), on_report
 
     def _on_stop(self, message):
         self.stop_reason = message.data
@@ -199,9 +200,9 @@ class LockstepNode(Node):
 
     def publish_done(self, tick, finished=False, failed=''):
         """Report done(tick) with cumulative counts of everything published."""
-        counts = ','.join(f'{topic}={count}' for topic, count in sorted(self.published.items()))
-        self._send(self.done_publisher, self.done_topic,
-                   String(data=f'{tick};{int(finished)};{failed.replace(";", ",")};{counts}'))
+        # On a bus the report itself is handed over; its text only goes out over DDS (';' separates its fields).
+        report = DoneReport(tick, dict(self.published), bool(finished), failed.replace(';', ','))
+        self._send(self.done_publisher, self.done_topic, report, wire=_done_message)
 
     def publish(self, topic, message, wire=None):
         """Publish on an output topic (over DDS as ``wire(message)`` when given), counting messages."""
@@ -214,18 +215,15 @@ _CDR_STRING_LENGTH = struct.Struct('<I')
 
 @lru_cache(maxsize=64)
 def _parse_done(cdr):
-    """(tick, counts, finished, failed) of a done report's std_msgs/String CDR; in one process several nodes
+    """The DoneReport of a done report's std_msgs/String CDR; in one process several nodes
     read each report, so it is parsed once (the counts mapping is shared: read it, never change it)."""
     length, = _CDR_STRING_LENGTH.unpack_from(cdr, 4)
-    return _parse_done_text(cdr[8:7 + length].decode())
+    return parse_done_text(cdr[8:7 + length].decode())
 
 
-@lru_cache(maxsize=64)
-def _parse_done_text(text):
-    """(tick, counts, finished, failed) of a done report's text (as :func:`_parse_done`)."""
-    tick, finished, failed, counts = text.split(';', 3)
-    pairs = (item.rsplit('=', 1) for item in counts.split(',') if item)
-    return int(tick), {topic: int(count) for topic, count in pairs}, finished == '1', failed
+def _done_message(report):
+    """The std_msgs/String a done report travels as over DDS."""
+    return String(data=done_text(report))
 
 
 def _drop_copy(cdr):

@@ -8,11 +8,12 @@ across topics, hence the counts. ``/sim/stop`` ends the run with a reason.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Mapping, NamedTuple
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ['DONE_PREFIX', 'STOP_TOPIC', 'SYNC_QOS', 'DATA_QOS', 'done_topic', 'UpstreamState', 'stop_text',
-           'parse_stop']
+__all__ = ['DONE_PREFIX', 'STOP_TOPIC', 'SYNC_QOS', 'DATA_QOS', 'done_topic', 'DoneReport', 'done_text',
+           'parse_done_text', 'UpstreamState', 'stop_text', 'parse_stop']
 
 DONE_PREFIX = '/sim/done/'
 STOP_TOPIC = '/sim/stop'
@@ -27,6 +28,29 @@ DATA_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durabi
 def done_topic(node):
     """Handshake topic of a node."""
     return DONE_PREFIX + node
+
+
+class DoneReport(NamedTuple):
+    """A node's done(tick): the cumulative count of what it published on each topic, whether it has finished
+    the run, and why it failed ('' unless it did; no ';')."""
+
+    tick: int
+    counts: Mapping[str, int]
+    finished: bool
+    failed: str
+
+
+def done_text(report):
+    """The text a done report travels as over DDS: ``tick;finished;failed;topic=count,...``."""
+    counts = ','.join(f'{topic}={count}' for topic, count in sorted(report.counts.items()))
+    return f'{report.tick};{int(report.finished)};{report.failed};{counts}'
+
+
+def parse_done_text(text):
+    """The DoneReport of :func:`done_text`."""
+    tick, finished, failed, counts = text.split(';', 3)
+    pairs = (item.rsplit('=', 1) for item in counts.split(',') if item)
+    return DoneReport(int(tick), {topic: int(count) for topic, count in pairs}, finished == '1', failed)
 
 
 @dataclass

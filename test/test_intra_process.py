@@ -5,6 +5,7 @@ bag holds (test_mode_bags).
 """
 
 import pytest
+from rclpy.impl.implementation_singleton import rclpy_implementation
 
 from sofia_ros.nodes.intra_process import IntraProcessBus
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS
@@ -24,7 +25,7 @@ class _Publisher:
         self.sent.append(message)
 
 
-def test_what_a_callback_publishes_is_handed_over_after_it_returns_in_publish_order():
+def test_messages_are_handed_over_in_publish_order_never_inside_the_publishing_callback():
     bus = IntraProcessBus()
     log = []
     publisher = _Publisher(matched=2)
@@ -36,22 +37,32 @@ def test_what_a_callback_publishes_is_handed_over_after_it_returns_in_publish_or
         log.append(('forward', message))
         bus.publish(publisher, '/b', f'{message}+')
     bus.subscribe('/a', forward, DATA_QOS)
+    bus.publish(publisher, '/a', 1)
+    bus.publish(publisher, '/a', 2)
+    log.append('the publisher returns')
+    assert bus.pending and not bus.deliver(max_s=10.0)
+    assert log == ['the publisher returns', ('a', 1), ('forward', 1), ('a', 2), ('forward', 2), ('b', '1+'),
+                   ('b', '2+')]
 
-    def timer():
-        bus.publish(publisher, '/a', 1)
-        bus.publish(publisher, '/a', 2)
-        log.append('timer returns')
-    bus.dispatch(timer)
-    assert log == ['timer returns', ('a', 1), ('forward', 1), ('a', 2), ('forward', 2), ('b', '1+'), ('b', '2+')]
+
+def test_delivering_stops_after_its_time_slice_and_goes_on_where_it_stopped():
+    bus = IntraProcessBus()
+    publisher, received = _Publisher(matched=0), []
+    bus.subscribe('/a', received.append, DATA_QOS)
+    for value in range(3):
+        bus.publish(publisher, '/a', value)
+    assert bus.deliver(max_s=0.0) and received == [0]  # at least one, then the executor's turn
+    assert not bus.deliver(max_s=10.0) and received == [0, 1, 2] and not bus.pending
 
 
 def test_dds_carries_a_message_only_for_a_subscription_outside_the_bus():
     bus = IntraProcessBus()
     received = []
     bus.subscribe('/a', received.append, DATA_QOS)
-    inside_only, outside_too = _Publisher(matched=1), _Publisher(matched=2)
-    bus.dispatch(lambda: bus.publish(inside_only, '/a', 'kept in'))
-    bus.dispatch(lambda: bus.publish(outside_too, '/a', 'also out', wire=str.upper))
+    inside_only, outside_too = _Publisher(matched=0), _Publisher(matched=1)
+    bus.publish(inside_only, '/a', 'kept in')
+    bus.publish(outside_too, '/a', 'also out', wire=str.upper)
+    bus.deliver(max_s=10.0)
     assert inside_only.sent == [] and outside_too.sent == ['ALSO OUT']
     assert received == ['kept in', 'also out']  # the object itself in the process, its wire form over DDS
     assert bus.subscriptions('/a') == 1 and bus.subscriptions('/b') == 0
@@ -60,11 +71,13 @@ def test_dds_carries_a_message_only_for_a_subscription_outside_the_bus():
 def test_a_late_transient_local_subscriber_gets_the_last_message_a_volatile_one_does_not():
     bus = IntraProcessBus()
     publisher = _Publisher(matched=0)
-    bus.dispatch(lambda: [bus.publish(publisher, '/done', report) for report in ('done 1', 'done 2')])
+    for report in ('done 1', 'done 2'):
+        bus.publish(publisher, '/done', report)
     latched, volatile = [], []
     bus.subscribe('/done', latched.append, SYNC_QOS)
     bus.subscribe('/done', volatile.append, DATA_QOS)
-    bus.dispatch(lambda: bus.publish(publisher, '/done', 'done 3'))
+    bus.publish(publisher, '/done', 'done 3')
+    bus.deliver(max_s=10.0)
     assert latched == ['done 2', 'done 3'] and volatile == ['done 3']
 
 
@@ -72,14 +85,16 @@ def test_an_unsubscribed_callback_gets_no_more_messages():
     bus = IntraProcessBus()
     publisher, received = _Publisher(matched=0), []
     bus.subscribe('/a', received.append, DATA_QOS)
-    bus.dispatch(lambda: bus.publish(publisher, '/a', 1))
+    bus.publish(publisher, '/a', 1)
+    bus.deliver(max_s=10.0)
     bus.unsubscribe('/a', received.append)
-    bus.dispatch(lambda: bus.publish(publisher, '/a', 2))
+    bus.publish(publisher, '/a', 2)
+    bus.deliver(max_s=10.0)
     assert received == [1] and bus.subscriptions('/a') == 0
 
 
-def test_a_failing_subscriber_leaves_the_bus_usable():
-    # The exception reaches the executor (the run fails, as with a DDS callback); the bus does not stay locked.
+def test_a_failing_subscriber_reaches_the_caller_and_the_rest_stays_queued():
+    # The exception ends the run (as one in a DDS callback would); nothing queued behind it is lost.
     bus = IntraProcessBus()
     publisher, received = _Publisher(matched=0), []
 
@@ -87,7 +102,23 @@ def test_a_failing_subscriber_leaves_the_bus_usable():
         raise ValueError(f'bad {message}')
     bus.subscribe('/bad', fail, DATA_QOS)
     bus.subscribe('/a', received.append, DATA_QOS)
+    bus.publish(publisher, '/bad', 1)
+    bus.publish(publisher, '/a', 2)
     with pytest.raises(ValueError, match='bad 1'):
-        bus.dispatch(lambda: bus.publish(publisher, '/bad', 1))
-    bus.dispatch(lambda: bus.publish(publisher, '/a', 2))
-    assert received == [2]
+        bus.deliver(max_s=10.0)
+    assert bus.pending and not bus.deliver(max_s=10.0) and received == [2]
+
+
+def test_a_listener_outside_that_cannot_keep_up_loses_the_message_not_the_graph():
+    # A reliable listener outside that falls behind makes DDS refuse the write (RCLError): the message is dropped
+    # for it, with one warning per topic, and the graph's own subscribers still get it.
+    class _Refusing(_Publisher):
+        topic_name = '/a'
+
+        def publish(self, message):
+            raise rclpy_implementation.RCLError('Failed to publish: cannot publish data')
+    bus = IntraProcessBus()
+    received = []
+    bus.subscribe('/a', received.append, DATA_QOS)
+    bus.publish(_Refusing(matched=1), '/a', 1)
+    assert not bus.deliver(max_s=10.0) and received == [1]

@@ -16,6 +16,7 @@ import pytest
 import rclpy
 import yaml
 from rclpy.experimental import EventsExecutor
+from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
 from graph_startup import STARTUP_RERUNS
@@ -27,8 +28,10 @@ from sofia_ros.config import load_effect_config
 from sofia_ros.errors import GraphRunError
 from sofia_ros.nodes import launch
 from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
+from sofia_ros.nodes.intra_process import IntraProcessBus
 from sofia_ros.nodes.launch import share_time_source, start_graph_processes, stop_graph
 from sofia_ros.nodes.shell import LockstepNode
+from sofia_ros.nodes.sync import SYNC_QOS
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
 from sofia_ros.topics import DEFAULT_TICK_NS, GYRO_IMU, STOP_DOCUMENT
@@ -303,6 +306,59 @@ def test_a_clock_still_exiting_when_the_recorder_is_done_keeps_its_exit_code(tmp
                  'recorder': subprocess.Popen([sys.executable, '-c', 'pass'])}
     launch.wait_for_graph(launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag'), timeout_s=50)
     assert processes['clock'].returncode == STALLED_EXIT_CODE
+
+
+@pytest.mark.timeout(60)
+def test_on_an_intra_process_bus_clock_reaches_every_nodes_sim_time_without_dds():
+    """With the nodes on a bus (nodes.intra_process) /clock comes from it: every node's clock reads the sim time,
+    no node subscribes to /clock over DDS, and DDS carries /clock only for a subscription outside the bus."""
+    rclpy.init()
+    try:
+        bus = IntraProcessBus()
+        nodes = [LockstepNode(name, upstream=[], tick_ns=DEFAULT_TICK_NS, bus=bus) for name in ('keeper', 'first')]
+        share_time_source(nodes[0], nodes[1:], bus)
+        publisher = nodes[0].create_publisher(Clock, '/clock', SYNC_QOS)
+        stamp_ns = 1234 * DEFAULT_TICK_NS
+        bus.publish(publisher, '/clock', Clock(clock=rclpy.time.Time(nanoseconds=stamp_ns).to_msg()))
+        assert not bus.deliver(max_s=1.0)
+        assert [node.get_clock().now().nanoseconds for node in nodes] == [stamp_ns] * 2
+        assert not any(topic == '/clock' for node in nodes
+                       for topic, _ in node.get_subscriber_names_and_types_by_node(node.get_name(), '/'))
+        assert publisher.get_subscription_count() == 0 and bus.subscriptions('/clock') == 1
+        for node in nodes:
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
+@pytest.mark.timeout(60)
+def test_the_executor_gets_its_turn_while_the_bus_hands_messages_over():
+    """A graph whose messages never stop (ticks that follow each other at once) still serves its timers: the
+    clock's watchdog, which notices SIGINT, the progress line, parameter responses (launch.BUS_SLICE_S)."""
+    rclpy.init()
+    try:
+        bus = IntraProcessBus()
+        node = rclpy.create_node('ticker')
+        publisher = node.create_publisher(Clock, '/endless', SYNC_QOS)
+        handed_over = []
+
+        def tick_again(message):
+            handed_over.append(message)
+            bus.publish(publisher, '/endless', message)
+        bus.subscribe('/endless', tick_again, SYNC_QOS)
+        bus.publish(publisher, '/endless', Clock())
+        stopped = Future()
+        node.create_timer(0.2, lambda: stopped.done() or stopped.set_result(len(handed_over)))
+        executor = EventsExecutor()
+        executor.add_node(node)
+        started = time.monotonic()
+        launch._spin_until_recorded(executor, bus, stopped, timeout_s=20.0)
+        assert stopped.done() and time.monotonic() - started < 5.0
+        assert stopped.result() > 100 and bus.pending  # the timer ran in the middle of the hand-over
+        executor.shutdown()
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown()
 
 
 @pytest.mark.timeout(60)

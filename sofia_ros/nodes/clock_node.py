@@ -46,7 +46,7 @@ class ClockNode(LockstepNode):
         self.max_tick = int(max_sim_s * m.NS_PER_S // tick_ns)
         self.stall_timeout_s = stall_timeout_s
         self.last_progress = time.monotonic()
-        self.create_timer(0.5, self.entry(self._watchdog), clock=self._wall_clock())
+        self.create_timer(0.5, self._watchdog, clock=self._wall_clock())
 
     def _watch_every_participant(self):
         """Read every participant's done reports; the latest arrives at once (transient-local)."""

@@ -1,37 +1,56 @@
 """Intra-process hand-over between the graph's nodes in one process, as rclcpp's intra-process communication.
 
 A message one node publishes reaches the other nodes of the process as the object itself, in publish order,
-never inside the publishing callback: the bus queues it and hands it over when the callback that published
-it returns (:meth:`IntraProcessBus.dispatch`). DDS carries a message only when a subscription outside the
-bus has matched the publisher (``ros2 topic echo``, a user's own recorder, rclpy's /clock TimeSource), so what
-leaves the process is what it was. Every node keeps its DDS subscriptions, so the graph looks the same from
-outside (``ros2 topic info``); the copies DDS brings them of what the bus handed over are dropped.
+never inside the publishing callback: the bus queues it, and the run's loop hands the queue over
+(:meth:`IntraProcessBus.deliver`) between turns of the executor, which keeps serving timers, services and
+DDS. Every publisher is on DDS, and DDS carries a message only when a subscription outside the process has
+matched it (``ros2 topic echo``, a user's own recorder), so what leaves the process is what it was. The
+subscriptions the bus serves are not on DDS: the executor would take and drop a copy of every message such a
+listener makes DDS carry (``ros2 topic info`` counts only the subscribers outside).
 """
 
 from __future__ import annotations
 
+import time
 from collections import deque
+from functools import cache
 
+from rclpy.impl.implementation_singleton import rclpy_implementation
+from rclpy.logging import get_logger
 from rclpy.qos import DurabilityPolicy
 
-__all__ = ['IntraProcessBus']
+__all__ = ['IntraProcessBus', 'publish_outside']
+
+
+def publish_outside(publisher, message):
+    """Publish to subscriptions outside the graph only (a publisher with nodes.sync.OUTSIDE_QOS): a listener
+    that cannot keep up loses the message, with one warning per topic, and the graph goes on."""
+    try:
+        publisher.publish(message)
+    except rclpy_implementation.RCLError:
+        _warn_of_a_slow_listener(publisher.topic_name)
+
+
+@cache
+def _warn_of_a_slow_listener(topic):
+    get_logger('sofia_ros').warning(f'a listener outside the graph does not keep up with {topic}: what it cannot '
+                                    f'take is dropped for it (the graph and its bag go on)')
 
 
 class IntraProcessBus:
-    """Topic -> the in-process callbacks of one graph; queued deliveries handed over in publish order."""
+    """Topic -> the in-process callbacks of one graph; the messages published, queued in publish order."""
 
     def __init__(self):
         self._callbacks = {}  # topic -> [callback(message)]
         self._latest = {}  # topic -> the last message published on it, for transient-local late subscribers
         self._pending = deque()  # (callback, message) in publish order
-        self._dispatching = False
 
     def subscribe(self, topic, callback, qos):
         """Hand ``callback`` every message published on ``topic`` from now on; with a transient-local ``qos`` the
         last one published before too, as DDS would."""
         self._callbacks.setdefault(topic, []).append(callback)
         if qos.durability == DurabilityPolicy.TRANSIENT_LOCAL and topic in self._latest:
-            self._queue(callback, self._latest[topic])
+            self._pending.append((callback, self._latest[topic]))
 
     def unsubscribe(self, topic, callback):
         """Stop handing ``topic`` to ``callback`` (what is queued for it still arrives)."""
@@ -43,33 +62,28 @@ class IntraProcessBus:
 
     def publish(self, publisher, topic, message, wire=None):
         """Queue ``message`` for every in-process subscriber of ``topic``; over DDS (``wire(message)``, or the
-        message itself) only when a subscription outside the bus has matched ``publisher``."""
-        callbacks = self._callbacks.get(topic, ())
+        message itself) only when a subscription outside the process has matched ``publisher`` (the ones the bus
+        serves are not on DDS)."""
         self._latest[topic] = message
-        if publisher.get_subscription_count() > len(callbacks):
-            publisher.publish(message if wire is None else wire(message))
-        for callback in callbacks:
-            self._queue(callback, message)
+        if publisher.get_subscription_count():
+            publish_outside(publisher, message if wire is None else wire(message))
+        pending = self._pending
+        for callback in self._callbacks.get(topic, ()):
+            pending.append((callback, message))
 
-    def _queue(self, callback, message):
-        self._pending.append((callback, message))
-        if not self._dispatching:
-            # Published outside any dispatched callback (a node's set-up): hand it over at once.
-            self.dispatch(lambda: None)
+    @property
+    def pending(self):
+        """Whether messages wait to be handed over."""
+        return bool(self._pending)
 
-    def dispatch(self, callback, *args):
-        """Run an executor callback (a timer, a DDS subscription, a service response) of a node on the bus, then
-        everything it and its consequences publish, one delivery at a time: a node's callback never runs inside
-        another's, as under an executor."""
-        if self._dispatching:
-            callback(*args)
-            return
-        self._dispatching = True
-        try:
-            callback(*args)
-            pending = self._pending
-            while pending:
-                deliver, message = pending.popleft()
-                deliver(message)
-        finally:
-            self._dispatching = False
+    def deliver(self, max_s):
+        """Hand the queued messages over one at a time, with what they cause, for at most about ``max_s`` (then
+        the executor's turn); return whether messages still wait."""
+        pending = self._pending
+        deadline = time.perf_counter() + max_s
+        while pending:
+            callback, message = pending.popleft()
+            callback(message)
+            if time.perf_counter() > deadline:
+                break
+        return bool(pending)

@@ -29,7 +29,7 @@ from sofia_ros.nodes.domain import claim_ros_domain, claimed_ros_domain, release
 from sofia_ros.nodes.intra_process import IntraProcessBus
 from sofia_ros.nodes.recorder_node import RecorderNode
 from sofia_ros.nodes.shell import CoreNode
-from sofia_ros.nodes.sync import parse_stop
+from sofia_ros.nodes.sync import SYNC_QOS, parse_stop
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, build_cores, graph_topics
 from sofia_ros.topics import CLOCK
 
@@ -68,7 +68,7 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
                           subscribers=clock_subscribers, ending=[core.name for core in cores if core.ends_run], bus=bus)
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,
                                 epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents, bus=bus)
-        share_time_source(nodes[0], (*nodes[1:], clock, recorder))
+        share_time_source(nodes[0], (*nodes[1:], clock, recorder), bus)
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor with this many entities.
         executor = EventsExecutor()
         for node in (*nodes, clock, recorder):
@@ -79,8 +79,7 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
             clock.create_timer(0.5, lambda: progress(clock.next_tick * config.tick_ns / 1e9, max_sim_s),
                                clock=clock._wall_clock())
         try:
-            # The executor's own loop: no return to Python between callbacks.
-            executor.spin_until_future_complete(recorder.finished, timeout_sec=timeout_s)
+            _spin_until_recorded(executor, bus, recorder.finished, timeout_s)
             if not recorder.closed:
                 raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time')
         finally:
@@ -94,10 +93,30 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
         rclpy.try_shutdown()
 
 
-def share_time_source(keeper, nodes):
+#: How long the intra-process bus hands messages over before the executor's turn (its timers: the clock's
+#: watchdog, which notices SIGINT; parameter service responses; DDS): about ten ticks of the alignment graph.
+BUS_SLICE_S = 0.02
+
+
+def _spin_until_recorded(executor, bus, recorded, timeout_s):
+    """Run the graph until the future ``recorded`` is done or ``timeout_s`` has passed."""
+    if bus is None:
+        # The executor's own loop: no return to Python between callbacks.
+        executor.spin_until_future_complete(recorded, timeout_sec=timeout_s)
+        return
+    deadline = time.monotonic() + timeout_s
+    while not recorded.done() and time.monotonic() < deadline:
+        if bus.deliver(BUS_SLICE_S):
+            executor.spin_once(timeout_sec=0)  # what became due meanwhile, then back to the queue
+        elif not recorded.done():
+            executor.spin_once(timeout_sec=0.05)  # waiting: for a node to connect, a service's response
+
+
+def share_time_source(keeper, nodes, bus=None):
     """Drive the sim-time clocks of ``nodes`` from ``keeper``'s /clock subscription: under one executor every
     node's own one (rclpy's TimeSource, one per node with use_sim_time) would take and convert each /clock
-    message again, about 10 % of the graph's cost per tick. use_sim_time stays true on every node."""
+    message again, about 10 % of the graph's cost per tick. use_sim_time stays true on every node. With an
+    intra-process ``bus`` /clock reaches the clocks from it, and no node subscribes to /clock over DDS."""
     # Node._time_source is rclpy's own (pinned by the locks); test_live_graph checks that one /clock
     # subscription serves the process and that every node's clock still reads sim time. Setting use_sim_time
     # false on the keeper would stop every node's clock: nothing does.
@@ -105,6 +124,9 @@ def share_time_source(keeper, nodes):
     for node in nodes:
         node._time_source.detach_node()
         time_source.attach_clock(node.get_clock())
+    if bus is not None:
+        time_source.detach_node()  # its /clock subscription; the clocks stay attached and on sim time
+        bus.subscribe(CLOCK.name, time_source.clock_callback, SYNC_QOS)
 
 
 #: How long the recorder may take to close its bag once the clock has stopped the run and exited.

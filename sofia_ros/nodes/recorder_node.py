@@ -52,7 +52,7 @@ class RecorderNode(LockstepNode):
             self.subscribe_graph_topic(message_class(msgtype), wire, on_cdr, self._message_callback(topic, wire), qos)
         # rclpy publishes parameter events itself, over DDS in every mode.
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
-                                 self.entry(self._parameter_event_callback({f'/{name}' for name in participants})),
+                                 self._parameter_event_callback({f'/{name}' for name in participants}),
                                  DATA_QOS, raw=True)
 
     def _message_callback(self, topic, wire):

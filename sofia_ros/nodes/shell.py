@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib
 import struct
 from collections import Counter
-from functools import lru_cache, wraps
+from functools import lru_cache
 
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
@@ -16,8 +16,9 @@ from std_msgs.msg import String
 from sofia_ros import messages as m
 from sofia_ros.bag.msgtypes import decode_cdr
 from sofia_ros.errors import ConfigError
-from sofia_ros.nodes.sync import (DATA_QOS, STOP_TOPIC, SYNC_QOS, DoneReport, UpstreamState, done_text, done_topic,
-                                  parse_done_text, parse_stop)
+from sofia_ros.nodes.intra_process import publish_outside
+from sofia_ros.nodes.sync import (DATA_QOS, OUTSIDE_QOS, STOP_TOPIC, SYNC_QOS, DoneReport, UpstreamState, done_text,
+                                  done_topic, parse_done_text, parse_stop)
 from sofia_ros.sim.protocol import SET_PARAMETERS, ParameterResult
 from sofia_ros.topics import SAMPLE_BLOCKS
 
@@ -62,10 +63,10 @@ class LockstepNode(Node):
         self.publishers_by_topic = {}
         self.done_topic = done_topic(name)
         self.done_publisher = self.create_publisher(String, self.done_topic, SYNC_QOS)
-        self.create_subscription(String, STOP_TOPIC, self.entry(self._on_stop), SYNC_QOS)
+        self.create_subscription(String, STOP_TOPIC, self._on_stop, SYNC_QOS)
         for node in self.upstream:
             self.subscribe_graph_topic(String, done_topic(node), *self._done_callbacks(node), SYNC_QOS)
-        self._ready_timer = self.create_timer(0.05, self.entry(self._check_ready), clock=self._wall_clock())
+        self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall_clock())
 
     def _wall_clock(self):
         from rclpy.clock import Clock, ClockType
@@ -73,33 +74,22 @@ class LockstepNode(Node):
         return Clock(clock_type=ClockType.STEADY_TIME)
 
     # --- topics of the graph: over DDS, or handed over in the process --------------------------
-    def entry(self, callback):
-        """``callback`` as the executor is to call it (a timer, a DDS subscription, a service response): on a bus,
-        what it publishes is handed over once it has returned."""
-        if self.bus is None:
-            return callback
-        dispatch = self.bus.dispatch
-
-        @wraps(callback)  # the signature rclpy reads: a timer's callback takes no TimerInfo
-        def dispatched(*args):
-            dispatch(callback, *args)
-        return dispatched
-
     def subscribe_graph_topic(self, message_type, topic, on_cdr, on_message, qos):
         """Subscribe to a topic of the graph: ``on_cdr`` takes its CDR from DDS, or, on a bus, ``on_message`` the
-        published object (the DDS subscription stays, for the graph seen from outside, and drops DDS's copies).
-        Returns the handle :meth:`unsubscribe_graph_topic` takes."""
+        published object (no DDS subscription: the executor would have to take and drop a copy of each message
+        a listener outside makes DDS carry). Returns the handle :meth:`unsubscribe_graph_topic` takes."""
         if self.bus is None:
             return self.create_subscription(message_type, topic, on_cdr, qos, raw=True), topic, None
         self.bus.subscribe(topic, on_message, qos)
-        return self.create_subscription(message_type, topic, _drop_copy, qos, raw=True), topic, on_message
+        return None, topic, on_message
 
     def unsubscribe_graph_topic(self, handle):
         """Undo :meth:`subscribe_graph_topic`."""
         subscription, topic, on_message = handle
-        self.destroy_subscription(subscription)
-        if on_message is not None:
+        if subscription is None:
             self.bus.unsubscribe(topic, on_message)
+        else:
+            self.destroy_subscription(subscription)
 
     def _send(self, publisher, topic, message, wire=None):
         """Publish ``message`` (over DDS as ``wire(message)`` when given), or hand it to the bus."""
@@ -134,7 +124,9 @@ class LockstepNode(Node):
         if self.ready:
             return
         inputs_ok = all(self.count_publishers(topic) > 0 for topic in self.expected_inputs)
-        outputs_ok = all(self._matched_subscriptions(topic) >= count for topic, count in self.expected_outputs.items())
+        # On a bus the subscribers in the process have no DDS subscriptions to match: the bus reaches them.
+        outputs_ok = self.bus is not None or all(self._matched_subscriptions(topic) >= count
+                                                 for topic, count in self.expected_outputs.items())
         if inputs_ok and outputs_ok and self.extra_ready():
             self.ready = True
             self._ready_timer.cancel()
@@ -226,10 +218,6 @@ def _done_message(report):
     return String(data=done_text(report))
 
 
-def _drop_copy(cdr):
-    """A DDS copy of what the bus has handed over already."""
-
-
 class CoreNode(LockstepNode):
     """A ROS-free core (sofia_ros.sim) behind topics, parameters and the handshake."""
 
@@ -253,13 +241,14 @@ class CoreNode(LockstepNode):
                 self.subscribe_graph_topic(message_class(wire.msgtype), wire.name,
                                            *self._input_callbacks(spec, wire.name), qos)
         self.sample_publishers = {}
+        output_qos = DATA_QOS if bus is None else OUTSIDE_QOS
         for spec in core.outputs():
             wire = _wire(spec)
             self.publishers_by_topic[wire.name] = self.create_publisher(message_class(wire.msgtype), wire.name,
-                                                                        DATA_QOS)
+                                                                        output_qos)
             if wire is not spec:
                 self.sample_publishers[spec.name] = self.create_publisher(message_class(spec.msgtype), spec.name,
-                                                                          DATA_QOS)
+                                                                          OUTSIDE_QOS)
         self.parameter_clients = {}
         if hasattr(core, 'parameters'):
             self._declare_core_parameters()
@@ -317,7 +306,7 @@ class CoreNode(LockstepNode):
                 # One message per sample only for a listener outside the graph (ros2 topic echo, bag record).
                 if sample_publisher.get_subscription_count():
                     for sample in m.imu_block_cdr(message):
-                        sample_publisher.publish(sample)
+                        publish_outside(sample_publisher, sample)
             else:
                 self.publish(topic, message)
         if not self.pending_calls:
@@ -342,7 +331,7 @@ class CoreNode(LockstepNode):
                 self._finish_tick()
                 self.try_ticks()
 
-        client.set_parameters(parameters, callback=self.entry(on_response))
+        client.set_parameters(parameters, callback=on_response)
 
 
 def _sample_block_cdr(block):

@@ -12,7 +12,7 @@ from typing import Mapping, NamedTuple
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-__all__ = ['DONE_PREFIX', 'STOP_TOPIC', 'SYNC_QOS', 'DATA_QOS', 'done_topic', 'DoneReport', 'done_text',
+__all__ = ['DONE_PREFIX', 'STOP_TOPIC', 'SYNC_QOS', 'DATA_QOS', 'OUTSIDE_QOS', 'done_topic', 'DoneReport', 'done_text',
            'parse_done_text', 'UpstreamState', 'stop_text', 'parse_stop']
 
 DONE_PREFIX = '/sim/done/'
@@ -23,6 +23,11 @@ SYNC_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durabilit
 #: Nothing is dropped: the lock-step bounds what is in flight to one tick.
 DATA_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                       history=HistoryPolicy.KEEP_ALL)
+#: A publisher whose DDS readers are all outside the graph (on an intra-process bus; the per-sample gyro topic):
+#: a listener that falls 1000 messages behind loses the oldest instead of holding up the graph (with DATA_QOS the
+#: publisher would block, then fail).
+OUTSIDE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                         history=HistoryPolicy.KEEP_LAST)
 
 
 def done_topic(node):

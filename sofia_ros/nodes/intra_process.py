@@ -44,6 +44,7 @@ class IntraProcessBus:
         self._callbacks = {}  # topic -> [callback(message)]
         self._latest = {}  # topic -> the last message published on it, for transient-local late subscribers
         self._pending = deque()  # (callback, message) in publish order
+        self._listened = {}  # publisher -> whether a subscription outside has matched it, learnt once a time slice
 
     def subscribe(self, topic, callback, qos):
         """Hand ``callback`` every message published on ``topic`` from now on; with a transient-local ``qos`` the
@@ -65,7 +66,10 @@ class IntraProcessBus:
         message itself) only when a subscription outside the process has matched ``publisher`` (the ones the bus
         serves are not on DDS)."""
         self._latest[topic] = message
-        if publisher.get_subscription_count():
+        listened = self._listened.get(publisher)
+        if listened is None:
+            listened = self._listened[publisher] = publisher.get_subscription_count() > 0
+        if listened:
             publish_outside(publisher, message if wire is None else wire(message))
         pending = self._pending
         for callback in self._callbacks.get(topic, ()):
@@ -78,7 +82,9 @@ class IntraProcessBus:
 
     def deliver(self, max_s):
         """Hand the queued messages over one at a time, with what they cause, for at most about ``max_s`` (then
-        the executor's turn); return whether messages still wait."""
+        the executor's turn); return whether messages still wait. A listener outside that matched a publisher
+        meanwhile hears from it from this slice on."""
+        self._listened.clear()
         pending = self._pending
         deadline = time.perf_counter() + max_s
         while pending:

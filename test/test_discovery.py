@@ -12,7 +12,8 @@ byte-identical) and checks the loop a user runs, against config/model/nominal.ya
    model brings the residual to 1.2 times the floor or less, with its parameter within 3 sigma
    of the value written into the bag.
 
-Untouched bags of five seeds must be judged explained: no false alarm; so must a bag whose bias
+Untouched bags of three seeds must be judged explained: no false alarm (full-size campaigns and more seeds:
+bench/bench_false_alarms.py); so must a bag whose bias
 wanders as far as the model's rate random walk allows, and one that wanders further must not.
 """
 
@@ -175,7 +176,7 @@ def test_an_out_of_catalogue_shape_is_flagged_named_not_falsely_closed_and_expla
     assert document['verdict']['status'] == 'explained', document['verdict']['text']
 
 
-@pytest.mark.parametrize('seed', [3, 4, 5, 6, 7])
+@pytest.mark.parametrize('seed', [3, 4, 5])
 def test_untouched_bags_are_explained_no_false_alarm(campaign_bags, seed):
     document = compare_bag(campaign_bags.reduced_alignment(seed=seed), _model()).document
     assert document['verdict']['status'] == 'explained', document['verdict']['text']

@@ -1,7 +1,7 @@
 """Real-time factor of the alignment campaign in each mode, side by side in one run, as ratios against direct
 mode, with CPU time, peak memory and the machine's load; the in-process graph once cold (the checkout not compiled yet) too.
 
-    .venv/bin/python bench/bench_alignment.py [--repetitions 6] [--modes direct executor processes] [--no-cold]
+    .venv/bin/python bench/bench_alignment.py [--repetitions 6] [--modes direct executor executor-dds processes] [--no-cold]
 
 Each run is its own process (so peak memory and CPU are that run's own) with the same truth
 (config/truth/nominal.yaml), seed and plan; wall time is measured around the whole run (start-up,

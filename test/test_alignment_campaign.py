@@ -56,11 +56,18 @@ def test_run_writes_bag_and_the_documented_files(nominal_run):
 def test_bag_opens_with_rosbags_and_mcap_and_counts_match(nominal_run):
     with AnyReader([nominal_run.bag_path]) as reader:
         rosbags_counts = {connection.topic: connection.msgcount for connection in reader.connections}
-    mcap_counts = {}
+    mcap_counts, decoded = {}, 0
+    factory = DecoderFactory()
     with open(next(nominal_run.bag_path.glob('*.mcap')), 'rb') as stream:
-        for _, channel, _, decoded in make_reader(stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
-            mcap_counts[channel.topic] = mcap_counts.get(channel.topic, 0) + 1
+        for schema, channel, message in make_reader(stream).iter_messages():
+            count = mcap_counts[channel.topic] = mcap_counts.get(channel.topic, 0) + 1
+            # mcap's own ROS 2 decoder reads every record; of the 400 Hz gyro samples (struct-made bytes, pinned
+            # against the typestore's serializer in test_mode_bags) every 97th, which keeps this test short.
+            if channel.topic != '/gyro_box/imu' or count % 97 == 1:
+                assert factory.decoder_for(channel.message_encoding, schema)(message.data) is not None
+                decoded += 1
     assert {t: c for t, c in rosbags_counts.items() if c} == mcap_counts
+    assert decoded > 40000
     sim_s = nominal_run.summary['sim_seconds']
     ticks = int(round(sim_s / (DEFAULT_TICK_NS / 1e9)))
     assert rosbags_counts['/clock'] == ticks

@@ -101,7 +101,7 @@ def test_replay_refuses_negative_rate_and_wait(tmp_path, option, value, message)
     assert result.returncode == 2 and message in result.stderr
 
 
-@pytest.mark.parametrize('mode', ['--processes', '--direct'])
+@pytest.mark.parametrize('mode', ['--processes', '--direct', '--all-dds'])
 def test_gyro_stability_refuses_a_graph_mode(tmp_path, mode):
     result = run_sofia('run', 'gyro-stability', '--case', 'TC-1', '--truth', 'config/truth/nominal.yaml',
                        '--bag', str(tmp_path / 'b'), mode)
@@ -133,3 +133,19 @@ def test_a_flipped_byte_in_a_bag_is_one_line_naming_the_chunk(tmp_path):
     assert len(lines) == 1 and 'Traceback' not in result.stderr
     assert f'chunk 6 of {len(chunks)} (byte {chunks[5].chunk_start_offset},' in lines[0]
     assert lines[0].endswith(f"fails its CRC check); salvage its complete chunks with `sofia recover {bag}`")
+
+
+@pytest.mark.parametrize('flags, mode', [([], 'executor'), (['--all-dds'], 'executor-dds'),
+                                         (['--processes'], 'processes'), (['--direct'], 'direct')])
+def test_the_run_flags_choose_the_mode(flags, mode):
+    from sofia_ros.cli import _mode, build_parser
+
+    args = build_parser().parse_args(['run', 'alignment', '--truth', 'truth.yaml', '--bag', 'bag', *flags])
+    assert _mode(args) == mode
+
+
+def test_two_run_modes_at_once_are_refused(tmp_path):
+    result = run_sofia('run', 'alignment', '--truth', 'config/truth/nominal.yaml', '--bag', str(tmp_path / 'b'),
+                       '--all-dds', '--direct')
+    assert result.returncode == 2 and 'not allowed with argument' in result.stderr
+    assert not (tmp_path / 'b').exists()

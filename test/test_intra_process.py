@@ -134,3 +134,13 @@ def test_a_listener_outside_that_matches_hears_from_the_next_time_slice_on():
     bus.deliver(max_s=10.0)
     bus.publish(publisher, '/a', 3)
     assert publisher.sent == [3]
+
+
+def test_any_other_failure_to_publish_is_not_taken_for_a_slow_listener():
+    class _Broken(_Publisher):
+        topic_name = '/a'
+
+        def publish(self, message):
+            raise rclpy_implementation.RCLError("Failed to publish: publisher's context is invalid")
+    with pytest.raises(rclpy_implementation.RCLError, match='context is invalid'):
+        IntraProcessBus().publish(_Broken(matched=1), '/a', 1)

@@ -279,6 +279,28 @@ def test_a_recorder_that_never_heard_the_stop_is_stopped_once_the_clock_has_exit
 
 
 @pytest.mark.timeout(60)
+def test_a_graph_that_runs_out_of_time_leaves_where_each_node_hung_in_its_log(tmp_path):
+    # Node processes register SIGUSR1 to dump their Python stacks (nodes.executables); at the wall-time limit the
+    # launcher signals every running node before stopping it. Stand-ins: two nodes stuck in a sleep.
+    hang = ('import faulthandler, signal, time\n'
+            'faulthandler.register(signal.SIGUSR1, all_threads=True)\n'
+            'def waiting_for_ever():\n'
+            '    time.sleep(600)\n'
+            'waiting_for_ever()')
+    processes = {}
+    for node in ('clock', 'recorder'):
+        with open(tmp_path / f'{node}.log', 'w') as log:
+            processes[node] = subprocess.Popen([sys.executable, '-c', hang], stderr=log)
+    time.sleep(1.0)  # the stand-ins have registered their handler
+    with pytest.raises(GraphRunError, match='did not finish within 2 s of wall time; logs, with where each running '
+                                            'node was, in'):
+        launch.wait_for_graph(launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag'), timeout_s=2)
+    for node in ('clock', 'recorder'):
+        assert 'in waiting_for_ever' in (tmp_path / f'{node}.log').read_text()
+        assert processes[node].poll() is not None
+
+
+@pytest.mark.timeout(60)
 def test_a_recorder_that_closed_its_bag_but_does_not_exit_is_stopped(tmp_path, monkeypatch):
     # Stuck destroying its DDS entities after the bag is complete: the run ends, without an error.
     monkeypatch.setattr(launch, 'RECORDER_GRACE_S', 1.0)

@@ -54,7 +54,7 @@ LATCHED_QOS = Qos(
     liveliness_lease_duration=_NO_TIME,
     avoid_ros_namespace_conventions=False,
 )
-#: Offered QoS of every other topic: what the graph's data publishers offer (nodes.sync.DATA_QOS).
+#: Offered QoS of every other topic: what the graph's data publishers offer one another over DDS (nodes.sync.DATA_QOS).
 STREAM_QOS = Qos(
     history=QosHistory.KEEP_ALL,
     depth=1000,

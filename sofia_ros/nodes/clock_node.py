@@ -32,7 +32,7 @@ class ClockNode(LockstepNode):
         The next tick waits on the recorder's done report alone, and on those of ``ending``: the recorder's
         done(k) follows every node's done(k) and every message of tick k. Every participant's reports are
         read only while the graph starts and when it seems to stall, to name who is missing: each is one more
-        DDS delivery per tick.
+        delivery per tick.
         """
         super().__init__('clock', upstream=[(name, 1) for name in (*ending, 'recorder')], tick_ns=tick_ns,
                          expected_outputs={CLOCK.name: subscribers}, bus=bus)

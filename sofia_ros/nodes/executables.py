@@ -4,6 +4,7 @@ graph_nodes.EXECUTABLES: clock, plant, gyro_box, imager (fpi/ffi/wfi by the ``ca
 
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 from pathlib import Path
@@ -81,6 +82,8 @@ def main(executable=None, argv=None):
     argv = list(sys.argv if argv is None else argv)
     if executable is None:
         executable = argv.pop(1)
+    # SIGUSR1 writes every thread's Python stack to stderr (the node's log): where a hung node hangs.
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     rclpy.init(args=argv)
     node = None
     try:

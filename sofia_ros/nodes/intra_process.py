@@ -22,19 +22,25 @@ from rclpy.qos import DurabilityPolicy
 __all__ = ['IntraProcessBus', 'publish_outside']
 
 
+#: How rmw_fastrtps words a write that DDS refused (a reliable reader outside that does not keep up).
+_REFUSED_WRITE = 'cannot publish data'
+
+
 def publish_outside(publisher, message):
     """Publish to subscriptions outside the graph only (a publisher with nodes.sync.OUTSIDE_QOS): a listener
     that cannot keep up loses the message, with one warning per topic, and the graph goes on."""
     try:
         publisher.publish(message)
-    except rclpy_implementation.RCLError:
-        _warn_of_a_slow_listener(publisher.topic_name)
+    except rclpy_implementation.RCLError as err:
+        if _REFUSED_WRITE not in str(err):
+            raise
+        _warn_of_a_slow_listener(publisher.topic_name, str(err))
 
 
 @cache
-def _warn_of_a_slow_listener(topic):
-    get_logger('sofia_ros').warning(f'a listener outside the graph does not keep up with {topic}: what it cannot '
-                                    f'take is dropped for it (the graph and its bag go on)')
+def _warn_of_a_slow_listener(topic, error):
+    get_logger('sofia_ros').warning(f'a listener outside the graph does not keep up with {topic} ({error}): what '
+                                    f'it cannot take is dropped for it (the graph and its bag go on)')
 
 
 class IntraProcessBus:

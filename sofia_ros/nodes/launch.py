@@ -93,8 +93,9 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
         rclpy.try_shutdown()
 
 
-#: How long the intra-process bus hands messages over before the executor's turn (its timers: the clock's
-#: watchdog, which notices SIGINT; parameter service responses; DDS): about ten ticks of the alignment graph.
+#: How long the intra-process bus hands messages over before the executor's turn, one event (a timer: the clock's
+#: watchdog, which notices SIGINT; a parameter service's response; a DDS message): about ten ticks of the alignment
+#: graph. The executor has every turn while the queue is empty, as when a node waits for a service.
 BUS_SLICE_S = 0.02
 
 
@@ -107,7 +108,7 @@ def _spin_until_recorded(executor, bus, recorded, timeout_s):
     deadline = time.monotonic() + timeout_s
     while not recorded.done() and time.monotonic() < deadline:
         if bus.deliver(BUS_SLICE_S):
-            executor.spin_once(timeout_sec=0)  # what became due meanwhile, then back to the queue
+            executor.spin_once(timeout_sec=0)  # one event that became due meanwhile, then back to the queue
         elif not recorded.done():
             executor.spin_once(timeout_sec=0.05)  # waiting: for a node to connect, a service's response
 
@@ -217,8 +218,9 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
                     progress(None, max_sim_s)
                 now = time.monotonic()
                 if now - start > timeout_s:
+                    _dump_stacks(graph)
                     raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; '
-                                        f'logs in {graph.workdir}')
+                                        f'logs, with where each running node was, in {graph.workdir}')
                 if clock_stopped is None and clock.poll() is not None:
                     clock_stopped = now
                 if bag_closed is None and _bag_is_closed(graph):
@@ -243,6 +245,14 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
     if recorder.returncode not in (0, None) and interrupts.requested() is None and not _bag_is_closed(graph):
         raise GraphRunError(f'the recorder node {_exit_text(recorder.returncode)}; its bag is not closed: '
                             f'rebuild it with `sofia recover {graph.bag_path}`; logs in {graph.workdir}')
+
+
+def _dump_stacks(graph):
+    """Have every running node write its Python stacks to its log (nodes.executables registers SIGUSR1)."""
+    for process in graph.processes.values():
+        if process.poll() is None:
+            process.send_signal(signal.SIGUSR1)
+    time.sleep(1.0)
 
 
 def _bag_is_closed(graph):

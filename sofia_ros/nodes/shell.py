@@ -33,8 +33,8 @@ def message_class(msgtype):
 
 @lru_cache(maxsize=256)
 def decode_received(cdr, msgtype):
-    """A received message's CDR decoded once per process: under one executor every subscriber of a topic, the
-    recorder among them, gets the same bytes. The message is shared, as direct mode shares it: read it, never
+    """A received message's CDR decoded once per process: under one executor over DDS (executor-dds) every
+    subscriber of a topic, the recorder among them, gets the same bytes. The message is shared, as direct mode shares it: read it, never
     change it."""
     return decode_cdr(cdr, msgtype)
 
@@ -304,12 +304,15 @@ class CoreNode(LockstepNode):
             if topic == SET_PARAMETERS:
                 self._call_set_parameters(message)
             elif isinstance(message, m.ImuBlock):
-                self.publish(SAMPLE_BLOCKS[topic].name, message, wire=_sample_block_cdr)
                 sample_publisher = self.sample_publishers[topic]
+                wire = _sample_block_cdr
                 # One message per sample only for a listener outside the graph (ros2 topic echo, bag record).
                 if sample_publisher.get_subscription_count():
-                    for sample in m.imu_block_cdr(message):
+                    samples = m.imu_block_cdr(message)
+                    for sample in samples:
                         publish_outside(sample_publisher, sample)
+                    wire = lambda _: m.sample_block_cdr(samples)  # noqa: E731 (serialized once)
+                self.publish(SAMPLE_BLOCKS[topic].name, message, wire=wire)
             else:
                 self.publish(topic, message)
         if not self.pending_calls:

@@ -2,7 +2,9 @@
 
 A node may run tick k once every upstream node has reported tick k - lag and every
 message those reports count has arrived; DDS keeps order within a topic but not
-across topics, hence the counts. ``/sim/stop`` ends the run with a reason.
+across topics, hence the counts (an intra-process bus keeps publish order across
+topics, so there nothing is counted: nodes.intra_process). ``/sim/stop`` ends the run
+with a reason.
 """
 
 from __future__ import annotations

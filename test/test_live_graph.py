@@ -284,6 +284,7 @@ def test_a_graph_that_runs_out_of_time_leaves_where_each_node_hung_in_its_log(tm
     # launcher signals every running node before stopping it. Stand-ins: two nodes stuck in a sleep.
     hang = ('import faulthandler, signal, time\n'
             'faulthandler.register(signal.SIGUSR1, all_threads=True)\n'
+            'signal.signal(signal.SIGINT, signal.default_int_handler)\n'  # a pytest-xdist worker ignores SIGINT
             'def waiting_for_ever():\n'
             '    time.sleep(600)\n'
             'waiting_for_ever()')
@@ -297,7 +298,7 @@ def test_a_graph_that_runs_out_of_time_leaves_where_each_node_hung_in_its_log(tm
         launch.wait_for_graph(launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag'), timeout_s=2)
     for node in ('clock', 'recorder'):
         assert 'in waiting_for_ever' in (tmp_path / f'{node}.log').read_text()
-        assert processes[node].poll() is not None
+        assert processes[node].returncode == -signal.SIGINT  # stopped by the launcher's SIGINT, not killed
 
 
 @pytest.mark.timeout(60)

@@ -30,6 +30,7 @@ from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistenc
 from sofia_ros.compare.verdict import empirical_candidate_names, judge
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.effects import CATALOGUE, get_effect, resolve_params
+from sofia_ros.effects.empirical import empirical_parts
 from sofia_ros.errors import FitError
 from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
 from sofia_ros.units import ARCSEC_PER_RAD
@@ -115,9 +116,8 @@ def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, detectable=Tr
              'seconds': round(seconds, 3), 'empirical': spec.family == 'empirical', 'observable': None,
              'variable': None, 'period_s': None}
     if entry['empirical']:
-        _, observable, variable, shape = name.split(':')
-        entry.update(observable=observable, variable=variable,
-                     period_s=float(shape[len('period_'):-1]) if shape.startswith('period_') else None)
+        observable, variable, period_s = empirical_parts(name)
+        entry.update(observable=observable, variable=variable, period_s=period_s)
     return entry
 
 

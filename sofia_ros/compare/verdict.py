@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name,
-                                         is_empirical)
+                                         empirical_parts, is_empirical)
 
 __all__ = ['empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
 
@@ -39,7 +39,7 @@ def _implicated_observables(consistency, cameras):
         # A label is effect.parameter; an empirical effect's name holds dots of its own (poly3@23.01..59.05).
         effect, _, parameter = entry['param'].rpartition('.')
         if is_empirical(effect):
-            implicated.add(effect.split(':')[1])
+            implicated.add(empirical_parts(effect)[0])
             continue
         # Parameters name their axis or camera first (gyro_bias.el_deg_per_h, imager_boresight_offset.ffi_el_arcsec).
         prefix = parameter.split('_', 1)[0]

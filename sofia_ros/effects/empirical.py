@@ -37,7 +37,7 @@ from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
 __all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_VARIABLES', 'DETECTOR_FIELD',
            'POLY_DEGREE', 'field_columns', 'field_terms',
-           'empirical_spec', 'empirical_name', 'is_empirical', 'variable_values']
+           'empirical_spec', 'empirical_name', 'empirical_parts', 'is_empirical', 'variable_values']
 
 PREFIX = 'empirical:'
 _DETECTORS = {'hipo': HIPO_2004, 'fpi': FPI, 'ffi': FFI, 'wfi': WFI}
@@ -75,6 +75,12 @@ _NAME = re.compile(r'^empirical:(?P<observable>[a-z]+\.[a-z]+):(?P<variable>[a-z
 def is_empirical(name):
     """True for a name of the empirical form."""
     return isinstance(name, str) and name.startswith(PREFIX)
+
+
+def empirical_parts(name):
+    """(observable, variable, period in s or None) of a valid empirical term name (empirical_spec checks one)."""
+    match = _NAME.match(name)
+    return match['observable'], match['variable'], float(match['period']) if match['period'] else None
 
 
 def empirical_name(observable, variable, period_s=None, range_=None):

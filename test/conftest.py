@@ -2,7 +2,7 @@
 
 DDS stays on this machine, in a domain of its own per test process: one no sofia run holds at the
 start (nodes.domain's lock files) and that no other test process on this machine has reserved (a
-lock of its own, held for the session). So an xdist worker never shares its domain with the other
+lock of its own, held for the session). So an xdist worker never shares its domain with another
 worker, nor with a sofia run or another test session (with this conftest) on the machine.
 
 Campaign bags that several tests read are recorded once per session (:class:`CampaignBags`), also
@@ -113,7 +113,7 @@ def campaign_bags(tmp_path_factory):
     return CampaignBags((base.parent if _xdist_worker() else base) / 'campaign_bags')
 
 
-# --- xdist (scripts/run-tests runs the suite with `-n 2 --dist loadscope --no-loadscope-reorder`) ------
+# --- xdist (scripts/run-tests runs the suite with `-n 3 --dist loadscope --no-loadscope-reorder`) ------
 #
 # A module is one unit of work (its module fixtures run once) unless it is listed in SPREAD: those
 # modules' expensive bags come from the session's CampaignBags, so their tests go to whichever worker

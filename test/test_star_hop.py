@@ -1,7 +1,7 @@
 """The star-hop campaign (6.2, 6.3) at reduced size: Table D.3 observations 4-7 with 60 s holds.
 
 Moves Polaris -> Alpha Cep (27.3 deg), Alpha Cep -> Beta Cep and back (8.0 deg) at their Table D.3
-times, in direct mode. Expected values: Table D.3 (distances, refraction), the gyro_axis_swap
+times (the nominal bag) or back to back (the hidden-effect bags), in direct mode. Expected values: Table D.3 (distances, refraction), the gyro_axis_swap
 default (400 ppm, sofia_ros/effects/gyro.py), Table 3.3 (FEM flexure), the tracker_drift default
 (6.3: 2.2 px, 5.2 min).
 """

@@ -129,7 +129,7 @@ def _run_gyro_stability(args):
 
     if args.case is None:
         raise ConfigError('gyro-stability needs --case TC-1|TC-2|TC-3|TC-4')
-    if args.processes or args.direct or args.all_dds:
+    if _mode(args) != 'executor':
         raise ConfigError('gyro-stability records the gyro box alone, without a node graph; '
                           'drop --processes / --direct / --all-dds')
     truth = load_effect_config(args.truth)

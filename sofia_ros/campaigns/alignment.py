@@ -90,10 +90,7 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
                   model_text='effects: {}\n', progress=None, timeout_s=3600.0):
     """Run the campaign and write the bag plus truth.yaml, model.yaml, calibration.yaml and summary.json.
 
-    ``mode``: one of recording.MODES, 'executor' (every node in this process under one executor,
-    messages handed over in the process), 'executor-dds' (the same, every message over DDS), 'processes'
-    (each node its own process, as `ros2 run` starts them) or 'direct' (the same cores in one loop without
-    DDS, for Monte Carlo and fast tests).
+    ``mode``: one of recording.MODES ('direct' for Monte Carlo and fast tests).
     """
     bag_path = new_bag_path(bag_path)
     config = graph_config(truth, seed, plan)

@@ -79,7 +79,11 @@ def is_empirical(name):
 
 def empirical_parts(name):
     """(observable, variable, period in s or None) of a valid empirical term name (empirical_spec checks one)."""
-    match = _NAME.match(name)
+    return _parts(_NAME.match(name))
+
+
+def _parts(match):
+    """(observable, variable, period in s or None) of a match of _NAME."""
     return match['observable'], match['variable'], float(match['period']) if match['period'] else None
 
 
@@ -145,8 +149,7 @@ def empirical_spec(name):
             'empirical:ffi.y:elevation:poly3 or empirical:hipo.x:time:period_95s (poly3@LOW..HIGH: over that range)')
     if match is None:
         raise UnknownEffectError(f'unknown effect {name!r}; {hint}')
-    observable, variable = match['observable'], match['variable']
-    period_s = float(match['period']) if match['period'] else None
+    observable, variable, period_s = _parts(match)
     range_ = (float(match['low']), float(match['high'])) if match['low'] else None
     if range_ is not None and not range_[1] > range_[0]:
         raise UnknownEffectError(f'{name!r}: the range must be LOW..HIGH with HIGH > LOW; {hint}')

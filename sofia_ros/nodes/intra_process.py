@@ -1,19 +1,20 @@
 """Intra-process hand-over between the graph's nodes in one process, as rclcpp's intra-process communication.
 
-A message one node publishes reaches the other nodes of the process as the object itself, in publish order,
+A message one node publishes on a graph topic reaches the other nodes of the process as the object itself, in
+publish order,
 never inside the publishing callback: the bus queues it, and the run's loop hands the queue over
 (:meth:`IntraProcessBus.deliver`) between turns of the executor, which keeps serving timers, services and
 DDS. Every publisher is on DDS, and DDS carries a message only when a subscription outside the process has
 matched it (``ros2 topic echo``, a user's own recorder), so what leaves the process is what it was. The
 subscriptions the bus serves are not on DDS: the executor would take and drop a copy of every message such a
-listener makes DDS carry (``ros2 topic info`` counts only the subscribers outside).
+listener makes DDS carry (``ros2 topic info`` counts only the subscribers outside). ``/sim/stop``, the
+parameter services and ``/parameter_events`` stay on DDS inside the process too: rare, and rclpy's own.
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from functools import cache
 
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.logging import get_logger
@@ -37,8 +38,13 @@ def publish_outside(publisher, message):
         _warn_of_a_slow_listener(publisher.topic_name, str(err))
 
 
-@cache
+_WARNED_TOPICS = set()
+
+
 def _warn_of_a_slow_listener(topic, error):
+    if topic in _WARNED_TOPICS:
+        return
+    _WARNED_TOPICS.add(topic)
     get_logger('sofia_ros').warning(f'a listener outside the graph does not keep up with {topic} ({error}): what '
                                     f'it cannot take is dropped for it (the graph and its bag go on)')
 

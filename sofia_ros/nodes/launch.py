@@ -1,4 +1,5 @@
-"""Run a campaign's node graph over DDS: all nodes in one process under an executor, or one process each."""
+"""Run a campaign's node graph: all nodes in one process under an executor (messages handed over on an
+intra-process bus, or every one over DDS), or one process each, over DDS."""
 
 from __future__ import annotations
 

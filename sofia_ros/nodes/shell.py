@@ -33,9 +33,9 @@ def message_class(msgtype):
 
 @lru_cache(maxsize=256)
 def decode_received(cdr, msgtype):
-    """A received message's CDR decoded once per process: under one executor over DDS (executor-dds) every
-    subscriber of a topic, the recorder among them, gets the same bytes. The message is shared, as direct mode shares it: read it, never
-    change it."""
+    """A received message's CDR decoded once per process: under one executor every DDS subscriber of a topic,
+    the recorder among them, gets the same bytes. The message is shared, as direct mode shares it: read it,
+    never change it."""
     return decode_cdr(cdr, msgtype)
 
 
@@ -57,7 +57,8 @@ class LockstepNode(Node):
         self.ready = False
         self.stop_reason = None
         self.expected_inputs = tuple(expected_inputs)
-        self._counted_inputs = frozenset(self.expected_inputs)
+        # On a bus messages arrive in publish order, so whatever a report counts has arrived before it: none is counted.
+        self._counted_inputs = frozenset() if bus is not None else frozenset(self.expected_inputs)
         self._requirements = None  # what the next tick still waits for, once every report is in
         self.expected_outputs = dict(expected_outputs or {})  # topic -> number of subscribers
         self.publishers_by_topic = {}
@@ -157,9 +158,6 @@ class LockstepNode(Node):
             if report is None:
                 return None
             reports.append(report)
-        if self.bus is not None:
-            # On a bus messages arrive in publish order: whatever a report counts has arrived before it.
-            return {}
         inputs = self.counted_inputs()
         needed_counts = {}
         for report in reports:

@@ -25,9 +25,9 @@ SYNC_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durabilit
 #: Nothing is dropped: the lock-step bounds what is in flight to one tick.
 DATA_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                       history=HistoryPolicy.KEEP_ALL)
-#: A publisher whose DDS readers are all outside the graph (on an intra-process bus; the per-sample gyro topic):
-#: a listener that falls 1000 messages behind loses the oldest instead of holding up the graph (with DATA_QOS the
-#: publisher would block, then fail).
+#: A data publisher whose DDS readers are all outside the graph (a CoreNode output on an intra-process bus; the
+#: per-sample gyro topic in every mode): a listener that falls 1000 messages behind loses the oldest instead of
+#: holding up the graph (with DATA_QOS the publisher would block, then fail).
 OUTSIDE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                          history=HistoryPolicy.KEEP_LAST)
 

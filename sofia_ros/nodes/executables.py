@@ -102,6 +102,11 @@ def main(executable=None, argv=None):
             return 2
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
+        except RuntimeError:
+            # rclpy's SIGINT handler shut the context down while a callback of this spin was publishing (rcl:
+            # "publisher's context is invalid"): that is the interruption, not a fault of the node.
+            if rclpy.ok():
+                raise
         finally:
             if node is not None and node.stop_reason is not None:
                 # How the run ended is decided: the launcher's SIGINT, stopping the graph while this node tears

@@ -211,6 +211,48 @@ def test_right_jacobian_composes_a_small_change_of_a_rotation_vector():
     np.testing.assert_allclose(np.einsum('nij,nj->ni', right_jacobians(rotvecs), change), exact, rtol=0, atol=1e-13)
 
 
+def test_parameter_columns_match_predicting_every_step_anew(null_bag, model):
+    # The columns a Gauss-Newton step uses, split into a linearized attitude part and the reprojection of the
+    # cameras a step changes, against forward differences of a full prediction per step. The empirical WFI
+    # term hooks every camera, so a misalignment step moves both the attitude and the hooks' context.
+    from types import SimpleNamespace
+
+    import scipy.sparse
+
+    from sofia_ros.compare.fit import WhitenedProblem, free_parameters
+    from sofia_ros.compare.observations import read_observations
+    from sofia_ros.compare.predict import Predictor
+
+    empirical = 'empirical:wfi.y:detector_y:poly3'
+    names = ('gyro_misalignment', 'gyro_bias', 'imager_scale_error', 'timestamp_offset', empirical)
+    effects = {**{name: dict(params) for name, params in model.effects.items()},
+               **{name: dict(resolve_params(name, {})) for name in names[2:]}}
+    effects[empirical]['p1_arcsec'] = 0.3
+    predictor = Predictor(read_observations(null_bag))
+    predictor.align_initial_attitude(effects)
+    free = free_parameters(names)
+    values = np.array([effects[p.effect][p.name] for p in free])
+    anchors = np.random.default_rng(3).normal(0.0, 2e-6, (predictor.anchor_count, 3))
+    problem = WhitenedProblem(predictor, np.full(4, 0.1),
+                              SimpleNamespace(matrix=scipy.sparse.csr_matrix((0, anchors.size))))
+    predicted = predictor.predict_px(effects, anchors)
+    derivative = problem.irf_derivative(effects, anchors, predicted)
+    columns = problem.parameter_columns(effects, free, values, anchors, predicted, derivative)
+    for index, parameter in enumerate(free):
+        stepped = {name: dict(params) for name, params in effects.items()}
+        stepped[parameter.effect][parameter.name] += parameter.step
+        exact = problem.scaled(predictor.predict_px(stepped, anchors) - predicted) / parameter.step
+        assert np.max(np.abs(exact)) > 0.0, parameter
+        np.testing.assert_allclose(columns[:, index], exact, rtol=0, atol=1e-4 * np.max(np.abs(exact)),
+                                   err_msg=parameter.label)
+    # A step of a camera model alone: its cameras projected again give the full prediction, bit for bit.
+    scaled = {**effects, 'imager_scale_error': {**effects['imager_scale_error'], 'wfi_ppm': 900.0}}
+    wfi = predictor.observations.centroids.cameras.index('wfi')
+    np.testing.assert_array_equal(
+        predictor.reprojected_px(scaled, [wfi], predictor.tarf_directions(effects, anchors), predicted),
+        predictor.predict_px(scaled, anchors))
+
+
 def test_linearized_gyro_columns_match_the_propagated_attitude(null_bag, model):
     # The attitude change a gyro parameter step makes, linearized over the ticks, against propagating again.
     from scipy.spatial.transform import Rotation

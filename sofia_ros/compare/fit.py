@@ -148,29 +148,37 @@ class WhitenedProblem:
     def parameter_columns(self, effects, free, values, anchors, predicted, derivative):
         """Forward-difference columns d prediction / d free parameter at values, whitened (units of noise per unit).
 
-        A parameter that moves only the gyro attitude (rows, stars and cameras as they were) gets its
-        column from the attitude change the step makes, linearized over the ticks
-        (Predictor.attitude_changes_irf), through ``derivative`` (irf_derivative): the gyro track is
-        not propagated again for each step.
+        A step that keeps the row times and star places is split, to first order, into what it does
+        to the gyro attitude and what it does to the camera models. The attitude part comes from the
+        attitude change the step makes, linearized over the ticks (Predictor.attitude_changes_irf),
+        through ``derivative`` (irf_derivative): the gyro track is not propagated again for each
+        step. The camera part projects the rows of the cameras whose model the step changes again,
+        from the TARF directions of ``effects`` (Predictor.reprojected_px). Other steps predict anew.
         """
         columns = np.empty((predicted.size, len(free)))
-        projection = self.predictor.projection_key(effects)
-        stepped_effects, attitude_only = [], []
+        predictor = self.predictor
+        projection, gyro = predictor.projection_key(effects), predictor.gyro_key(effects)
+        stepped_effects, keys, gyro_moved = [], [], []
         for index, parameter in enumerate(free):
             stepped = values.copy()
             stepped[index] += parameter.step
             stepped_effects.append(_with_values(effects, free, stepped))
-            attitude_only.append(self.predictor.projection_key(stepped_effects[-1]) == projection)
-        changes = self.predictor.attitude_changes_irf(
-            effects, [moved for moved, only in zip(stepped_effects, attitude_only) if only],
-            self.predictor.row_times_s(effects))
-        changes = iter(changes)
-        for index, (parameter, moved_effects, only) in enumerate(zip(free, stepped_effects, attitude_only)):
-            if only:
-                columns[:, index] = np.einsum('nai,ni->na', derivative, next(changes)).ravel() / parameter.step
-            else:
-                moved = self.predictor.predict_px(moved_effects, anchors)
-                columns[:, index] = self.scaled(moved - predicted) / parameter.step
+            keys.append(predictor.projection_key(stepped_effects[-1]))
+            gyro_moved.append(keys[-1][:2] == projection[:2] and predictor.gyro_key(stepped_effects[-1]) != gyro)
+        changes = iter(predictor.attitude_changes_irf(
+            effects, [moved for moved, attitude in zip(stepped_effects, gyro_moved) if attitude],
+            predictor.row_times_s(effects)))
+        in_tarf = None
+        for index, (parameter, moved_effects, key, attitude) in enumerate(zip(free, stepped_effects, keys, gyro_moved)):
+            if key[:2] != projection[:2]:
+                columns[:, index] = self.scaled(predictor.predict_px(moved_effects, anchors) - predicted) / parameter.step
+                continue
+            column = np.einsum('nai,ni->na', derivative, next(changes)).ravel() if attitude else np.zeros(predicted.size)
+            cameras = [camera for camera, (moved, now) in enumerate(zip(key[2], projection[2])) if moved != now]
+            if cameras:
+                in_tarf = predictor.tarf_directions(effects, anchors) if in_tarf is None else in_tarf
+                column += self.scaled(predictor.reprojected_px(moved_effects, cameras, in_tarf, predicted) - predicted)
+            columns[:, index] = column / parameter.step
         return columns
 
 

@@ -49,12 +49,12 @@ __all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means'
 
 #: Star places are evaluated on this grid and interpolated; unrefracted places move < 0.003" per minute in IRF.
 _PLACE_EPOCH_S = 300.0
-#: Cached gyro tracks, star places and camera models, least recently used dropped first (a star hop's
-#: gyro track is 2.5 MB; a fit steps through a few new ones per iteration).
-_CACHE_ENTRIES = 32
-#: Cached attitudes at the rows and their linearization maps (a star hop's are 9 MB each): a Gauss-Newton step
-#: evaluates the same rows under the same gyro errors for its prediction, its derivatives and its columns.
-_ROW_CACHE_ENTRIES = 4
+#: Entries of each cache, least recently used dropped first. 'main': gyro tracks, star places, camera
+#: mountings and hook contexts (a star hop's gyro track is 2.5 MB; a fit steps through a few new ones per
+#: iteration). 'rows': attitudes at the rows and their linearization maps (a star hop's are 9 MB each): a
+#: Gauss-Newton step evaluates the same rows under the same gyro errors for its prediction, its derivatives
+#: and its columns. 'cameras': each camera's errors under an effect set (a column asks for them per camera).
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128}
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -138,7 +138,7 @@ class Predictor:
         self._directions_irf = self._catalogue_directions()
         self._camera_rows = [_contiguous(np.flatnonzero(centroids.camera_index == index))
                              for index in range(len(centroids.cameras))]
-        self._cache, self._row_cache = OrderedDict(), OrderedDict()
+        self._caches = {kind: OrderedDict() for kind in _CACHE_ENTRIES}
         self.initial_dcm = observations.initial_tarf_from_irf
 
     @property
@@ -167,20 +167,20 @@ class Predictor:
         self._epoch_origin = epochs[0]
         return np.stack([star_directions_irf(stars, self.scene, epoch * _PLACE_EPOCH_S) for epoch in epochs])
 
-    def _cached(self, key, compute, *, rows=False):
-        """compute() kept under key: in the cache of row-sized arrays with ``rows``, else in the main one."""
-        cache, entries = (self._row_cache, _ROW_CACHE_ENTRIES) if rows else (self._cache, _CACHE_ENTRIES)
+    def _cached(self, key, compute, *, kind='main'):
+        """compute() kept under key in the cache of its kind (_CACHE_ENTRIES)."""
+        cache = self._caches[kind]
         if key in cache:
             cache.move_to_end(key)
         else:
             cache[key] = compute()
-            if len(cache) > entries:
+            if len(cache) > _CACHE_ENTRIES[kind]:
                 cache.popitem(last=False)
         return cache[key]
 
     def _clear_caches(self):
-        self._cache.clear()
-        self._row_cache.clear()
+        for cache in self._caches.values():
+            cache.clear()
 
     def _tick_track(self, gyro_effects):
         """Tick-end attitudes and per-tick increments of the gyro data under the model's gyro errors."""
@@ -219,7 +219,7 @@ class Predictor:
         tick_attitudes, increments = self._gyro_track(effects)
         return self._cached(self._times_key('attitudes', effects, times_s),
                             lambda: _read_only(attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)),
-                            rows=True)
+                            kind='rows')
 
     def _times_key(self, what, effects, times_s):
         # The times by a digest of their bytes: the same rows under other model terms come as new arrays.
@@ -239,7 +239,7 @@ class Predictor:
                            * fraction[:, None, None])
             return _read_only(per_tick_map), _read_only(per_row_map), _read_only(index)
 
-        return self._cached(self._times_key('change maps', effects, times_s), compute, rows=True)
+        return self._cached(self._times_key('change maps', effects, times_s), compute, kind='rows')
 
     def attitude_changes_irf(self, effects, changed, times_s):
         """The small IRF rotations c (P, N, 3), A_changed(t) = A(t) R(c)^T, that each of the P effect sets ``changed``
@@ -264,7 +264,11 @@ class Predictor:
     def projection_key(self, effects):
         """What a prediction depends on besides the gyro attitude: row times, star places, camera models."""
         return (repr(effects.get('timestamp_offset')), self._star_key(effects),
-                tuple(self._mount_key(effects, index)[0] for index in range(len(self.observations.centroids.cameras))))
+                tuple(self._camera_key(effects, index)[0] for index in range(len(self.observations.centroids.cameras))))
+
+    def gyro_key(self, effects):
+        """What the gyro attitude depends on: the model's gyro error terms."""
+        return repr(self._gyro_effects(effects))
 
     def _star_directions(self, effects, times_s):
         """Model IRF directions of each row's star at times: refraction and Earth rate as the model has them."""
@@ -341,26 +345,32 @@ class Predictor:
         return CameraContext(centroids.cameras[camera_index], times_s[rows], centroids.elevation_deg[rows],
                              centroids.temperature_c[rows], force_tarf, centroids.fd_los_deg[rows])
 
-    def _mount_key(self, effects, index):
-        """The cache key of one camera's model under effects, and its errors."""
-        errors = camera_errors(self.observations.centroids.cameras[index], effects)
-        hooked = bool(errors.plugins or errors.shift_plugins)
-        # A hook's context depends on the row times (HIPO clock offset) and the misalignment (forces in TARF).
-        return ('mount', self.observations.centroids.cameras[index], repr(errors),
-                repr((effects.get('timestamp_offset'), effects.get('gyro_misalignment'))) if hooked else None), errors
-
-    def _camera_model(self, effects, index, times_s):
-        """A_CAM,TARF of one camera's rows and its errors; hooks see the rows' context (cached per effect set)."""
-        centroids = self.observations.centroids
-        key, errors = self._mount_key(effects, index)
-        hooked = key[3] is not None
+    def _camera_key(self, effects, index):
+        """What one camera's projection depends on under effects (its errors, its hooks' context), and its errors."""
+        camera = self.observations.centroids.cameras[index]
 
         def compute():
-            rows = centroids.camera_index == index
-            context = self.camera_context(effects, index, times_s) if hooked else None
-            return camera_from_tarf_dcm(errors, centroids.elevation_deg[rows], context), context
+            errors = camera_errors(camera, effects)
+            hooked = bool(errors.plugins or errors.shift_plugins)
+            # A hook's context depends on the row times (HIPO clock offset) and the misalignment (forces in TARF).
+            context = repr((effects.get('timestamp_offset'), effects.get('gyro_misalignment'))) if hooked else None
+            return (camera, repr(errors), context), errors
 
-        mounting, context = self._cached(key, compute)
+        return self._cached((camera, repr(effects)), compute, kind='cameras')
+
+    def _camera_model(self, effects, index, times_s):
+        """A_CAM,TARF of one camera's rows, its errors and its hooks' context (each cached by what it depends on)."""
+        centroids = self.observations.centroids
+        (camera, _, context_key), errors = self._camera_key(effects, index)
+        context = None
+        if context_key is not None:
+            context = self._cached(('context', camera, context_key),
+                                   lambda: self.camera_context(effects, index, times_s))
+        # Only rotation hooks see the context; centroid shifts act after the mounting, whatever their parameters.
+        key = ('mount', camera, repr(dataclasses.replace(errors, shift_plugins=())),
+               context_key if errors.plugins else None)
+        mounting = self._cached(key, lambda: camera_from_tarf_dcm(
+            errors, centroids.elevation_deg[centroids.camera_index == index], context))
         return errors, mounting, context
 
     @staticmethod
@@ -377,32 +387,47 @@ class Predictor:
             return np.zeros((len(times), 3))
         return self.anchor_rotations_rad(anchors_rad, times)
 
+    def _project_camera_px(self, effects, index, in_tarf, times):
+        """Pixels (rows, 2) of one camera's rows from their TARF star directions through its model."""
+        rows = self._camera_rows[index]
+        errors, mounting, context = self._camera_model(effects, index, times)
+        pixels = vector_to_pixel(np.einsum('nij,nj->ni', mounting, in_tarf[rows]), errors.detector)
+        if errors.shift_plugins:
+            pixels = shifted_centroids_px(errors, pixels, context, self.observations.centroids.hip[rows])
+        return pixels
+
     def _project_px(self, effects, in_tarf, times):
         """Pixels (N, 2) of TARF star directions through each camera's model."""
-        centroids = self.observations.centroids
         predicted = np.empty((len(times), 2))
         for index, rows in enumerate(self._camera_rows):
-            errors, mounting, context = self._camera_model(effects, index, times)
-            in_camera = np.einsum('nij,nj->ni', mounting, in_tarf[rows])
-            predicted[rows] = vector_to_pixel(in_camera, errors.detector)
-            if errors.shift_plugins:
-                predicted[rows] = shifted_centroids_px(errors, predicted[rows], context, centroids.hip[rows])
+            predicted[rows] = self._project_camera_px(effects, index, in_tarf, times)
         return predicted
 
-    def predict_px(self, effects, anchors_rad=None, irf_rotation_rad=None):
-        """Predicted centroids (N, 2) px; anchors (knots, 3) rad; an extra IRF rotation for derivatives."""
+    def tarf_directions(self, effects, anchors_rad=None):
+        """The rows' model star directions in TARF (N, 3), what the cameras see: star places, anchors, gyro attitude."""
         times = self.row_times_s(effects)
         correction = self._anchor_correction(anchors_rad, times)
-        if irf_rotation_rad is not None:
-            correction += np.asarray(irf_rotation_rad)
         directions = self._directions(effects, times)
         if np.any(correction):
             directions = np.einsum('nij,nj->ni', _dcms_from_rotvecs(correction), directions)
-        return self._project_px(effects, np.einsum('nij,nj->ni', self.attitudes(effects, times), directions), times)
+        return np.einsum('nij,nj->ni', self.attitudes(effects, times), directions)
+
+    def predict_px(self, effects, anchors_rad=None):
+        """Predicted centroids (N, 2) px; anchors (knots, 3) rad."""
+        return self._project_px(effects, self.tarf_directions(effects, anchors_rad), self.row_times_s(effects))
+
+    def reprojected_px(self, effects, cameras, in_tarf, predicted_px):
+        """predict_px under ``effects``, which change only the models of the cameras (indices) against the effect set
+        of ``in_tarf`` (its tarf_directions) and ``predicted_px``: the other cameras' rows are kept as they were."""
+        times = self.row_times_s(effects)
+        pixels = np.array(predicted_px, dtype=float)
+        for index in cameras:
+            pixels[self._camera_rows[index]] = self._project_camera_px(effects, index, in_tarf, times)
+        return pixels
 
     def irf_derivative_px(self, effects, anchors_rad, predicted_px, step_rad):
-        """Forward differences d predicted px / d IRF rotation (N, 2, 3), as predict_px with irf_rotation_rad
-        step_rad along each axis would give, sharing the attitudes, star places and camera models."""
+        """Forward differences d predicted px / d IRF rotation (N, 2, 3), as predict_px with a further IRF rotation
+        of step_rad about each axis would give, sharing the attitudes, star places and camera models."""
         times = self.row_times_s(effects)
         correction = self._anchor_correction(anchors_rad, times)
         attitude = self.attitudes(effects, times)

@@ -43,12 +43,14 @@ __all__ = [
     'string_msg',
     'imu_messages',
     'imu_block_cdr',
+    'imu_block_rows',
     'parameter_event',
     'STAMPED_MSGTYPES',
     'log_stamp_ns',
     'imu_block_from_cdr',
     'sample_block_cdr',
     'samples_of_block_cdr',
+    'sample_rows_of_block_cdr',
 ]
 
 NS_PER_S = 1_000_000_000
@@ -204,22 +206,33 @@ def imu_messages(block):
     return messages
 
 
-def imu_block_cdr(block):
-    """Little-endian CDR of each sample as sensor_msgs/Imu, exactly as DDS carries it."""
+def imu_block_rows(block):
+    """Little-endian CDR of each sample as sensor_msgs/Imu, exactly as DDS carries it: one row each, (N, bytes) uint8."""
     frame = block.frame_id.encode() + b'\0'
     head_length = 4 + 8 + 4 + len(frame)  # encapsulation, stamp, string length, string
-    padding = b'\0' * (-(head_length - 4) % 8)  # doubles align to 8 from the end of the encapsulation
-    prefix = struct.Struct(f'<4siI I{len(frame)}s')
-    body = struct.Struct('<' + 'd' * (4 + 9 + 3 + 9 + 3 + 9))
-    orientation = (0.0, 0.0, 0.0, 1.0) + _NO_ORIENTATION_COVARIANCE
-    zeros9 = (0.0,) * 9
-    out = []
-    for stamp_ns, rate, force in zip(block.stamp_ns.tolist(), block.angular_velocity_rad_per_s.tolist(),
-                                     block.linear_acceleration_m_per_s2.tolist()):
-        sec, nanosec = divmod(stamp_ns, NS_PER_S)
-        out.append(prefix.pack(b'\x00\x01\x00\x00', sec, nanosec, len(frame), frame) + padding
-                   + body.pack(*orientation, *rate, *zeros9, *force, *zeros9))
-    return out
+    head_length += -(head_length - 4) % 8  # doubles align to 8 from the end of the encapsulation
+    count = len(block.stamp_ns)
+    sec, nanosec = np.divmod(np.asarray(block.stamp_ns, dtype=np.int64), NS_PER_S)
+    head = np.zeros((count, head_length), dtype=np.uint8)
+    head[:, :4] = np.frombuffer(b'\x00\x01\x00\x00', dtype=np.uint8)
+    head[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(count, 4)
+    head[:, 8:12] = nanosec.astype('<u4').view(np.uint8).reshape(count, 4)
+    head[:, 12:16] = np.frombuffer(struct.pack('<I', len(frame)), dtype=np.uint8)
+    head[:, 16:16 + len(frame)] = np.frombuffer(frame, dtype=np.uint8)
+    # orientation (x y z w) and its covariance, angular velocity and its covariance, linear acceleration and its
+    body = np.zeros((count, _IMU_VALUES + 9), dtype='<f8')
+    body[:, 3] = 1.0
+    body[:, 4:13] = _NO_ORIENTATION_COVARIANCE
+    body[:, 13:16] = block.angular_velocity_rad_per_s
+    body[:, 25:28] = block.linear_acceleration_m_per_s2
+    return np.hstack([head, body.view(np.uint8)])
+
+
+def imu_block_cdr(block):
+    """Little-endian CDR of each sample as sensor_msgs/Imu, exactly as DDS carries it (imu_block_rows), as bytes."""
+    rows = imu_block_rows(block)
+    data, length = rows.tobytes(), rows.shape[1]
+    return [data[start:start + length] for start in range(0, len(data), length)]
 
 
 def parameter_event(stamp_ns, node, values):
@@ -301,12 +314,25 @@ def sample_block_cdr(samples):
 _BLOCK_HEADER = struct.Struct('<4sI I8sII I8sII I I')
 
 
-def samples_of_block_cdr(data):
-    """The sample CDRs of a block written by :func:`sample_block_cdr`, as memoryviews into ``data``."""
+def _block_layout(data):
+    """(samples, bytes each) of a block written by :func:`sample_block_cdr`; ValueError for anything else."""
     fields = _BLOCK_HEADER.unpack_from(data) if len(data) >= _BLOCK_HEADER.size else (None,) * 12
     count, length, total = fields[4], fields[8], fields[11]
     if (fields[1] != 2 or (fields[3], fields[7]) != _BLOCK_LABELS or count * length != total
             or len(data) < _BLOCK_HEADER.size + total):
         raise ValueError('not a sample block: expected the layout of messages.sample_block_cdr')
+    return count, length
+
+
+def samples_of_block_cdr(data):
+    """The sample CDRs of a block written by :func:`sample_block_cdr`, as memoryviews into ``data``."""
+    count, length = _block_layout(data)
     view = memoryview(data)[_BLOCK_HEADER.size:]
     return [view[index * length:(index + 1) * length] for index in range(count)]
+
+
+def sample_rows_of_block_cdr(data):
+    """The sample CDRs of a block written by :func:`sample_block_cdr`, as the rows of a (samples, bytes) uint8
+    array over ``data``."""
+    count, length = _block_layout(data)
+    return np.frombuffer(data, dtype=np.uint8, count=count * length, offset=_BLOCK_HEADER.size).reshape(count, length)

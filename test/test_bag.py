@@ -196,6 +196,67 @@ def test_wire_cdr_is_exact_and_deterministic():
     assert plain(decoded) == plain(message)
 
 
+def test_wire_cdr_serializes_directly_only_what_gives_the_round_trips_bytes():
+    """Types the typestore serializes as rclpy holds them take one step; the bytes are the round trip's."""
+    from sofia_ros.bag.msgtypes import decode_cdr, serializes_directly
+
+    direct = {msgtype for msgtype in MSGTYPES if serializes_directly(msgtype)}
+    # byte fields (DiagnosticStatus.level) and float64[] sequences (JointState) go the round trip's way.
+    assert direct == set(MSGTYPES) - {'sensor_msgs/msg/JointState', 'diagnostic_msgs/msg/DiagnosticStatus'}
+    for msgtype in MSGTYPES:
+        for i in range(MESSAGES_PER_TYPE):
+            message = sample(msgtype, i)
+            round_trip = TYPESTORE.serialize_cdr(decode_cdr(serialize_message(message), msgtype), msgtype,
+                                                 little_endian=True)
+            assert bytes(wire_cdr(message)) == bytes(round_trip), (msgtype, i)
+    empty = PoseArray(header=header(0, ''))
+    assert bytes(wire_cdr(empty)) == bytes(TYPESTORE.serialize_cdr(
+        decode_cdr(serialize_message(empty), 'geometry_msgs/msg/PoseArray'), 'geometry_msgs/msg/PoseArray',
+        little_endian=True))
+
+
+def test_write_rows_writes_the_file_write_raw_writes_row_by_row(tmp_path):
+    """A block of 400 Hz samples in one call: the same MCAP file, flushes inside the block and UTC stamps included."""
+    from sofia_ros import messages as m
+
+    rng = np.random.default_rng(5)
+    stamps_ns = np.arange(1000, dtype=np.int64) * IMU_PERIOD_NS  # 2.5 s: flushes at 1 s and 2 s of the block
+    block = m.ImuBlock('gyrf', stamps_ns, rng.normal(size=(1000, 3)), rng.normal(size=(1000, 3)))
+    files = []
+    for name in ('rows', 'raw'):
+        with BagWriter(tmp_path / name / 'bag', epoch_ns=STAMP0_NS) as bag:
+            bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+            if name == 'rows':
+                bag.write_rows('/gyro_box/imu', m.imu_block_rows(block), stamps_ns)
+            else:
+                for data, stamp_ns in zip(m.imu_block_cdr(block), stamps_ns.tolist()):
+                    bag.write_raw('/gyro_box/imu', data, stamp_ns)
+        files.append((tmp_path / name / 'bag' / 'bag.mcap').read_bytes())
+    assert files[0] == files[1]
+    with BagReader(tmp_path / 'rows' / 'bag') as bag:
+        imu_arrays = bag.imu_arrays('/gyro_box/imu')
+    np.testing.assert_array_equal(imu_arrays.header_stamp_ns, STAMP0_NS + stamps_ns)
+    np.testing.assert_array_equal(imu_arrays.angular_velocity_rad_per_s, block.angular_velocity_rad_per_s)
+
+
+@pytest.mark.parametrize('rows, stamps_ns, message', [
+    (np.zeros((2, 40), dtype=np.int16), [0, 1], 'rows must be a 2-D uint8 array of CDR messages, got int16'),
+    (np.zeros(40, dtype=np.uint8), [0], r'rows must be a 2-D uint8 array of CDR messages, got uint8 with shape \(40,\)'),
+    (np.zeros((2, 40), dtype=np.uint8), [0], r'stamps_ns must be 2 integer ns >= 0, one per row'),
+    (np.zeros((2, 40), dtype=np.uint8), [0.0, 1.0], r'stamps_ns must be 2 integer ns >= 0, one per row, got float64'),
+    (np.zeros((2, 40), dtype=np.uint8), [0, -1], r'stamps_ns must be 2 integer ns >= 0'),
+    (np.zeros((2, 40), dtype=np.uint8), [0, 1], 'rows of /gyro_box/imu: the payloads are not little-endian CDR'),
+    (np.ones((2, 8), dtype=np.uint8), [0, 1], 'rows of /gyro_box/imu: the payloads are not little-endian CDR'),
+])
+def test_write_rows_refuses_what_is_not_a_block_of_cdr(tmp_path, rows, stamps_ns, message):
+    with BagWriter(tmp_path / 'bag', epoch_ns=STAMP0_NS) as bag:
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        with pytest.raises(InvalidArgumentError, match=message):
+            bag.write_rows('/gyro_box/imu', rows, np.array(stamps_ns))
+        with pytest.raises(InvalidArgumentError, match='topic /other is not in bag'):
+            bag.write_rows('/other', np.zeros((1, 40), dtype=np.uint8), np.array([0]))
+
+
 def test_both_write_paths_give_byte_identical_bags(tmp_path):
     """A seeded run reproduces its bag bit for bit; message objects and raw CDR store the same bytes."""
     for name in ('a', 'b'):

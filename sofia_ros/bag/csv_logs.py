@@ -181,8 +181,7 @@ def import_csv_logs(directory, bag_path):
         bag.add_topic(SCENARIO_DOCUMENT.name, 'std_msgs/msg/String', latched=True)
         bag.write_document(SCENARIO_DOCUMENT.name, scenario, first_ns)
         bag.add_topic(GYRO_IMU.name, GYRO_IMU.msgtype)
-        for data, stamp in zip(m.imu_block_cdr(m.ImuBlock('gyrf', stamps, rates, forces)), stamps.tolist()):
-            bag.write_raw(GYRO_IMU.name, data, stamp)
+        bag.write_rows(GYRO_IMU.name, m.imu_block_rows(m.ImuBlock('gyrf', stamps, rates, forces)), stamps)
         _write_rows(bag, directory, tables)
         if result.exists():
             bag.add_topic(CALIBRATION_RESULT.name, 'std_msgs/msg/String', latched=True)

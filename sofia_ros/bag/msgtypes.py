@@ -14,6 +14,7 @@ from functools import cache
 from typing import TYPE_CHECKING, Any
 
 from rclpy.serialization import serialize_message
+from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_typestore
 
 from sofia_ros.errors import InvalidArgumentError
@@ -30,6 +31,7 @@ __all__ = [
     'checked_msgtype',
     'decode_cdr',
     'msgtype_of',
+    'serializes_directly',
     'wire_cdr',
 ]
 
@@ -85,11 +87,42 @@ def decode_cdr(data: bytes | memoryview, msgtype: str, typestore: Typestore = TY
     return message
 
 
+#: Base types whose rclpy value the typestore's serializer does not take as it is (rclpy: bytes and str of 1).
+_RCLPY_ONLY_BASE_TYPES = frozenset({'byte', 'char'})
+
+
+@cache
+def serializes_directly(msgtype: str) -> bool:
+    """Whether the typestore serializes an rclpy message of ``msgtype`` as it is, reading its fields by name.
+
+    So it does when every field, at any depth, is a number, bool or string, a message, a fixed-size array
+    of numbers (numpy in rclpy) or a sequence of messages (a list); not for byte and char fields, nor for
+    sequences of numbers or strings (array.array and lists of str in rclpy, which it does not take or
+    which are unchecked here).
+    """
+    for _, (nodetype, spec) in TYPESTORE.fielddefs[msgtype][1]:
+        if nodetype == Nodetype.BASE:
+            direct = spec[0] not in _RCLPY_ONLY_BASE_TYPES
+        elif nodetype == Nodetype.NAME:
+            direct = serializes_directly(spec)
+        else:
+            (element_type, element), _ = spec
+            if element_type == Nodetype.NAME:
+                direct = serializes_directly(element)
+            else:
+                direct = nodetype == Nodetype.ARRAY and element[0] not in _RCLPY_ONLY_BASE_TYPES | {'string'}
+        if not direct:
+            return False
+    return True
+
+
 def wire_cdr(message: object) -> memoryview:
     """Serialize an rclpy message as a raw subscription receives it: exact length, zero padding."""
+    msgtype = msgtype_of(type(message))
+    if serializes_directly(msgtype):
+        return TYPESTORE.serialize_cdr(message, msgtype, little_endian=True)
     # With rmw_fastrtps, serialize_message sizes its buffer by an upper estimate and
     # leaves padding uninitialised, so its bytes can end in junk (e.g. a JointState with
     # an empty float64[]) and differ from run to run; a typestore round trip fixes both.
-    msgtype = msgtype_of(type(message))
     value = decode_cdr(serialize_message(message), msgtype)
     return TYPESTORE.serialize_cdr(value, msgtype, little_endian=True)

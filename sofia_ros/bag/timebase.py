@@ -18,7 +18,7 @@ import numpy as np
 
 from sofia_ros.bag.msgtypes import TYPESTORE
 
-__all__ = ['NS_PER_S', 'epoch_ns_of', 'has_leading_stamp', 'shift_stamp', 'shift_stamps']
+__all__ = ['NS_PER_S', 'epoch_ns_of', 'has_leading_stamp', 'leading_stamps_ns', 'shift_stamp', 'shift_stamps']
 
 NS_PER_S = 1_000_000_000
 _STAMP_TYPES = ('builtin_interfaces/msg/Time', 'std_msgs/msg/Header')
@@ -49,13 +49,17 @@ def shift_stamp(data: bytes | memoryview, offset_ns: int) -> bytes:
     return bytes(data[:4]) + stamp.pack(sec + offset_s + carry_s, nanosec) + bytes(data[12:])
 
 
+def leading_stamps_ns(rows: np.ndarray) -> np.ndarray:
+    """The leading stamps (ns, int64) of equal-length little-endian CDR rows (2-D uint8) of a stamped type."""
+    if rows.shape[1] < 12 or np.any(rows[:, 1] != 1):
+        raise ValueError('the payloads are not little-endian CDR with a leading stamp')
+    return (np.ascontiguousarray(rows[:, 4:8]).view('<i4')[:, 0].astype(np.int64) * NS_PER_S
+            + np.ascontiguousarray(rows[:, 8:12]).view('<u4')[:, 0])
+
+
 def shift_stamps(rows: np.ndarray, offset_ns: int) -> np.ndarray:
     """Equal-length little-endian CDR rows (2-D uint8) with the leading stamps moved by ``offset_ns`` (shift_stamp)."""
-    if np.any(rows[:, 1] != 1):
-        raise ValueError('the payloads are not little-endian CDR')
-    stamp_ns = (np.ascontiguousarray(rows[:, 4:8]).view('<i4')[:, 0].astype(np.int64) * NS_PER_S
-                + np.ascontiguousarray(rows[:, 8:12]).view('<u4')[:, 0] + offset_ns)
-    sec, nanosec = np.divmod(stamp_ns, NS_PER_S)
+    sec, nanosec = np.divmod(leading_stamps_ns(rows) + offset_ns, NS_PER_S)
     shifted = rows.copy()
     shifted[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(-1, 4)
     shifted[:, 8:12] = nanosec.astype('<u4').view(np.uint8).reshape(-1, 4)

@@ -110,14 +110,14 @@ def result_from_bag(bag_path):
     """The calibration node's last /calibration/result and the last /clock time (s since the start), from the bag."""
     with BagReader(bag_path, campaign_time=True) as bag:
         names = {topic.name for topic in bag.topics}
-        result = None
-        if CALIBRATION_RESULT.name in names:
-            for _, _, message in bag.messages(CALIBRATION_RESULT.name):
-                result = message.data
+        # One pass through the message indexes: the clock's log times only, not a message object per tick.
+        wanted = (CLOCK.name, *([CALIBRATION_RESULT.name] if CALIBRATION_RESULT.name in names else []))
+        collected = bag.messages_by_topic(*wanted, raw=(CLOCK.name,))
+        results = collected.get(CALIBRATION_RESULT.name, ((), ()))[1]
+        result = results[-1].data if len(results) else None
         stop_reason = bag.document(STOP_DOCUMENT.name) if STOP_DOCUMENT.name in names else None
-        sim_ns = 0
-        for _, stamp_ns, _ in bag.messages(CLOCK.name):
-            sim_ns = stamp_ns
+        clock_stamps_ns = collected[CLOCK.name][0]
+        sim_ns = int(clock_stamps_ns[-1]) if len(clock_stamps_ns) else 0
     if result is None:
         reason = f'stopped: {stop_reason}' if stop_reason else 'the calibration node published no result'
         result = yaml.safe_dump({'accepted': False, 'reason': reason})

@@ -8,6 +8,7 @@ from rclpy.task import Future
 from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.msgtypes import TYPESTORE
+from sofia_ros.bag.timebase import leading_stamps_ns
 from sofia_ros.nodes.shell import LockstepNode, decode_received, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
 from sofia_ros.sim.runner import record_message
@@ -94,12 +95,10 @@ class RecorderNode(LockstepNode):
         return callback
 
     def _block_callback(self, topic, block_topic):
-        msgtype = self.msgtypes[topic]
-
         def callback(block):
-            # Each sample its own record, at its own stamp: the bag direct mode writes.
-            for sample in m.samples_of_block_cdr(block):
-                self.bag.write_raw(topic, sample, m.log_stamp_ns(msgtype, sample, self.clock_ns))
+            # Each sample its own record, at its own header stamp: the bag direct mode writes.
+            rows = m.sample_rows_of_block_cdr(block)
+            self.bag.write_rows(topic, rows, leading_stamps_ns(rows))
             self._count(block_topic)
         return callback
 

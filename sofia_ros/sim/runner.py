@@ -106,10 +106,8 @@ def record_message(bag, topic, msgtype, message, fallback_ns):
     """Write a published message as a raw subscription receives it (an ImuBlock one record per sample, at its
     stamp), logged at its own stamp or else ``fallback_ns``; return the log stamp of its last record."""
     if isinstance(message, m.ImuBlock):
-        stamps_ns = message.stamp_ns.tolist()
-        for stamp_ns, data in zip(stamps_ns, m.imu_block_cdr(message)):
-            bag.write_raw(topic, data, stamp_ns)
-        return stamps_ns[-1] if stamps_ns else fallback_ns
+        bag.write_rows(topic, m.imu_block_rows(message), message.stamp_ns)
+        return int(message.stamp_ns[-1]) if len(message) else fallback_ns
     cdr = wire_cdr(message)
     stamp_ns = m.log_stamp_ns(msgtype, cdr, fallback_ns)
     bag.write_raw(topic, cdr, stamp_ns)

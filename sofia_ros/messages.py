@@ -21,6 +21,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, Temperature
 from std_msgs.msg import String
 
+from sofia_ros.bag.timebase import stamp_fields
+
 __all__ = [
     'NS_PER_S',
     'ImuBlock',
@@ -212,11 +214,11 @@ def imu_block_rows(block):
     head_length = 4 + 8 + 4 + len(frame)  # encapsulation, stamp, string length, string
     head_length += -(head_length - 4) % 8  # doubles align to 8 from the end of the encapsulation
     count = len(block.stamp_ns)
-    sec, nanosec = np.divmod(np.asarray(block.stamp_ns, dtype=np.int64), NS_PER_S)
+    sec, nanosec = stamp_fields(block.stamp_ns)
     head = np.zeros((count, head_length), dtype=np.uint8)
     head[:, :4] = np.frombuffer(b'\x00\x01\x00\x00', dtype=np.uint8)
-    head[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(count, 4)
-    head[:, 8:12] = nanosec.astype('<u4').view(np.uint8).reshape(count, 4)
+    head[:, 4:8] = sec.view(np.uint8).reshape(count, 4)
+    head[:, 8:12] = nanosec.view(np.uint8).reshape(count, 4)
     head[:, 12:16] = np.frombuffer(struct.pack('<I', len(frame)), dtype=np.uint8)
     head[:, 16:16 + len(frame)] = np.frombuffer(frame, dtype=np.uint8)
     # orientation (x y z w) and its covariance, angular velocity and its covariance, linear acceleration and its

@@ -209,10 +209,16 @@ def test_wire_cdr_serializes_directly_only_what_gives_the_round_trips_bytes():
             round_trip = TYPESTORE.serialize_cdr(decode_cdr(serialize_message(message), msgtype), msgtype,
                                                  little_endian=True)
             assert bytes(wire_cdr(message)) == bytes(round_trip), (msgtype, i)
-    empty = PoseArray(header=header(0, ''))
-    assert bytes(wire_cdr(empty)) == bytes(TYPESTORE.serialize_cdr(
-        decode_cdr(serialize_message(empty), 'geometry_msgs/msg/PoseArray'), 'geometry_msgs/msg/PoseArray',
-        little_endian=True))
+    # Edge cases: no poses, a message without fields (rclpy has no member where the wire has one), NUL in a
+    # string (DDS carries it up to the NUL).
+    from std_msgs.msg import Empty
+
+    assert not serializes_directly('std_msgs/msg/Empty')
+    for message in (PoseArray(header=header(0, '')), Empty(), String(data='a\0b'), imu(1, 'gy\0rf')):
+        msgtype = msgtype_of(type(message))
+        round_trip = TYPESTORE.serialize_cdr(decode_cdr(serialize_message(message), msgtype), msgtype,
+                                             little_endian=True)
+        assert bytes(wire_cdr(message)) == bytes(round_trip), message
 
 
 def test_write_rows_writes_the_file_write_raw_writes_row_by_row(tmp_path):
@@ -237,6 +243,38 @@ def test_write_rows_writes_the_file_write_raw_writes_row_by_row(tmp_path):
         imu_arrays = bag.imu_arrays('/gyro_box/imu')
     np.testing.assert_array_equal(imu_arrays.header_stamp_ns, STAMP0_NS + stamps_ns)
     np.testing.assert_array_equal(imu_arrays.angular_velocity_rad_per_s, block.angular_velocity_rad_per_s)
+
+
+def test_write_rows_of_an_empty_sample_block_writes_nothing(tmp_path):
+    """A tick without gyro samples (a tick shorter than 2.5 ms) reaches the recorder as an empty block."""
+    from sofia_ros import messages as m
+    from sofia_ros.bag.timebase import leading_stamps_ns
+
+    rows = m.sample_rows_of_block_cdr(m.sample_block_cdr([]))
+    assert rows.shape == (0, 0) and leading_stamps_ns(rows).shape == (0,)
+    with BagWriter(tmp_path / 'bag', epoch_ns=STAMP0_NS) as bag:
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        bag.write_rows('/gyro_box/imu', rows, leading_stamps_ns(rows))
+        assert bag.topics[0].count == 0
+
+
+def test_stamps_builtin_interfaces_time_cannot_hold_are_refused():
+    from sofia_ros import messages as m
+
+    after_2038_ns = np.array([2**31 * 10**9], dtype=np.int64)
+    block = m.ImuBlock('gyrf', after_2038_ns, np.zeros((1, 3)), np.zeros((1, 3)))
+    with pytest.raises(InvalidArgumentError, match=r'beyond what builtin_interfaces/Time holds .*2038-01-19'):
+        m.imu_block_rows(block)
+
+
+def test_write_rows_refuses_an_epoch_that_moves_stamps_past_2038(tmp_path):
+    from sofia_ros import messages as m
+
+    rows = m.imu_block_rows(m.ImuBlock('gyrf', np.array([0], dtype=np.int64), np.zeros((1, 3)), np.zeros((1, 3))))
+    with BagWriter(tmp_path / 'bag', epoch_ns=2**31 * 10**9) as bag:
+        bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
+        with pytest.raises(InvalidArgumentError, match='rows of /gyro_box/imu: a stamp is beyond what'):
+            bag.write_rows('/gyro_box/imu', rows, np.array([0]))
 
 
 @pytest.mark.parametrize('rows, stamps_ns, message', [

@@ -214,7 +214,9 @@ def test_right_jacobian_composes_a_small_change_of_a_rotation_vector():
 def test_parameter_columns_match_predicting_every_step_anew(null_bag, model):
     # The columns a Gauss-Newton step uses, split into a linearized attitude part and the reprojection of the
     # cameras a step changes, against forward differences of a full prediction per step. The empirical WFI
-    # term hooks every camera, so a misalignment step moves both the attitude and the hooks' context.
+    # term hooks every camera, so a misalignment step changes both the attitude and every camera's key (the
+    # hooks' context; this hook does not read it, and a force-dependent one moves a centroid by 5e-8 px per
+    # arcsec, below what a column can show): both parts of the split are taken.
     from types import SimpleNamespace
 
     import scipy.sparse
@@ -235,6 +237,11 @@ def test_parameter_columns_match_predicting_every_step_anew(null_bag, model):
     anchors = np.random.default_rng(3).normal(0.0, 2e-6, (predictor.anchor_count, 3))
     problem = WhitenedProblem(predictor, np.full(4, 0.1),
                               SimpleNamespace(matrix=scipy.sparse.csr_matrix((0, anchors.size))))
+    stepped = {name: dict(params) for name, params in effects.items()}
+    stepped['gyro_misalignment']['about_el_arcsec'] += 1.0
+    assert predictor.gyro_key(stepped) != predictor.gyro_key(effects)
+    assert all(now != moved for now, moved in zip(predictor.projection_key(effects)[2],
+                                                  predictor.projection_key(stepped)[2]))
     predicted = predictor.predict_px(effects, anchors)
     derivative = problem.irf_derivative(effects, anchors, predicted)
     columns = problem.parameter_columns(effects, free, values, anchors, predicted, derivative)

@@ -89,37 +89,68 @@ def decode_cdr(data: bytes | memoryview, msgtype: str, typestore: Typestore = TY
 
 #: Base types whose rclpy value the typestore's serializer does not take as it is (rclpy: bytes and str of 1).
 _RCLPY_ONLY_BASE_TYPES = frozenset({'byte', 'char'})
+#: The one member the IDL gives a message without fields (std_msgs/Empty).
+_EMPTY_MESSAGE_MEMBER = 'structure_needs_at_least_one_member'
 
 
 @cache
+def _direct_string_fields(msgtype: str) -> tuple[tuple[str, ...], ...] | None:
+    """The attribute paths of the string fields of ``msgtype`` if the typestore serializes an rclpy message of it
+    as it is (serializes_directly), else None."""
+    fields = TYPESTORE.fielddefs[msgtype][1]
+    if not fields or fields[0][0] == _EMPTY_MESSAGE_MEMBER:
+        return None  # a message without fields: its placeholder member is on the wire, not in rclpy's class
+    paths = []
+    for name, (nodetype, spec) in fields:
+        if nodetype == Nodetype.BASE:
+            if spec[0] in _RCLPY_ONLY_BASE_TYPES or (spec[0] == 'string' and spec[1]):
+                return None  # bounded strings: rclpy checks the bound, the typestore does not
+            if spec[0] in ('string', 'wstring'):
+                paths.append((name,))
+        elif nodetype == Nodetype.NAME:
+            nested = _direct_string_fields(spec)
+            if nested is None:
+                return None
+            paths.extend((name, *path) for path in nested)
+        else:
+            (element_type, element), bound = spec
+            if nodetype == Nodetype.SEQUENCE and (bound or element_type != Nodetype.NAME):
+                return None  # bounded sequences, and rclpy's array.array and lists of str
+            if element_type == Nodetype.NAME:
+                if _direct_string_fields(element) != ():
+                    return None  # strings inside a sequence or an array: not checked here
+            elif element[0] in _RCLPY_ONLY_BASE_TYPES | {'string', 'wstring'}:
+                return None
+    return tuple(paths)
+
+
 def serializes_directly(msgtype: str) -> bool:
     """Whether the typestore serializes an rclpy message of ``msgtype`` as it is, reading its fields by name.
 
-    So it does when every field, at any depth, is a number, bool or string, a message, a fixed-size array
-    of numbers (numpy in rclpy) or a sequence of messages (a list); not for byte and char fields, nor for
-    sequences of numbers or strings (array.array and lists of str in rclpy, which it does not take or
-    which are unchecked here).
+    So it does when every field, at any depth, is a number, bool, unbounded string, message, fixed-size
+    array of numbers (numpy in rclpy) or unbounded sequence of messages without strings (a list); not for
+    byte and char fields, bounded strings and sequences, sequences of numbers or strings (array.array
+    and lists of str in rclpy), or a message without fields.
     """
-    for _, (nodetype, spec) in TYPESTORE.fielddefs[msgtype][1]:
-        if nodetype == Nodetype.BASE:
-            direct = spec[0] not in _RCLPY_ONLY_BASE_TYPES
-        elif nodetype == Nodetype.NAME:
-            direct = serializes_directly(spec)
-        else:
-            (element_type, element), _ = spec
-            if element_type == Nodetype.NAME:
-                direct = serializes_directly(element)
-            else:
-                direct = nodetype == Nodetype.ARRAY and element[0] not in _RCLPY_ONLY_BASE_TYPES | {'string'}
-        if not direct:
-            return False
-    return True
+    return _direct_string_fields(msgtype) is not None
+
+
+def _has_nul(message: object, paths: tuple[tuple[str, ...], ...]) -> bool:
+    """Whether a string field holds NUL: DDS carries such a string up to its first NUL, the typestore all of it."""
+    for path in paths:
+        value = message
+        for name in path:
+            value = getattr(value, name)
+        if '\0' in value:
+            return True
+    return False
 
 
 def wire_cdr(message: object) -> memoryview:
     """Serialize an rclpy message as a raw subscription receives it: exact length, zero padding."""
     msgtype = msgtype_of(type(message))
-    if serializes_directly(msgtype):
+    strings = _direct_string_fields(msgtype)
+    if strings is not None and not _has_nul(message, strings):
         return TYPESTORE.serialize_cdr(message, msgtype, little_endian=True)
     # With rmw_fastrtps, serialize_message sizes its buffer by an upper estimate and
     # leaves padding uninitialised, so its bytes can end in junk (e.g. a JointState with

@@ -17,8 +17,10 @@ from functools import cache
 import numpy as np
 
 from sofia_ros.bag.msgtypes import TYPESTORE
+from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['NS_PER_S', 'epoch_ns_of', 'has_leading_stamp', 'leading_stamps_ns', 'shift_stamp', 'shift_stamps']
+__all__ = ['NS_PER_S', 'epoch_ns_of', 'has_leading_stamp', 'leading_stamps_ns', 'shift_stamp', 'shift_stamps',
+           'stamp_fields']
 
 NS_PER_S = 1_000_000_000
 _STAMP_TYPES = ('builtin_interfaces/msg/Time', 'std_msgs/msg/Header')
@@ -49,8 +51,20 @@ def shift_stamp(data: bytes | memoryview, offset_ns: int) -> bytes:
     return bytes(data[:4]) + stamp.pack(sec + offset_s + carry_s, nanosec) + bytes(data[12:])
 
 
+def stamp_fields(stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(sec, nanosec) of stamps in ns as builtin_interfaces/Time holds them: little-endian int32 and uint32 arrays;
+    InvalidArgumentError for a stamp its int32 seconds cannot hold (before 1901 or after 2038)."""
+    sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), NS_PER_S)
+    if np.any((sec < -2**31) | (sec >= 2**31)):
+        raise InvalidArgumentError('a stamp is beyond what builtin_interfaces/Time holds (int32 seconds: '
+                                   '1901-12-13 to 2038-01-19 UTC)')
+    return sec.astype('<i4'), nanosec.astype('<u4')
+
+
 def leading_stamps_ns(rows: np.ndarray) -> np.ndarray:
     """The leading stamps (ns, int64) of equal-length little-endian CDR rows (2-D uint8) of a stamped type."""
+    if not len(rows):
+        return np.zeros(0, dtype=np.int64)
     if rows.shape[1] < 12 or np.any(rows[:, 1] != 1):
         raise ValueError('the payloads are not little-endian CDR with a leading stamp')
     return (np.ascontiguousarray(rows[:, 4:8]).view('<i4')[:, 0].astype(np.int64) * NS_PER_S
@@ -59,8 +73,8 @@ def leading_stamps_ns(rows: np.ndarray) -> np.ndarray:
 
 def shift_stamps(rows: np.ndarray, offset_ns: int) -> np.ndarray:
     """Equal-length little-endian CDR rows (2-D uint8) with the leading stamps moved by ``offset_ns`` (shift_stamp)."""
-    sec, nanosec = np.divmod(leading_stamps_ns(rows) + offset_ns, NS_PER_S)
+    sec, nanosec = stamp_fields(leading_stamps_ns(rows) + offset_ns)
     shifted = rows.copy()
-    shifted[:, 4:8] = sec.astype('<i4').view(np.uint8).reshape(-1, 4)
-    shifted[:, 8:12] = nanosec.astype('<u4').view(np.uint8).reshape(-1, 4)
+    shifted[:, 4:8] = sec.view(np.uint8).reshape(-1, 4)
+    shifted[:, 8:12] = nanosec.view(np.uint8).reshape(-1, 4)
     return shifted

@@ -176,7 +176,7 @@ class BagWriter:
         self._write(self._connection(topic), data, stamp_ns)
 
     def write_rows(self, topic: str, rows: np.ndarray, stamps_ns: np.ndarray) -> None:
-        """Write equal-length serialized CDR messages, the rows of a 2-D uint8 array, logged at ``stamps_ns``:
+        """Write equal-length little-endian CDR messages, the rows of a 2-D uint8 array, logged at ``stamps_ns``:
         what write_raw of each row in turn writes, with the per-message work done once for the block."""
         connection = self._connection(topic)
         rows, stamps = np.asarray(rows), np.asarray(stamps_ns)

@@ -7,8 +7,8 @@ Each run is its own process (so peak memory and CPU are that run's own) with the
 (config/truth/nominal.yaml), seed and plan; wall time is measured around the whole run (start-up,
 imports and DDS discovery included), CPU time is that of the run's process and of its node
 processes. The cold run starts with the checkout's bytecode removed (sofia_ros/**/__pycache__), as the
-first `scripts/run-main` on a new machine does: pip compiled every package it installed, but the checkout,
-installed editable, is compiled on first use; the warm runs use the bytecode cache. The
+first run after editing every module would: scripts/setup-venv compiles the installed packages and the
+checkout, but an edited module is compiled again on import; the warm runs use the bytecode cache. The
 machine is shared, so the ratios, measured in the same run, are the figures to compare; the load
 average is printed beside every absolute time. Last, the bags of every run are compared topic by topic
 (sofia_ros.bag.digest). About 6 min with the defaults on an idle 2-core machine.

@@ -9,11 +9,12 @@ and the report (target <= 60 s in all), and the overlapping Allan deviation of t
 
 Run: .venv/bin/python bench/bench_noise.py [--bag bags/tc1]
 
-Recorded on the 2-core target machine (numpy 2.4, scipy 1.17, matplotlib 3.11, allantools 2024.6):
+Recorded on the 2-core target machine on 2026-11-26 at 15:27 UTC, load about 1 (numpy 2.4, scipy 1.17,
+matplotlib 3.11, allantools 2024.6):
 
-    sofia noise --model --report --json: exit 0, 45.8 s wall (target <= 60 s)
-      split: read bag 29.8 s, analysis 6.1 s (16 candidates ranked), report 4.6 s
-      Allan part, 5,760,000 samples x 3 axes, 60 taus: ours 1.10 s, allantools.oadev 7.80 s, 7x;
+    sofia noise --model --report --json: exit 0, 15.7 s wall (target <= 60 s)
+      split: read bag 3.5 s, analysis 6.8 s (16 candidates ranked), report 3.9 s
+      Allan part, 5,760,000 samples x 3 axes, 60 taus: ours 0.52 s, allantools.oadev 3.97 s, 8x;
       largest relative difference 5.7e-12
       top candidates: vibration_lines xel 179.10 Hz (delta BIC 1227); vibration_lines el 179.10 Hz
       (delta BIC 1222); vibration_lines el 1.30 Hz (delta BIC 405)

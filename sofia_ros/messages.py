@@ -21,6 +21,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState, Temperature
 from std_msgs.msg import String
 
+from sofia_ros.bag.imu import decode_imu_rows
 from sofia_ros.bag.timebase import stamp_fields
 
 __all__ = [
@@ -272,26 +273,20 @@ def log_stamp_ns(msgtype, cdr, fallback_ns):
     return sec * NS_PER_S + nanosec
 
 
-_IMU_STAMP_AND_FRAME = struct.Struct('<iII')
 _IMU_VALUES = 28  # orientation 4, its covariance 9, angular velocity 3, covariance 9, linear acceleration 3
 
 
 def imu_block_from_cdr(frame_id, samples):
     """ImuBlock of raw sensor_msgs/Imu CDR samples of one frame_id, hence of one length (the inverse of
-    :func:`imu_block_cdr`), read as one array: a tick's 80 samples cost what one did sample by sample."""
+    :func:`imu_block_cdr`), read as one array (bag.imu.decode_imu_rows): a tick's 80 samples cost what one did
+    sample by sample."""
     if not samples:
         return ImuBlock(frame_id, np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-    _, _, frame_length = _IMU_STAMP_AND_FRAME.unpack_from(samples[0], 4)
-    offset = 16 + frame_length
-    offset += -(offset - 4) % 8
     length = len(samples[0])
-    if any(len(sample) != length for sample in samples) or length < offset + 8 * _IMU_VALUES:
+    if any(len(sample) != length for sample in samples):
         raise ValueError('IMU samples of a block must be sensor_msgs/Imu CDR of one frame_id')
     rows = np.frombuffer(b''.join(samples), dtype=np.uint8).reshape(len(samples), length)
-    sec_nanosec = np.ascontiguousarray(rows[:, 4:12]).view('<i4').astype(np.int64)
-    values = np.ascontiguousarray(rows[:, offset:offset + 8 * _IMU_VALUES]).view('<f8')
-    return ImuBlock(frame_id, sec_nanosec[:, 0] * NS_PER_S + sec_nanosec[:, 1],
-                    np.ascontiguousarray(values[:, 13:16]), np.ascontiguousarray(values[:, 25:28]))
+    return ImuBlock(frame_id, *decode_imu_rows(rows))
 
 
 # A block is a std_msgs/UInt8MultiArray: layout.dim = [samples (size n, stride n * L), sample CDR (size L,

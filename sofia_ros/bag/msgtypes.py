@@ -87,8 +87,9 @@ def decode_cdr(data: bytes | memoryview, msgtype: str, typestore: Typestore = TY
     return message
 
 
-#: Base types whose rclpy value the typestore's serializer does not take as it is (rclpy: bytes and str of 1).
-_RCLPY_ONLY_BASE_TYPES = frozenset({'byte', 'char'})
+#: Base types whose rclpy value the typestore's serializer does not take as it is (rclpy: bytes and str of 1),
+#: or that are not checked here (wstring).
+_RCLPY_ONLY_BASE_TYPES = frozenset({'byte', 'char', 'wstring'})
 #: The one member the IDL gives a message without fields (std_msgs/Empty).
 _EMPTY_MESSAGE_MEMBER = 'structure_needs_at_least_one_member'
 
@@ -105,7 +106,7 @@ def _direct_string_fields(msgtype: str) -> tuple[tuple[str, ...], ...] | None:
         if nodetype == Nodetype.BASE:
             if spec[0] in _RCLPY_ONLY_BASE_TYPES or (spec[0] == 'string' and spec[1]):
                 return None  # bounded strings: rclpy checks the bound, the typestore does not
-            if spec[0] in ('string', 'wstring'):
+            if spec[0] == 'string':
                 paths.append((name,))
         elif nodetype == Nodetype.NAME:
             nested = _direct_string_fields(spec)
@@ -119,7 +120,7 @@ def _direct_string_fields(msgtype: str) -> tuple[tuple[str, ...], ...] | None:
             if element_type == Nodetype.NAME:
                 if _direct_string_fields(element) != ():
                     return None  # strings inside a sequence or an array: not checked here
-            elif element[0] in _RCLPY_ONLY_BASE_TYPES | {'string', 'wstring'}:
+            elif element[0] in _RCLPY_ONLY_BASE_TYPES | {'string'}:
                 return None
     return tuple(paths)
 
@@ -129,7 +130,7 @@ def serializes_directly(msgtype: str) -> bool:
 
     So it does when every field, at any depth, is a number, bool, unbounded string, message, fixed-size
     array of numbers (numpy in rclpy) or unbounded sequence of messages without strings (a list); not for
-    byte and char fields, bounded strings and sequences, sequences of numbers or strings (array.array
+    byte, char and wstring fields, bounded strings and sequences, sequences of numbers or strings (array.array
     and lists of str in rclpy), or a message without fields.
     """
     return _direct_string_fields(msgtype) is not None

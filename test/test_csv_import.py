@@ -37,6 +37,14 @@ def test_bad_logs_are_one_line_and_exit_2(campaign, tmp_path, capsys):
     assert main(['import', str(logs), '--bag', str(tmp_path / 'bag')]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and "missing column 'fd_los_rad'" in error[0]
+    (logs / 'joints.csv').write_text(text.replace('fd_los_deg', 'fd_los_rad'))
+    gyro = (logs / 'gyro.csv').read_text().splitlines()
+    late = [line.replace(line.split(',')[0], str(int(line.split(',')[0]) + 3 * 10**18), 1) for line in gyro[1:]]
+    (logs / 'gyro.csv').write_text('\n'.join([gyro[0], *late]) + '\n')
+    assert main(['import', str(logs), '--bag', str(tmp_path / 'late')]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and 'gyro.csv: time_ns must be ns since 1970-01-01 UTC, before 2038-01-19' in error[0]
+    assert not (tmp_path / 'late').exists()  # refused before a bag is begun
     (logs / 'scenario.yaml').unlink()
     assert main(['import', str(logs), '--bag', str(tmp_path / 'bag2')]) == 2
     assert 'scenario.yaml' in capsys.readouterr().err

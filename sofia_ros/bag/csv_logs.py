@@ -56,6 +56,8 @@ CSV_COLUMNS = {
     'motion_status.csv': ('time_ns', 'state'),
 }
 _OPTIONAL = ('motion_status.csv',)
+#: The first time a ROS stamp (builtin_interfaces/Time, int32 seconds) cannot hold: 2038-01-19 03:14:08 UTC.
+_STAMP_LIMIT_NS = 2**31 * 1_000_000_000
 _ACCELERATION = tuple(f'{axis}_m_per_s2' for axis in AXES)
 _MOTION_NAME = 'motion_status'
 
@@ -172,6 +174,9 @@ def import_csv_logs(directory, bag_path):
     stamps = np.array(_parsed(directory / 'gyro.csv', gyro, 'time_ns', int), dtype=np.int64)
     if np.any(np.diff(stamps) <= 0):
         raise ConfigError(f'{directory / "gyro.csv"}: time_ns must increase from row to row')
+    if stamps[0] < 0 or stamps[-1] >= _STAMP_LIMIT_NS:
+        raise ConfigError(f'{directory / "gyro.csv"}: time_ns must be ns since 1970-01-01 UTC, before 2038-01-19 '
+                          '(what the int32 seconds of a ROS stamp hold)')
     rates = np.column_stack([_parsed(directory / 'gyro.csv', gyro, f'{axis}_rad_per_s', float) for axis in AXES])
     forces = (np.column_stack([_parsed(directory / 'gyro.csv', gyro, column, float) for column in _ACCELERATION])
               if _ACCELERATION[0] in gyro[0] else np.zeros_like(rates))

@@ -15,7 +15,8 @@ import yaml
 
 from sofia_ros import interrupts
 from sofia_ros.cli_args import OneLineParser, integer, number
-from sofia_ros.errors import ConfigError, RunFaultError, RunInterrupted, SofiaError
+from sofia_ros.errors import ConfigError, OutputError, RunFaultError, RunInterrupted, SofiaError
+from sofia_ros.output_files import describe_os_error
 
 __all__ = ['main', 'build_parser']
 
@@ -399,11 +400,19 @@ def main(argv=None):
     except RunFaultError as err:
         print(f'sofia: error: {err}', file=sys.stderr)
         return 3
+    except OutputError as err:
+        print(f'sofia: error: {err}', file=sys.stderr)
+        return err.exit_code
     except SofiaError as err:
         print(f'sofia: error: {err}', file=sys.stderr)
         return 2
-    except BrokenPipeError:
-        return 0
+    except OSError as err:
+        if isinstance(err, BrokenPipeError):
+            return 0
+        # A command's files on a full, read-only or foreign disk: one line, not a traceback.
+        line, exit_code = describe_os_error(err)
+        print(f'sofia: error: {line}', file=sys.stderr)
+        return exit_code
     finally:
         interrupts.restore(previous)
         interrupts.reset()

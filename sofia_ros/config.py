@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import datetime as dt
 from dataclasses import dataclass
-from pathlib import Path
 
 import yaml
 
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
+from sofia_ros.input_files import read_text_capped
 
 __all__ = ['EffectConfig', 'load_effect_config', 'parse_effect_config', 'safe_load_limited', 'MAX_CONFIG_BYTES',
            'MAX_YAML_NODES', 'MAX_YAML_ALIASES', 'MAX_YAML_DEPTH']
@@ -60,6 +60,23 @@ class _LimitedLoader(yaml.SafeLoader):
             raise ConfigError(f'the YAML expands to more than {MAX_YAML_NODES} values (aliases counted as '
                               'often as they are used); a truth or model file is far smaller')
         return node
+
+    def construct_mapping(self, node, deep=False):
+        # PyYAML keeps the last of two equal keys; a file that says a value twice is ambiguous.
+        seen = set()
+        for key_node, _ in node.value:
+            if key_node.tag == 'tag:yaml.org,2002:merge':
+                continue
+            key = self.construct_object(key_node, deep=True)
+            try:
+                duplicate = key in seen
+            except TypeError:
+                continue  # an unhashable key: the base constructor names it
+            if duplicate:
+                raise ConfigError(f'key {str(key)[:40]!r} given twice (line {key_node.start_mark.line + 1}); '
+                                  'keep one')
+            seen.add(key)
+        return super().construct_mapping(node, deep)
 
 
 def safe_load_limited(text, source='<text>'):
@@ -130,17 +147,6 @@ def parse_effect_config(text, source='<text>'):
 
 
 def load_effect_config(path):
-    """Read (at most MAX_CONFIG_BYTES) and parse a truth/model file."""
-    path = Path(path)
-    try:
-        with path.open('rb') as stream:
-            data = stream.read(MAX_CONFIG_BYTES + 1)
-    except OSError as err:
-        raise ConfigError(f'cannot read {path}: {err.strerror}; check the path') from err
-    if len(data) > MAX_CONFIG_BYTES:
-        raise ConfigError(f'{path}: larger than {MAX_CONFIG_BYTES} bytes; a truth or model file is a few kB')
-    try:
-        text = data.decode('utf-8')
-    except UnicodeDecodeError as err:
-        raise ConfigError(f'{path}: not UTF-8 text (byte {err.start}); is it a YAML file?') from err
+    """Read (at most MAX_CONFIG_BYTES, a regular file) and parse a truth/model file."""
+    text = read_text_capped(path, MAX_CONFIG_BYTES, 'truth or model file (a few kB)')
     return parse_effect_config(text, str(path))

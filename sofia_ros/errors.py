@@ -14,6 +14,7 @@ __all__ = [
     'UnknownStarError',
     'BelowHorizonError',
     'ConfigError',
+    'OutputError',
     'PerturbationError',
     'UnknownEffectError',
     'CommandRefusedError',
@@ -50,6 +51,14 @@ class BelowHorizonError(SofiaError):
 
 class ConfigError(SofiaError):
     """A truth, model or node configuration is malformed or out of range."""
+
+
+class OutputError(ConfigError):
+    """An output cannot be written: ``exit_code`` 3 when the machine ran out of space, 2 when the path is at fault."""
+
+    def __init__(self, message, exit_code=2):
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 class PerturbationError(ConfigError):

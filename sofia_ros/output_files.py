@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import errno
 import os
+import stat
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from sofia_ros.errors import ConfigError
+from sofia_ros.errors import ConfigError, OutputError
 
-__all__ = ['current_umask', 'json_ready', 'write_text_atomically']
+__all__ = ['atomic_output', 'current_umask', 'describe_os_error', 'json_ready', 'output_error', 'output_target',
+           'write_text_atomically']
 
 
 def current_umask():
@@ -20,40 +24,93 @@ def current_umask():
     return mask
 
 
-def write_text_atomically(path, text):
-    """Write a file whole or not at all (temporary file in the same directory, then rename).
+def output_target(path):
+    """The file an output at ``path`` replaces: a link's target; ConfigError unless it is new or a regular file.
 
-    A symlink is written through (its target is replaced, the link stays); the file keeps its
-    mode, a new one gets 0666 less the umask like any other output. ConfigError in one line when
-    the directory or file cannot be written.
+    A link to /dev/null (or any device, FIFO or directory) is refused: renaming a temporary file
+    over it would replace the device with a regular file.
     """
     path = Path(path)
     if path.is_dir():
         raise ConfigError(f'{path} is a directory; give a file name')
     target = path.resolve() if path.is_symlink() else path
+    try:
+        mode = target.stat().st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as err:
+        raise ConfigError(f'cannot write {path}: {err.strerror}') from err
+    if mode is not None and not stat.S_ISREG(mode):
+        raise ConfigError(f'{path} is not a regular file ({target} is a device, FIFO or socket); '
+                          'give a file name on disk')
     if target.parent and not target.parent.exists():
         raise ConfigError(f'directory {target.parent} does not exist; create it or choose another path')
+    return target
+
+
+@contextmanager
+def atomic_output(path, mode='w'):
+    """A stream whose file appears at ``path`` whole when the block ends, and never if it fails.
+
+    Temporary file in the same directory, fsync, rename; a symlink is written through (its
+    regular-file target replaced, the link kept), the file keeps its mode, a new one gets 0666
+    less the umask. ConfigError in one line when the target or its directory cannot be written.
+    """
+    target = output_target(path)
     try:
-        mode = target.stat().st_mode & 0o7777
+        file_mode = target.stat().st_mode & 0o7777
     except FileNotFoundError:
-        mode = 0o666 & ~current_umask()
+        file_mode = 0o666 & ~current_umask()
     try:
-        handle, temporary = tempfile.mkstemp(prefix=f'.{target.name}.', dir=target.parent)
+        handle, temporary = tempfile.mkstemp(prefix=f'.{target.name[:200]}.', dir=target.parent)
     except OSError as err:
-        raise ConfigError(f'cannot write {path}: {err.strerror} (directory {target.parent})') from err
+        raise output_error(path, err) from err
     try:
-        with os.fdopen(handle, 'w') as stream:
-            os.fchmod(stream.fileno(), mode)
-            stream.write(text)
+        with os.fdopen(handle, mode) as stream:
+            os.fchmod(stream.fileno(), file_mode)
+            yield stream
             stream.flush()
             os.fsync(stream.fileno())
         os.replace(temporary, target)
     except OSError as err:
         Path(temporary).unlink(missing_ok=True)
-        raise ConfigError(f'cannot write {path}: {err.strerror}') from err
+        raise output_error(path, err) from err
     except BaseException:
         Path(temporary).unlink(missing_ok=True)
         raise
+
+
+def write_text_atomically(path, text):
+    """Write a text file whole or not at all (atomic_output)."""
+    with atomic_output(path) as stream:
+        stream.write(text)
+
+
+#: How an operating-system error on a command's files is told, and its exit code: 3 where the
+#: machine ran out of something (the command was right), 2 where the user's path is at fault.
+_OS_ERROR_EXITS = {
+    errno.ENOSPC: (3, 'disk full', 'free space or write elsewhere'),
+    errno.EDQUOT: (3, 'disk quota exceeded', 'free space or write elsewhere'),
+    errno.EROFS: (2, 'read-only file system', 'write to a writable directory'),
+    errno.EACCES: (2, 'permission denied', 'write to a directory you may write to'),
+    errno.EPERM: (2, 'operation not permitted', 'write to a directory you may write to'),
+    errno.ENAMETOOLONG: (2, 'file name too long', 'choose a shorter name'),
+}
+
+
+def output_error(path, err):
+    """The OutputError for an OSError met writing ``path``: one line, exit 3 for a full disk, else 2."""
+    line, exit_code = describe_os_error(err, filename=path)
+    return OutputError(f'cannot write {line}', exit_code)
+
+
+def describe_os_error(err, filename=None):
+    """One line and an exit code for an OSError a command met on its files (3: out of space, 2: the path)."""
+    exit_code, reason, fix = _OS_ERROR_EXITS.get(err.errno, (3, err.strerror or 'input/output error',
+                                                             'check the disk and the path'))
+    filename = filename or err.filename
+    where = f'{filename}: ' if filename else ''
+    return f'{where}{reason}; {fix}', exit_code
 
 
 def json_ready(value):

@@ -1,5 +1,6 @@
 """`sofia model add` as a careful editor: comments, order, symlinks, mode, concurrent edits (issue 13)."""
 
+import errno
 import os
 import stat
 import subprocess
@@ -81,9 +82,41 @@ def test_an_unwritable_file_is_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(os, 'replace', refuse)
     assert main(['model', 'add', 'seeing', '--model', str(model)]) == 2
     err = capsys.readouterr().err
-    assert err == f'sofia: error: cannot write {model}: Permission denied\n'
+    assert err == f'sofia: error: cannot write {model}: permission denied; write to a directory you may write to\n'
     assert model.read_text() == MODEL
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith('.m.yaml.') and 'lock' not in p.name] == []
+
+
+def test_a_full_disk_is_one_line_and_exit_3(tmp_path, capsys, monkeypatch):
+    model = tmp_path / 'm.yaml'
+    model.write_text(MODEL)
+
+    def full(*args):
+        raise OSError(errno.ENOSPC, 'No space left on device')
+
+    monkeypatch.setattr(os, 'replace', full)
+    assert main(['model', 'add', 'seeing', '--model', str(model)]) == 3
+    assert capsys.readouterr().err == f'sofia: error: cannot write {model}: disk full; free space or write elsewhere\n'
+    assert model.read_text() == MODEL
+
+
+def test_a_link_to_a_device_is_refused_and_the_device_kept(tmp_path, capsys):
+    link = tmp_path / 'L.yaml'
+    link.symlink_to('/dev/null')
+    assert main(['model', 'add', 'seeing', '--model', str(link)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f'sofia: error: {link} is not a regular file (/dev/null is a device, FIFO or socket); '
+                   'give a file name on disk\n')
+    assert stat.S_ISCHR(os.stat('/dev/null').st_mode)
+    assert not Path('/dev/.null.lock').exists()
+
+
+def test_an_output_onto_a_device_is_refused(tmp_path):
+    link = tmp_path / 'out.json'
+    link.symlink_to('/dev/null')
+    with pytest.raises(ConfigError, match='is not a regular file'):
+        write_text_atomically(link, '{}\n')
+    assert stat.S_ISCHR(os.stat('/dev/null').st_mode)
 
 
 def test_an_unlockable_file_is_one_line(capsys):
@@ -118,5 +151,5 @@ def test_a_duplicate_key_is_refused_without_touching_the_file(tmp_path, capsys):
     model.write_text(text)
     assert main(['model', 'add', 'seeing', '--model', str(model)]) == 2
     err = capsys.readouterr().err
-    assert err.count('\n') == 1 and f'{model}: not valid YAML' in err
+    assert err.count('\n') == 1 and f"{model}: key 'effects' given twice (line 10); keep one" in err
     assert model.read_text() == text

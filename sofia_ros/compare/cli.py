@@ -14,7 +14,7 @@ import numpy as np
 
 from sofia_ros.cli_args import number
 from sofia_ros.errors import ConfigError
-from sofia_ros.output_files import current_umask, json_ready, write_text_atomically
+from sofia_ros.output_files import current_umask, json_ready, output_target, write_text_atomically
 
 __all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'anchor_memory_bytes',
            'MIN_ANCHOR_S']
@@ -298,7 +298,7 @@ def run_model_add(args, out):
 
     spec = get_effect(args.effect)
     path = Path(args.model)
-    target = path.resolve() if path.is_symlink() else path
+    target = output_target(path)
     if not target.exists():
         raise ConfigError(f'cannot read {path}: no such file; check the path')
     with _edit_lock(target):

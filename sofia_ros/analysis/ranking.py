@@ -33,6 +33,11 @@ __all__ = [
     'linear_fit',
     'rank_candidates',
     'degenerate_pairs',
+    'CompetingSet',
+    'competing_sets',
+    'COMPETING_DELTA_BIC',
+    'COMPETING_FRACTION',
+    'SHARED_FRACTION',
 ]
 
 #: A candidate counts as detected when it lowers the BIC by at least this much (Kass & Raftery: "strong").
@@ -47,6 +52,16 @@ IN_BASE_SPAN_FRACTION = 1e-6
 KEPT_EIGENVALUE_FRACTION = 1e-10
 #: Rows of a sparse Jacobian with more than this fraction of non-zeros are multiplied as dense ones.
 _DENSE_FRACTION = 0.125
+#: Two candidates compete when each would remove at least this share of the other's drop in RSS...
+SHARED_FRACTION = 0.5
+#: ...and their delta-BICs differ by less than this (the usual "strong evidence" line of Kass & Raftery)...
+COMPETING_DELTA_BIC = 10.0
+#: ...or by less than this fraction of the larger one: while the model still lacks effects, the residual is far
+#: from white noise and the rows are not independent, so a BIC difference of a few per cent of the gain is decided
+#: by what else is missing, not by the data's preference (issue 25: 228889 against 228670 on a star hop).
+COMPETING_FRACTION = 0.1
+#: The overlaps are measured among this many of the strongest significant candidates.
+COMPETITOR_POOL = 10
 
 
 def bic(rss, n, k):
@@ -208,6 +223,8 @@ class RankedCandidate:
     delta_bic: float
     observable: bool = True
     degenerate_with: tuple = field(default_factory=tuple)
+    #: Of the strongest significant candidates: the share of this one's drop in RSS each other one also removes.
+    shared_with: dict = field(default_factory=dict)
     #: The chi-square drop the term would bring at its reference size, against the bound it must reach.
     detectable_chi2: float | None = None
     detection_bound_chi2: float | None = None
@@ -274,7 +291,97 @@ def rank_candidates(residual, base_jacobian, candidates):
                                       observable=observable, detectable_chi2=detectable,
                                       detection_bound_chi2=bound))
     ranked = _with_degeneracies(ranked, signatures)
+    ranked = _with_shared_fractions(ranked, signatures, residual_perp)
     return sorted(ranked, key=lambda candidate: (not candidate.observable, -candidate.delta_bic))
+
+
+def shared_fraction(residual, first, second):
+    """The share of the smaller of two explained signatures' RSS drops that the other also removes (0: independent,
+    1: either one explains all that both do): (d_a + d_b - d_ab) / min(d_a, d_b), d the drop of a fit to ``residual``."""
+    gram = np.array([[first @ first, first @ second], [first @ second, second @ second]])
+    if gram[0, 0] <= 0.0 or gram[1, 1] <= 0.0:
+        return 0.0
+    projection = np.array([residual @ first, residual @ second])
+    drop_first, drop_second = projection[0]**2 / gram[0, 0], projection[1]**2 / gram[1, 1]
+    drop_both = float(projection @ np.linalg.pinv(gram) @ projection)
+    smaller = min(drop_first, drop_second)
+    if smaller <= 0.0:
+        return 0.0
+    return float(np.clip((drop_first + drop_second - drop_both) / smaller, 0.0, 1.0))
+
+
+def _with_shared_fractions(ranked, signatures, residual_perp):
+    """Fill ``shared_with`` among the COMPETITOR_POOL strongest significant candidates (symmetric)."""
+    pool = sorted((c for c in ranked if c.significant and c.name in signatures), key=lambda c: -c.delta_bic)
+    pool = [c.name for c in pool[:COMPETITOR_POOL]]
+    shared = {name: {} for name in pool}
+    for index, first in enumerate(pool):
+        for second in pool[index + 1:]:
+            fraction = shared_fraction(residual_perp, signatures[first], signatures[second])
+            shared[first][second] = shared[second][first] = fraction
+    return [dataclasses.replace(c, shared_with=shared[c.name]) if c.name in shared else c for c in ranked]
+
+
+@dataclass(frozen=True)
+class CompetingSet:
+    """Candidates that explain the same residual about equally well: the data do not choose among them.
+
+    ``effects`` is ordered as a user should consider them: the preferred kind first (physics before
+    an empirical shape that mimics it), then by delta-BIC; ``shared_fraction`` is the smallest
+    pairwise share of one's RSS drop the other also removes.
+    """
+
+    effects: tuple
+    delta_bic: dict
+    shared_fraction: float
+    margin: float
+
+
+def competes(first_delta_bic, second_delta_bic, shared):
+    """Whether two candidates compete: shared >= SHARED_FRACTION, delta-BICs within competing_margin."""
+    return (shared >= SHARED_FRACTION
+            and abs(first_delta_bic - second_delta_bic) < competing_margin(first_delta_bic, second_delta_bic))
+
+
+def competing_margin(first_delta_bic, second_delta_bic):
+    """The delta-BIC gap below which two overlapping candidates compete: COMPETING_DELTA_BIC or COMPETING_FRACTION."""
+    return max(COMPETING_DELTA_BIC, COMPETING_FRACTION * max(first_delta_bic, second_delta_bic))
+
+
+def competing_sets(ranked, delta_bic_by_name=None, preferred=lambda name: True):
+    """CompetingSets of significant candidates (connected by `competes`), strongest set first (docs/compare.md).
+
+    ``delta_bic_by_name`` overrides the linearized delta-BIC (e.g. after a full refit);
+    ``preferred(name)`` orders a set's members (True first): physics before empirical shapes.
+    """
+    scores = {candidate.name: candidate.delta_bic for candidate in ranked}
+    scores.update(delta_bic_by_name or {})
+    by_name = {candidate.name: candidate for candidate in ranked}
+    linked = {name: set() for name in by_name}
+    for candidate in ranked:
+        if not candidate.significant:
+            continue
+        for other, shared in candidate.shared_with.items():
+            if scores[other] >= SIGNIFICANT_DELTA_BIC and competes(scores[candidate.name], scores[other], shared):
+                linked[candidate.name].add(other)
+                linked[other].add(candidate.name)
+    sets, seen = [], set()
+    for name in sorted(linked, key=lambda n: -scores[n]):
+        if name in seen or not linked[name]:
+            continue
+        members, frontier = set(), [name]
+        while frontier:
+            current = frontier.pop()
+            if current not in members:
+                members.add(current)
+                frontier.extend(linked[current] - members)
+        seen |= members
+        ordered = tuple(sorted(members, key=lambda n: (not preferred(n), -scores[n])))
+        pairs = [by_name[a].shared_with[b] for a in ordered for b in linked[a] if a < b]
+        top = max(scores[n] for n in members)
+        sets.append(CompetingSet(ordered, {n: float(scores[n]) for n in ordered}, float(min(pairs)),
+                                 float(competing_margin(top, top))))
+    return sets
 
 
 def _with_degeneracies(ranked, signatures):

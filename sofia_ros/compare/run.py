@@ -20,27 +20,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC, CandidateTerm, degenerate_pairs, rank_candidates
+from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, competing_sets, degenerate_pairs,
+                                        rank_candidates)
 from sofia_ros.compare.fit import WhitenedProblem, fit_model, free_parameters
 from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
-from sofia_ros.compare.verdict import empirical_candidate_names, judge
+from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
+from sofia_ros.compare.verdict import after_member, empirical_candidate_names, judge
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.effects import CATALOGUE, get_effect, resolve_params
-from sofia_ros.effects.empirical import empirical_parts
+from sofia_ros.effects.empirical import empirical_parts, is_empirical
 from sofia_ros.errors import FitError
 from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
 from sofia_ros.units import ARCSEC_PER_RAD
 
-__all__ = ['CompareResult', 'compare_bag', 'compare_observations', 'NOISE_EFFECTS', 'REFINED_CANDIDATES']
+__all__ = ['CompareResult', 'compare_bag', 'compare_observations', 'NOISE_EFFECTS']
 
 #: Random processes: they set the noise floor, they do not move a prediction.
 NOISE_EFFECTS = ('gyro_noise', 'seeing')
-#: The best candidates of the linearized ranking are refitted in full (nonlinear, robust).
-REFINED_CANDIDATES = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -182,8 +182,8 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         entries[candidate.name] = _candidate_entry(candidate.name, candidate.params, candidate.sigma, rms_after,
                                                    candidate.delta_bic, detectable=candidate.observable,
                                                    seconds=per_candidate_s)
-    best_fit, best_name, refits = None, None, {}
-    for candidate in [c for c in ranked if c.significant][:REFINED_CANDIDATES]:
+    refits = {}
+    for candidate in refit_order(ranked):
         refine_started = time.perf_counter()
         trial_effects = {**final.effects, candidate.name: dict(resolve_params(candidate.name, {}), **candidate.params)}
         try:
@@ -198,16 +198,19 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
             _rms_by_camera(trial, centroids)['total'], final.bic - trial.bic, refined=True,
             seconds=per_candidate_s + time.perf_counter() - refine_started)
         refits[candidate.name] = trial
-        if best_fit is None or trial.bic < best_fit.bic:
-            best_fit, best_name = trial, candidate.name
     candidates = sorted(entries.values(), key=lambda entry: (not entry['detectable'], -entry['delta_bic']))
-    degenerate = degenerate_pairs(ranked, {name: entry['delta_bic'] for name, entry in entries.items()})
-    after_best = None
-    if best_fit is not None:
-        diagnostics_started = time.perf_counter()
-        after_best = (residual_diagnostics(observations, best_fit, predictor, noise_arcsec, prior),
-                      split_consistency(observations, best_fit, predictor))
-        diagnostics_s += time.perf_counter() - diagnostics_started
+    scores = {name: entry['delta_bic'] for name, entry in entries.items()}
+    degenerate = degenerate_pairs(ranked, scores)
+    competing = competing_sets(ranked, scores, preferred=lambda name: not is_empirical(name))
+    diagnostics_started = time.perf_counter()
+    after = {name: (residual_diagnostics(observations, refits[name], predictor, noise_arcsec, prior),
+                    split_consistency(observations, refits[name], predictor))
+             for name in contenders(refits, scores, competing)}
+    diagnostics_s += time.perf_counter() - diagnostics_started
+    members = {name: after_member(*pair) for name, pair in after.items()}
+    best_name = preferred_best(after, scores, members)
+    best_fit = refits.get(best_name)
+    after_best = after.get(best_name)
     document = {
         'bag': str(observations.bag_path),
         'model': model.source,
@@ -222,11 +225,13 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         'ledger': ledger,
         'candidates': candidates,
         'degenerate': [list(pair) for pair in degenerate],
+        'competing': competing_document(competing, members),
         'unobservable': [c['effect'] for c in candidates if not c['detectable']],
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
         'signature': diagnostics.as_document(),
         'consistency': consistency,
         'verdict': judge(diagnostics, consistency, candidates, degenerate, best_name, after_best,
+                         competing=competing, members=members,
                          rms_arcsec=rms['total'], significant_delta_bic=SIGNIFICANT_DELTA_BIC, model_source=model.source),
         'anchor_spacing_s': anchor_spacing_s,
         'anchor_walk_sigma_arcsec': prior.unit_rad * ARCSEC_PER_RAD,

@@ -13,11 +13,12 @@
 
 from __future__ import annotations
 
+from sofia_ros.compare.competing import competing_set_of
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
-__all__ = ['empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
+__all__ = ['after_member', 'empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
 
 #: At most this many empirical terms are tried, the strongest findings first.
 MAX_EMPIRICAL_CANDIDATES = 8
@@ -127,8 +128,33 @@ def _plugin_kind(candidate):
     return 'gyro' if candidate['observable'].startswith('gyro.') else 'camera'
 
 
+def after_member(diagnostics, consistency):
+    """What the comparison says with a candidate refitted in: explained or not, what is left, RMS / floor per observable."""
+    unexplained = sorted(set(diagnostics.unexplained())
+                         | (_implicated_observables(consistency, {name.split('.')[0] for name in diagnostics.observables})
+                            & diagnostics.observables.keys()))
+    return {'status': 'explained' if not unexplained and not consistency else 'not explained',
+            'unexplained': unexplained,
+            'ratios': {name: float(entry['ratio']) for name, entry in diagnostics.observables.items()}}
+
+
+def _rivals_clause(best_name, rivals, members, gain):
+    """What a competing set means for the choice: decided by what each member leaves, or not decided."""
+    scores = ', '.join(f'{name} {rivals.delta_bic[name]:.0f}' for name in rivals.effects)
+    shared = f'delta-BIC {scores}; {100 * rivals.shared_fraction:.0f} % of the smaller drop shared'
+    others = [name for name in rivals.effects if name != best_name and name in members]
+    decided = (members[best_name]['status'] == 'explained'
+               and all(members[name]['status'] != 'explained' for name in others))
+    if others and decided:
+        left = sorted({observable for name in others for observable in members[name]['unexplained']})
+        return (f'missing effect {best_name} ({gain}); {" and ".join(others)} fit the same residual ({shared}) '
+                f'but leave {", ".join(left[:_NAMED])} unexplained')
+    return (f'{" or ".join(rivals.effects)}: this data cannot tell them apart ({shared}); '
+            f'taken first: {best_name} ({gain})')
+
+
 def judge(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
-          significant_delta_bic, model_source):
+          significant_delta_bic, model_source, competing=(), members=None):
     """The verdict block: status, text, per-observable judgement, and what is left after the best candidate."""
     observables = {name: {key: entry[key] for key in ('rms_arcsec', 'floor_arcsec', 'ratio', 'excess_sigma',
                                                       'explained', 'structure', 'kind')}
@@ -171,8 +197,13 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
             f'template; or keep the shape meanwhile: `sofia model add {best["effect"]} --model {model_source}`'))
         return verdict
     tied = [pair for pair in degenerate if best['effect'] in pair]
-    choice = (f'the residual needs {" or ".join(tied[0])}; the data cannot choose' if tied else
-              f'missing effect {best["effect"]} ({gain})')
+    rivals = competing_set_of(best['effect'], competing)
+    if rivals is not None:
+        choice = _rivals_clause(best['effect'], rivals, members or {best['effect']: {'status': 'not explained'}}, gain)
+    elif tied:
+        choice = f'the residual needs {" or ".join(tied[0])}; the data cannot choose'
+    else:
+        choice = f'missing effect {best["effect"]} ({gain})'
     advice = '' if left else f'; add it with `sofia model add {best["effect"]} --model {model_source}`'
     verdict.update(status='missing_effect', text=f'not explained: {where}; {choice}{remaining}{advice}')
     return verdict

@@ -23,11 +23,13 @@ from sofia_ros.analysis.ranking import (
     SIGNIFICANT_DELTA_BIC,
     CandidateTerm,
     bic,
+    competing_sets,
     degenerate_pairs,
     linear_fit,
     rank_candidates,
 )
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
+from sofia_ros.compare.competing import competing_document, competing_set_of, contenders, preferred_best, refit_order
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA
 from sofia_ros.compare.fit import free_parameters
 from sofia_ros.effects import CATALOGUE, resolve_params
@@ -36,11 +38,10 @@ from sofia_ros.measurements.format import ALIGNMENT, DRIFT_EFFECTS, KINDS
 from sofia_ros.measurements.predict import predict_table, star_geometry
 from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
 
-__all__ = ['SetCompareResult', 'compare_measurement_set', 'EXPLAINED_QUANTILE', 'REFINED_CANDIDATES']
+__all__ = ['SetCompareResult', 'compare_measurement_set', 'EXPLAINED_QUANTILE']
 
 #: Effects that are noise: they set the sigma column, they are not fitted.
 NOISE_EFFECTS = ('gyro_noise', 'seeing')
-REFINED_CANDIDATES = 3
 #: An observable is explained when its chi-square (RMS/floor)^2 n lies below this quantile.
 EXPLAINED_QUANTILE = 0.99
 #: A candidate parameter whose effect at its thesis magnitude is below this fraction of the candidate's strongest
@@ -286,7 +287,8 @@ def _signature(problem, whitened):
             'detection_sigma': DETECTION_SIGMA}
 
 
-def _verdict(problem, whitened, significant, degenerate, model_source, signature):
+def _observable_status(problem, whitened, signature):
+    """Per observable: RMS against the stated sigma, ratio, rows, structure, explained (chi-square quantile)."""
     observables = {}
     for name in dict.fromkeys(problem.observables):
         mask = np.array(problem.observables) == name
@@ -302,19 +304,31 @@ def _verdict(problem, whitened, significant, degenerate, model_source, signature
         suffix = 'arcsec_per_s' if kind in _RATE_KINDS else 'arcsec'
         observables[name] = {f'rms_{suffix}': rms, f'floor_{suffix}': floor, 'ratio': ratio, 'explained': explained,
                              'rows': n, 'structure': structure}
+    return observables
+
+
+def _after_member(problem, whitened):
+    """What the set's comparison says with a candidate refitted in (compare.competing.AfterMember)."""
+    observables = _observable_status(problem, whitened, _signature(problem, whitened))
+    unexplained = [name for name, entry in observables.items() if not entry['explained']]
+    return {'status': 'not explained' if unexplained else 'explained', 'unexplained': unexplained,
+            'ratios': {name: entry['ratio'] for name, entry in observables.items()}}
+
+
+def _verdict(problem, whitened, best, rivals, degenerate, model_source, signature):
+    observables = _observable_status(problem, whitened, signature)
     failing = [name for name, entry in observables.items() if not entry['explained']]
     if not failing:
         return {'status': 'explained', 'observables': observables,
                 'text': 'the model explains every observable of the set to its stated sigma'}
-    if significant:
-        best = significant[0]
+    if best is not None:
         tied = [pair for pair in degenerate if best['effect'] in pair]
-        choice = ' or '.join(tied[0]) if tied else best['effect']
+        choice = ' or '.join(rivals.effects if rivals else tied[0] if tied else (best['effect'],))
         follows = [f'{name} follows {", ".join(observables[name]["structure"])}' for name in failing
                    if observables[name]['structure']]
         text = (f'missing effect {choice} ({", ".join(failing)} beyond the stated sigma'
                 + ''.join(f'; {clause}' for clause in follows) + '); '
-                + ('the data cannot choose between them' if tied else
+                + ('the data cannot choose between them' if tied or rivals else
                    f'add it with `sofia model add {best["effect"]} --model {model_source}`'))
         return {'status': 'missing_effect', 'observables': observables, 'text': text}
     return {'status': 'unexplained', 'observables': observables,
@@ -374,8 +388,8 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
                                                    candidate.delta_bic, detectable=candidate.observable,
                                                    reason=reason)
     by_name = {term.name: (kept, switched) for term, kept, switched in terms}
-    best_fit, best_name = None, None
-    for candidate in [c for c in ranked if c.significant][:REFINED_CANDIDATES]:
+    refits = {}
+    for candidate in refit_order(ranked):
         kept, switched = by_name[candidate.name]
         switched = {**switched, candidate.name: {**switched[candidate.name], **candidate.params}}
         try:
@@ -388,19 +402,25 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
             candidate.name, {p.name: float(v) for p, v in zip(extra, trial.values[len(final.free):])},
             {p.name: (float(s) if np.isfinite(s) else None) for p, s in zip(extra, trial.sigma[len(final.free):])},
             trial_angle.get('total'), trial_rate.get('total'), final.bic - trial.bic, refined=True)
-        if best_fit is None or trial.bic < best_fit.bic:
-            best_fit, best_name = trial, candidate.name
+        refits[candidate.name] = trial
     for name, reason in {**{n: r for n, r in blind.items() if r}, **vanished}.items():
         entries[name] = _candidate_entry(name, {}, {}, None, None, 0.0, detectable=False, reason=reason)
     candidates = sorted(entries.values(), key=lambda entry: (not entry['detectable'], -entry['delta_bic']))
-    degenerate = degenerate_pairs(ranked, {name: entry['delta_bic'] for name, entry in entries.items()
-                                           if name in {c.name for c in ranked}})
+    ranked_names = {c.name for c in ranked}
+    scores = {name: entry['delta_bic'] for name, entry in entries.items() if name in ranked_names}
+    degenerate = degenerate_pairs(ranked, scores)
     # A candidate one fitted term absorbs alone is degenerate with it (e.g. heading_error ~ gyro_bias, 5.2.4).
     degenerate = sorted(set(degenerate) | {tuple(sorted((name, by))) for name, by in absorbed.items()
                                            if name in {c.name for c in ranked if not c.observable}})
-    significant = [c for c in candidates if c['detectable'] and c['delta_bic'] >= SIGNIFICANT_DELTA_BIC]
-    floors = _rms_table(problem, np.ones(len(problem.sigma)))
+    competing = competing_sets(ranked, scores)
+    after = {name: _after_member(problem, refits[name].whitened) for name in contenders(refits, scores, competing)}
+    best_name = preferred_best(after, scores, after)
+    best_fit = refits.get(best_name)
     signature = _signature(problem, final.whitened)
+    best = next((c for c in candidates if c['effect'] == best_name), None)
+    if best is None:
+        best = next((c for c in candidates if c['detectable'] and c['delta_bic'] >= SIGNIFICANT_DELTA_BIC), None)
+    floors = _rms_table(problem, np.ones(len(problem.sigma)))
     document = {
         'measurement_set': measurement_set.source,
         'title': measurement_set.title,
@@ -415,11 +435,13 @@ def compare_measurement_set(measurement_set, model, *, candidate_names=None):
         'ledger': ledger,
         'candidates': candidates,
         'degenerate': [list(pair) for pair in degenerate],
+        'competing': competing_document(competing, after),
         'unobservable': [c['effect'] for c in candidates if not c['detectable']],
         'not_observable_fitted_terms': blind_fitted,
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
         'signature': signature,
-        'verdict': _verdict(problem, final.whitened, significant, degenerate, model.source, signature),
+        'verdict': _verdict(problem, final.whitened, best, competing_set_of(best and best['effect'], competing),
+                            degenerate, model.source, signature),
         'rows': _rows(problem, final, best_fit),
         'earth_rate': _earth_rate_tables(measurement_set),
         'seconds': {'total': 0.0},

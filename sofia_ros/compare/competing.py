@@ -1,0 +1,104 @@
+"""Competing explanations, for bags and measurement sets alike (docs/compare.md, "Competing explanations").
+
+The ranking (analysis.ranking) says which candidates explain the same residual about equally
+well; this module decides which of them are refitted in full, which one the verdict takes
+(physics before an empirical shape that mimics it), and writes each competing set as the JSON
+and the printed block show it: its members, their delta-BIC, how much they share, what the
+comparison says with each of them, and on which observables they differ.
+"""
+
+from __future__ import annotations
+
+from typing import Iterable, Mapping, TypedDict
+
+from sofia_ros.analysis.ranking import CompetingSet, RankedCandidate
+from sofia_ros.effects.empirical import is_empirical
+
+__all__ = ['AfterMember', 'CompetingEntry', 'REFINED_CANDIDATES', 'REFINED_PHYSICAL', 'SEPARATING_RATIO_GAP',
+           'competing_document', 'competing_set_of', 'contenders', 'preferred_best', 'refit_order']
+
+#: The strongest candidates of the linearized ranking are refitted in full (nonlinear, robust)...
+REFINED_CANDIDATES = 3
+#: ...and so are this many more physical ones: an effect linearized where it vanishes (a clock offset at 0 s)
+#: can score far below what its refit reaches, behind empirical shapes that take the first slots (issue 25).
+REFINED_PHYSICAL = 2
+#: An observable separates two members when the RMS / floor left with one differs from the other's by this much.
+SEPARATING_RATIO_GAP = 0.1
+
+
+class AfterMember(TypedDict):
+    """The comparison refitted with one member: its status and the observables still unexplained."""
+
+    status: str
+    unexplained: list
+    ratios: dict
+
+
+class CompetingEntry(TypedDict):
+    """One competing set of the JSON (docs/compare.md)."""
+
+    effects: list
+    delta_bic: dict
+    shared_fraction: float
+    margin_delta_bic: float
+    verdict_with_each: dict
+    separable_by: list
+
+
+def refit_order(ranked: Iterable[RankedCandidate]) -> list:
+    """The significant candidates refitted in full: the REFINED_CANDIDATES strongest, then REFINED_PHYSICAL more
+    physical ones (catalogue or plug-in effects, not empirical shapes)."""
+    significant = [candidate for candidate in ranked if candidate.significant]
+    chosen = significant[:REFINED_CANDIDATES]
+    physical = [c for c in significant[REFINED_CANDIDATES:] if not is_empirical(c.name)]
+    return chosen + physical[:REFINED_PHYSICAL]
+
+
+def competing_set_of(name: str | None, competing: Iterable[CompetingSet]) -> CompetingSet | None:
+    """The competing set ``name`` belongs to, or None."""
+    return next((entry for entry in competing if name in entry.effects), None)
+
+
+def contenders(refitted: Iterable[str], scores: Mapping[str, float], competing: Iterable[CompetingSet]) -> list:
+    """The refitted candidates the verdict chooses among: the best delta-BIC and the refitted members of its
+    competing set (the comparison is judged again with each of them). Empty when nothing was refitted."""
+    refitted = list(refitted)
+    if not refitted:
+        return []
+    best = max(refitted, key=lambda name: scores[name])
+    rivals = competing_set_of(best, competing)
+    return [best] if rivals is None else [name for name in rivals.effects if name in refitted]
+
+
+def preferred_best(names: Iterable[str], scores: Mapping[str, float], after: Mapping[str, AfterMember]):
+    """The contender the verdict takes: one that explains every observable before one that does not, physics
+    before an empirical shape, then the best delta-BIC. None when there is none."""
+    return min(names, key=lambda name: (after.get(name, {}).get('status') != 'explained', is_empirical(name),
+                                        -scores[name]), default=None)
+
+
+def _separating_observables(after: Mapping[str, AfterMember]) -> list:
+    """Observables on which the members leave different residuals, the largest gap in RMS / floor first."""
+    if len(after) < 2:
+        return []
+    names = set.intersection(*(set(member['ratios']) for member in after.values()))
+    gaps = {}
+    for observable in names:
+        ratios = [member['ratios'][observable] for member in after.values()]
+        gap = max(ratios) - min(ratios)
+        if gap >= SEPARATING_RATIO_GAP * max(min(ratios), 1.0):
+            gaps[observable] = gap
+    return sorted(gaps, key=lambda observable: -gaps[observable])[:3]
+
+
+def competing_document(competing: Iterable[CompetingSet], after: Mapping[str, AfterMember]) -> list:
+    """The JSON's ``competing`` list: each set with what the comparison says with each member (None: not refitted)."""
+    document = []
+    for entry in competing:
+        members = {name: after[name] for name in entry.effects if name in after}
+        document.append(CompetingEntry(
+            effects=list(entry.effects), delta_bic=dict(entry.delta_bic),
+            shared_fraction=round(entry.shared_fraction, 4), margin_delta_bic=round(entry.margin, 1),
+            verdict_with_each={name: after[name]['status'] if name in after else None for name in entry.effects},
+            separable_by=_separating_observables(members)))
+    return document

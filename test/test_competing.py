@@ -5,8 +5,8 @@ import pytest
 
 from sofia_ros.analysis.ranking import (COMPETING_DELTA_BIC, COMPETING_FRACTION, SHARED_FRACTION, CandidateTerm,
                                         competing_sets, rank_candidates, shared_fraction)
-from sofia_ros.compare.competing import (REFINED_CANDIDATES, REFINED_PHYSICAL, competing_document, preferred_best,
-                                         refit_order)
+from sofia_ros.compare.competing import (REFINED_CANDIDATES, REFINED_PHYSICAL, competing_document, contenders,
+                                         preferred_best, refit_order)
 
 ROWS = 4000
 
@@ -96,14 +96,20 @@ def test_independent_shapes_do_not_compete_however_close_their_scores():
     assert competing_sets(ranked, {'b': scores['a']}) == []
 
 
-def test_the_verdict_takes_the_physical_member_of_a_competing_set():
+def test_the_verdict_takes_the_member_that_explains_then_physics():
     ranked = _ranked()
     sets = competing_sets(ranked, preferred=lambda name: not name.startswith('empirical:'))
     scores = {'physical_a': 1000.0, 'empirical:fpi.x:time:poly1': 1030.0, 'unrelated': 2.0}
-    assert preferred_best(['physical_a', 'empirical:fpi.x:time:poly1'], scores, sets) == 'physical_a'
-    # Not refitted, the physical member cannot be taken.
-    assert preferred_best(['empirical:fpi.x:time:poly1'], scores, sets) == 'empirical:fpi.x:time:poly1'
-    assert preferred_best([], scores, sets) is None
+    names = contenders(['physical_a', 'empirical:fpi.x:time:poly1', 'unrelated'], scores, sets)
+    assert names == ['physical_a', 'empirical:fpi.x:time:poly1']
+    both = {name: {'status': 'explained'} for name in names}
+    assert preferred_best(names, scores, both) == 'physical_a'
+    only_shape = {'physical_a': {'status': 'not explained'}, 'empirical:fpi.x:time:poly1': {'status': 'explained'}}
+    assert preferred_best(names, scores, only_shape) == 'empirical:fpi.x:time:poly1'
+    # Not refitted, the physical member cannot be taken; outside any set the best delta-BIC is alone.
+    assert contenders(['empirical:fpi.x:time:poly1'], scores, sets) == ['empirical:fpi.x:time:poly1']
+    assert contenders(['unrelated'], scores, sets) == ['unrelated']
+    assert contenders([], scores, sets) == [] and preferred_best([], scores, {}) is None
 
 
 def test_physical_candidates_behind_empirical_shapes_are_refitted_too():

@@ -99,7 +99,24 @@ def indexed_records(mcap_path, topics, packed=None):
                 batch, batch_bytes = [], 0
         if batch:
             cut(batch)
+        _check_counts(summary, found, blocks, channel_topic)
     return {**{topic: _in_time_order(stamps, payloads) for topic, (stamps, payloads) in found.items()}, **blocks}
+
+
+def _check_counts(summary, found, blocks, channel_topic):
+    """Raise ValueError unless the messages read per topic are as many as the summary's statistics count
+    (a damaged message index that lists too few would drop messages unnoticed)."""
+    if summary.statistics is None:
+        return
+    expected = {}
+    for channel, topic in channel_topic.items():
+        expected[topic] = expected.get(topic, 0) + summary.statistics.channel_message_counts.get(channel, 0)
+    read = {topic: sum(map(len, stamps)) for topic, (stamps, _) in found.items()}
+    read.update({topic: sum(len(stamps) for stamps, _ in topic_blocks) for topic, topic_blocks in blocks.items()})
+    for topic, count in expected.items():
+        if read.get(topic, 0) != count:
+            raise ValueError(f'the message indexes list {read.get(topic, 0)} messages on {topic}, '
+                             f'the statistics {count}')
 
 
 def first_damaged_chunk(mcap_path):
@@ -169,15 +186,23 @@ def _chunk_messages(data, index_offsets, channels, records):
     pairs = np.concatenate(pairs).astype(np.int64)
     log_ns, offsets = pairs[0::2], pairs[1::2]
     raw = np.frombuffer(records, dtype=np.uint8)
-    if len(offsets) and (offsets.max() + _RECORD_HEAD > len(raw) or np.any(raw[offsets] != _MESSAGE_OPCODE)):
+    if len(offsets) and (offsets.max() + _RECORD_HEAD + _MESSAGE_HEAD > len(raw)
+                         or np.any(raw[offsets] != _MESSAGE_OPCODE)):
         raise ValueError('a message index points outside the message records of its chunk')
+    # The message indexes carry no CRC: each (log time, offset) pair must name a message of its channel at
+    # its log time in the CRC-checked chunk, or a damaged index would move or swap messages unnoticed.
+    wanted = np.repeat(np.asarray(channels, dtype=np.int64), counts)
+    record_channels = raw[offsets[:, None] + np.arange(_RECORD_HEAD, _RECORD_HEAD + 2)].copy().view('<u2')[:, 0]
+    record_log_ns = raw[offsets[:, None] + np.arange(_RECORD_HEAD + 6, _RECORD_HEAD + 14)].copy().view('<u8')[:, 0]
+    if np.any(record_channels != wanted) or np.any(record_log_ns.astype(np.int64) != log_ns):
+        raise ValueError('a message index disagrees with the messages of its chunk (channel or log time)')
     # Each record's length: the 8 bytes after its opcode, gathered for all records at once.
     lengths = raw[offsets[:, None] + np.arange(1, _RECORD_HEAD)].copy().view('<u8')[:, 0].astype(np.int64)
     starts = offsets + _RECORD_HEAD + _MESSAGE_HEAD
     ends = offsets + _RECORD_HEAD + lengths
     if len(offsets) and ends.max() > len(raw):
         raise ValueError('a message record runs past the end of its chunk')
-    return log_ns, starts, ends, np.repeat(np.asarray(channels, dtype=np.int64), counts)
+    return log_ns, starts, ends, wanted
 
 
 def _equal_length_groups(log_ns, starts, ends):

@@ -5,11 +5,13 @@ from __future__ import annotations
 import datetime as dt
 import struct
 import sys
-from pathlib import Path
+from dataclasses import dataclass
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
+from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import ReaderError
@@ -25,7 +27,9 @@ from sofia_ros.bag.msgtypes import (
     decode_cdr,
 )
 from sofia_ros.bag.timebase import epoch_ns_of, has_leading_stamp, shift_stamp, shift_stamps
-from sofia_ros.errors import BagError, InvalidArgumentError
+from sofia_ros.config import MAX_CONFIG_BYTES, safe_load_limited
+from sofia_ros.errors import BagError, ConfigError, InvalidArgumentError
+from sofia_ros.input_files import read_text_capped, require_regular_file
 from sofia_ros.topics import SCENARIO_DOCUMENT
 
 # The zstd module rosbags decompresses chunks with.
@@ -43,7 +47,7 @@ if TYPE_CHECKING:
 
     RawRecords = Iterator[tuple[Connection, int, bytes]]
 
-__all__ = ['BagReader']
+__all__ = ['BagReader', 'mcap_file_to_recover']
 
 # What reading a damaged MCAP file raises inside rosbags and decode_cdr: chunk and
 # record parsing, zstd, CDR decoding.
@@ -68,22 +72,24 @@ class BagReader:
     def __init__(self, path: str | PathLike[str], *, campaign_time: bool = False) -> None:
         """Check that ``path`` is a closed rosbag2 bag directory in MCAP storage."""
         self.path = Path(path)
-        _check_layout(self.path)
+        self._metadata = _read_metadata(self.path)
         self._reader = AnyReader([self.path], default_typestore=TYPESTORE)
         self._campaign_time = campaign_time
         self._origin_ns: int | None = None if campaign_time else 0
         self._is_open = False
 
     def open(self) -> None:
-        """Open the bag and read its index."""
-        files = list(self.path.glob('*.mcap'))
+        """Open the bag and read its index, after checking its files against metadata.yaml."""
+        files = self._metadata.files
         try:
-            if len(files) == 1:
-                check_summary_crc(files[0])
+            for file in files:
+                check_summary_crc(file)
+            _check_metadata_against_mcap(self.path, self._metadata)
             self._reader.open()
-        except _DAMAGE_ERRORS as err:
-            raise _damaged(self.path, err) from err
+        except (*_DAMAGE_ERRORS, *INDEX_DAMAGE_ERRORS) as err:
+            raise _damaged(self.path, files, err) from err
         self._is_open = True
+        _warn_of_unlisted_files(self.path, files)
 
     @property
     def origin_ns(self) -> int:
@@ -215,11 +221,10 @@ class BagReader:
             try:
                 if topic in imu:
                     records = collected[topic]
-                    arrays = merge_imu_blocks(records) if isinstance(records, list) else decode_imu_cdr(*records)
-                    collected[topic] = ImuArrays(arrays.stamp_ns - self.origin_ns,
-                                                 arrays.header_stamp_ns - self.origin_ns,
-                                                 arrays.angular_velocity_rad_per_s,
-                                                 arrays.linear_acceleration_m_per_s2)
+                    if isinstance(records, list):  # blocks read through the indexes: the bag's own times
+                        collected[topic] = self._imu_to_campaign_time(merge_imu_blocks(records))
+                    else:  # records of _raw: in campaign time already
+                        collected[topic] = decode_imu_cdr(*records)
                 elif topic in tables:
                     collected[topic] = decode_columns(collected[topic], self.topic(topic).msgtype, typestore)
                 elif topic not in raw:
@@ -229,7 +234,7 @@ class BagReader:
             except InvalidArgumentError as err:
                 raise BagError(f'topic {topic} in bag {self.path}: {err}') from err
             except _DAMAGE_ERRORS as err:
-                raise _damaged(self.path, err) from err
+                raise _damaged(self.path, self._metadata.files, err) from err
         return collected
 
     def document(self, topic: str) -> str:
@@ -245,7 +250,7 @@ class BagReader:
         try:
             texts = [decode_cdr(data, DOCUMENT_MSGTYPE).data for _, _, data in records]
         except _DAMAGE_ERRORS as err:
-            raise _damaged(self.path, err) from err
+            raise _damaged(self.path, self._metadata.files, err) from err
         if not texts:
             raise BagError(f'topic {topic} in bag {self.path} holds no document')
         return texts[-1]
@@ -270,7 +275,7 @@ class BagReader:
         self._require_open()
         for topic in topics:
             self.topic(topic)
-        files = list(self.path.glob('*.mcap'))
+        files = self._metadata.files
         if len(files) != 1:
             return None
         try:
@@ -279,7 +284,7 @@ class BagReader:
             decoded = [topic for topic, decode in packed.items() if decode is not None]
             raise BagError(f'topic {", ".join(decoded)} in bag {self.path}: {err}') from err
         except INDEX_DAMAGE_ERRORS as err:
-            raise _damaged(self.path, err) from err
+            raise _damaged(self.path, files, err) from err
 
     def _require_open(self) -> None:
         """Raise unless the bag is open."""
@@ -307,7 +312,7 @@ class BagReader:
                     data = shift_stamp(data, -origin_ns)
                 yield connection, stamp_ns - origin_ns, data
         except _DAMAGE_ERRORS as err:
-            raise _damaged(self.path, err) from err
+            raise _damaged(self.path, self._metadata.files, err) from err
 
     def _to_campaign_time(self, msgtype: str, stamps_ns: list[int], payloads: list) -> tuple[list[int], list]:
         """Log times and CDR payloads of one topic moved to campaign time."""
@@ -316,6 +321,13 @@ class BagReader:
         if has_leading_stamp(msgtype):
             payloads = [shift_stamp(data, -self.origin_ns) for data in payloads]
         return [stamp_ns - self.origin_ns for stamp_ns in stamps_ns], payloads
+
+    def _imu_to_campaign_time(self, arrays: ImuArrays) -> ImuArrays:
+        """Imu arrays read in the bag's time moved to campaign time (log times and header stamps)."""
+        if not self.origin_ns:
+            return arrays
+        return ImuArrays(arrays.stamp_ns - self.origin_ns, arrays.header_stamp_ns - self.origin_ns,
+                         arrays.angular_velocity_rad_per_s, arrays.linear_acceleration_m_per_s2)
 
     def _block_to_campaign_time(self, msgtype: str, stamps_ns: np.ndarray, rows: np.ndarray) -> tuple:
         """Log times and equal-length CDR rows of one topic moved to campaign time."""
@@ -334,7 +346,7 @@ class BagReader:
             try:
                 message = decode_cdr(data, connection.msgtype, typestore)
             except _DAMAGE_ERRORS as err:
-                raise _damaged(self.path, err) from err
+                raise _damaged(self.path, self._metadata.files, err) from err
             yield connection.topic, stamp_ns, message
 
     def _connections(self, name: str) -> list[Connection]:
@@ -343,8 +355,54 @@ class BagReader:
         return self._reader.topics[name].connections
 
 
-def _check_layout(path: Path) -> None:
-    """Raise BagError unless ``path`` is a closed rosbag2 directory in MCAP storage."""
+@dataclass(frozen=True)
+class _Metadata:
+    """What metadata.yaml says a bag holds: its MCAP files and what they should hold together."""
+
+    #: the files of relative_file_paths, in the bag directory, each a regular file
+    files: tuple[Path, ...]
+    #: topic -> messages it lists (topics_with_message_count)
+    topic_counts: dict[str, int]
+    message_count: int
+    start_ns: int
+    duration_ns: int
+    #: file names of its per-file `files:` section (empty when it has none)
+    described_files: tuple[str, ...]
+
+
+def _read_metadata(path: Path) -> _Metadata:
+    """Check that ``path`` is a closed rosbag2 directory in MCAP storage; what its metadata.yaml lists."""
+    _check_bag_directory(path)
+    metadata_path = path / 'metadata.yaml'
+    try:
+        info = _rosbag2_information(metadata_path)
+        storage = info['storage_identifier']
+        if storage == 'mcap':
+            listed_names = _listed_file_names(info)
+            topic_counts: dict[str, int] = {}
+            for item in info['topics_with_message_count']:
+                name = item['topic_metadata']['name']
+                topic_counts[name] = topic_counts.get(name, 0) + _count(item['message_count'])
+            message_count = _count(info['message_count'])
+            start_ns = _count(info['starting_time']['nanoseconds_since_epoch'])
+            duration_ns = _count(info['duration']['nanoseconds'])
+            described = tuple(PurePath(str(entry['path'])).name for entry in info.get('files') or ())
+    except (ConfigError, KeyError, TypeError, AttributeError, ValueError) as err:
+        detail = str(err).strip().splitlines()[0] if str(err).strip() else ''
+        raise BagError(
+            f'{metadata_path} is not rosbag2 metadata ({type(err).__name__}: {detail}); {_recover_hint(path)}'
+        ) from err
+    if storage != 'mcap':
+        raise BagError(
+            f'bag {path} uses {storage!r} storage, not MCAP; convert it with '
+            f'`rosbags-convert --src {path} --dst NEW_DIR --dst-storage mcap`'
+        )
+    return _Metadata(_listed_files(path, listed_names), topic_counts, message_count, start_ns, duration_ns,
+                     described)
+
+
+def _check_bag_directory(path: Path) -> None:
+    """Raise BagError unless ``path`` is a directory holding a metadata.yaml (or a link to one)."""
     if not path.exists():
         raise BagError(
             f'bag {path} does not exist; pass a bag directory (metadata.yaml + .mcap) under bags/'
@@ -355,7 +413,7 @@ def _check_layout(path: Path) -> None:
             'pass the directory holding metadata.yaml and the .mcap file'
         )
     metadata_path = path / 'metadata.yaml'
-    if not metadata_path.is_file():
+    if not metadata_path.exists() and not metadata_path.is_symlink():
         if _recoverable(path):
             raise BagError(
                 f'bag {path} was not closed (no metadata.yaml; its writer stopped before '
@@ -365,36 +423,172 @@ def _check_layout(path: Path) -> None:
             f'{path} is not a rosbag2 bag directory (no metadata.yaml and no MCAP data to recover); '
             'pass a bag written by the recorder'
         )
-    try:
-        metadata = yaml.safe_load(metadata_path.read_text())
-        storage = metadata['rosbag2_bagfile_information']['storage_identifier']
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError) as err:
-        first_line = str(err).strip().splitlines()[0] if str(err).strip() else ''
-        hint = (f'rebuild the bag with `sofia recover {path}`' if _recoverable(path)
-                else 'its .mcap holds nothing to recover')
+
+
+def _rosbag2_information(metadata_path: Path) -> dict[str, Any]:
+    """The rosbag2_bagfile_information mapping of a metadata.yaml, read capped (ConfigError, KeyError otherwise)."""
+    text = read_text_capped(metadata_path, MAX_CONFIG_BYTES, 'rosbag2 metadata.yaml')
+    document = safe_load_limited(text, str(metadata_path))
+    if not isinstance(document, dict) or not isinstance(document.get('rosbag2_bagfile_information'), dict):
+        raise KeyError('rosbag2_bagfile_information')
+    return document['rosbag2_bagfile_information']
+
+
+def _listed_file_names(info: dict[str, Any]) -> tuple[str, ...]:
+    """The file names of relative_file_paths, as rosbags opens them (the name inside the bag directory)."""
+    paths = info['relative_file_paths']
+    if not isinstance(paths, list) or not paths or not all(isinstance(name, str) for name in paths):
+        raise TypeError(f'relative_file_paths is {paths!r}, not a list of file names')
+    return tuple(PurePath(name).name for name in paths)
+
+
+def _count(value: object) -> int:
+    """A count or a time in ns from metadata.yaml: an int >= 0 (TypeError, ValueError otherwise)."""
+    if type(value) is not int:  # noqa: E721  (bool is not a count)
+        raise TypeError(f'{value!r} is not a whole number')
+    if value < 0:
+        raise ValueError(f'{value} is negative')
+    return value
+
+
+def _listed_files(path: Path, names: tuple[str, ...]) -> tuple[Path, ...]:
+    """The regular files of ``names`` in bag directory ``path``; BagError naming one that is missing or not a file.
+
+    Only these are read: an unlisted .mcap beside them (a copy, another run's file) is not part of the bag.
+    """
+    files = []
+    for name in names:
+        file = path / name
+        if not file.exists() and not file.is_symlink():
+            present = ', '.join(sorted(other.name for other in path.glob('*.mcap'))) or 'none'
+            raise BagError(
+                f'bag {path}: its metadata.yaml lists {name}, which is not in the bag (.mcap files there: '
+                f'{present}); restore the file, or if the metadata.yaml belongs to another recording rebuild the '
+                f'bag from its .mcap with `sofia recover {path}` (writes {path}_recovered)'
+            )
+        try:
+            files.append(require_regular_file(file, 'MCAP file'))
+        except ConfigError as err:
+            raise BagError(f'bag {path}: {err}; {_recover_hint(path)}') from err
+    return tuple(files)
+
+
+def _check_metadata_against_mcap(path: Path, metadata: _Metadata) -> None:
+    """Raise BagError when metadata.yaml does not describe its MCAP files (a metadata.yaml of another run).
+
+    Its topics, message counts, start and duration are what rosbags reports, and its per-topic counts
+    what the analysis trusts: checked against the MCAP summaries' statistics. A file written without
+    statistics has nothing to check against.
+    """
+    file_counts: dict[str, int] = {}
+    starts, ends = [], []
+    for file in metadata.files:
+        with file.open('rb') as stream:
+            summary = make_reader(stream).get_summary()
+        if summary is None or summary.statistics is None:
+            return
+        statistics = summary.statistics
+        for channel_id, count in statistics.channel_message_counts.items():
+            channel = summary.channels.get(channel_id)
+            topic = channel.topic if channel else f'channel {channel_id}'
+            file_counts[topic] = file_counts.get(topic, 0) + count
+        if statistics.message_count:
+            starts.append(statistics.message_start_time)
+            ends.append(statistics.message_end_time)
+    names = ', '.join(file.name for file in metadata.files)
+    mismatch = _first_mismatch(metadata, file_counts, starts, ends)
+    if mismatch:
         raise BagError(
-            f'{metadata_path} is not rosbag2 metadata ({type(err).__name__}: {first_line}); {hint}'
-        ) from err
-    if storage != 'mcap':
-        raise BagError(
-            f'bag {path} uses {storage!r} storage, not MCAP; convert it with '
-            f'`rosbags-convert --src {path} --dst NEW_DIR --dst-storage mcap`'
+            f'bag {path}: metadata.yaml does not match {names}: {mismatch} (a metadata.yaml of another '
+            f'recording?); rebuild the bag from its .mcap with `sofia recover {path}` (writes {path}_recovered)'
         )
 
 
+def _first_mismatch(metadata: _Metadata, file_counts: dict[str, int], starts: list[int], ends: list[int]) -> str:
+    """What metadata.yaml says that the MCAP statistics contradict first ('' if nothing)."""
+    described = set(metadata.described_files) - {file.name for file in metadata.files}
+    if described:
+        return f'its files: section describes {", ".join(sorted(described))}, which relative_file_paths does not list'
+    listed = {topic: count for topic, count in metadata.topic_counts.items() if count}
+    held = {topic: count for topic, count in file_counts.items() if count}
+    for topic in sorted(set(listed) | set(held)):
+        if listed.get(topic, 0) != held.get(topic, 0):
+            return f'it lists {listed.get(topic, 0)} messages on {topic}, the MCAP file(s) hold {held.get(topic, 0)}'
+    if metadata.message_count != sum(held.values()):
+        return f'it lists {metadata.message_count} messages, the MCAP file(s) hold {sum(held.values())}'
+    if starts:
+        start_ns, duration_ns = min(starts), max(ends) - min(starts)
+        if metadata.start_ns != start_ns:
+            return f'its starting time is {metadata.start_ns} ns, the first message is logged at {start_ns} ns'
+        if metadata.duration_ns != duration_ns:
+            return f'its duration is {metadata.duration_ns} ns, the messages span {duration_ns} ns'
+    return ''
+
+
+#: Bags whose unlisted .mcap files were already pointed out by this process (a command may open a bag twice).
+_WARNED_OF_UNLISTED: set[Path] = set()
+
+
+def _warn_of_unlisted_files(path: Path, files: tuple[Path, ...]) -> None:
+    """One line on stderr when the bag directory holds .mcap files its metadata.yaml does not list."""
+    unlisted = sorted(other.name for other in path.glob('*.mcap') if other not in files)
+    if unlisted and path.resolve() not in _WARNED_OF_UNLISTED:
+        _WARNED_OF_UNLISTED.add(path.resolve())
+        print(f'sofia: warning: bag {path} holds {", ".join(unlisted)}, which its metadata.yaml does not list: '
+              f'read only {", ".join(file.name for file in files)}; move the other file(s) out of the bag',
+              file=sys.stderr)
+
+
+def mcap_file_to_recover(source: Path) -> Path:
+    """The one MCAP file of bag directory ``source`` that `sofia recover` reads; BagError naming why not.
+
+    The file metadata.yaml lists when it can be read and lists one file that is there (a stray
+    .mcap beside it is not the bag's), else the one .mcap file of the directory.
+    """
+    if not source.is_dir():
+        raise BagError(f'bag {source} is not a directory; pass the bag directory holding the .mcap')
+    candidates = [source / name for name in _readable_listing(source) if (source / name).exists()]
+    if not candidates:
+        candidates = sorted(source.glob('*.mcap'))
+    if len(candidates) != 1:
+        names = ', '.join(file.name for file in candidates) or 'none'
+        raise BagError(f'bag {source} holds {len(candidates)} .mcap files ({names}) and no metadata.yaml naming '
+                       'one of them, expected 1; move the others out and recover one file at a time')
+    try:
+        return require_regular_file(candidates[0], 'MCAP file')
+    except ConfigError as err:
+        raise BagError(f'bag {source}: {err}; nothing to recover there') from err
+
+
+def _readable_listing(source: Path) -> tuple[str, ...]:
+    """The file names a bag's metadata.yaml lists, or none if it is missing or unreadable."""
+    try:
+        return _listed_file_names(_rosbag2_information(source / 'metadata.yaml'))
+    except (ConfigError, KeyError, TypeError, AttributeError):
+        return ()
+
+
 def _recoverable(path: Path) -> bool:
-    """Whether ``path`` holds exactly one .mcap with more than its magic (what recover_bag can read)."""
-    files = list(path.glob('*.mcap'))
-    return len(files) == 1 and files[0].stat().st_size > 8
+    """Whether ``path`` holds an MCAP file for `sofia recover` with more than its magic."""
+    try:
+        return mcap_file_to_recover(path).stat().st_size > 8
+    except (BagError, OSError):
+        return False
 
 
-def _damaged(path: Path, err: BaseException) -> BagError:
+def _recover_hint(path: Path) -> str:
+    """How to rebuild a bag whose metadata cannot be used, or that there is nothing to rebuild it from."""
+    if _recoverable(path):
+        return f'rebuild the bag with `sofia recover {path}`'
+    return 'its .mcap holds nothing to recover'
+
+
+def _damaged(path: Path, files: tuple[Path, ...], err: BaseException) -> BagError:
     """The BagError for a bag whose MCAP file is truncated or corrupt, naming the first damaged chunk if any."""
-    files = list(path.glob('*.mcap'))
     if len(files) == 1 and 'chunk' not in str(err):
         try:
             chunk = first_damaged_chunk(files[0])
-        except (*INDEX_DAMAGE_ERRORS, OSError):
+        except (*INDEX_DAMAGE_ERRORS, OSError, AttributeError):
             chunk = None
         if chunk is not None:
             err = ValueError(chunk)

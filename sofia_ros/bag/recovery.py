@@ -3,19 +3,22 @@
 from __future__ import annotations
 
 import io
+import shutil
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import yaml
 import zstandard
 from mcap.exceptions import EndOfFile, McapError
 from mcap.records import Channel, Footer, Message, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader
 
+from sofia_ros.bag.reader import mcap_file_to_recover
 from sofia_ros.bag.writer import BagWriter
-from sofia_ros.errors import BagError
+from sofia_ros.config import safe_load_limited
+from sofia_ros.errors import BagError, ConfigError
+from sofia_ros.output_files import output_error
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -57,16 +60,28 @@ def recover_bag(
 ) -> RecoveryReport:
     """Copy every complete MCAP chunk of bag ``source`` into a new, closed bag ``destination``.
 
-    ``source`` is left untouched; ``destination`` defaults to ``source`` + '_recovered'.
+    ``source`` is left untouched; ``destination`` defaults to ``source`` + '_recovered'. It is
+    complete or absent: a failure (a full disk, nothing to recover) removes what was begun.
     """
     source = Path(source)
-    mcap_path = _mcap_file(source)
+    mcap_path = mcap_file_to_recover(source)
     if destination is None:
         destination = source.with_name(source.name + RECOVERED_SUFFIX)
     data = mcap_path.read_bytes()
-    with BagWriter(destination) as writer:
-        copier = _Copier(writer)
-        stop_reason, skipped = _copy_records(data, copier)
+    writer = BagWriter(destination)  # refuses an existing destination before anything is created
+    try:
+        with writer:
+            copier = _Copier(writer)
+            stop_reason, skipped = _copy_records(data, copier)
+            if not data.startswith(_MCAP_MAGIC) and not copier.topics:
+                raise BagError(f'{mcap_path} is not an MCAP file (bad magic and no intact chunk); '
+                               'nothing to recover')
+    except BaseException as err:
+        shutil.rmtree(writer.path, ignore_errors=True)
+        cause = err if isinstance(err, OSError) else err.__cause__
+        if isinstance(err, (OSError, BagError)) and isinstance(cause, OSError):
+            raise output_error(writer.path, cause) from err
+        raise
     return RecoveryReport(
         source=source,
         bag=writer.path,
@@ -120,13 +135,13 @@ def _parse(record_bytes):
 
 
 def _copy_records(data, copier):
-    """Copy every intact top-level record; skip a damaged one and resynchronize on the next chunk.
+    """Copy every intact top-level record; past a damaged one, or a length that runs past the end of the
+    file, resynchronize on the next whole chunk (a damaged magic or header loses only itself).
 
-    Returns why reading ended and the byte offsets of the records skipped.
+    Returns why reading ended and the byte offsets of the records skipped (0 for a damaged magic).
     """
-    if not data.startswith(_MCAP_MAGIC):
-        return 'bad magic', []
-    offset, skipped, stop_reason = len(_MCAP_MAGIC), [], 'end of file'
+    skipped = [] if data.startswith(_MCAP_MAGIC) else [0]
+    offset, stop_reason = len(_MCAP_MAGIC), 'end of file'
     while offset is not None and offset < len(data):
         resume = None
         for start, end in _top_level_records(data, offset):
@@ -139,9 +154,14 @@ def _copy_records(data, copier):
                 copier.copy(record)
             offset = end
         else:
-            if offset < len(data) and not copier.reached_footer:
+            if offset >= len(data) or copier.reached_footer:
+                break
+            # A record running past the end: the file was cut there, or its length field is damaged.
+            resume = _next_chunk(data, offset)
+            if resume is None:
                 stop_reason = f'file cut inside the record at byte {offset}'
-            break
+                break
+            skipped.append(offset)
         offset = resume
     return stop_reason, skipped
 
@@ -156,6 +176,11 @@ class _Copier:
         self.reached_footer = False
         self._msgtypes: dict[int, str] = {}
         self._topics: dict[int, str] = {}
+
+    @property
+    def topics(self) -> tuple[str, ...]:
+        """The topics copied so far."""
+        return tuple(self._topics.values())
 
     def copy(self, record: McapRecord) -> None:
         """Copy one record; records other than schema, channel and message are rebuilt on close."""
@@ -176,22 +201,12 @@ class _Copier:
             self.reached_footer = True
 
 
-def _mcap_file(source: Path) -> Path:
-    """Return the one MCAP file of bag directory ``source``; raise BagError otherwise."""
-    if not source.is_dir():
-        raise BagError(f'bag {source} is not a directory; pass the bag directory holding the .mcap')
-    files = sorted(source.glob('*.mcap'))
-    if len(files) != 1:
-        raise BagError(
-            f'bag {source} holds {len(files)} .mcap files, expected 1; recover one file at a time'
-        )
-    with files[0].open('rb') as stream:
-        if stream.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
-            raise BagError(f'{files[0]} is not an MCAP file (bad magic); nothing to recover')
-    return files[0]
-
-
 def _is_latched(channel: Channel) -> bool:
     """Whether a channel was offered transient-local (rosbag2 keeps its QoS in channel metadata)."""
-    profiles = yaml.safe_load(channel.metadata.get('offered_qos_profiles', '')) or []
-    return any(profile.get('durability') == 'transient_local' for profile in profiles)
+    text = channel.metadata.get('offered_qos_profiles', '')
+    try:
+        profiles = safe_load_limited(text, f'the QoS of channel {channel.topic}')
+    except ConfigError as err:
+        raise BagError(f'{err}; the channel metadata of this .mcap is damaged') from err
+    return isinstance(profiles, list) and any(
+        isinstance(profile, dict) and profile.get('durability') == 'transient_local' for profile in profiles)

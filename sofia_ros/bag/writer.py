@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import operator
+import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -30,7 +31,8 @@ from sofia_ros.bag.msgtypes import (
     wire_cdr,
 )
 from sofia_ros.bag.timebase import has_leading_stamp, shift_stamp, shift_stamps
-from sofia_ros.errors import BagError, InvalidArgumentError
+from sofia_ros.errors import BagError, InvalidArgumentError, OutputError
+from sofia_ros.output_files import describe_os_error, output_error
 
 if TYPE_CHECKING:
     from os import PathLike
@@ -70,10 +72,24 @@ STREAM_QOS = Qos(
 )
 
 
+class _CountingMcapStorage(CheckedMcapStorage):
+    """The CRC-checked MCAP storage, counting the messages whose chunks the file has handed to the OS: what a
+    bag cut short by a full disk keeps (``sofia recover`` restores them)."""
+
+    messages_on_disk = 0
+
+    def _write_chunk(self, batch: list[tuple[int, int, bytes]], start: int) -> int:
+        """CheckedMcapStorage._write_chunk, the chunk then flushed: its messages count once the OS has it whole."""
+        end = super()._write_chunk(batch, start)
+        self._file.flush()
+        self.messages_on_disk += end - start
+        return end
+
+
 class _Rosbag2Writer(Writer):
     """rosbags' rosbag2 writer (metadata.yaml, connections, QoS) over the CRC-checked MCAP storage."""
 
-    STORAGE_PLUGINS = {StoragePlugin.MCAP: CheckedMcapStorage}
+    STORAGE_PLUGINS = {StoragePlugin.MCAP: _CountingMcapStorage}
 
     def write(self, connection: Connection, timestamp: int, data: bytes | memoryview) -> None:
         """rosbags' write without its linear search of the connection list (each 400 Hz sample passes here).
@@ -110,7 +126,10 @@ class BagWriter:
 
     Only :meth:`close` writes ``metadata.yaml``; leaving the ``with`` block by an
     exception aborts instead, so a bag that was not closed never looks complete.
-    Not thread-safe: call it from one thread (or under one lock).
+    The disk filling up (or any OSError writing the file) aborts the bag at once and
+    raises OutputError (exit code 3 for a full disk) naming how many messages it
+    keeps; a bag that cannot even be created is removed. Not thread-safe: call it
+    from one thread (or under one lock).
     """
 
     def __init__(
@@ -143,12 +162,20 @@ class BagWriter:
         """Create the bag directory and its MCAP file."""
         try:
             self._writer.open()
-        except (WriterError, OSError) as err:
+        except WriterError as err:
             raise BagError(f'cannot create bag {self.path}: {err}') from err
+        except OSError as err:
+            self._remove_unstarted_bag()
+            raise output_error(self.path, err) from err
         self._is_open = True
         # The MCAP magic and header reach the disk at once, so a killed run leaves a
         # file that recover_bag() recognises as MCAP.
-        self.flush()
+        try:
+            self._writer.storage.write_chunks()
+        except OSError as err:
+            self._stop_writing()
+            self._remove_unstarted_bag()
+            raise output_error(self.path, err) from err
 
     def add_topic(self, topic: str, msgtype: str, *, latched: bool = False) -> None:
         """Register ``topic`` of type ``msgtype`` ('pkg/msg/Name') with its offered QoS: LATCHED_QOS or STREAM_QOS."""
@@ -224,17 +251,22 @@ class BagWriter:
     def flush(self) -> None:
         """Hand every message written so far to the OS (survives the process being killed)."""
         self._require_open()
-        self._writer.storage.write_chunks()
+        self._write_chunks()
 
     def close(self) -> None:
         """Finish the MCAP summary and write metadata.yaml; the bag is then complete."""
         if not self._is_open:
             return
-        self._is_open = False
         try:
             self._writer.close()
-        except (WriterError, OSError) as err:
+        except WriterError as err:
+            self._is_open = False
             raise BagError(f'cannot finish bag {self.path}: {err}') from err
+        except OSError as err:
+            # rosbags writes metadata.yaml through a temporary file that a full disk leaves behind.
+            self.path.joinpath('metadata.yaml.tmp').unlink(missing_ok=True)
+            raise self._cut_short(err) from err
+        self._is_open = False
 
     def abort(self) -> None:
         """Flush and stop without metadata.yaml: the bag stays incomplete but recoverable."""
@@ -243,8 +275,7 @@ class BagWriter:
         try:
             self.flush()
         finally:
-            self._is_open = False
-            self._writer.abort()
+            self._stop_writing()
 
     def __enter__(self) -> BagWriter:
         """Open the bag."""
@@ -270,6 +301,36 @@ class BagWriter:
                 f'bag {self.path} is not open for writing; use it inside `with BagWriter(...)`'
             )
 
+    def _write_chunks(self, before_ns: int | None = None) -> None:
+        """Hand the buffered messages logged before ``before_ns`` (all if None) to the OS; OutputError if it fails."""
+        try:
+            self._writer.storage.write_chunks(before_ns)
+        except OSError as err:
+            raise self._cut_short(err) from err
+
+    def _cut_short(self, err: OSError) -> OutputError:
+        """Stop writing after ``err`` (a full disk, say) and the one-line error that says what the bag keeps."""
+        storage = self._writer.storage
+        # No storage left: rosbags closed the MCAP file whole, and writing metadata.yaml failed.
+        kept = storage.messages_on_disk if storage is not None else sum(self._writer.counts.values())
+        self._stop_writing()
+        line, exit_code = describe_os_error(err, filename=self.path)
+        # "at least": the chunk being written may have reached the disk whole, only its index cut short.
+        return OutputError(f'cannot write bag {line}; at least {kept} messages kept: `sofia recover {self.path}` '
+                           'restores them', exit_code)
+
+    def _stop_writing(self) -> None:
+        """Close the file without a summary; what it could not write any more is dropped."""
+        self._is_open = False
+        try:
+            self._writer.abort()
+        except OSError:
+            pass  # closing flushes the buffer the disk refused; the file is closed all the same
+
+    def _remove_unstarted_bag(self) -> None:
+        """Remove the bag directory a failed open() created (it did not exist: rosbags refuses one that does)."""
+        shutil.rmtree(self.path, ignore_errors=True)
+
     def _connection(self, topic: str) -> Connection:
         """Return the connection of an added topic."""
         self._require_open()
@@ -293,7 +354,7 @@ class BagWriter:
 
     def _flush_before(self, stamp_ns: int) -> None:
         """Write out every buffered message logged before ``stamp_ns``; the next flush is a period later."""
-        self._writer.storage.write_chunks(before_ns=stamp_ns)
+        self._write_chunks(stamp_ns)
         self._flush_due_ns = stamp_ns + self._flush_period_ns
 
 

@@ -23,7 +23,7 @@ from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.campaigns.recording import finish_run, new_bag_path, write_summary
 from sofia_ros.effects import resolve_params
-from sofia_ros.errors import ConfigError
+from sofia_ros.errors import ConfigError, OutputError
 from sofia_ros.scenario import Scenario, scenario_document
 from sofia_ros.sim.clock import ClockCore
 from sofia_ros.sim.gyro_box import GyroBoxCore
@@ -139,11 +139,19 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
                 return interrupts.requested() is not None
 
             runner.run(until_ns=until_ns, stop=stop)
+        bag.close()  # here, not only in finally: a disk that fills up as the bag is finished is a fault too
+    except OutputError as err:
+        # The disk filled up: the bag keeps what reached it (BagWriter says how much); a fault, exit 3.
+        finish_run(bag_path, {'case': case, 'sim_seconds': round(runner.stamp_ns / 1e9, 3),
+                              'wall_seconds': round(time.perf_counter() - wall_start, 3)}, str(err))
     except Exception as err:
         # A bug: close what was recorded, keep the reason in summary.json; the traceback follows.
         bag.close()
-        write_summary(bag_path, {'case': case, 'sim_seconds': round(runner.stamp_ns / 1e9, 3), 'stopped': 'fault',
-                                 'reason': f'{type(err).__name__}: {err}'})
+        try:
+            write_summary(bag_path, {'case': case, 'sim_seconds': round(runner.stamp_ns / 1e9, 3), 'stopped': 'fault',
+                                     'reason': f'{type(err).__name__}: {err}'})
+        except OutputError:
+            pass  # a full disk too: the bug's traceback, which follows, matters more
         raise
     finally:
         bag.close()

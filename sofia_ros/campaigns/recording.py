@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import tempfile
 import time
@@ -17,7 +18,8 @@ import yaml
 from sofia_ros import interrupts
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
-from sofia_ros.errors import ConfigError, RunFaultError, RunInterrupted
+from sofia_ros.errors import ConfigError, OutputError, RunFaultError, RunInterrupted
+from sofia_ros.output_files import output_error, write_text_atomically
 from sofia_ros.scenario import scenario_document
 from sofia_ros.sim.graph import GraphConfig, build_cores
 from sofia_ros.sim.runner import LockstepRunner
@@ -34,11 +36,26 @@ MODES = ('executor', 'executor-dds', 'processes', 'direct')
 
 
 def new_bag_path(bag_path: str | PathLike[str]) -> Path:
-    """The bag directory as a Path; ConfigError if it exists already (a run never overwrites a bag)."""
+    """The bag directory as a Path; ConfigError if it exists already (a run never overwrites a bag), OutputError
+    if it cannot be created there (a read-only disk: exit 2), before any node starts."""
     bag_path = Path(bag_path)
     if bag_path.exists():
         raise ConfigError(f'bag directory {bag_path} already exists; choose another --bag or remove it')
+    _check_creatable(bag_path)
     return bag_path
+
+
+def _check_creatable(bag_path: Path) -> None:
+    """OutputError unless a directory can be made where ``bag_path`` will be (its nearest existing ancestor).
+
+    Tried with a real directory, since only that tells a read-only disk from a writable one for root
+    too; in --processes mode the bag is created by the recorder process, whose own error says less.
+    """
+    ancestor = next((folder for folder in bag_path.absolute().parents if folder.exists()), Path('/'))
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=f'.{bag_path.name[:100]}.', dir=ancestor))
+    except OSError as err:
+        raise output_error(bag_path, err) from err
 
 
 def graph_documents(config: GraphConfig, model_text: str | None = None) -> list[tuple[str, str]]:
@@ -52,8 +69,8 @@ def graph_documents(config: GraphConfig, model_text: str | None = None) -> list[
 
 
 def write_summary(bag_path: str | PathLike[str], summary: dict) -> None:
-    """summary.json beside the bag (mode from the umask, like every other output)."""
-    Path(bag_path, 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
+    """summary.json beside the bag, whole or not at all (mode from the umask, like every other output)."""
+    write_text_atomically(Path(bag_path, 'summary.json'), json.dumps(summary, indent=2) + '\n')
 
 
 def summary_of_failed_run(bag_path: str | PathLike[str], wall_seconds: float, reason: str) -> dict:
@@ -69,10 +86,10 @@ def finish_run(bag_path: str | PathLike[str], summary: dict, fault: str | None =
     """Write the side files (file name -> text, e.g. truth.yaml) and summary.json beside the bag; raise
     RunInterrupted (a signal stopped the run) or RunFaultError (``fault``).
 
-    An interrupted or faulted run's summary has ``stopped`` ('interrupted' or 'fault') and the reason.
+    An interrupted or faulted run's summary has ``stopped`` ('interrupted' or 'fault') and the reason; these
+    files are written whole or not at all, and a stopped run whose disk is full says so in its error line
+    rather than losing its reason to the OutputError of summary.json.
     """
-    for name, text in (side_files or {}).items():
-        Path(bag_path, name).write_text(text)
     signum = interrupts.requested()
     if signum is not None:
         name = signal.Signals(signum).name
@@ -80,32 +97,52 @@ def finish_run(bag_path: str | PathLike[str], summary: dict, fault: str | None =
     elif fault:
         # The fault is why the run stopped, with what the recorder could not know (where the node logs are).
         summary.update(stopped='fault', reason=fault)
-    if Path(bag_path).is_dir():
-        write_summary(bag_path, summary)
+    recorded = Path(bag_path).is_dir()
+    try:
+        # The summary first: the reason a stopped run gives matters more than the side files.
+        if recorded:
+            write_summary(bag_path, summary)
+            for name, text in (side_files or {}).items():
+                write_text_atomically(Path(bag_path, name), text)
+        where = f'summary.json: "stopped": "{summary.get("stopped")}"'
+    except OutputError:
+        if signum is None and not fault:
+            raise  # the run finished; its files could not be written: that is the error
+        where = 'summary.json not written either'
     sim = '' if summary.get('sim_seconds') is None else f' at sim {summary["sim_seconds"]:.1f} s'
     if signum is not None:
-        if not Path(bag_path).is_dir():
+        if not recorded:
             raise RunInterrupted(signum, f'interrupted by {name} before the recorder created {bag_path}; '
                                          'nothing was recorded')
-        raise RunInterrupted(signum, f'interrupted by {name}{sim}; {bag_path} holds the run up to then '
-                                     '(summary.json: "stopped": "interrupted")')
+        raise RunInterrupted(signum, f'interrupted by {name}{sim}; {bag_path} holds the run up to then ({where})')
     if fault:
-        raise RunFaultError(f'run stopped{sim}: {summary["reason"]} (summary.json: "stopped": "fault")')
+        if not recorded:
+            raise RunFaultError(f'run stopped{sim}: {summary["reason"]}; nothing was recorded')
+        raise RunFaultError(f'run stopped{sim}: {summary["reason"]} ({where})')
 
 
 def record_campaign(config: GraphConfig, bag_path: Path, **options: Any) -> str | None:
     """record_graph(config, bag_path, **options); when it fails after the start, summary.json gets the
-    reason (``"stopped": "fault"``) before the error propagates: RunFaultError (exit 3) or a bug."""
+    reason (``"stopped": "fault"``) before the error propagates: RunFaultError (exit 3; also for the bag's
+    disk filling up, an OutputError of the writer) or a bug.
+
+    A bag that could not be created at all (its OutputError: exit 2 on a read-only disk) propagates as it is.
+    """
     wall_start = time.perf_counter()
     try:
         return record_graph(config, bag_path, **options)
-    except RunFaultError as err:
+    except (RunFaultError, OutputError) as err:
+        if isinstance(err, OutputError) and not Path(bag_path).is_dir():
+            raise
         finish_run(bag_path, summary_of_failed_run(bag_path, time.perf_counter() - wall_start, str(err)), str(err))
         raise
     except Exception as err:
         if Path(bag_path).is_dir():
-            write_summary(bag_path, {**summary_of_failed_run(bag_path, time.perf_counter() - wall_start,
-                                                             f'{type(err).__name__}: {err}'), 'stopped': 'fault'})
+            try:
+                write_summary(bag_path, {**summary_of_failed_run(bag_path, time.perf_counter() - wall_start,
+                                                                 f'{type(err).__name__}: {err}'), 'stopped': 'fault'})
+            except OutputError:
+                pass  # a full disk too: the bug's traceback, which follows, matters more
         raise
 
 

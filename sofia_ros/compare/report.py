@@ -26,6 +26,7 @@ from sofia_ros.compare.diagnostics import FRAME_VARIABLES, distinct_findings, ro
 from sofia_ros.effects.empirical import DETECTOR_FIELD  # noqa: E402
 from sofia_ros.compare.star_hop import hold_rows  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
+from sofia_ros.output_files import output_error  # noqa: E402
 
 __all__ = ['html_table', 'write_report']
 
@@ -331,7 +332,8 @@ Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {docume
 
 
 def write_report(result, document, directory):
-    """Write index.html and the PNGs into ``directory`` (created if needed), all files or none."""
+    """Write index.html and the PNGs into ``directory`` (created if needed), all files or none; OutputError in one
+    line (exit 3 for a full disk) naming ``directory`` when the disk refuses them."""
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise ConfigError(f'--report {directory} is a file; give a directory')
@@ -347,6 +349,16 @@ def write_report(result, document, directory):
     runs.append({'model': document['model'], 'last_term': document['ledger'][-1]['term'],
                  'residual_rms_arcsec': document['residual_rms_arcsec'],
                  'noise_floor_arcsec': document['noise_floor_arcsec'], 'top_candidate': top})
+    try:
+        _write_staged(result, document, runs, directory)
+    except OSError as err:
+        # Named by the report directory: the staging folder the error is about is gone.
+        raise output_error(directory, err) from err
+    return directory / 'index.html'
+
+
+def _write_staged(result, document, runs, directory):
+    """Draw every file in a staging folder beside ``directory``, then move them in (the staging folder removed)."""
     fits = [('model', result.final_fit)]
     if result.best_fit is not None:
         fits.append((f'+ {result.best_name}', result.best_fit))
@@ -368,4 +380,3 @@ def write_report(result, document, directory):
         directory.mkdir(exist_ok=True)
         for staged in staging.iterdir():
             shutil.move(str(staged), directory / staged.name)
-    return directory / 'index.html'

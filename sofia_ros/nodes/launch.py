@@ -35,7 +35,7 @@ from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, build_cores, graph_topics
 from sofia_ros.topics import CLOCK
 
 __all__ = ['run_graph_in_process', 'share_time_source', 'run_graph_in_processes', 'start_graph_processes',
-           'write_params_file', 'wait_for_graph', 'stop_graph', 'silent_nodes', 'GraphProcesses']
+           'write_params_file', 'wait_for_graph', 'stop_graph', 'silent_nodes', 'GraphProcesses', 'RecorderError']
 
 
 def _participants(cores):
@@ -129,6 +129,16 @@ def share_time_source(keeper, nodes, bus=None):
     if bus is not None:
         time_source.detach_node()  # its /clock subscription; the clocks stay attached and on sim time
         bus.subscribe(CLOCK.name, time_source.clock_callback, SYNC_QOS)
+
+
+#: The exit code of a node process that stopped on an error it reported itself, its log's last such line being
+#: ``<node>: error: <reason>`` (nodes.executables.main): the recorder's bag on a full disk, for one.
+NODE_ERROR_EXIT_CODE = 2
+
+
+class RecorderError(GraphRunError):
+    """The recorder node stopped on an error it reported (its bag's disk filled up): the reason is whole, and the
+    node logs, which say nothing more, are not kept."""
 
 
 #: How long the recorder may take to close its bag once the clock has stopped the run and exited.
@@ -244,6 +254,9 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
     recorder = graph.processes['recorder']
     # Stopped by a signal, a recorder that had not started yet exits non-zero too; that is no fault.
     if recorder.returncode not in (0, None) and interrupts.requested() is None and not _bag_is_closed(graph):
+        reported = _reported_error(graph, 'recorder') if recorder.returncode == NODE_ERROR_EXIT_CODE else None
+        if reported:
+            raise RecorderError(reported)
         raise GraphRunError(f'the recorder node {_exit_text(recorder.returncode)}; its bag is not closed: '
                             f'rebuild it with `sofia recover {graph.bag_path}`; logs in {graph.workdir}')
 
@@ -277,6 +290,16 @@ def _last_log_line(graph, node):
     return lines[-1] if lines else 'nothing logged'
 
 
+def _reported_error(graph, node):
+    """The reason of the last ``<node>: error: <reason>`` line in a node's log, or None."""
+    prefix = f'{node}: error: '
+    try:
+        lines = (graph.workdir / f'{node}.log').read_text(errors='replace').splitlines()
+    except OSError:
+        return None
+    return next((line[len(prefix):] for line in reversed(lines) if line.startswith(prefix)), None)
+
+
 def stop_graph(graph):
     """SIGINT the graph's process group (the recorder closes its bag), kill stragglers, release the domain."""
     running = [process for process in graph.processes.values() if process.poll() is None]
@@ -303,12 +326,15 @@ def run_graph_in_processes(parameters: Mapping[str, Any], bag_path: str | os.Pat
     closed the bag.
 
     The node logs and params file are removed once the bag is closed; a run that fails (a GraphRunError, which
-    names the folder, or a fault the clock stopped the run for) keeps them.
+    names the folder, or a fault the clock stopped the run for) keeps them, unless the recorder reported the
+    error itself (RecorderError: its reason is whole).
     """
     graph = start_graph_processes(parameters, bag_path)
     try:
         wait_for_graph(graph, timeout_s=timeout_s, progress=progress, max_sim_s=parameters['max_sim_s'])
-    except GraphRunError:
+    except GraphRunError as err:
+        if isinstance(err, RecorderError):
+            shutil.rmtree(graph.workdir, ignore_errors=True)
         raise
     except BaseException:
         # A second signal or a bug in this process: the nodes are down, their logs say nothing new.

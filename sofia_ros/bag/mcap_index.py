@@ -133,6 +133,8 @@ def first_damaged_chunk(mcap_path):
 
 def check_summary_crc(mcap_path):
     """Raise ValueError if the file's footer carries a summary CRC that its summary section fails."""
+    if Path(mcap_path).stat().st_size == 0:  # mmap refuses an empty file
+        raise ValueError('the file is empty')
     with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
         footer = len(data) - len(_MAGIC) - _FOOTER.size
         if footer < 0 or data[footer] != _FOOTER_OPCODE:

@@ -428,7 +428,10 @@ def _check_bag_directory(path: Path) -> None:
 def _rosbag2_information(metadata_path: Path) -> dict[str, Any]:
     """The rosbag2_bagfile_information mapping of a metadata.yaml, read capped (ConfigError, KeyError otherwise)."""
     text = read_text_capped(metadata_path, MAX_CONFIG_BYTES, 'rosbag2 metadata.yaml')
-    document = safe_load_limited(text, str(metadata_path))
+    try:
+        document = safe_load_limited(text, str(metadata_path))
+    except yaml.YAMLError as err:  # PyYAML refuses control characters already when the loader is made
+        raise ConfigError(f'{metadata_path}: not YAML text ({str(err).splitlines()[0]})') from err
     if not isinstance(document, dict) or not isinstance(document.get('rosbag2_bagfile_information'), dict):
         raise KeyError('rosbag2_bagfile_information')
     return document['rosbag2_bagfile_information']
@@ -550,10 +553,12 @@ def mcap_file_to_recover(source: Path) -> Path:
     candidates = [source / name for name in _readable_listing(source) if (source / name).exists()]
     if not candidates:
         candidates = sorted(source.glob('*.mcap'))
-    if len(candidates) != 1:
-        names = ', '.join(file.name for file in candidates) or 'none'
+    if not candidates:
+        raise BagError(f'bag {source} holds 0 .mcap files; nothing to recover there')
+    if len(candidates) > 1:
+        names = ', '.join(file.name for file in candidates)
         raise BagError(f'bag {source} holds {len(candidates)} .mcap files ({names}) and no metadata.yaml naming '
-                       'one of them, expected 1; move the others out and recover one file at a time')
+                       'one of them; move all but one out and recover one file at a time')
     try:
         return require_regular_file(candidates[0], 'MCAP file')
     except ConfigError as err:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import shutil
 import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -17,7 +18,7 @@ from mcap.stream_reader import CRCValidationError, StreamReader
 from sofia_ros.bag.reader import mcap_file_to_recover
 from sofia_ros.bag.writer import BagWriter
 from sofia_ros.config import safe_load_limited
-from sofia_ros.errors import BagError, ConfigError
+from sofia_ros.errors import BagError, ConfigError, SofiaError
 from sofia_ros.output_files import output_error
 
 if TYPE_CHECKING:
@@ -72,14 +73,18 @@ def recover_bag(
     try:
         with writer:
             copier = _Copier(writer)
+            # Channels first from an intact summary, so that a damaged first chunk (which carries them
+            # in the data section) does not take the messages of the intact chunks after it along.
+            for record in _summary_schemas_and_channels(data):
+                copier.copy(record)
             stop_reason, skipped = _copy_records(data, copier)
-            if not data.startswith(_MCAP_MAGIC) and not copier.topics:
-                raise BagError(f'{mcap_path} is not an MCAP file (bad magic and no intact chunk); '
-                               'nothing to recover')
+            if not copier.topics:
+                raise BagError(f'{mcap_path} holds no intact MCAP chunk ({stop_reason}); nothing to recover')
     except BaseException as err:
         shutil.rmtree(writer.path, ignore_errors=True)
+        # The writer's own line for a full disk names the messages its bag keeps: here there is no bag left.
         cause = err if isinstance(err, OSError) else err.__cause__
-        if isinstance(err, (OSError, BagError)) and isinstance(cause, OSError):
+        if isinstance(err, (OSError, SofiaError)) and isinstance(cause, OSError):
             raise output_error(writer.path, cause) from err
         raise
     return RecoveryReport(
@@ -94,6 +99,9 @@ def recover_bag(
 
 
 _OPCODE_CHUNK = 0x06
+_OPCODE_FOOTER = 0x02
+#: Footer record: opcode, length, summary start, summary offset start, summary CRC.
+_FOOTER = struct.Struct('<BQQQI')
 _RECORD_HEAD = 9  # opcode (1 byte) + content length (uint64)
 
 
@@ -138,32 +146,47 @@ def _copy_records(data, copier):
     """Copy every intact top-level record; past a damaged one, or a length that runs past the end of the
     file, resynchronize on the next whole chunk (a damaged magic or header loses only itself).
 
+    The search starts after the last intact record, not after the damaged one: a damaged length (of the
+    header, a message index) makes the next record seem to start inside the chunk that really follows.
     Returns why reading ended and the byte offsets of the records skipped (0 for a damaged magic).
     """
     skipped = [] if data.startswith(_MCAP_MAGIC) else [0]
-    offset, stop_reason = len(_MCAP_MAGIC), 'end of file'
+    offset, last_intact, stop_reason = len(_MCAP_MAGIC), 0, 'end of file'
     while offset is not None and offset < len(data):
         resume = None
         for start, end in _top_level_records(data, offset):
             records = _parse(data[start:end])
             if records is None:
                 skipped.append(start)
-                resume = _next_chunk(data, start)
+                resume = _next_chunk(data, last_intact)
                 break
             for record in records:
                 copier.copy(record)
-            offset = end
+            offset, last_intact = end, start
         else:
             if offset >= len(data) or copier.reached_footer:
                 break
             # A record running past the end: the file was cut there, or its length field is damaged.
-            resume = _next_chunk(data, offset)
+            resume = _next_chunk(data, last_intact)
             if resume is None:
                 stop_reason = f'file cut inside the record at byte {offset}'
                 break
             skipped.append(offset)
         offset = resume
     return stop_reason, skipped
+
+
+def _summary_schemas_and_channels(data):
+    """The schema and channel records of the summary section if the footer and the summary's CRC are intact."""
+    footer = len(data) - len(_MCAP_MAGIC) - _FOOTER.size
+    if footer < len(_MCAP_MAGIC) or data[footer] != _OPCODE_FOOTER or not data.endswith(_MCAP_MAGIC):
+        return []
+    _, _, summary_start, _, crc = _FOOTER.unpack_from(data, footer)
+    if not len(_MCAP_MAGIC) <= summary_start <= footer:
+        return []
+    if crc and zlib.crc32(data[summary_start:footer + _FOOTER.size - 4]) != crc:  # 0: written without a CRC
+        return []
+    return [record for record in _parse(data[summary_start:footer]) or () if isinstance(record, (Schema, Channel))]
 
 
 class _Copier:

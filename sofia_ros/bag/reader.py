@@ -82,9 +82,10 @@ class BagReader:
         """Open the bag and read its index, after checking its files against metadata.yaml."""
         files = self._metadata.files
         try:
-            for file in files:
-                check_summary_crc(file)
-            _check_metadata_against_mcap(self.path, self._metadata)
+            if not self._metadata.file_compressed:
+                for file in files:
+                    check_summary_crc(file)
+                _check_metadata_against_mcap(self.path, self._metadata)
             self._reader.open()
         except (*_DAMAGE_ERRORS, *INDEX_DAMAGE_ERRORS) as err:
             raise _damaged(self.path, files, err) from err
@@ -276,7 +277,7 @@ class BagReader:
         for topic in topics:
             self.topic(topic)
         files = self._metadata.files
-        if len(files) != 1:
+        if len(files) != 1 or self._metadata.file_compressed:
             return None
         try:
             return indexed_records(files[0], topics, packed)
@@ -368,6 +369,9 @@ class _Metadata:
     duration_ns: int
     #: file names of its per-file `files:` section (empty when it has none)
     described_files: tuple[str, ...]
+    #: whether each file is zstd-compressed whole (ros2 bag's file compression): then rosbags unpacks
+    #: it, and the MCAP-level checks and indexes of this module do not apply
+    file_compressed: bool
 
 
 def _read_metadata(path: Path) -> _Metadata:
@@ -387,6 +391,7 @@ def _read_metadata(path: Path) -> _Metadata:
             start_ns = _count(info['starting_time']['nanoseconds_since_epoch'])
             duration_ns = _count(info['duration']['nanoseconds'])
             described = tuple(PurePath(str(entry['path'])).name for entry in info.get('files') or ())
+            file_compressed = str(info.get('compression_mode') or '').lower() == 'file'
     except (ConfigError, KeyError, TypeError, AttributeError, ValueError) as err:
         detail = str(err).strip().splitlines()[0] if str(err).strip() else ''
         raise BagError(
@@ -398,7 +403,7 @@ def _read_metadata(path: Path) -> _Metadata:
             f'`rosbags-convert --src {path} --dst NEW_DIR --dst-storage mcap`'
         )
     return _Metadata(_listed_files(path, listed_names), topic_counts, message_count, start_ns, duration_ns,
-                     described)
+                     described, file_compressed)
 
 
 def _check_bag_directory(path: Path) -> None:
@@ -557,8 +562,9 @@ def mcap_file_to_recover(source: Path) -> Path:
         raise BagError(f'bag {source} holds 0 .mcap files; nothing to recover there')
     if len(candidates) > 1:
         names = ', '.join(file.name for file in candidates)
-        raise BagError(f'bag {source} holds {len(candidates)} .mcap files ({names}) and no metadata.yaml naming '
-                       'one of them; move all but one out and recover one file at a time')
+        raise BagError(f'bag {source} holds {len(candidates)} .mcap files to recover ({names}), and its '
+                       'metadata.yaml (if any) does not name one of them; move all but one out and recover one '
+                       'file at a time')
     try:
         return require_regular_file(candidates[0], 'MCAP file')
     except ConfigError as err:

@@ -116,6 +116,35 @@ def test_a_listed_file_that_is_missing_is_one_line(bag):
     assert '\n' not in str(caught.value)
 
 
+def _imu_message_index(mcap, chunk_number):
+    """Byte offset of the Imu topic's MessageIndex record after chunk ``chunk_number``."""
+    with mcap.open('rb') as stream:
+        summary = make_reader(stream).get_summary()
+    channel = next(channel.id for channel in summary.channels.values() if channel.topic == IMU_TOPIC)
+    return summary.chunk_indexes[chunk_number].message_index_offsets[channel]
+
+
+@pytest.mark.parametrize(('field', 'message'), [
+    # opcode (1), record length (8), channel id (2), length of the pairs (4), then (log time, offset) pairs
+    (15 + 2, 'a message index disagrees with the messages of its chunk'),
+    (15 + 8 + 1, 'a message index points outside the message records of its chunk'),
+    (11, r'the message indexes list \d+ messages on /gyro_box/imu, the statistics 400'),
+])
+def test_a_damaged_message_index_is_refused_not_read(bag, field, message):
+    # Message indexes carry no CRC: a moved log time, offset or pair count would move or drop samples.
+    index = _imu_message_index(bag / 'run.mcap', 1)
+    data = bytearray((bag / 'run.mcap').read_bytes())
+    if field == 11:  # one pair fewer: the record keeps its length, the index lists a message less
+        pairs = int.from_bytes(data[index + field:index + field + 4], 'little')
+        data[index + field:index + field + 4] = (pairs - 16).to_bytes(4, 'little')
+    else:
+        data[index + field] ^= 0x40
+    (bag / 'run.mcap').write_bytes(bytes(data))
+    with BagReader(bag) as reader, pytest.raises(BagError, match=message) as caught:
+        reader.imu_arrays(IMU_TOPIC)
+    assert '\n' not in str(caught.value)
+
+
 # --- 2. a metadata.yaml of another recording ------------------------------------------------------------------------
 
 def test_metadata_of_another_recording_is_refused_naming_the_mismatch(bag, other_run, capsys):
@@ -327,6 +356,19 @@ def _fuzz_cases():
               ('foreign-metadata', foreign_metadata), ('missing-mcap', missing_file),
               ('renamed-mcap', renamed_file), ('no-metadata', no_metadata)]
 
+    def both(first, second):
+        def damage(bag, other_run):
+            first(bag, other_run)
+            second(bag, other_run)
+        return damage
+
+    # An intact copy beside a damaged listed file, and damage where metadata.yaml is missing too.
+    cases += [(f'stray-copy+flip-chunk{number}', both(stray_copy, flip_at(chunk_positions[f'chunk{number}-middle'])))
+              for number in (0, 2)]
+    cases += [('stray-other-run+cut-0.5', both(stray_other, cut_at(lambda data, chunks: len(data) // 2))),
+              ('no-metadata+flip-chunk1', both(no_metadata, flip_at(chunk_positions['chunk1-crc']))),
+              ('no-metadata+stray-copy', both(no_metadata, stray_copy))]
+
     def edit_metadata(edit):
         def damage(bag, other_run):
             document = yaml.safe_load((bag / 'metadata.yaml').read_text())
@@ -369,9 +411,15 @@ def _read_all(path):
     return topic_digests(path), stamps.tolist(), header_stamps.tolist()
 
 
+@pytest.fixture(scope='module')
+def written(small_bag):
+    """What the undamaged small bag reads back as."""
+    return _read_all(small_bag)
+
+
 @pytest.mark.parametrize(('name', 'damage'), FUZZ_CASES, ids=[name for name, _ in FUZZ_CASES])
-def test_fuzz_a_damaged_bag_reads_right_or_is_refused_in_one_line(small_bag, other_run, tmp_path, capsys, name,
-                                                                   damage):
+def test_fuzz_a_damaged_bag_reads_right_or_is_refused_in_one_line(small_bag, other_run, written, tmp_path, capsys,
+                                                                   name, damage):
     bag = Path(shutil.copytree(small_bag, tmp_path / 'run'))
     damage(bag, other_run)
     try:
@@ -379,7 +427,7 @@ def test_fuzz_a_damaged_bag_reads_right_or_is_refused_in_one_line(small_bag, oth
     except BagError as err:
         assert '\n' not in str(err) and str(err)
     else:
-        assert seen == _read_all(small_bag), f'{name}: read at exit 0 but not what was written'
+        assert seen == written, f'{name}: read at exit 0 but not what was written'
     capsys.readouterr()
     out = tmp_path / 'recovered'
     code = main(['recover', str(bag), '--out', str(out)])

@@ -153,3 +153,30 @@ def test_a_duplicate_key_is_refused_without_touching_the_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and f"{model}: key 'effects' given twice (line 10); keep one" in err
     assert model.read_text() == text
+
+
+def test_remove_and_replace_edit_the_file_and_keep_its_comments(tmp_path, capsys):
+    model = tmp_path / 'm.yaml'
+    model.write_text(MODEL)
+    assert main(['model', 'add', 'imager_boresight_offset', '--model', str(model)]) == 0
+    assert main(['model', 'replace', 'imager_boresight_offset', 'hipo_fiducial_error', '--model', str(model)]) == 0
+    effects = load_effect_config(model)
+    assert 'imager_boresight_offset' not in effects.effects and 'hipo_fiducial_error' in effects.fitted
+    assert main(['model', 'remove', 'hipo_fiducial_error', '--model', str(model)]) == 0
+    assert model.read_text() == MODEL
+    assert 'hipo_fiducial_error removed' in capsys.readouterr().out
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['model', 'remove', 'tracker_drift'], "has no tracker_drift; nothing to remove"),
+    (['model', 'replace', 'seeing'], 'usage: sofia model replace OLD NEW'),
+    (['model', 'add', 'seeing', 'tracker_drift'], 'takes one effect; did you mean `sofia model replace seeing'),
+    (['model', 'replace', 'seeing', 'no_such_effect'], "unknown effect 'no_such_effect'"),
+])
+def test_bad_model_edits_are_one_line_and_leave_the_file(tmp_path, capsys, argv, message):
+    model = tmp_path / 'm.yaml'
+    model.write_text(MODEL)
+    assert main([*argv, '--model', str(model)]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and message in err
+    assert model.read_text() == MODEL

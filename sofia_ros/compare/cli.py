@@ -16,7 +16,7 @@ from sofia_ros.cli_args import number
 from sofia_ros.errors import ConfigError
 from sofia_ros.output_files import current_umask, json_ready, output_target, write_text_atomically
 
-__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'anchor_memory_bytes',
+__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'edit_model_file', 'anchor_memory_bytes',
            'MIN_ANCHOR_S']
 
 
@@ -46,9 +46,12 @@ def add_compare_arguments(parser):
 
 
 def add_model_arguments(parser):
-    """Arguments of `sofia model add`."""
-    parser.add_argument('action', choices=('add',), help='add: put a catalogue effect into a model as a fitted term')
-    parser.add_argument('effect', help='catalogue effect name (sofia effects)')
+    """Arguments of `sofia model add|remove|replace`."""
+    parser.add_argument('action', choices=('add', 'remove', 'replace'),
+                        help='add: put an effect into a model as a fitted term; remove: take a term out; '
+                             'replace: take a term out and put another in its place (`replace OLD NEW`)')
+    parser.add_argument('effect', help='effect name (sofia effects); for replace, the term to take out')
+    parser.add_argument('replacement', nargs='?', help='replace: the effect that takes its place')
     parser.add_argument('--model', required=True, help='model YAML to edit in place')
 
 
@@ -284,20 +287,44 @@ def _round_trip_yaml():
 
 
 def run_model_add(args, out):
-    """`sofia model add EFFECT --model M.yaml`: the effect becomes a fitted term.
+    """`sofia model add|remove|replace EFFECT [NEW] --model M.yaml`: one edit of a model file (edit_model_file)."""
+    from sofia_ros.effects import get_effect
+
+    path = Path(args.model)
+    if args.action == 'replace':
+        if not args.replacement:
+            raise ConfigError('usage: sofia model replace OLD NEW --model M.yaml (NEW takes the place of OLD)')
+        old, new = get_effect(args.effect).name, get_effect(args.replacement).name
+        edit_model_file(path, add=(new,), remove=(old,))
+        print(f'{path}: {old} replaced by {new} as a fitted term (starting at its thesis defaults); rerun sofia '
+              'compare', file=out)
+        return 0
+    if args.replacement:
+        raise ConfigError(f'sofia model {args.action} takes one effect; did you mean `sofia model replace '
+                          f'{args.effect} {args.replacement}`?')
+    name = get_effect(args.effect).name
+    if args.action == 'remove':
+        edit_model_file(path, remove=(name,))
+        print(f'{path}: {name} removed; rerun sofia compare', file=out)
+        return 0
+    edit_model_file(path, add=(name,))
+    print(f'{path}: {name} added as a fitted term (starting at its thesis defaults); rerun sofia compare', file=out)
+    return 0
+
+
+def edit_model_file(path, *, add=(), remove=()):
+    """Take the effects ``remove`` out of a model file and put ``add`` in as fitted terms, in one edit.
 
     The file is edited, not regenerated: comments, order and style stay (ruamel.yaml round
-    trip); it is replaced atomically, a symlink is written through to its target with the
-    target's mode, and concurrent edits wait for each other on a sidecar lock.
+    trip); it is replaced atomically, a symlink is written through to its regular-file target
+    with the target's mode, and concurrent edits wait for each other on a sidecar lock.
     """
     from ruamel.yaml.comments import CommentedMap
     from ruamel.yaml.error import YAMLError
 
     from sofia_ros.config import load_effect_config, parse_effect_config
-    from sofia_ros.effects import get_effect
 
-    spec = get_effect(args.effect)
-    path = Path(args.model)
+    path = Path(path)
     target = output_target(path)
     if not target.exists():
         raise ConfigError(f'cannot read {path}: no such file; check the path')
@@ -313,18 +340,21 @@ def run_model_add(args, out):
         if document.get('effects') is None:
             document['effects'] = CommentedMap()
         effects = document['effects']
-        current = effects.get(spec.name)
-        if isinstance(current, dict) and current.get('fit'):
-            raise ConfigError(f'{path} already fits {spec.name}; nothing to add')
-        if isinstance(current, dict):
-            current['fit'] = True
-        else:
-            effects[spec.name] = CommentedMap([('fit', True)])
+        for name in remove:
+            if name not in effects:
+                raise ConfigError(f'{path} has no {name}; nothing to remove (its effects: '
+                                  f'{", ".join(effects) or "none"})')
+            del effects[name]
+        for name in add:
+            current = effects.get(name)
+            if isinstance(current, dict) and current.get('fit'):
+                raise ConfigError(f'{path} already fits {name}; nothing to add')
+            if isinstance(current, dict):
+                current['fit'] = True
+            else:
+                effects[name] = CommentedMap([('fit', True)])
         buffer = io.StringIO()
         editor.dump(document, buffer)
         new_text = buffer.getvalue()
         parse_effect_config(new_text, str(path))
         write_text_atomically(target, new_text)
-    print(f'{path}: {spec.name} added as a fitted term (starting at its thesis defaults); rerun sofia compare',
-          file=out)
-    return 0

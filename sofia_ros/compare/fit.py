@@ -26,7 +26,8 @@ from sofia_ros.analysis.ranking import bic, linear_fit
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
-__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'rows_scaled', 'OUTLIER_SIGMA']
+__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'rows_scaled', 'vanishing_values',
+           'OUTLIER_SIGMA']
 
 HUBER_K = 3.0
 OUTLIER_SIGMA = 5.0
@@ -47,6 +48,15 @@ class FreeParameter:
     def label(self):
         """effect.parameter, as tables print it."""
         return f'{self.effect}.{self.name}'
+
+
+def vanishing_values(free):
+    """Where each free parameter switches its effect off: 0 for a scaling parameter, the default for a shaping one."""
+    values = []
+    for parameter in free:
+        spec = get_effect(parameter.effect).parameter(parameter.name)
+        values.append(spec.default if spec.shape else 0.0)
+    return np.array(values, dtype=float)
 
 
 def free_parameters(effect_names):

@@ -22,13 +22,14 @@ import numpy as np
 
 from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, competing_sets, degenerate_pairs,
                                         rank_candidates)
-from sofia_ros.compare.fit import WhitenedProblem, fit_model, free_parameters
+from sofia_ros.compare.fit import WhitenedProblem, fit_model, free_parameters, vanishing_values
 from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
-from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
+from sofia_ros.compare.competing import (competing_document, contenders, model_term_alternatives, preferred_best,
+                                        proposed_change, refit_order)
 from sofia_ros.compare.verdict import after_member, empirical_candidate_names, judge
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.effects import CATALOGUE, get_effect, resolve_params
@@ -89,7 +90,7 @@ def _linearized_candidates(predictor, fit, noise_arcsec, prior, names):
         if not free:
             continue
         spec = get_effect(name)
-        start = np.array([spec.parameter(p.name).default if spec.parameter(p.name).shape else 0.0 for p in free])
+        start = vanishing_values(free)
         switched = {**fit.effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
         at_start = predictor.predict_px(switched, fit.anchors_rad)
         columns = problem.parameter_columns(switched, free, start, fit.anchors_rad, at_start, derivative)
@@ -119,6 +120,22 @@ def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, detectable=Tr
         observable, variable, period_s = empirical_parts(name)
         entry.update(observable=observable, variable=variable, period_s=period_s)
     return entry
+
+
+def _checked_change(change, predictor, final, noise_arcsec, prior):
+    """The proposed change refitted in full: its real delta-BIC against the model as it is, or None if it fails."""
+    if change is None:
+        return None
+    effects = {name: params for name, params in final.effects.items() if name != change['term']}
+    free = tuple(p for p in final.free if p.effect != change['term'])
+    if change['effect'] is not None:
+        effects[change['effect']] = resolve_params(change['effect'], {})
+        free += free_parameters([change['effect']])
+    try:
+        trial = fit_model(predictor, effects, free, noise_arcsec, prior, anchors_rad=final.anchors_rad)
+    except FitError:
+        return None
+    return {**change, 'delta_bic': float(final.bic - trial.bic)}
 
 
 def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None):
@@ -202,6 +219,11 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     scores = {name: entry['delta_bic'] for name, entry in entries.items()}
     degenerate = degenerate_pairs(ranked, scores)
     competing = competing_sets(ranked, scores, preferred=lambda name: not is_empirical(name))
+    alternatives_started = time.perf_counter()
+    model_terms = model_term_alternatives(final.augmented_residual, final.jacobian, final.free, final.values,
+                                          final.anchors_rad.size, terms)
+    change = _checked_change(proposed_change(model_terms), predictor, final, noise_arcsec, prior)
+    alternatives_s = time.perf_counter() - alternatives_started
     diagnostics_started = time.perf_counter()
     after = {name: (residual_diagnostics(observations, refits[name], predictor, noise_arcsec, prior),
                     split_consistency(observations, refits[name], predictor))
@@ -226,17 +248,20 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         'candidates': candidates,
         'degenerate': [list(pair) for pair in degenerate],
         'competing': competing_document(competing, members),
+        'model_terms': model_terms,
+        'model_change': change,
         'unobservable': [c['effect'] for c in candidates if not c['detectable']],
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
         'signature': diagnostics.as_document(),
         'consistency': consistency,
         'verdict': judge(diagnostics, consistency, candidates, degenerate, best_name, after_best,
-                         competing=competing, members=members,
+                         competing=competing, members=members, change=change,
                          rms_arcsec=rms['total'], significant_delta_bic=SIGNIFICANT_DELTA_BIC, model_source=model.source),
         'anchor_spacing_s': anchor_spacing_s,
         'anchor_walk_sigma_arcsec': prior.unit_rad * ARCSEC_PER_RAD,
         'angle_random_walk_arcsec_per_sqrt_s': arw * ARCSEC_PER_RAD,
-        'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4), 'diagnostics': round(diagnostics_s, 3)},
+        'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4), 'diagnostics': round(diagnostics_s, 3),
+                    'model_terms': round(alternatives_s, 3)},
     }
     windows = hold_windows(observations.calibration_result) if observations.calibration_result else None
     if windows:

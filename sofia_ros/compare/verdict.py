@@ -18,7 +18,7 @@ from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PRE
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
-__all__ = ['after_member', 'empirical_candidate_names', 'judge', 'MAX_EMPIRICAL_CANDIDATES']
+__all__ = ['after_member', 'empirical_candidate_names', 'judge', 'model_command', 'MAX_EMPIRICAL_CANDIDATES']
 
 #: At most this many empirical terms are tried, the strongest findings first.
 MAX_EMPIRICAL_CANDIDATES = 8
@@ -153,9 +153,33 @@ def _rivals_clause(best_name, rivals, members, gain):
             f'taken first: {best_name} ({gain})')
 
 
+def model_command(action, model_source, *, effect=None, term=None, kind='camera'):
+    """The command of a next step (docs/compare.md, ``verdict.next``): add, remove or replace a term, a plug-in."""
+    commands = {'add': f'sofia model add {effect} --model {model_source}',
+                'remove': f'sofia model remove {term} --model {model_source}',
+                'replace': f'sofia model replace {term} {effect} --model {model_source}',
+                'plugin': f'sofia effects new NAME --kind {kind}'}
+    return commands.get(action)
+
+
+def _change_clause(change):
+    """Why a term of the model should go or make way, from its full refit."""
+    if change['action'] == 'remove':
+        return (f'{change["term"]} no longer pays for itself: without it the BIC falls by '
+                f'{change["delta_bic"]:.0f}; remove it')
+    return (f'{change["effect"]} explains what {change["term"]} does, better: the BIC falls by '
+            f'{change["delta_bic"]:.0f} when it takes its place; replace it')
+
+
+def _next(action, model_source, **names):
+    return {'action': action, **{key: names.get(key) for key in ('effect', 'term')},
+            'command': model_command(action, model_source, **names) if action != 'none' else None}
+
+
 def judge(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
-          significant_delta_bic, model_source, competing=(), members=None):
-    """The verdict block: status, text, per-observable judgement, and what is left after the best candidate."""
+          significant_delta_bic, model_source, competing=(), members=None, change=None):
+    """The verdict block: status, text, per-observable judgement, what is left after the best candidate, and the
+    next step (``next``: add, remove or replace a term, write a plug-in, or none)."""
     observables = {name: {key: entry[key] for key in ('rms_arcsec', 'floor_arcsec', 'ratio', 'excess_sigma',
                                                       'explained', 'structure', 'kind')}
                    for name, entry in diagnostics.observables.items()}
@@ -168,11 +192,17 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
     verdict = {'observables': observables, 'inconsistent_terms': [entry['param'] for entry in consistency],
                'after_best': None}
     problems = _problems(diagnostics, consistency)
+    worthwhile = change if change is not None and change['delta_bic'] >= significant_delta_bic else None
     if not problems:
         worst = max(observables.items(), key=lambda item: item[1]['ratio'], default=None)
         detail = f'; the largest RMS / floor is {worst[1]["ratio"]:.2f} ({worst[0]})' if worst else ''
-        verdict.update(status='explained', text=f'the model explains every observable to its noise, with no '
-                                                f'structure left and consistent terms{detail}')
+        text = f'the model explains every observable to its noise, with no structure left and consistent terms{detail}'
+        if worthwhile is not None:
+            verdict.update(status='explained', text=f'{text}; but {_change_clause(worthwhile)}',
+                           next=_next(worthwhile['action'], model_source, effect=worthwhile['effect'],
+                                      term=worthwhile['term']))
+        else:
+            verdict.update(status='explained', text=f'{text}; nothing to do', next=_next('none', model_source))
         return verdict
     best = next((c for c in candidates if c['effect'] == best_name), None)
     left = []
@@ -182,9 +212,16 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
         verdict['after_best'] = {'effect': best_name, 'unexplained': left_diagnostics.unexplained(),
                                  'inconsistent_terms': [entry['param'] for entry in left_consistency]}
     where = '; '.join(problems)
+    first = ''
+    if worthwhile is not None and (best is None or worthwhile['delta_bic'] > best['delta_bic']):
+        first = f'. First: {_change_clause(worthwhile)} (more than adding any candidate gains)'
+        verdict['next'] = _next(worthwhile['action'], model_source, effect=worthwhile['effect'],
+                                term=worthwhile['term'])
     if best is None or best['delta_bic'] < significant_delta_bic:
+        kind = 'gyro' if all(name.startswith('gyro.') for name in diagnostics.unexplained()) else 'camera'
         verdict.update(status='unexplained', text=f'not explained: {where}; no catalogue effect explains it, and no '
-                                                  'empirical shape either: look at the report\'s residual plots')
+                                                  f'empirical shape either: look at the report\'s residual plots{first}')
+        verdict.setdefault('next', _next('plugin', model_source, kind=kind))
         return verdict
     gain = f'RMS {rms_arcsec:.3f}" -> {best["rms_after_arcsec"]:.3f}"'
     remaining = ('; with it every observable is explained' if not left else
@@ -194,7 +231,8 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
         verdict.update(status='unexplained', text=(
             f'not explained: {where}; no catalogue effect explains it, the empirical shape {best["effect"]} does '
             f'({gain}){remaining}. Turn it into physics: `sofia effects new NAME --kind {kind}` writes a plug-in '
-            f'template; or keep the shape meanwhile: `sofia model add {best["effect"]} --model {model_source}`'))
+            f'template; or keep the shape meanwhile: `sofia model add {best["effect"]} --model {model_source}`{first}'))
+        verdict.setdefault('next', _next('plugin', model_source, kind=kind))
         return verdict
     tied = [pair for pair in degenerate if best['effect'] in pair]
     rivals = competing_set_of(best['effect'], competing)
@@ -204,6 +242,8 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
         choice = f'the residual needs {" or ".join(tied[0])}; the data cannot choose'
     else:
         choice = f'missing effect {best["effect"]} ({gain})'
-    advice = '' if left else f'; add it with `sofia model add {best["effect"]} --model {model_source}`'
-    verdict.update(status='missing_effect', text=f'not explained: {where}; {choice}{remaining}{advice}')
+    advice = (f'; add it with `sofia model add {best["effect"]} --model {model_source}`' if not left else
+              f'; add it and compare again: `sofia model add {best["effect"]} --model {model_source}`')
+    verdict.update(status='missing_effect', text=f'not explained: {where}; {choice}{remaining}{advice}{first}')
+    verdict.setdefault('next', _next('add', model_source, effect=best['effect']))
     return verdict

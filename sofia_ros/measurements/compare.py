@@ -31,7 +31,7 @@ from sofia_ros.analysis.ranking import (
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
 from sofia_ros.compare.competing import competing_document, competing_set_of, contenders, preferred_best, refit_order
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA
-from sofia_ros.compare.fit import free_parameters
+from sofia_ros.compare.fit import free_parameters, vanishing_values
 from sofia_ros.effects import CATALOGUE, resolve_params
 from sofia_ros.errors import FitError
 from sofia_ros.measurements.format import ALIGNMENT, DRIFT_EFFECTS, KINDS
@@ -183,7 +183,7 @@ def _linearized_candidates(problem, fit, names):
     for name in names:
         free = free_parameters([name])
         spec = CATALOGUE[name]
-        start = np.array([spec.parameter(p.name).default if spec.parameter(p.name).shape else 0.0 for p in free])
+        start = vanishing_values(free)
         switched = {**fit.effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
         at_start = problem.whitened(switched)
         columns = problem.columns(switched, free, start, at_start)

@@ -253,6 +253,33 @@ def test_recover_onto_a_directory_that_cannot_be_made_is_one_line(bag, tmp_path,
     assert not (tmp_path / 'fixed').exists()
 
 
+@pytest.mark.parametrize(('qos', 'latched'), [
+    ('- {durability: transient_local}\n', True),
+    ('- {durability: volatile}\n', False),
+    ('', False),
+    ('durability: transient_local\n', False),  # not a list of profiles
+    ('- transient_local\n', False),
+])
+def test_recover_reads_a_channels_qos_with_the_limited_loader(qos, latched):
+    from mcap.records import Channel
+
+    from sofia_ros.bag.recovery import _is_latched
+
+    assert _is_latched(Channel(id=1, schema_id=1, topic='/x', message_encoding='cdr',
+                               metadata={'offered_qos_profiles': qos})) is latched
+
+
+@pytest.mark.parametrize('qos', ['- {durability: [\n', '- &a {d: 1}\n' + '- *a\n' * 200, '- {a: 1, a: 2}\n'])
+def test_recover_refuses_a_channel_whose_qos_is_not_yaml_in_one_line(qos):
+    from mcap.records import Channel
+
+    from sofia_ros.bag.recovery import _is_latched
+
+    with pytest.raises(BagError, match=r'the QoS of channel /x: .*; the channel metadata of this .mcap is damaged'):
+        _is_latched(Channel(id=1, schema_id=1, topic='/x', message_encoding='cdr',
+                            metadata={'offered_qos_profiles': qos}))
+
+
 # --- 5. metadata that is not text, the .mcap a directory or a device -------------------------------------------------
 
 @pytest.mark.parametrize(('damage', 'message'), [

@@ -17,6 +17,11 @@ empirical term is an effect whose name says what it is:
   P_i(x) P_j(y), i + j <= 3, over the chip: a distortion of the field) or ``period_<P>s`` (a
   sinusoid of period P seconds in time).
 
+Every number of a name is bounded to what a record can resolve (PERIOD_RANGE_S, RANGE_LIMIT,
+RANGE_RESOLUTION), so a name that parses is a term a fit can carry: a period of 1e-300 s, or
+a range whose ends a float cannot tell apart, is refused when the name is read, by `sofia model
+add` and by a model file alike.
+
 Camera terms shift the centroids on the detector (arcsec along the pixel axis, through the
 camera's nominal scale); gyro terms add a rate (deg/h) to one gyro axis. Both are ordinary
 plug-in hooks (effects.context), so the truth simulator could carry them too.
@@ -26,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import re
+from typing import NamedTuple
 
 import numpy as np
 from numpy.polynomial import legendre
@@ -36,7 +42,7 @@ from sofia_ros.frames import AXES, FFI, FPI, HIPO_2004, WFI
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
 __all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_VARIABLES', 'DETECTOR_FIELD',
-           'POLY_DEGREE', 'field_columns', 'field_terms',
+           'POLY_DEGREE', 'PERIOD_RANGE_S', 'RANGE_LIMIT', 'RANGE_RESOLUTION', 'field_columns', 'field_terms',
            'empirical_spec', 'empirical_name', 'empirical_parts', 'is_empirical', 'variable_values']
 
 PREFIX = 'empirical:'
@@ -44,6 +50,17 @@ _DETECTORS = {'hipo': HIPO_2004, 'fpi': FPI, 'ffi': FFI, 'wfi': WFI}
 CAMERA_OBSERVABLES = tuple(f'{camera}.{axis}' for camera in _DETECTORS for axis in ('x', 'y'))
 GYRO_OBSERVABLES = tuple(f'gyro.{axis}' for axis in AXES)
 POLY_DEGREE = 3
+#: Shortest and longest period of a term [s]: HIPO's 1 s frames resolve 2 s at best (the gyro
+#: series, one value per fit anchor, far less); 1e6 s (11.6 days) is beyond any record.
+PERIOD_RANGE_S = (1.0, 1.0e6)
+#: Largest magnitude of a poly3@LOW..HIGH end, in the variable's unit: beyond any ROS stamp in s
+#: (an imported record's time is seconds since 1970), any angle, temperature, force or pixel.
+RANGE_LIMIT = 1.0e10
+#: Shortest span HIGH - LOW relative to the larger end (or 1): the variable mapped onto -1..1 keeps
+#: seven of float64's sixteen digits, so the Legendre columns stay well defined.
+RANGE_RESOLUTION = 1.0e-9
+#: Longest name read: the longest valid one (a range of two 17-digit ends) has about 90 characters.
+_MAX_NAME_CHARS = 160
 _RAD_PER_S_PER_DEG_PER_H = RAD_PER_DEG / 3600.0
 
 
@@ -67,9 +84,24 @@ VARIABLES = {
 GYRO_VARIABLES = ('time', 'temperature', 'specific_force_el', 'specific_force_xel', 'specific_force_los')
 #: The detector position as one variable of a camera term: x and y together, over the chip.
 DETECTOR_FIELD = 'detector_field'
-_NUMBER = r'-?[0-9]+(?:\.[0-9]+)?(?:e-?[0-9]+)?'
+# Exponents may carry a sign: empirical_name writes 1.44e+04 for 14400.
+_NUMBER = r'-?[0-9]+(?:\.[0-9]+)?(?:e[-+]?[0-9]+)?'
 _NAME = re.compile(r'^empirical:(?P<observable>[a-z]+\.[a-z]+):(?P<variable>[a-z_]+):'
-                   rf'(?P<shape>poly3(?:@(?P<low>{_NUMBER})\.\.(?P<high>{_NUMBER}))?|period_(?P<period>{_NUMBER})s)$')
+                   rf'(?P<shape>poly(?P<order>[0-9]+)(?:@(?P<low>{_NUMBER})\.\.(?P<high>{_NUMBER}))?'
+                   rf'|period_(?P<period>{_NUMBER})s)$')
+_HINT = ('empirical terms are named empirical:<observable>:<variable>:<poly3|period_<P>s>, e.g. '
+         'empirical:ffi.y:elevation:poly3 or empirical:hipo.x:time:period_95s (poly3@LOW..HIGH: over that range)')
+
+
+class _Parts(NamedTuple):
+    """What a valid empirical name says."""
+
+    observable: str
+    variable: str
+    #: seconds, for a sinusoid; else None
+    period_s: float | None
+    #: (low, high) of a poly3@LOW..HIGH term; else None
+    range_: tuple[float, float] | None
 
 
 def is_empirical(name):
@@ -78,13 +110,56 @@ def is_empirical(name):
 
 
 def empirical_parts(name):
-    """(observable, variable, period in s or None) of a valid empirical term name (empirical_spec checks one)."""
-    return _parts(_NAME.match(name))
+    """(observable, variable, period in s or None) of an empirical term name; UnknownEffectError if it is not one."""
+    return _parsed(name)[:3]
 
 
-def _parts(match):
-    """(observable, variable, period in s or None) of a match of _NAME."""
-    return match['observable'], match['variable'], float(match['period']) if match['period'] else None
+def _parsed(name):
+    """The parts of an empirical name, each checked; UnknownEffectError says what is wrong and what is allowed."""
+    if len(name) > _MAX_NAME_CHARS:
+        raise UnknownEffectError(f'the effect name {name[:40]!r}... has {len(name)} characters; an empirical term\'s '
+                                 f'name has at most {_MAX_NAME_CHARS}; {_HINT}')
+    match = _NAME.match(name)
+    if match is None:
+        raise UnknownEffectError(f'unknown effect {name!r}; {_HINT}')
+    observable, variable = match['observable'], match['variable']
+    if match['order'] is not None and match['order'] != str(POLY_DEGREE):
+        raise UnknownEffectError(f'{name!r}: the polynomial order must be {POLY_DEGREE} (poly{POLY_DEGREE}: Legendre '
+                                 f'P0..P{POLY_DEGREE}); {_HINT}')
+    period_s = _period(name, match['period']) if match['period'] else None
+    range_ = _range(name, match['low'], match['high']) if match['low'] else None
+    gyro = observable in GYRO_OBSERVABLES
+    if observable not in CAMERA_OBSERVABLES and not gyro:
+        raise UnknownEffectError(f'{name!r}: unknown observable {observable!r} (known: '
+                                 f'{", ".join(CAMERA_OBSERVABLES + GYRO_OBSERVABLES)})')
+    allowed = ('time',) if period_s is not None else (GYRO_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD))
+    if variable not in allowed:
+        raise UnknownEffectError(f'{name!r}: variable {variable!r} is not available here (known: {", ".join(allowed)})')
+    if variable == DETECTOR_FIELD and range_ is not None:
+        raise UnknownEffectError(f'{name!r}: a detector field spans the chip; '
+                                 f'name it {empirical_name(observable, variable)}')
+    return _Parts(observable, variable, period_s, range_)
+
+
+def _period(name, text):
+    """The period of a name's period_<P>s, within PERIOD_RANGE_S."""
+    period_s = float(text)  # the grammar admits digits only: at worst inf, never an error
+    shortest, longest = PERIOD_RANGE_S
+    if not shortest <= period_s <= longest:
+        raise UnknownEffectError(f'{name!r}: the period must be between {shortest:g} and {longest:g} s (what a record '
+                                 f'resolves), got {text} s; name a period in that range')
+    return period_s
+
+
+def _range(name, low_text, high_text):
+    """(low, high) of a name's poly3@LOW..HIGH: finite within RANGE_LIMIT, HIGH above LOW by RANGE_RESOLUTION."""
+    low, high = float(low_text), float(high_text)
+    bounded = all(abs(end) <= RANGE_LIMIT for end in (low, high))
+    if not bounded or not high - low >= RANGE_RESOLUTION * max(1.0, abs(low), abs(high)):
+        raise UnknownEffectError(f'{name!r}: the range must be LOW..HIGH with HIGH > LOW, both within '
+                                 f'+-{RANGE_LIMIT:g} and HIGH - LOW at least {RANGE_RESOLUTION:g} of the larger end '
+                                 f'(or of 1); got {low_text}..{high_text}; name the range the data covered')
+    return low, high
 
 
 def empirical_name(observable, variable, period_s=None, range_=None):
@@ -92,10 +167,19 @@ def empirical_name(observable, variable, period_s=None, range_=None):
     if period_s is not None:
         shape = f'period_{period_s:.4g}s'
     elif range_ is not None:
-        shape = f'poly{POLY_DEGREE}@{range_[0]:.4g}..{range_[1]:.4g}'
+        shape = f'poly{POLY_DEGREE}@{_range_text(*range_)}'
     else:
         shape = f'poly{POLY_DEGREE}'
     return f'{PREFIX}{observable}:{variable}:{shape}'
+
+
+def _range_text(low, high):
+    """LOW..HIGH to 4 significant digits, or as many more as keep the two ends apart (times since 1970 need 10)."""
+    for digits in range(4, 18):
+        low_text, high_text = f'{low:.{digits}g}', f'{high:.{digits}g}'
+        if float(low_text) < float(high_text):
+            break
+    return f'{low_text}..{high_text}'
 
 
 def _scaled(variable, camera, values, range_):
@@ -144,27 +228,8 @@ def _basis(variable, camera, context, degrees, period_s, range_):
 @functools.lru_cache(maxsize=256)
 def empirical_spec(name):
     """The EffectSpec of an empirical term name; UnknownEffectError explains the grammar otherwise."""
-    match = _NAME.match(name)
-    hint = ('empirical terms are named empirical:<observable>:<variable>:<poly3|period_<P>s>, e.g. '
-            'empirical:ffi.y:elevation:poly3 or empirical:hipo.x:time:period_95s (poly3@LOW..HIGH: over that range)')
-    if match is None:
-        raise UnknownEffectError(f'unknown effect {name!r}; {hint}')
-    observable, variable, period_s = _parts(match)
-    range_ = (float(match['low']), float(match['high'])) if match['low'] else None
-    if range_ is not None and not range_[1] > range_[0]:
-        raise UnknownEffectError(f'{name!r}: the range must be LOW..HIGH with HIGH > LOW; {hint}')
+    observable, variable, period_s, range_ = _parsed(name)
     gyro = observable in GYRO_OBSERVABLES
-    if observable not in CAMERA_OBSERVABLES and not gyro:
-        raise UnknownEffectError(f'{name!r}: unknown observable {observable!r} (known: '
-                                 f'{", ".join(CAMERA_OBSERVABLES + GYRO_OBSERVABLES)})')
-    allowed = ('time',) if period_s is not None else (GYRO_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD))
-    if variable not in allowed:
-        raise UnknownEffectError(f'{name!r}: variable {variable!r} is not available here (known: {", ".join(allowed)})')
-    if variable == DETECTOR_FIELD and range_ is not None:
-        raise UnknownEffectError(f'{name!r}: a detector field spans the chip; '
-                                 f'name it {empirical_name(observable, variable)}')
-    if period_s is not None and period_s <= 0.0:
-        raise UnknownEffectError(f'{name!r}: the period must be positive; {hint}')
     unit = 'deg/h' if gyro else 'arcsec'
     if period_s is not None:
         labels, degrees = ('sin', 'cos'), None

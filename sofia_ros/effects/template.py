@@ -6,10 +6,14 @@ given a value): the user replaces the one marked line with the physics the resid
 
 from __future__ import annotations
 
+import builtins
+import importlib.util
 import keyword
+import re
 from pathlib import Path
 
 from sofia_ros.errors import ConfigError
+from sofia_ros.output_files import atomic_output
 
 __all__ = ['KINDS', 'plugin_template', 'write_plugin_template']
 
@@ -28,6 +32,11 @@ import numpy as np
 
 from sofia_ros.effects import EffectSpec, Parameter
 '''
+
+#: Longest plug-in name: its hook functions append up to 16 characters, and it names a file.
+_MAX_NAME_CHARS = 64
+#: ASCII only: Python folds other letters (NFKC) in an import, so the file name and the module would differ.
+_MODULE_NAME = re.compile(rf'[a-z][a-z0-9_]{{0,{_MAX_NAME_CHARS - 1}}}')
 
 #: kind -> (one-line summary, hook name, the hook's source, parameter line)
 KINDS = {
@@ -98,27 +107,59 @@ def plugin_template(name, kind, folder='.'):
     """The source of a plug-in module NAME of KIND; ConfigError for a name or kind that cannot work."""
     if kind not in KINDS:
         raise ConfigError(f'unknown plug-in kind {kind!r}; choose one of {", ".join(KINDS)}')
-    if not name.isidentifier() or keyword.iskeyword(name) or not name.islower():
-        raise ConfigError(f'plug-in name {name!r} must be a lower-case Python identifier (e.g. ffi_thermal_shift)')
+    _check_module_name(name)
+    summary, hook, source, parameter = KINDS[kind]
+    function = {'camera_shift_px': f'{name}_shift_px', 'camera_rotation': f'{name}_rotation_arcsec',
+                'gyro_rate_offset': f'{name}_rate_rad_per_s'}[hook]
+    text = (_HEADER.format(name=name, summary=summary, kind=kind, folder=folder) + source.format(name=name)
+            + _FOOTER.format(name=name, summary=summary, parameter=parameter, hook=hook, function=function))
+    try:
+        compile(text, f'{name}.py', 'exec')
+    except SyntaxError as err:  # the folder is written into the docstring: a quote or backslash can end it
+        raise ConfigError(f'folder {folder!r} cannot be written into the template\'s docstring ({err.msg}); '
+                          'choose a --dir without quotes or backslashes') from err
+    return text
+
+
+def _check_module_name(name):
+    """ConfigError unless ``name`` can be a plug-in module: a short lower-case ASCII identifier that is no
+    keyword, builtin or effect, and shadows no importable module.
+
+    With its folder first on PYTHONPATH (as the template says), a plug-in named like an installed
+    module (numpy, yaml, sofia_ros) would be imported in its place by every sofia command.
+    """
+    if not _MODULE_NAME.fullmatch(name):
+        raise ConfigError(f'plug-in name {name[:_MAX_NAME_CHARS]!r} must be a lower-case Python identifier of at most '
+                          f'{_MAX_NAME_CHARS} characters (a-z, 0-9, _; e.g. ffi_thermal_shift)')
+    if keyword.iskeyword(name) or keyword.issoftkeyword(name) or hasattr(builtins, name):
+        raise ConfigError(f'plug-in name {name!r} is a Python keyword or builtin; choose another name '
+                          f'(e.g. {name}_effect)')
     from sofia_ros.effects import CATALOGUE
 
     if name in CATALOGUE:
         raise ConfigError(f'{name!r} is already an effect; choose another name')
-    summary, hook, source, parameter = KINDS[kind]
-    function = {'camera_shift_px': f'{name}_shift_px', 'camera_rotation': f'{name}_rotation_arcsec',
-                'gyro_rate_offset': f'{name}_rate_rad_per_s'}[hook]
-    return (_HEADER.format(name=name, summary=summary, kind=kind, folder=folder) + source.format(name=name)
-            + _FOOTER.format(name=name, summary=summary, parameter=parameter, hook=hook, function=function))
+    try:
+        shadowed = importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):  # a module already imported without a spec: taken all the same
+        shadowed = True
+    if shadowed:
+        raise ConfigError(f'plug-in name {name!r} is the name of an importable module, which the plug-in would '
+                          f'shadow on PYTHONPATH; choose another name (e.g. {name}_effect)')
 
 
 def write_plugin_template(name, kind, directory='.'):
-    """Write NAME.py into ``directory`` (which must exist; the file must not); return its path."""
+    """Write NAME.py into ``directory`` (which must exist; the file must not) whole or not at all; return its path."""
     directory = Path(directory)
     if not directory.is_dir():
         raise ConfigError(f'directory {directory} does not exist; create it or give another --dir')
-    path = directory / f'{name}.py'
     text = plugin_template(name, kind, str(directory))
+    try:
+        data = text.encode('utf-8')
+    except UnicodeEncodeError as err:  # a --dir of bytes that are not UTF-8, written into the docstring
+        raise ConfigError(f'folder {directory} is not UTF-8 text; choose a --dir named in UTF-8') from err
+    path = directory / f'{name}.py'
     if path.exists():
         raise ConfigError(f'{path} exists; choose another name or remove it')
-    path.write_text(text)
+    with atomic_output(path, 'wb') as stream:
+        stream.write(data)
     return path

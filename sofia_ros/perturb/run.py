@@ -1,7 +1,7 @@
 """perturb_bag: a copy of a campaign bag with a shape added to one observable, outside the simulator.
 
-The new bag directory is built in a hidden sibling and renamed into place at the end, so an error
-leaves nothing behind. It holds the rewritten MCAP file (rewrite.copy_mcap: only the observable's
+The new bag directory is built in a hidden sibling, flushed to disk and renamed into place at the
+end, so an error (a full disk included) leaves nothing behind. It holds the rewritten MCAP file (rewrite.copy_mcap: only the observable's
 messages change, re-serialized with only that field changed), metadata.yaml and every side file of
 the source (truth.yaml, model.yaml, calibration.yaml, summary.json, ...) as they were, and
 perturbation.yaml recording what was added. /truth topics stay as recorded: the perturbation is
@@ -24,7 +24,10 @@ from sofia_ros import messages as m
 from sofia_ros.bag import TYPESTORE, BagReader
 from sofia_ros.bag.imu import decode_imu_rows, with_angular_velocity
 from sofia_ros.bag.msgtypes import decode_cdr
+from sofia_ros.config import MAX_CONFIG_BYTES, safe_load_limited
 from sofia_ros.errors import BagError, PerturbationError
+from sofia_ros.input_files import read_text_capped
+from sofia_ros.output_files import output_error
 from sofia_ros.perturb.observables import Observable, observable as observable_named
 from sofia_ros.perturb.rewrite import channel_id_of, channel_payloads, copy_mcap, read_summary
 from sofia_ros.perturb.shapes import evaluate_shape, parse_shape, shape_names
@@ -168,11 +171,15 @@ def _equal_length_blocks(payloads: list[memoryview]) -> Iterator[tuple[np.ndarra
 
 
 def _check_new_directory(out: Path) -> None:
-    """PerturbationError unless ``out`` is a new directory in an existing folder."""
-    if out.exists():
+    """PerturbationError unless ``out`` is a new directory in an existing folder; OutputError if it cannot be looked at."""
+    try:
+        taken, folder_exists = out.exists(), out.parent.is_dir()
+    except OSError as err:  # a name too long for the file system, a folder that cannot be searched
+        raise output_error(out, err) from err
+    if taken:
         raise PerturbationError(f'{out} already exists; pass a new directory for the perturbed bag '
                                 '(sofia perturb never overwrites)')
-    if not out.parent.is_dir():
+    if not folder_exists:
         raise PerturbationError(f'folder {out.parent} of the output bag does not exist; create it first')
 
 
@@ -187,25 +194,52 @@ def _mcap_file(source: Path) -> Path:
 
 def _write_bag(source: Path, out: Path, mcap_path: Path, summary, channel_id: int,
                replace: Callable[[list[memoryview]], list[bytes]], result: Perturbation, target: Observable) -> None:
-    """Build the new bag in a hidden sibling of ``out`` and rename it into place; remove it on any error."""
-    building = Path(tempfile.mkdtemp(prefix=f'.{out.name}.', suffix='.partial', dir=out.parent))
+    """Build the new bag in a hidden sibling of ``out``, flush it to disk and rename it into place.
+
+    On any error the sibling is removed, so ``out`` is either whole or absent; an OSError (disk
+    full, read-only folder) becomes one OutputError naming ``out`` (exit 3 for a full disk, else 2).
+    """
+    previous = _source_perturbation(source)
+    record = {**asdict(result), 'topic': target.topic, 'source_bag': str(source.resolve()),
+              'note': 'added by sofia perturb to the recorded bag, outside the simulator; /truth is unchanged'}
+    if previous is not None:
+        record['source_perturbation'] = previous
+    building = None
     try:
+        building = Path(tempfile.mkdtemp(prefix=f'.{out.name[:200]}.', suffix='.partial', dir=out.parent))
         building.chmod(0o755)
         copy_mcap(mcap_path, building / mcap_path.name, summary, channel_id, replace)
-        previous = None
         for path in sorted(source.iterdir()):
-            if path.name == PERTURBATION_FILE:
-                previous = yaml.safe_load(path.read_text())
-            elif path.is_file() and path != mcap_path:
+            if path.is_file() and path not in (mcap_path, source / PERTURBATION_FILE):
                 shutil.copy2(path, building / path.name)
-        record = {**asdict(result), 'topic': target.topic, 'source_bag': str(source.resolve()),
-                  'note': 'added by sofia perturb to the recorded bag, outside the simulator; /truth is unchanged'}
-        if previous is not None:
-            record['source_perturbation'] = previous
         (building / PERTURBATION_FILE).write_text(yaml.safe_dump(record, sort_keys=False))
+        _flush_to_disk(building)
         if out.exists():
             raise PerturbationError(f'{out} appeared while the perturbed bag was written; pass a new directory')
         os.rename(building, out)
-    except BaseException:
-        shutil.rmtree(building, ignore_errors=True)
+    except BaseException as err:
+        if building is not None:
+            shutil.rmtree(building, ignore_errors=True)
+        if isinstance(err, OSError):
+            raise output_error(out, err) from err
         raise
+
+
+def _source_perturbation(source: Path) -> object:
+    """The perturbation record of a bag that is itself a perturbed copy, else None; ConfigError if it is unreadable."""
+    path = source / PERTURBATION_FILE
+    if not path.exists():
+        return None
+    return safe_load_limited(read_text_capped(path, MAX_CONFIG_BYTES, 'perturbation record'), str(path))
+
+
+def _flush_to_disk(directory: Path) -> None:
+    """fsync every file of ``directory`` and the directory itself, so that the rename publishes whole files."""
+    for path in directory.iterdir():
+        with open(path, 'rb') as file:
+            os.fsync(file.fileno())
+    descriptor = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)

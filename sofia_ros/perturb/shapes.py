@@ -100,11 +100,27 @@ def _check_node(node: ast.AST, expression: str, variables: tuple[str, ...], call
     if not isinstance(node, allowed) or (isinstance(node, ast.Constant) and not _is_number(node.value)):
         raise PerturbationError(f'the shape {expression!r} uses {type(node).__name__}, which is not allowed; '
                                 'use numbers, variables, + - * / ** %, comparisons and the listed functions')
+    if isinstance(node, ast.Constant) and not _is_finite_float(node.value):
+        raise PerturbationError(f'the shape {_shortened(expression)!r} holds the number {_shortened(str(node.value))}, '
+                                f'beyond a float\'s range (+-{np.finfo(float).max:.3g}); write a smaller number')
 
 
 def _is_number(value: object) -> bool:
     """True for an int or float literal (not a bool, complex, string or bytes)."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_finite_float(value: float) -> bool:
+    """True for a literal that is a finite float64 (400 digits overflow, 1e999 is already inf)."""
+    try:
+        return bool(np.isfinite(np.float64(value)))
+    except OverflowError:
+        return False
+
+
+def _shortened(text: str, length: int = 40) -> str:
+    """``text``, cut to ``length`` characters with an ellipsis: a 400-digit number does not fill the line."""
+    return text if len(text) <= length else f'{text[:length]}...'
 
 
 def _value(node: ast.AST, variables: Mapping[str, np.ndarray]) -> np.ndarray | np.float64:

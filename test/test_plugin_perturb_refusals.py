@@ -194,6 +194,8 @@ _SHADOWED = ('numpy', 'yaml', 'json', 'os', 'sys', 'math', 're', 'scipy', 'sofia
 _KEYWORDS_AND_BUILTINS = ('for', 'class', 'lambda', 'import', 'match', 'print', 'len', 'open', 'list', 'id')
 _NOT_IDENTIFIERS = ('1abc', 'a-b', 'a b', 'Abc', 'aB', '_x', 'a.b', 'ñame', 'ﬁeld_shift', 'x/y', '../up', 'a' * 65,
                     'a' * 300, ' ', 'gyro_bias')
+#: Folders a module's docstring cannot hold: quotes end it, \\N is a bad escape, a byte that is not UTF-8.
+_ODD_FOLDERS = ('a"""b', 'x\\N', 'not_utf8_\udcff')
 _BAD_KINDS = ('cam', 'GYRO', '', 'camera rotation', 'gyro;rm')
 _BAD_PERIODS = ('1e-300', '0', '0.5', '0.999', '1.0e6000', '1e7', '1000001', '1e999', '-5', '0e0', '1e-1')
 _BAD_RANGES = ('60..20', '1..1', '1e11..1e12', '-1e999..0', '0..1e999', '1..1.0000000000001', '-0..0',
@@ -219,7 +221,7 @@ def _cases():
     for kind in _BAD_KINDS:  # argparse's choices: its own prefix, one line all the same
         cases.append((f'plugin-kind-{kind}', lambda d, b, m, k=kind: ['effects', 'new', 'fine_effect', '--kind', k,
                                                                       '--dir', str(d)], 2, 'sofia effects: error:'))
-    for folder in ('missing', 'a_file', 'a"""b', 'x\\N'):
+    for folder in ('missing', 'a_file', *_ODD_FOLDERS):
         cases.append((f'plugin-dir-{folder}', lambda d, b, m, f=folder: ['effects', 'new', 'fine_effect', '--kind',
                                                                          'camera', '--dir', str(d / f)],
                       2, 'sofia: error:'))
@@ -246,8 +248,8 @@ def test_the_generator_makes_enough_cases():
 def test_generated_bad_input_is_one_line_and_leaves_nothing(bag, tmp_path, capsys, build, code, prefix):
     work = tmp_path
     (work / 'a_file').write_text('not a folder\n')
-    (work / 'a"""b').mkdir()
-    (work / 'x\\N').mkdir()
+    for folder in _ODD_FOLDERS:
+        (work / folder).mkdir()
     model = work / 'model.yaml'
     model.write_text(MODEL)
     before = sorted(str(path.relative_to(work)) for path in work.rglob('*'))

@@ -113,9 +113,12 @@ def plugin_template(name, kind, folder='.'):
                 'gyro_rate_offset': f'{name}_rate_rad_per_s'}[hook]
     text = (_HEADER.format(name=name, summary=summary, kind=kind, folder=folder) + source.format(name=name)
             + _FOOTER.format(name=name, summary=summary, parameter=parameter, hook=hook, function=function))
+    # The folder is written into the docstring: bytes that are not UTF-8, a quote or a backslash break the module.
     try:
-        compile(text, f'{name}.py', 'exec')
-    except SyntaxError as err:  # the folder is written into the docstring: a quote or backslash can end it
+        compile(text.encode('utf-8'), f'{name}.py', 'exec')
+    except UnicodeEncodeError as err:
+        raise ConfigError(f'folder {folder!r} is not UTF-8 text; choose a --dir named in UTF-8') from err
+    except SyntaxError as err:
         raise ConfigError(f'folder {folder!r} cannot be written into the template\'s docstring ({err.msg}); '
                           'choose a --dir without quotes or backslashes') from err
     return text
@@ -152,11 +155,7 @@ def write_plugin_template(name, kind, directory='.'):
     directory = Path(directory)
     if not directory.is_dir():
         raise ConfigError(f'directory {directory} does not exist; create it or give another --dir')
-    text = plugin_template(name, kind, str(directory))
-    try:
-        data = text.encode('utf-8')
-    except UnicodeEncodeError as err:  # a --dir of bytes that are not UTF-8, written into the docstring
-        raise ConfigError(f'folder {directory} is not UTF-8 text; choose a --dir named in UTF-8') from err
+    data = plugin_template(name, kind, str(directory)).encode('utf-8')
     path = directory / f'{name}.py'
     if path.exists():
         raise ConfigError(f'{path} exists; choose another name or remove it')

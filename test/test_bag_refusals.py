@@ -238,9 +238,9 @@ def test_recover_onto_a_full_or_read_only_disk_is_one_line_and_leaves_nothing(
         emit(self, data)
 
     monkeypatch.setattr(CheckedMcapStorage, '_emit', fill_up)
-    assert main(['recover', str(bag), '--out', str(tmp_path / 'fixed')]) == exit_code
+    assert main(['recover', str(bag), '--out', str(tmp_path / 'new' / 'folders' / 'fixed')]) == exit_code
     assert reason in _one_error_line(capsys)
-    assert not (tmp_path / 'fixed').exists()
+    assert not (tmp_path / 'new').exists()  # nor the folders made for it
 
 
 def test_recover_onto_a_directory_that_cannot_be_made_is_one_line(bag, tmp_path, capsys, monkeypatch):

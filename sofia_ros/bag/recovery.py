@@ -70,6 +70,7 @@ def recover_bag(
         destination = source.with_name(source.name + RECOVERED_SUFFIX)
     data = mcap_path.read_bytes()
     writer = BagWriter(destination)  # refuses an existing destination before anything is created
+    created = _first_new_folder(writer.path)
     try:
         with writer:
             copier = _Copier(writer)
@@ -81,7 +82,7 @@ def recover_bag(
             if not copier.topics:
                 raise BagError(f'{mcap_path} holds no intact MCAP chunk ({stop_reason}); nothing to recover')
     except BaseException as err:
-        shutil.rmtree(writer.path, ignore_errors=True)
+        shutil.rmtree(created, ignore_errors=True)
         # The writer's own line for a full disk names the messages its bag keeps: here there is no bag left.
         cause = err if isinstance(err, OSError) else err.__cause__
         if isinstance(err, (OSError, SofiaError)) and isinstance(cause, OSError):
@@ -96,6 +97,13 @@ def recover_bag(
         stop_reason=stop_reason,
         skipped_offsets=tuple(skipped),
     )
+
+
+def _first_new_folder(path: Path) -> Path:
+    """The outermost folder the writer creates for ``path`` (rosbags makes missing parents too)."""
+    while not path.parent.exists() and path.parent != path.parent.parent:
+        path = path.parent
+    return path
 
 
 _OPCODE_CHUNK = 0x06

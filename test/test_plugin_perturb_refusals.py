@@ -203,7 +203,8 @@ _BAD_RANGES = ('60..20', '1..1', '1e11..1e12', '-1e999..0', '0..1e999', '1..1.00
 _BAD_GRAMMAR = ('empirical:', 'empirical:fpi.x', 'empirical:fpi.x:time', 'empirical:fpi.x:time:period_s',
                 'empirical:fpi.x:time:period_nans', 'empirical:fpi.x:time:period_infs', 'empirical:fpi.x:time:poly',
                 'empirical:fpi.x:time:poly4', 'empirical:fpi.x:time:poly0', 'empirical:fpi.x:time:poly33',
-                'empirical:fpi.x:time:poly' + '9' * 120, 'empirical:fpi.z:time:poly3', 'empirical:gyro.el:elevation:poly3',
+                'empirical:fpi.x:time:poly' + '9' * 120, 'empirical:fpi.z:time:poly3',
+                'empirical:gyro.el:elevation:poly3',
                 'empirical:fpi.x:elevation:period_60s', 'empirical:fpi.x:time:period_1e+999s',
                 'empirical:fpi.x:' + 'a' * 400 + ':poly3', 'empirical:ffi.y:elevation:poly3@' + '1' * 200 + '..2')
 _BAD_SHAPES = ('1' * 400, '-' + '9' * 310, '1e999', '2*' + '9' * 320 + '.0', '1e400*time_s', '10**400', '1/0',

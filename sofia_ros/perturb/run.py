@@ -1,10 +1,10 @@
 """perturb_bag: a copy of a campaign bag with a shape added to one observable, outside the simulator.
 
 The new bag directory is built in a hidden sibling, flushed to disk and renamed into place at the
-end, so an error (a full disk included) leaves nothing behind. It holds the rewritten MCAP file (rewrite.copy_mcap: only the observable's
-messages change, re-serialized with only that field changed), metadata.yaml and every side file of
-the source (truth.yaml, model.yaml, calibration.yaml, summary.json, ...) as they were, and
-perturbation.yaml recording what was added. /truth topics stay as recorded: the perturbation is
+end, so an error (a full disk included) leaves nothing behind. It holds the rewritten MCAP file
+(rewrite.copy_mcap: only the observable's messages change, re-serialized with only that field
+changed), metadata.yaml and every side file of the source (truth.yaml, model.yaml,
+calibration.yaml, summary.json, ...) as they were, and perturbation.yaml recording what was added. /truth topics stay as recorded: the perturbation is
 physics the truth simulator did not have.
 """
 
@@ -171,7 +171,8 @@ def _equal_length_blocks(payloads: list[memoryview]) -> Iterator[tuple[np.ndarra
 
 
 def _check_new_directory(out: Path) -> None:
-    """PerturbationError unless ``out`` is a new directory in an existing folder; OutputError if it cannot be looked at."""
+    """PerturbationError unless ``out`` is a new directory in an existing folder; OutputError if it cannot be
+    looked at."""
     try:
         taken, folder_exists = out.exists(), out.parent.is_dir()
     except OSError as err:  # a name too long for the file system, a folder that cannot be searched
@@ -204,9 +205,11 @@ def _write_bag(source: Path, out: Path, mcap_path: Path, summary, channel_id: in
               'note': 'added by sofia perturb to the recorded bag, outside the simulator; /truth is unchanged'}
     if previous is not None:
         record['source_perturbation'] = previous
-    building = None
     try:
         building = Path(tempfile.mkdtemp(prefix=f'.{out.name[:200]}.', suffix='.partial', dir=out.parent))
+    except OSError as err:
+        raise output_error(out, err) from err
+    try:
         building.chmod(0o755)
         copy_mcap(mcap_path, building / mcap_path.name, summary, channel_id, replace)
         for path in sorted(source.iterdir()):
@@ -217,11 +220,11 @@ def _write_bag(source: Path, out: Path, mcap_path: Path, summary, channel_id: in
         if out.exists():
             raise PerturbationError(f'{out} appeared while the perturbed bag was written; pass a new directory')
         os.rename(building, out)
-    except BaseException as err:
-        if building is not None:
-            shutil.rmtree(building, ignore_errors=True)
-        if isinstance(err, OSError):
-            raise output_error(out, err) from err
+    except OSError as err:
+        shutil.rmtree(building, ignore_errors=True)
+        raise output_error(out, err) from err
+    except BaseException:
+        shutil.rmtree(building, ignore_errors=True)
         raise
 
 

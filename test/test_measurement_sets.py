@@ -91,7 +91,7 @@ def test_rates_in_the_wrong_unit():
     def edit(document):
         document['tables'][0]['rows'][0][1] = 10.4734 * 3600.0  # arcsec/h typed as deg/h
 
-    with pytest.raises(ConfigError, match=r'not a braked telescope .* check the units'):
+    with pytest.raises(ConfigError, match=r'not a braked telescope.* check the units'):
         parse_measurement_set(_edited(edit, DATA / 'edwards-earth-rate-2007.yaml'), 'set.yaml')
 
 

@@ -20,12 +20,47 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sofia_ros.config import MAX_CONFIG_BYTES
+
 __all__ = ['FORMAT_VERSION', 'KINDS', 'KindSpec', 'StarDistance', 'EarthRateMean', 'TurningPoint',
-           'MisalignmentAngle', 'Table', 'MeasurementSet', 'REDUCED', 'ALIGNMENT']
+           'MisalignmentAngle', 'Table', 'MeasurementSet', 'REDUCED', 'ALIGNMENT', 'MAX_SET_BYTES', 'MAX_SET_ROWS',
+           'VALUE_RANGES', 'IDENTITY_MATRIX']
 
 FORMAT_VERSION = 1
 REDUCED = 'reduced'
 ALIGNMENT = 'alignment'
+#: The matrix every set knows: the identity, a run before any alignment matrix.
+IDENTITY_MATRIX = 'none'
+
+#: A set is a few kB (the thesis' largest, 5.4 kB); the YAML reader takes no more than this anyway.
+MAX_SET_BYTES = MAX_CONFIG_BYTES
+#: Rows of all tables together: the thesis' tables hold at most 20; 2000 star distances compare in about 4 s.
+MAX_SET_ROWS = 2000
+
+_SIGMA_WHY = 'below 1e-06" the fit\'s weights overflow, above 1e+04" a row weighs nothing'
+_EULER = (-648000.0, 648000.0, 'arcsec', 'an Euler angle of at most 180 deg')
+_PIXEL = (-10000.0, 10000.0, 'px', 'a position on a detector')
+_RATE = (-100.0, 100.0, 'deg/h', 'not a braked telescope: Earth rate is 15 deg/h')
+_OFFSET = (-36000.0, 36000.0, 'arcsec', 'a turning point within 10 deg of the TARF origin')
+#: name -> (lowest, highest, unit, why) of every number of a set but the site, weather and distance (checked
+#: where they are built): outside is a typo or a unit slip, which would pass as a result (a heading of 1e308
+#: deg) or overflow the fit (a sigma of 1e-300").
+VALUE_RANGES = {
+    'heading_deg': (-360.0, 360.0, 'deg', 'a true heading'),
+    'gyro_temperature_c': (-90.0, 100.0, 'C', 'a gyro box on the ground or in flight'),
+    'latitude_deg': (-90.0, 90.0, 'deg', 'a latitude'),
+    'elevation_deg': (-90.0, 90.0, 'deg', 'a telescope elevation'),
+    'el_arcsec': _EULER, 'xel_arcsec': _EULER, 'los_arcsec': _EULER,
+    'x1_px': _PIXEL, 'y1_px': _PIXEL, 'x2_px': _PIXEL, 'y2_px': _PIXEL, 'x_px': _PIXEL, 'y_px': _PIXEL,
+    'el_deg_per_h': _RATE, 'xel_deg_per_h': _RATE, 'los_deg_per_h': _RATE,
+    'dx_arcsec': _OFFSET, 'dy_arcsec': _OFFSET,
+    'angle_arcmin': (-600.0, 600.0, 'arcmin', 'a misalignment within 10 deg'),
+    'sigma_arcsec': (1e-6, 1e4, 'arcsec', _SIGMA_WHY),
+    'sigma_arcmin': (1e-6 / 60.0, 1e4 / 60.0, 'arcmin', _SIGMA_WHY),
+    'sigma_deg_per_h': (1e-6, 1e4, 'deg/h', 'below 1e-06 deg/h (1e-06"/s) the fit\'s weights overflow, above '
+                        '1e+04 deg/h a row weighs nothing'),
+    'maneuvers': (1, 10000, 'maneuvers', 'a whole number of alignment maneuvers'),
+}
 
 
 @dataclass(frozen=True)

@@ -174,7 +174,7 @@ def empirical_name(observable, variable, period_s=None, range_=None):
 
 
 def _range_text(low, high):
-    """LOW..HIGH to 4 significant digits, or as many more as keep the two ends apart (times since 1970 need 10)."""
+    """LOW..HIGH to 4 significant digits, or as many more as keep the two ends apart (a time since 1970: 7 or more)."""
     for digits in range(4, 18):
         low_text, high_text = f'{low:.{digits}g}', f'{high:.{digits}g}'
         if float(low_text) < float(high_text):

@@ -5,16 +5,15 @@ The arguments are built with every `sofia` command, so the engine, Parquet and p
 
 from __future__ import annotations
 
-import re
 import time
 import uuid
 from pathlib import Path
 from typing import TextIO
 
 from sofia_ros.cli_args import integer, number
-from sofia_ros.errors import ConfigError
+from sofia_ros.errors import ConfigError, RunInterrupted
 
-__all__ = ['TABLE_DIRECTORY', 'add_atlas_arguments', 'run_atlas', 'parse_seeds']
+__all__ = ['TABLE_DIRECTORY', 'add_atlas_arguments', 'run_atlas']
 
 #: OUT/table is the Parquet table (pyarrow.parquet.read_table(OUT/table)); OUT/report the page, OUT/bags the bags.
 TABLE_DIRECTORY = 'table'
@@ -47,21 +46,9 @@ def add_atlas_arguments(parser) -> None:
                         help='LocalCluster worker processes (default: one per core)')
     parser.add_argument('--connect-timeout-s', type=number(0.1, 600.0, 's'), default=10.0,
                         help='give up on an unreachable --scheduler after this long (default 10 s)')
+    parser.add_argument('--force', action='store_true', help='run a grid of more than 10000 tasks (up to 1000000)')
     parser.add_argument('--keep-bags', action='store_true', help='keep every bag under OUT/bags (default: deleted)')
     parser.add_argument('--report', help='HTML page directory (default OUT/report)')
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``N`` (1..N), ``A-B`` or ``a,b,c``; ConfigError otherwise."""
-    text = text.strip()
-    if re.fullmatch(r'\d+', text):
-        return list(range(1, int(text) + 1))
-    match = re.fullmatch(r'(\d+)-(\d+)', text)
-    if match:
-        return list(range(int(match[1]), int(match[2]) + 1))
-    if re.fullmatch(r'\d+(,\d*)*', text):
-        return [int(part) for part in text.split(',') if part]
-    raise ConfigError(f'--seeds {text!r}: give N (seeds 1..N), A-B or a comma list such as 1,2,7')
 
 
 def _split(text: str) -> list[str]:
@@ -70,28 +57,28 @@ def _split(text: str) -> list[str]:
 
 def grid_of_arguments(args):
     """The AtlasGrid of --grid, or of the axis flags (with their defaults)."""
-    from sofia_ros.atlas.grid import grid_from_file, grid_from_lists
+    from sofia_ros.atlas.grid import FORCED_MAX_TASKS, MAX_TASKS, grid_from_file, grid_from_lists, seeds_of_text
 
+    max_tasks = FORCED_MAX_TASKS if args.force else MAX_TASKS
     given = [axis for axis in (*_AXES, 'model', 'truth', 'candidates') if getattr(args, axis) is not None]
     if args.grid is not None:
         if given:
             raise ConfigError(f'--grid and --{given[0]} both given; put the whole grid in the file or use flags only')
-        return grid_from_file(args.grid)
+        return grid_from_file(args.grid, max_tasks)
     value = {axis: getattr(args, axis) if getattr(args, axis) is not None else _DEFAULTS[axis] for axis in _AXES}
     files = {name: getattr(args, name) for name in ('model', 'truth') if getattr(args, name) is not None}
     return grid_from_lists(effects=_split(value['effects']), sizes=_split(value['sizes']),
                            campaigns=_split(value['campaigns']),
-                           seeds=parse_seeds(value['seeds']) if value['seeds'].strip() else [],
-                           candidates=_split(args.candidates) if args.candidates is not None else None, **files)
+                           seeds=seeds_of_text(value['seeds'], '--seeds', max_tasks) if value['seeds'].strip() else [],
+                           candidates=_split(args.candidates) if args.candidates is not None else None,
+                           max_tasks=max_tasks, **files)
 
 
 def run_atlas(args, out: TextIO, err: TextIO) -> int:
     """Run the missing tasks of the grid, then print the table and write the page."""
-    from sofia_ros.atlas.engine import (Progress, checked_scheduler_address, dashboard_address, dask_client,
-                                        run_distributed, run_serial)
+    from sofia_ros.atlas.engine import checked_scheduler_address
     from sofia_ros.atlas.report import summarize, text_table, write_html
     from sofia_ros.atlas.store import ResultStore
-    from sofia_ros.atlas.task import TaskSetup
 
     if args.scheduler is not None:
         checked_scheduler_address(args.scheduler)
@@ -100,29 +87,48 @@ def run_atlas(args, out: TextIO, err: TextIO) -> int:
                           'with --serial there are none: leave --workers out')
     grid = grid_of_arguments(args)
     store = ResultStore(Path(args.out) / TABLE_DIRECTORY, grid.describe())
-    tasks = grid.tasks()
+    total = grid.task_count()
     run_id = f'{time.strftime("%Y%m%dT%H%M%S")}-{uuid.uuid4().hex[:6]}'
-    setup = TaskSetup(grid.truth, grid.model, grid.candidates,
-                      str(Path(args.out).resolve() / 'bags') if args.keep_bags else None, run_id)
-    missing = len(tasks) - len(store.finished_keys() & {task.key for task in tasks})
+    # every stored key is a cell of this grid (the store refuses another grid's parts)
+    missing = total - len(store.finished_keys())
     engine = 'serial' if args.serial else (args.scheduler or 'a LocalCluster')
-    out.write(f'atlas: {len(tasks)} tasks ({len(grid.effects)} effects x {len(grid.sizes)} sizes x '
-              f'{len(grid.campaigns)} campaigns x {len(grid.seeds)} seeds), {len(tasks) - missing} already in '
+    out.write(f'atlas: {total} tasks ({len(grid.effects)} effects x {len(grid.sizes)} sizes x '
+              f'{len(grid.campaigns)} campaigns x {len(grid.seeds)} seeds), {total - missing} already in '
               f'{args.out}; running {missing} on {engine} (run {run_id})\n')
     out.flush()
-    if missing and args.serial:
-        run_serial(tasks, setup, store, Progress(missing, err))
-    elif missing:
-        with dask_client(args.scheduler, workers=args.workers, connect_timeout_s=args.connect_timeout_s) as client:
-            progress = Progress(missing, err, dashboard_address(client))
-            progress.show(0)
-            counts = run_distributed(tasks, setup, store, client, progress)
-        if counts.lost:
-            err.write(f'atlas: {counts.lost} tasks lost with their workers (KilledWorker); run the same command '
-                      'again to retry them\n')
+    if missing:
+        try:
+            _run_missing(args, grid, store, run_id, missing, err)
+        except RunInterrupted as interrupted:
+            # The campaign's own message names its bag, which the task has deleted by now: tell what is kept.
+            stored = len(store.finished_keys())
+            raise RunInterrupted(interrupted.signum, f'interrupted by {interrupted.signal_name}; '
+                                 f'{store.path} keeps the {stored} of {total} tasks finished; run the same '
+                                 f'command again to run the other {total - stored}') from interrupted
     store.compact()
     summary = summarize(store.read().to_pylist())
     out.write(text_table(summary))
     page = write_html(summary, args.report or Path(args.out) / 'report', str(args.out))
     out.write(f'page: {page}\n')
     return 0
+
+
+def _run_missing(args, grid, store, run_id: str, missing: int, err: TextIO) -> None:
+    """Run the tasks the table lacks, serially or on Dask; their bags in a scratch directory removed at the end."""
+    from sofia_ros.atlas.engine import Progress, dashboard_address, dask_client, run_distributed, run_serial
+    from sofia_ros.atlas.task import TaskSetup, scratch_directory
+
+    bag_root = str(Path(args.out).resolve() / 'bags') if args.keep_bags else None
+    # A remote scheduler's workers run elsewhere: they make their temporary bags in their own /tmp.
+    with scratch_directory(local=args.scheduler is None) as scratch:
+        setup = TaskSetup(grid.truth, grid.model, grid.candidates, bag_root, run_id, scratch)
+        if args.serial:
+            run_serial(grid.iter_tasks(), setup, store, Progress(missing, err))
+            return
+        with dask_client(args.scheduler, workers=args.workers, connect_timeout_s=args.connect_timeout_s) as client:
+            progress = Progress(missing, err, dashboard_address(client))
+            progress.show(0)
+            counts = run_distributed(grid.iter_tasks(), setup, store, client, progress)
+    if counts.lost:
+        err.write(f'atlas: {counts.lost} tasks lost with their workers (KilledWorker); run the same command '
+                  'again to retry them\n')

@@ -1,6 +1,7 @@
 """Where the atlas' tasks run: a plain loop, a Dask LocalCluster sized to the machine, or an existing scheduler.
 
-Dask distributed is the engine: every task is one ``client.submit(run_task, ...)``; the scheduler
+Dask distributed is the engine: every task is one ``client.submit(run_task, ...)``, a few per worker
+thread at a time (a million futures submitted at once filled the memory before the first ended); the scheduler
 moves a dead worker's tasks to the others (its ``allowed-failures``, 3 by default, before it gives a
 task up as KilledWorker: such a task gets no row, so the next run of the same grid tries it again).
 Rows are stored as their futures finish, whatever the order.
@@ -11,11 +12,13 @@ from __future__ import annotations
 import logging
 import os
 import re
+import socket
+import struct
 import sys
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator, TextIO
+from typing import Iterable, Iterator, TextIO
 
 from sofia_ros import interrupts
 from sofia_ros.atlas.grid import AtlasTask
@@ -23,9 +26,17 @@ from sofia_ros.atlas.store import ResultStore
 from sofia_ros.atlas.task import TaskSetup, run_task
 from sofia_ros.errors import ConfigError, SchedulerUnreachableError
 
-__all__ = ['Progress', 'RunCounts', 'checked_scheduler_address', 'dask_client', 'run_distributed', 'run_serial']
+__all__ = ['Progress', 'RunCounts', 'checked_scheduler_address', 'dask_client', 'probe_scheduler', 'run_distributed',
+           'run_serial']
 
-_ADDRESS = re.compile(r'^(tcp|tls)://[^\s/:]+:\d{1,5}$')
+_ADDRESS = re.compile(r'^(tcp|tls)://([^\s/:]{1,253}):(\d{1,5})$')
+#: A Dask scheduler greets a new connection with its handshake, a frame of a few hundred bytes
+#: announced by two little-endian uint64: the bytes that follow and the number of frames.
+_MAX_HANDSHAKE_BYTES = 1 << 20
+_MAX_HANDSHAKE_FRAMES = 64
+#: Futures in flight per worker thread (and at least this many): each worker has its next task at hand.
+_IN_FLIGHT_PER_THREAD = 2
+_MIN_IN_FLIGHT = 4
 #: Seconds between progress lines while nothing finishes.
 _PROGRESS_EVERY_S = 30.0
 #: Seconds between looks at the finished futures (a task takes tens of seconds).
@@ -44,10 +55,63 @@ class RunCounts:
 
 def checked_scheduler_address(address: str) -> str:
     """``tcp://HOST:PORT`` (or ``tls://``) as given; ConfigError for anything else."""
-    if not _ADDRESS.match(address):
-        raise ConfigError(f'--scheduler {address!r} is not a scheduler address; give tcp://HOST:PORT '
-                          '(dask scheduler prints it, port 8786 by default)')
+    match = _ADDRESS.match(address)
+    if not match or not 0 < int(match[3]) < 65536:
+        raise ConfigError(f'--scheduler {address!r} is not a scheduler address; give tcp://HOST:PORT with a port '
+                          'in 1..65535 (dask scheduler prints it, port 8786 by default)')
     return address
+
+
+def _unreachable(address: str, timeout_s: float, why: str) -> SchedulerUnreachableError:
+    return SchedulerUnreachableError(
+        f'cannot reach the Dask scheduler at {address} within {timeout_s:g} s ({why}); start it with '
+        '`dask scheduler` (and workers with `dask worker`) or leave --scheduler out for a local cluster')
+
+
+def _not_a_scheduler(address: str, timeout_s: float, what: str) -> SchedulerUnreachableError:
+    return SchedulerUnreachableError(
+        f'{address} {what} within {timeout_s:g} s: no Dask scheduler answers there (a web server such as the '
+        'dashboard on 8787 does not; a busy one may need a longer --connect-timeout-s); give the address '
+        '`dask scheduler` prints (port 8786 by default)')
+
+
+def _receive(connection: socket.socket, count: int, deadline: float) -> bytes:
+    data = b''
+    while len(data) < count:
+        connection.settimeout(max(deadline - time.monotonic(), 0.001))
+        chunk = connection.recv(count - len(data))
+        if not chunk:
+            break
+        data += chunk
+    return data
+
+
+def probe_scheduler(address: str, timeout_s: float) -> None:
+    """SchedulerUnreachableError unless ``address`` accepts a connection and (tcp://) greets with a Dask handshake,
+    all within ``timeout_s``.
+
+    Dask's own timeout does not bound this: a server that accepts and stays silent, or an HTTP server
+    (which waits for a request), held the Client past 60 s, and bytes of another protocol read as a
+    frame length once asked for 3.07 EiB. Over tls:// the greeting comes after TLS', so only the
+    connection is checked here.
+    """
+    match = _ADDRESS.match(checked_scheduler_address(address))
+    deadline = time.monotonic() + timeout_s
+    try:
+        with socket.create_connection((match[2], int(match[3])), timeout=timeout_s) as connection:
+            if match[1] != 'tcp':
+                return
+            greeting = _receive(connection, 16, deadline)
+    except socket.timeout as err:
+        raise _not_a_scheduler(address, timeout_s, 'accepted the connection but sent no Dask handshake') from err
+    except (OSError, UnicodeError) as err:  # refused, no route, unknown host; a host name idna cannot encode
+        why = err.strerror if isinstance(err, OSError) and err.strerror else str(err) or type(err).__name__
+        raise _unreachable(address, timeout_s, why) from err
+    if len(greeting) < 16:
+        raise _not_a_scheduler(address, timeout_s, 'closed the connection without a Dask handshake')
+    length, frames = struct.unpack('<QQ', greeting)
+    if not (0 < length <= _MAX_HANDSHAKE_BYTES and 0 < frames <= _MAX_HANDSHAKE_FRAMES):
+        raise _not_a_scheduler(address, timeout_s, 'answered with something other than a Dask handshake')
 
 
 @contextmanager
@@ -61,14 +125,11 @@ def dask_client(scheduler: str | None = None, *, workers: int | None = None,
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        address = checked_scheduler_address(scheduler)
+        probe_scheduler(scheduler, connect_timeout_s)
         try:
-            client = Client(address, timeout=f'{connect_timeout_s}s', set_as_default=False)
-        except (OSError, TimeoutError) as err:
-            raise SchedulerUnreachableError(
-                f'cannot reach the Dask scheduler at {address} within {connect_timeout_s:g} s; start it with '
-                '`dask scheduler` (and workers with `dask worker`) or leave --scheduler out for a local cluster'
-            ) from err
+            client = Client(scheduler, timeout=f'{connect_timeout_s}s', set_as_default=False)
+        except (OSError, TimeoutError) as err:  # it went away between the probe and the Client
+            raise _unreachable(scheduler, connect_timeout_s, str(err) or type(err).__name__) from err
         try:
             yield client
         finally:
@@ -134,39 +195,66 @@ def _clock(seconds: float) -> str:
     return f'{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}'
 
 
-def _missing(tasks: list[AtlasTask], store: ResultStore) -> list[AtlasTask]:
-    finished = store.finished_keys()
-    return [task for task in tasks if task.key not in finished]
+class _Missing:
+    """The tasks whose keys the store lacks, one at a time (a grid is never a list here), counting the others."""
+
+    def __init__(self, tasks: Iterable[AtlasTask], store: ResultStore):
+        self._tasks = iter(tasks)
+        self._finished = store.finished_keys()
+        self.skipped = 0
+
+    def __iter__(self) -> Iterator[AtlasTask]:
+        for task in self._tasks:
+            if task.key in self._finished:
+                self.skipped += 1
+            else:
+                yield task
 
 
-def run_serial(tasks: list[AtlasTask], setup: TaskSetup, store: ResultStore, progress: Progress | None = None) -> RunCounts:
+def run_serial(tasks: Iterable[AtlasTask], setup: TaskSetup, store: ResultStore,
+               progress: Progress | None = None) -> RunCounts:
     """Run the missing tasks one after another in this process (the reference the Dask runs must match)."""
-    todo = _missing(tasks, store)
-    failed = 0
+    missing = _Missing(tasks, store)
+    done = failed = 0
     try:
-        for index, task in enumerate(todo):
+        for task in missing:
             row = run_task(task, setup)
             interrupts.raise_if_requested()  # a campaign stopped by a signal is no result
             store.append(row)
+            done += 1
             failed += row['error'] is not None
             if progress is not None:
-                progress.finished(row, running=int(index + 1 < len(todo)))
+                progress.finished(row, running=int(progress.done + 1 < progress.total))
     finally:
         store.flush()
-    return RunCounts(len(todo), failed, len(tasks) - len(todo))
+    return RunCounts(done, failed, missing.skipped)
 
 
-def run_distributed(tasks: list[AtlasTask], setup: TaskSetup, store: ResultStore, client,
+def run_distributed(tasks: Iterable[AtlasTask], setup: TaskSetup, store: ResultStore, client,
                     progress: Progress | None = None) -> RunCounts:
-    """Submit the missing tasks to the cluster and store each row as its future finishes."""
+    """Submit the missing tasks to the cluster, a few per worker thread at a time, and store each row as its
+    future finishes."""
     from distributed import as_completed
 
-    todo = _missing(tasks, store)
-    futures = {client.submit(run_task, task, setup, key=f'atlas-{setup.run_id}-{task.key}', pure=False): task
-               for task in todo}
-    pending, failed, lost = set(futures), 0, 0
-    arrivals = as_completed(futures, loop=client.loop)
+    missing = _Missing(tasks, store)
+    waiting = iter(missing)
+    pending: dict = {}  # future -> task
+    done = failed = lost = 0
+    arrivals = as_completed([], loop=client.loop)
+
+    def submit_more() -> None:
+        """Top the futures in flight up to a few per worker thread (asked each time: workers come and go)."""
+        wanted = max(_MIN_IN_FLIGHT, _IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
+        while len(pending) < wanted:
+            task = next(waiting, None)
+            if task is None:
+                return
+            future = client.submit(run_task, task, setup, key=f'atlas-{setup.run_id}-{task.key}', pure=False)
+            pending[future] = task
+            arrivals.add(future)
+
     try:
+        submit_more()
         while pending:
             finished = arrivals.next_batch(block=False) if arrivals.has_ready() else []
             if not finished:
@@ -176,22 +264,24 @@ def run_distributed(tasks: list[AtlasTask], setup: TaskSetup, store: ResultStore
                     progress.show(_running(client, pending))
                 continue
             for future in finished:
-                pending.discard(future)
+                task = pending.pop(future)
                 if future.status == 'finished':
                     row = future.result()
                     store.append(row)
+                    done += 1
                     failed += row['error'] is not None
                 else:  # KilledWorker: the scheduler gave it up; not stored, so the next run tries it again
-                    row = {'error': f'{futures[future].key}: {future.exception()!r}'}
+                    row = {'error': f'{task.key}: {future.exception()!r}'}
                     lost += 1
                 future.release()
+                submit_more()
                 if progress is not None:
                     progress.finished(row, _running(client, pending))
     finally:
         store.flush()
         if pending:
             client.cancel(list(pending))
-    return RunCounts(len(todo) - lost, failed, len(tasks) - len(todo), lost)
+    return RunCounts(done, failed, missing.skipped, lost)
 
 
 def _running(client, pending) -> int:

@@ -10,8 +10,10 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import yaml
 
@@ -19,9 +21,10 @@ from sofia_ros.campaigns.registry import campaign_named
 from sofia_ros.config import EffectConfig, load_effect_config, parse_effect_config, safe_load_limited
 from sofia_ros.effects import CATALOGUE, get_effect, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
+from sofia_ros.input_files import read_text_capped
 
-__all__ = ['AtlasGrid', 'AtlasTask', 'DEFAULT_MODEL', 'DEFAULT_TRUTH', 'NOISE_EFFECTS', 'grid_from_file',
-           'grid_from_lists', 'hidden_truth_text', 'scaled_params']
+__all__ = ['AtlasGrid', 'AtlasTask', 'DEFAULT_MODEL', 'DEFAULT_TRUTH', 'FORCED_MAX_TASKS', 'MAX_TASKS', 'NOISE_EFFECTS',
+           'grid_from_file', 'grid_from_lists', 'hidden_truth_text', 'scaled_params', 'seeds_of_text']
 
 DEFAULT_MODEL, DEFAULT_TRUTH = 'config/model/nominal.yaml', 'config/truth/nominal.yaml'
 #: Random processes set the noise floor; compare never ranks them, so hiding them measures nothing.
@@ -29,6 +32,14 @@ NOISE_EFFECTS = ('gyro_noise', 'seeing')
 #: Keys a grid file may hold.
 _GRID_KEYS = ('effects', 'sizes', 'campaigns', 'seeds', 'model', 'truth', 'candidates')
 _MAX_SEED = 2**32 - 1
+#: The most tasks a grid may have: 10 000 tasks of ~20 s are days on a workstation, so more is a typo.
+MAX_TASKS = 10_000
+#: The most with --force: the store holds every key in memory and a run that long is months of CPU.
+FORCED_MAX_TASKS = 1_000_000
+_FORCE_HINT = f' (--force allows up to {FORCED_MAX_TASKS})'
+_FORCED_HINT = ' even with --force'
+#: A grid file is a few lines of YAML.
+_MAX_GRID_FILE_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -61,11 +72,22 @@ class AtlasGrid:
     #: compare's catalogue candidates (None: the whole catalogue); empirical shapes are always ranked
     candidates: tuple[str, ...] | None = None
 
-    def tasks(self) -> list[AtlasTask]:
-        """Every cell, campaigns outermost and seeds innermost (a partial atlas covers every effect early)."""
-        return [AtlasTask(effect, size, campaign, variant, seed)
+    def iter_tasks(self) -> Iterator[AtlasTask]:
+        """Every cell, campaigns outermost and seeds innermost (a partial atlas covers every effect early).
+
+        One at a time, so a grid of a million tasks is never a list of them.
+        """
+        return (AtlasTask(effect, size, campaign, variant, seed)
                 for campaign, variant in self.campaigns for seed in self.seeds
-                for size in self.sizes for effect in self.effects]
+                for size in self.sizes for effect in self.effects)
+
+    def tasks(self) -> list[AtlasTask]:
+        """Every cell as a list (iter_tasks' order)."""
+        return list(self.iter_tasks())
+
+    def task_count(self) -> int:
+        """How many cells the grid has."""
+        return len(self.effects) * len(self.sizes) * len(self.campaigns) * len(self.seeds)
 
     def fingerprint(self) -> str:
         """sha256 of everything that decides a row: a results table from another grid is refused with it."""
@@ -153,6 +175,49 @@ def _seed(value) -> int:
     return value
 
 
+def _seed_span(first: int, last: int, what: str, max_tasks: int) -> list[int]:
+    """Seeds first..last, their bounds and count checked before the list is built (99999999999999 seeds
+    would fill the memory before any range check)."""
+    if last > _MAX_SEED:
+        raise ConfigError(f'{what}: seed {last} is beyond the largest seed {_MAX_SEED}; give seeds in 0..{_MAX_SEED}')
+    if first > last:
+        raise ConfigError(f'{what}: the range {first}-{last} is empty; give A-B with A <= B')
+    if last - first + 1 > max_tasks:
+        raise ConfigError(f'{what}: {last - first + 1} seeds are more than the {max_tasks} tasks an atlas may have'
+                          f'{_FORCE_HINT if max_tasks < FORCED_MAX_TASKS else _FORCED_HINT}; give fewer seeds')
+    return list(range(first, last + 1))
+
+
+def seeds_of_text(text: str, what: str, max_tasks: int = MAX_TASKS) -> list[int]:
+    """``N`` (1..N), ``A-B`` or ``a,b,c``; ConfigError naming ``what`` otherwise or when too many."""
+    text = text.strip()
+    too_long = re.search(r'\d{11,}', text)  # beyond any seed, and int() refuses more than 4300 digits
+    if too_long:
+        digits = too_long[0] if len(too_long[0]) <= 20 else f'{too_long[0][:20]}...'
+        raise ConfigError(f'{what}: seed {digits} is beyond the largest seed {_MAX_SEED}; give seeds in 0..{_MAX_SEED}')
+    if re.fullmatch(r'\d+', text):
+        return _seed_span(1, int(text), what, max_tasks)
+    match = re.fullmatch(r'(\d+)-(\d+)', text)
+    if match:
+        return _seed_span(int(match[1]), int(match[2]), what, max_tasks)
+    if re.fullmatch(r'\d+(,\d*)*', text):
+        parts = [part for part in text.split(',') if part]
+        if len(parts) > max_tasks:
+            raise ConfigError(f'{what}: {len(parts)} seeds are more than the {max_tasks} tasks an atlas may have; '
+                              'give fewer seeds')
+        return [_seed(int(part)) for part in parts]
+    raise ConfigError(f'{what} {text!r}: give N (seeds 1..N), A-B or a comma list such as 1,2,7')
+
+
+def _checked_task_count(counts: dict, max_tasks: int) -> None:
+    """ConfigError when the axes multiply to more than ``max_tasks`` (before any hidden truth is built)."""
+    total = math.prod(counts.values())
+    if total > max_tasks:
+        axes = ' x '.join(f'{count} {name}' for name, count in counts.items())
+        raise ConfigError(f'the grid is {total} tasks ({axes}), more than the {max_tasks} an atlas may have'
+                          f'{_FORCE_HINT if max_tasks < FORCED_MAX_TASKS else _FORCED_HINT}; narrow an axis')
+
+
 def _nonempty(name: str, values) -> list:
     if not values:
         raise ConfigError(f'the atlas grid is empty: no {name} given; give at least one '
@@ -165,8 +230,9 @@ def _unique(values: list) -> tuple:
 
 
 def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MODEL, truth: str = DEFAULT_TRUTH,
-                    candidates=None) -> AtlasGrid:
-    """The grid from plain lists (``effects`` may be ['all']: every effect the model lacks); ConfigError if bad."""
+                    candidates=None, max_tasks: int = MAX_TASKS) -> AtlasGrid:
+    """The grid from plain lists (``effects`` may be ['all']: every effect the model lacks); ConfigError if bad
+    or if it has more than ``max_tasks`` tasks."""
     model_config = load_effect_config(model)
     truth_config = load_effect_config(truth)
     effects = _nonempty('effects', effects)
@@ -177,6 +243,8 @@ def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MO
     size_values = _unique([_size(value) for value in _nonempty('sizes', sizes)])
     pairs = _unique([_campaign_pair(text) for text in _nonempty('campaigns', campaigns)])
     seed_values = _unique([_seed(value) for value in _nonempty('seeds', seeds)])
+    _checked_task_count({'effects': len(effect_names), 'sizes': len(size_values), 'campaigns': len(pairs),
+                         'seeds': len(seed_values)}, max_tasks)
     if candidates is not None:
         for name in candidates:
             get_effect(name)
@@ -187,24 +255,22 @@ def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MO
     return AtlasGrid(effect_names, size_values, pairs, seed_values, truth_config, model_config, candidates)
 
 
-def _listed(document: dict, key: str, source: str):
+def _listed(document: dict, key: str, max_tasks: int):
     value = document.get(key)
     if value is None:
         return []
-    if key == 'seeds' and isinstance(value, int) and not isinstance(value, bool):
-        return list(range(1, value + 1))  # a count: seeds 1..N
+    if key == 'seeds' and isinstance(value, (int, str)) and not isinstance(value, bool):
+        # a count N (seeds 1..N) or the text --seeds takes, both counted before they are expanded
+        return seeds_of_text(str(value), 'seeds', max_tasks)
     if not isinstance(value, list):
-        raise ConfigError(f'{source}: {key} must be a list')
+        raise ConfigError(f'{key} must be a list' + (', a count N or "A-B"' if key == 'seeds' else ''))
     return value
 
 
-def grid_from_file(path) -> AtlasGrid:
+def grid_from_file(path, max_tasks: int = MAX_TASKS) -> AtlasGrid:
     """The grid of a YAML file (keys: effects, sizes, campaigns, seeds, model, truth, candidates)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding='utf-8')
-    except (OSError, UnicodeDecodeError) as err:
-        raise ConfigError(f'cannot read the grid file {path}: {err}; check the path') from err
+    text = read_text_capped(path, _MAX_GRID_FILE_BYTES, 'grid file')
     document = safe_load_limited(text, str(path))
     if not isinstance(document, dict):
         raise ConfigError(f'{path}: a grid file is a mapping with effects, sizes, campaigns and seeds')
@@ -215,12 +281,13 @@ def grid_from_file(path) -> AtlasGrid:
     if candidates is not None and not isinstance(candidates, list):
         raise ConfigError(f'{path}: candidates must be a list of effect names')
     try:
-        return grid_from_lists(effects=_listed(document, 'effects', str(path)),
-                               sizes=_listed(document, 'sizes', str(path)),
-                               campaigns=_listed(document, 'campaigns', str(path)),
-                               seeds=_listed(document, 'seeds', str(path)),
+        return grid_from_lists(effects=_listed(document, 'effects', max_tasks),
+                               sizes=_listed(document, 'sizes', max_tasks),
+                               campaigns=_listed(document, 'campaigns', max_tasks),
+                               seeds=_listed(document, 'seeds', max_tasks),
                                model=str(document.get('model', DEFAULT_MODEL)),
-                               truth=str(document.get('truth', DEFAULT_TRUTH)), candidates=candidates)
+                               truth=str(document.get('truth', DEFAULT_TRUTH)), candidates=candidates,
+                               max_tasks=max_tasks)
     except UnknownEffectError as err:
         raise UnknownEffectError(f'{path}: {err}') from err
     except ConfigError as err:

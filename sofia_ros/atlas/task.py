@@ -11,8 +11,10 @@ import math
 import shutil
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 from sofia_ros import interrupts
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC
@@ -20,7 +22,7 @@ from sofia_ros.atlas.grid import AtlasTask, hidden_truth_text, scaled_params
 from sofia_ros.campaigns.registry import campaign_named
 from sofia_ros.config import EffectConfig, parse_effect_config
 
-__all__ = ['ROW_FIELDS', 'TaskSetup', 'reference_param', 'run_task']
+__all__ = ['ROW_FIELDS', 'TaskSetup', 'reference_param', 'run_task', 'scratch_directory']
 
 #: The row of one task: name -> kind ('str', 'float', 'int', 'bool'); the Parquet schema (atlas.store).
 ROW_FIELDS = {
@@ -49,6 +51,25 @@ class TaskSetup:
     bag_root: str | None
     #: who ran the row (one id per `sofia atlas` invocation), so a resume shows what it ran
     run_id: str = ''
+    #: where the temporary bags go (scratch_directory; None: the worker's own temporary directory)
+    scratch_root: str | None = None
+
+
+@contextmanager
+def scratch_directory(local: bool) -> Iterator[str | None]:
+    """A directory for the tasks' temporary bags, removed on the way out, or None when not ``local``.
+
+    The invocation removes it, not the tasks: a worker that the closing local cluster kills mid-task
+    (Ctrl-C) never runs its own clean-up and left its finished bag in /tmp.
+    """
+    if not local:
+        yield None
+        return
+    path = tempfile.mkdtemp(prefix='sofia-atlas-')
+    try:
+        yield path
+    finally:
+        shutil.rmtree(path, ignore_errors=True)
 
 
 def reference_param(effect: str) -> tuple[str | None, float]:
@@ -108,7 +129,7 @@ def run_task(task: AtlasTask, setup: TaskSetup) -> dict:
     started = time.perf_counter()
     row = _empty_row(task, setup)
     if setup.bag_root is None:
-        work = Path(tempfile.mkdtemp(prefix='sofia-atlas-'))
+        work = Path(tempfile.mkdtemp(prefix='sofia-atlas-', dir=setup.scratch_root))
         bag_path = work / 'bag'
     else:
         work = None

@@ -1,4 +1,4 @@
-"""Rebuild a complete bag from one whose writer was killed or whose file was cut short."""
+"""Rebuild a complete bag from one whose writer was killed, whose file was cut short or is damaged."""
 
 from __future__ import annotations
 

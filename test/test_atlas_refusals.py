@@ -240,6 +240,27 @@ def test_a_server_that_is_no_scheduler_is_one_line_within_the_timeout(tmp_path, 
     assert not (tmp_path / 'atlas').exists()
 
 
+@pytest.mark.timeout(60)
+def test_an_address_whose_connect_never_completes_is_one_line_within_the_timeout(tmp_path, capsys):
+    """What an unroutable address does, on 127.0.0.1: a listener whose backlog is full drops the SYNs."""
+    server = socket.socket()
+    server.bind(('127.0.0.1', 0))
+    server.listen(0)
+    port = server.getsockname()[1]
+    filling = [socket.create_connection(('127.0.0.1', port), timeout=5)]
+    started = time.monotonic()
+    try:
+        line = _refused(['--out', str(tmp_path / 'atlas'), *FLAGS, '--scheduler', f'tcp://127.0.0.1:{port}',
+                         '--connect-timeout-s', '1'], capsys)
+    finally:
+        for connection in filling:
+            connection.close()
+        server.close()
+    assert time.monotonic() - started < 20.0
+    assert f'cannot reach the Dask scheduler at tcp://127.0.0.1:{port} within 1 s (timed out)' in line
+    assert not (tmp_path / 'atlas').exists()
+
+
 # --- 4. a damaged part: one line naming it and the fix -----------------------------------------------------
 
 def _flip_a_bit(part, column):
@@ -330,3 +351,144 @@ def test_ctrl_c_on_the_local_cluster_leaves_no_bag_in_tmp(tmp_path, capsys, monk
     assert err.strip().splitlines()[-1].startswith('sofia: interrupted by SIGINT; ')
     # was: the worker, killed with the cluster, left its task's bag in /tmp
     assert not list(scratch.glob('**/sofia-atlas-*')), list(scratch.rglob('*'))
+
+
+# --- generated bad input: every case exit 2, one line, no traceback, nothing written or changed --------------
+
+BASE_GRID = {'effects': '[timestamp_offset]', 'sizes': '[1]', 'campaigns': '[alignment:minimal]', 'seeds': '2'}
+
+
+def _bad_seeds():
+    values = ['99999999999999', '1-99999999999', '0-4294967296', '4294967296', '9' * 5000, '1-20000', '10001',
+              '5-3', 'x', '1,,x', '-1', '1e11', '1.5', '1-2-3', '1 2', '1-', ','.join(['1'] * 10001)]
+    return [('seeds', value[:40], ['--effects', 'timestamp_offset', '--sizes', '1', f'--seeds={value}'], '--seeds')
+            for value in values]
+
+
+def _bad_sizes():
+    values = ['-1', 'nan', 'inf', '-inf', 'big', '1e999', '1e9', ',', '0x10', '1;2',
+              ','.join(str(size) for size in range(700))]  # 700 sizes x 20 seeds: more than 10000 tasks
+    return [('sizes', value[:40], ['--effects', 'timestamp_offset', f'--sizes={value}', '--seeds', '20'], '')
+            for value in values]
+
+
+def _bad_grid_files():
+    values = {'seeds': ['100000000000', '1e11', '"1-99999999999"', '-3', '[1, -1]', '[1.5]', 'true', '{a: 1}',
+                        '20000', '[]', '4294967296', '"x"', '1.0e+11'],
+              'sizes': ['[-1]', '[.nan]', '"1"', '[[1]]', '[1e999]', '[]'],
+              'effects': ['7', '[7]', '[seeing]', '[gyro_bias]'],
+              'campaigns': ['[polar]', '[7]', '[alignment:tiny]']}
+    cases = []
+    for key, bad_values in values.items():
+        for value in bad_values:
+            text = ''.join(f'{name}: {value if name == key else good}\n' for name, good in BASE_GRID.items())
+            cases.append(('grid', f'{key}: {value}', text.encode(), ''))
+    whole = {'a list': b'- a list\n', 'empty': b'', 'not UTF-8': b'seeds: \xff\xfe\n', 'bad YAML': b'seeds: [\n',
+             'duplicate key': b'seeds: 1\nseeds: 2\n', 'unknown key': b'seed: 1\n', 'directory': None,
+             'missing': 'missing', 'device': Path('/dev/null')}
+    return cases + [('grid', name, data, '') for name, data in whole.items()]
+
+
+def _bad_parts():
+    cases = [('part', f'truncated to {length}', ('truncate', length), 'is damaged') for length in (0, 1, 4, -1, -8, 0.5)]
+    cases += [('part', f'a bit flipped in {column}', ('flip', column), 'is damaged')
+              for column in ('key', 'seed', 'size', 'detected', 'top_delta_bic', 'verdict', 'error')]
+    cases += [('part', 'not Parquet', ('replace', b'not parquet at all, PAR1'), 'is damaged'),
+              ('part', 'a directory', ('directory', None), 'is a directory'),
+              ('part', 'another grid', ('foreign', None), 'holds rows of grid'),
+              ('part', 'no fingerprint', ('plain', None), 'holds rows of no atlas grid'),
+              ('part', 'other columns', ('columns', None), 'is damaged')]
+    return cases
+
+
+def _bad_schedulers():
+    addresses = ['tcp://127.0.0.1:0', 'tcp://127.0.0.1:70000', 'tcp://127.0.0.1', 'http://127.0.0.1:8786',
+                 'tcp://127.0.0.1:8786/x']
+    cases = [('scheduler', address, address, 'is not a scheduler address') for address in addresses]
+    return cases + [('server', 'silent', 'silent', 'sent no Dask handshake'),
+                    ('server', 'http', 'http', 'sent no Dask handshake'),
+                    ('server', 'ssh banner', b'SSH-2.0-OpenSSH_9.6\r\n', 'something other than a Dask handshake'),
+                    ('server', 'frame of 3 EiB', b'\xff' * 16, 'something other than a Dask handshake'),
+                    ('server', 'closes at once', 'close', 'closed the connection without a Dask handshake'),
+                    ('server', 'refused', 'refused', 'cannot reach the Dask scheduler')]
+
+
+CASES = _bad_seeds() + _bad_sizes() + _bad_grid_files() + _bad_parts() + _bad_schedulers()
+
+
+def _break_a_part(table, how, argument):
+    grid = _stored(table)
+    part = _parts(table)[-1]
+    data = part.read_bytes()
+    if how == 'truncate':
+        length = int(len(data) * argument) if isinstance(argument, float) else argument % len(data)
+        part.write_bytes(data[:length])
+    elif how == 'flip':
+        _flip_a_bit(part, argument)
+    elif how == 'replace':
+        part.write_bytes(argument)
+    elif how == 'directory':
+        part.unlink()
+        part.mkdir()
+    elif how == 'foreign':
+        _stored(table.parent / 'other', {**GRID, 'seeds': [7]})
+        (foreign,) = _parts(table.parent / 'other')
+        shutil.move(foreign, table / foreign.name)
+        shutil.rmtree(table.parent / 'other')
+    elif how == 'plain':
+        pq.write_table(pa.Table.from_pylist([_row(grid.tasks()[0])], schema=ROW_SCHEMA), part)
+    else:
+        pq.write_table(pa.table({'key': ['x']}).replace_schema_metadata(
+            {b'sofia_atlas_grid': grid.fingerprint().encode()}), part)
+
+
+@contextmanager
+def _scheduler_address(value):
+    if value == 'http':
+        with _http_server() as port:
+            yield f'tcp://127.0.0.1:{port}'
+    elif value == 'refused':
+        with _listening() as port:
+            pass
+        yield f'tcp://127.0.0.1:{port}'
+    else:
+        with _listening(reply=value if isinstance(value, bytes) else None, close=value == 'close') as port:
+            yield f'tcp://127.0.0.1:{port}'
+
+
+def test_there_are_at_least_50_generated_cases():
+    assert len(CASES) >= 50
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize('kind, name, value, message', CASES, ids=[f'{case[0]}-{case[1]}' for case in CASES])
+def test_generated_bad_input_is_one_line_and_changes_nothing(tmp_path, capsys, kind, name, value, message):
+    out = tmp_path / 'atlas'
+    argv = ['--out', str(out), '--campaigns', 'alignment:minimal']
+    if kind in ('seeds', 'sizes'):
+        argv += value
+    elif kind == 'grid':
+        grid_file = tmp_path / 'grid.yaml'
+        if isinstance(value, bytes):
+            grid_file.write_bytes(value)
+        elif value is None:
+            grid_file.mkdir()
+        elif isinstance(value, Path):
+            grid_file = value
+        argv = ['--out', str(out), '--grid', str(grid_file)]
+    elif kind == 'part':
+        _break_a_part(out / 'table', *value)
+        argv = ['--out', str(out), *FLAGS, '--serial']
+    elif kind == 'scheduler':
+        argv = ['--out', str(out), *FLAGS, '--scheduler', value]
+    before = _snapshot(out)
+    if kind == 'server':
+        with _scheduler_address(value) as address:
+            line = _refused(['--out', str(out), *FLAGS, '--scheduler', address, '--connect-timeout-s', '0.5'], capsys)
+    else:
+        line = _refused(argv, capsys)
+    assert message in line
+    if kind == 'part':
+        assert str(out / 'table' / 'part-') in line
+    assert _snapshot(out) == before
+    assert not list(tmp_path.glob('**/.part-*')) and not list(tmp_path.glob('**/sofia-atlas-*'))

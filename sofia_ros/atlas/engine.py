@@ -98,15 +98,19 @@ def probe_scheduler(address: str, timeout_s: float) -> None:
     match = _ADDRESS.match(checked_scheduler_address(address))
     deadline = time.monotonic() + timeout_s
     try:
-        with socket.create_connection((match[2], int(match[3])), timeout=timeout_s) as connection:
-            if match[1] != 'tcp':
-                return
-            greeting = _receive(connection, 16, deadline)
-    except socket.timeout as err:
-        raise _not_a_scheduler(address, timeout_s, 'accepted the connection but sent no Dask handshake') from err
-    except (OSError, UnicodeError) as err:  # refused, no route, unknown host; a host name idna cannot encode
+        connection = socket.create_connection((match[2], int(match[3])), timeout=timeout_s)
+    except (OSError, UnicodeError) as err:  # refused, timed out (no route), unknown host, a host idna cannot encode
         why = err.strerror if isinstance(err, OSError) and err.strerror else str(err) or type(err).__name__
         raise _unreachable(address, timeout_s, why) from err
+    with connection:
+        if match[1] != 'tcp':
+            return
+        try:
+            greeting = _receive(connection, 16, deadline)
+        except TimeoutError as err:
+            raise _not_a_scheduler(address, timeout_s, 'accepted the connection but sent no Dask handshake') from err
+        except OSError as err:  # reset
+            raise _not_a_scheduler(address, timeout_s, 'closed the connection without a Dask handshake') from err
     if len(greeting) < 16:
         raise _not_a_scheduler(address, timeout_s, 'closed the connection without a Dask handshake')
     length, frames = struct.unpack('<QQ', greeting)

@@ -11,6 +11,7 @@ from pathlib import Path
 from sofia_ros.atlas.stats import (CONFIDENCE, TABLE_6_5, confusions, detectable_sizes, detection_curves,
                                    fit_calibration, table_6_5_slice, thesis_sigmas_arcsec)
 from sofia_ros.compare.report import html_table
+from sofia_ros.output_files import atomic_output, write_text_atomically
 
 __all__ = ['AtlasSummary', 'summarize', 'text_table', 'write_html']
 
@@ -111,7 +112,8 @@ def _detection_plot(summary, campaign, path):
     axes.set_title(f'{campaign}: the hidden effect is the top candidate at delta-BIC >= 6')
     axes.legend(fontsize='small')
     figure.tight_layout()
-    figure.savefig(path, dpi=90)
+    with atomic_output(path, 'wb') as stream:  # a killed atlas leaves no half-written PNG
+        figure.savefig(stream, format='png', dpi=90)
     plt.close(figure)
 
 
@@ -141,7 +143,8 @@ def _table_6_5_plot(summary, path):
         axes.legend(fontsize='x-small')
     figure.suptitle(f'Table 6.5: alignment accuracy against the number of measurements ({summary.table_6_5_rows})')
     figure.tight_layout()
-    figure.savefig(path, dpi=90)
+    with atomic_output(path, 'wb') as stream:  # a killed atlas leaves no half-written PNG
+        figure.savefig(stream, format='png', dpi=90)
     plt.close(figure)
 
 
@@ -194,5 +197,5 @@ def write_html(summary: AtlasSummary, directory, title: str) -> Path:
 </body></html>
 """
     path = directory / 'index.html'
-    path.write_text(page)
+    write_text_atomically(path, page)
     return path

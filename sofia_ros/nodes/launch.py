@@ -68,7 +68,8 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
         clock = ClockNode([*_participants(cores), 'recorder'], tick_ns=config.tick_ns, max_sim_s=max_sim_s,
                           subscribers=clock_subscribers, ending=[core.name for core in cores if core.ends_run], bus=bus)
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,
-                                epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents, bus=bus)
+                                epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents, bus=bus,
+                                raise_bag_failures=False)
         share_time_source(nodes[0], (*nodes[1:], clock, recorder), bus)
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor with this many entities.
         executor = EventsExecutor()
@@ -81,6 +82,8 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
                                clock=clock._wall_clock())
         try:
             _spin_until_recorded(executor, bus, recorder.finished, timeout_s)
+            if recorder.failure is not None:
+                raise recorder.failure  # the bag's disk filled up: BagWriter's line says what it keeps
             if not recorder.closed:
                 raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time')
         finally:

@@ -9,6 +9,7 @@ from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.msgtypes import TYPESTORE
 from sofia_ros.bag.timebase import leading_stamps_ns
+from sofia_ros.errors import OutputError
 from sofia_ros.nodes.shell import LockstepNode, decode_received, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
 from sofia_ros.sim.runner import record_message
@@ -26,9 +27,16 @@ def _canonical_cdr(cdr, msgtype):
 class RecorderNode(LockstepNode):
     """Records; reports done(k) once everything counted for tick k is in the bag."""
 
-    def __init__(self, bag_path, graph_topics, participants, *, tick_ns, epoch_ns, documents=(), bus=None):
+    def __init__(self, bag_path, graph_topics, participants, *, tick_ns, epoch_ns, documents=(), bus=None,
+                 raise_bag_failures=True):
         """Record into a new bag at ``bag_path``; ``epoch_ns``: the campaign's start in UTC ns (BagWriter);
-        ``bus``: as for LockstepNode."""
+        ``bus``: as for LockstepNode.
+
+        An OutputError of the bag (its disk full: BagWriter has aborted it) ends the recording: it is kept as
+        ``failure`` and ``finished`` is set. ``raise_bag_failures``: True (a node process of its own) raises it
+        out of the callback too, which ends the process with its one line (nodes.executables); False (under
+        the caller's executor) leaves it to the caller, since rclpy reports an exception out of an executor's
+        callback in a dozen lines on stderr first."""
         topics = {name: msgtype for name, (msgtype, publisher, _) in graph_topics.items() if publisher}
         # A sample topic arrives as its per-tick blocks (topics.SAMPLE_BLOCKS); the bag holds the samples.
         wires = {name: (SAMPLE_BLOCKS[name].name, SAMPLE_BLOCKS[name].msgtype) if name in SAMPLE_BLOCKS
@@ -47,14 +55,33 @@ class RecorderNode(LockstepNode):
         self.clock_ns = 0
         self.closed = False
         self.finished = Future()
+        self.failure = None
+        self._raise_bag_failures = raise_bag_failures
         for topic, (wire, msgtype) in wires.items():
             qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
             on_cdr = self._block_callback(topic, wire) if wire != topic else self._record_callback(topic)
-            self.subscribe_graph_topic(message_class(msgtype), wire, on_cdr, self._message_callback(topic, wire), qos)
+            self.subscribe_graph_topic(message_class(msgtype), wire, self._guarded(on_cdr),
+                                       self._guarded(self._message_callback(topic, wire)), qos)
         # rclpy publishes parameter events itself, over DDS in every mode.
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
-                                 self._parameter_event_callback({f'/{name}' for name in participants}),
+                                 self._guarded(self._parameter_event_callback({f'/{name}' for name in participants})),
                                  DATA_QOS, raw=True)
+
+    def _guarded(self, callback):
+        """``callback``, ending the recording on an OutputError of the bag (see __init__); a no-op after that."""
+        def guarded(*args):
+            if self.failure is not None:
+                return
+            try:
+                callback(*args)
+            except OutputError as err:
+                if self.failure is None:  # a guarded callback can run inside another (a count that ends a tick)
+                    self.failure = err
+                    self.closed = True
+                    self.finished.set_result(True)
+                if self._raise_bag_failures:
+                    raise
+        return guarded
 
     def _message_callback(self, topic, wire):
         msgtype = self.msgtypes[topic]
@@ -113,10 +140,16 @@ class RecorderNode(LockstepNode):
         return all(state.latest_tick >= 0 for state in self.states.values())
 
     def run_tick(self, tick):
+        self._guarded(self._finish_tick)(tick)
+
+    def _finish_tick(self, tick):
         self.publish_done(tick)
         self._close_if_complete()
 
     def on_stop(self):
+        self._guarded(self._record_stop)()
+
+    def _record_stop(self):
         # Why the run ended goes into the bag too (a finished calibration, a stall, the time limit).
         self.bag.write_document(STOP_DOCUMENT.name, parse_stop(self.stop_reason)[2], self.clock_ns)
         self._close_if_complete()

@@ -1,8 +1,10 @@
 """The ``sofia`` command (docs/cli.md).
 
 Exit codes: 0 the command ran (a campaign accepted or not: summary.json says which), 2 bad input
-(one line on stderr), 3 a run stopped by a fault after it started (bag closed, summary.json has the
-reason), 130 / 143 interrupted by SIGINT / SIGTERM (bag closed, one line), 1 a bug (traceback).
+(one line on stderr; a read-only output directory too), 3 a run stopped by a fault after it started
+(bag closed, summary.json has the reason) or an output the disk had no room for (one line; a bag cut
+short keeps what reached the disk, summary.json is whole or absent), 130 / 143 interrupted by SIGINT /
+SIGTERM (bag closed, one line), 1 a bug (traceback).
 """
 
 from __future__ import annotations

@@ -390,7 +390,8 @@ def _bad_grid_files():
 
 
 def _bad_parts():
-    cases = [('part', f'truncated to {length}', ('truncate', length), 'is damaged') for length in (0, 1, 4, -1, -8, 0.5)]
+    cases = [('part', f'truncated to {length}', ('truncate', length), 'is damaged')
+             for length in (0, 1, 4, -1, -8, 0.5)]
     cases += [('part', f'a bit flipped in {column}', ('flip', column), 'is damaged')
               for column in ('key', 'seed', 'size', 'detected', 'top_delta_bic', 'verdict', 'error')]
     cases += [('part', 'not Parquet', ('replace', b'not parquet at all, PAR1'), 'is damaged'),

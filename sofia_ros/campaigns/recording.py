@@ -102,8 +102,8 @@ def finish_run(bag_path: str | PathLike[str], summary: dict, fault: str | None =
         # The summary first: the reason a stopped run gives matters more than the side files.
         if recorded:
             write_summary(bag_path, summary)
-            for name, text in (side_files or {}).items():
-                write_text_atomically(Path(bag_path, name), text)
+            for file_name, text in (side_files or {}).items():
+                write_text_atomically(Path(bag_path, file_name), text)
         where = f'summary.json: "stopped": "{summary.get("stopped")}"'
     except OutputError:
         if signum is None and not fault:

@@ -83,7 +83,10 @@ def safe_load_limited(text, source='<text>'):
     """yaml.safe_load with caps on size, expansion, aliases and depth; ConfigError naming ``source``."""
     if len(text) > MAX_CONFIG_BYTES:
         raise ConfigError(f'{source}: {len(text)} characters, more than the {MAX_CONFIG_BYTES} a config may have')
-    loader = _LimitedLoader(text)
+    try:
+        loader = _LimitedLoader(text)
+    except yaml.YAMLError as err:  # the reader checks the characters as it is built (a control character)
+        raise ConfigError(f'{source}: not valid YAML ({str(err).splitlines()[0]}); fix the syntax') from err
     try:
         return loader.get_single_data()
     except ConfigError as err:

@@ -103,6 +103,9 @@ def test_gyro_hook_is_read_by_the_box_and_removed_by_the_model(tmp_path, monkeyp
      "'no_physics' needs a callable hook"),
     ('from sofia_ros.effects import EffectSpec\nEFFECTS = (EffectSpec("empirical:x", "gyro", "", "", (), abs),)\n',
      'uses the reserved prefix "empirical:"'),
+    ('EFFECTS = (\n', r"importing 'plugin_\d+' failed \(SyntaxError: "),
+    ('raise RuntimeError("no calibration table")\n',
+     r"importing 'plugin_\d+' failed \(RuntimeError: no calibration table\); fix the module"),
 ])
 def test_malformed_plugins_are_refused_with_the_fix(tmp_path, monkeypatch, text, message):
     name = f'plugin_{abs(hash(text))}'

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 from sofia_ros.cli import main
-from sofia_ros.config import MAX_CONFIG_BYTES, load_effect_config, parse_effect_config
+from sofia_ros.config import MAX_CONFIG_BYTES, load_effect_config, parse_effect_config, safe_load_limited
 from sofia_ros.effects import resolve_params
 from sofia_ros.errors import ConfigError
 
@@ -226,3 +226,9 @@ def test_ranges_hold_for_files_while_a_fit_may_search_beyond_them():
     with pytest.raises(ConfigError, match=r'scale_temperature_coefficient_ppm_per_c = -6137.16 is outside '
                                           r'\[-1000, 1000\] ppm/C'):
         resolve_params('gyro_axis_swap', {'scale_temperature_coefficient_ppm_per_c': -6137.16}, within_ranges=True)
+
+
+def test_a_control_character_in_a_config_is_one_line():
+    # PyYAML's reader checks the characters while it is built, before the parse starts.
+    with pytest.raises(ConfigError, match=r'm.yaml: not valid YAML \(unacceptable character #x0001'):
+        safe_load_limited('a: \x01', 'm.yaml')

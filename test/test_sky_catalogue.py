@@ -148,3 +148,10 @@ def test_non_integer_hip_number_raises():
         star_by_hip(11767.5)
     with pytest.raises(InvalidArgumentError, match='star name must be a string'):
         star_by_name(11767)
+
+
+@pytest.mark.parametrize('name', ['HIP -5', 'HIP 5.7', 'HIP 0', 'hip+12', 'HIP 9999999'])
+def test_a_hip_designation_that_is_not_a_positive_whole_number_is_refused(name):
+    # The name key drops signs and points: 'HIP -5' was read as HIP 5.
+    with pytest.raises(UnknownStarError, match='write HIP and a positive whole number'):
+        star_by_name(name)

@@ -34,6 +34,10 @@ def _checked_plugin_specs(module_name, built_in):
     except ImportError as err:
         raise ConfigError(f'{PLUGIN_ENVIRONMENT_VARIABLE}: cannot import {module_name!r} ({err}); '
                           'put its folder on PYTHONPATH') from err
+    except Exception as err:  # a plug-in is user code: a syntax error or a raise on import is one line
+        raise ConfigError(f'{PLUGIN_ENVIRONMENT_VARIABLE}: importing {module_name!r} failed '
+                          f'({type(err).__name__}: {str(err).splitlines()[0] if str(err) else "no message"}); '
+                          'fix the module or take it out of the variable') from err
     specs = getattr(module, 'EFFECTS', None)
     if not isinstance(specs, tuple) or not all(isinstance(spec, EffectSpec) for spec in specs):
         raise ConfigError(f'effect plug-in {module_name!r} must define EFFECTS as a tuple of EffectSpec')

@@ -198,10 +198,13 @@ def star_by_name(name):
     """Return the catalogue entry of a common name, Bayer name or 'HIP <n>' designation."""
     if not isinstance(name, str):
         raise InvalidArgumentError(f'star name must be a string, got {type(name).__name__}')
-    key = _name_key(name)
-    designation = re.fullmatch(r'hip(\d+)', key)
+    designation = re.fullmatch(r'\s*hip[\s_]*0*([1-9]\d{0,5})\s*', name, re.IGNORECASE)
     if designation:
         return star_by_hip(int(designation.group(1)))
+    if re.match(r'\s*hip(?![a-z])', name, re.IGNORECASE):
+        # The key below drops signs and points: 'HIP -5' or 'HIP 5.7' would be read as another star.
+        raise UnknownStarError(f'unknown star {name!r}; write HIP and a positive whole number, e.g. "HIP 65474"')
+    key = _name_key(name)
     if key not in _HIP_BY_KEY:
         raise UnknownStarError(
             f'unknown star name {name!r}; use "HIP <number>" or one of: {", ".join(STAR_NAMES)}'

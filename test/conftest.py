@@ -51,7 +51,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def record_reduced_alignment(bag_path, *, seed, effect=None, scenario=None):
-    """A reduced alignment campaign (2 repetitions, 1 verification) in direct mode: nominal truth plus one effect."""
+    """A reduced alignment campaign (2 repetitions, 1 verification) in direct mode: nominal truth plus ``effect``
+    (a name, or names joined by '+')."""
     import yaml
 
     from sofia_ros.campaigns.alignment import run_alignment
@@ -59,8 +60,10 @@ def record_reduced_alignment(bag_path, *, seed, effect=None, scenario=None):
     from sofia_ros.sim.calibration import AlignmentPlan
 
     document = yaml.safe_load((ROOT / 'config' / 'truth' / 'nominal.yaml').read_text())
-    if effect:
-        document['effects'][effect] = {}
+    # One effect by name, or several joined by '+': the truth of a loop with competing explanations.
+    for name in (effect or '').split('+'):
+        if name:
+            document['effects'][name] = {}
     if scenario:
         document['scenario'] = scenario
     truth = parse_effect_config(yaml.safe_dump(document), f'nominal + {effect}')

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sofia_ros.cli_args import number
+from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import ConfigError
 from sofia_ros.output_files import current_umask, json_ready, output_target, write_text_atomically
 
@@ -40,6 +40,12 @@ def add_compare_arguments(parser):
     parser.add_argument('--model', required=True, help='model YAML (effects: ..., fit: true for fitted terms)')
     parser.add_argument('--json', help='write the comparison as JSON (docs/compare.md)')
     parser.add_argument('--report', help='write an HTML report with plots to this directory (ledger kept across runs)')
+    parser.add_argument('--search', action='store_true',
+                        help='search for the model the data ask for: add, remove and swap terms by BIC, refit, '
+                             'repeat (docs/compare.md); prints the rounds, the final comparison and its equivalents')
+    parser.add_argument('--search-rounds', type=integer(1, 20, 'rounds'), default=12,
+                        help='whole comparisons the search may make (1-20, default 12)')
+    parser.add_argument('--write-model', help='with --search: write the model found here (a copy of --model, edited)')
     parser.add_argument('--anchor-s', type=number(MIN_ANCHOR_S, MAX_ANCHOR_S, 's'), default=30.0,
                         help=f'spacing of the attitude anchors in s (default 30, at least {MIN_ANCHOR_S:g}: ten '
                              'frames of the slowest camera; they absorb the gyro random walk)')
@@ -50,7 +56,8 @@ def add_model_arguments(parser):
     parser.add_argument('action', choices=('add', 'remove', 'replace'),
                         help='add: put an effect into a model as a fitted term; remove: take a term out; '
                              'replace: take a term out and put another in its place (`replace OLD NEW`)')
-    parser.add_argument('effect', help='effect name (sofia effects); for replace, the term to take out')
+    parser.add_argument('effect', help='effect name (sofia effects); for replace, the term(s) to take out, '
+                                       'comma-separated')
     parser.add_argument('replacement', nargs='?', help='replace: the effect that takes its place')
     parser.add_argument('--model', required=True, help='model YAML to edit in place')
 
@@ -206,6 +213,8 @@ def run_compare(args, out):
     from sofia_ros.compare.run import compare_bag
     from sofia_ros.config import load_effect_config
 
+    if args.write_model and not args.search:
+        raise ConfigError('--write-model writes the model --search finds; add --search')
     model = load_effect_config(args.model)
     for target in (args.json, args.report):
         if target and not Path(target).resolve().parent.exists():
@@ -219,10 +228,20 @@ def run_compare(args, out):
     if str(args.bag).lower().endswith(('.yaml', '.yml')):
         from sofia_ros.measurements.report import run_set_compare
 
+        if args.search:
+            raise ConfigError('--search takes a bag; a measurement set is compared as it is (its competing sets '
+                              'and model_terms say what to change)')
+
         return run_set_compare(args, out, model)
-    result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
-    document = json_ready(result.document)
+    if args.search:
+        result, found = _search(args, model, out)
+        document = json_ready({**result.document, 'search': found})
+    else:
+        result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
+        document = json_ready(result.document)
     print_comparison(document, out)
+    if args.search:
+        _print_search(document['search'], out)
     if args.json:
         write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
     if args.report:
@@ -231,6 +250,44 @@ def run_compare(args, out):
         path = write_report(result, document, args.report)
         print(f'report: {path}', file=out)
     return 0
+
+
+def _search(args, model, out):
+    """--search: the rounds of compare.search on observations read once; the model written where asked."""
+    from sofia_ros.compare.observations import read_observations
+    from sofia_ros.compare.run import compare_observations
+    from sofia_ros.compare.search import search_model
+
+    if args.write_model:
+        output_target(args.write_model)
+    observations = read_observations(args.bag)
+    result, found, rounds, equivalent = search_model(
+        observations, model, lambda obs, trial: compare_observations(obs, trial, anchor_spacing_s=args.anchor_s),
+        rounds=args.search_rounds, progress=lambda line: print(f'sofia compare: {line}', file=sys.stderr))
+    given = set(model.fitted)
+    added, removed = sorted(found.fitted - given), sorted(given - found.fitted)
+    written = None
+    if args.write_model:
+        written = str(args.write_model)
+        if Path(args.write_model).resolve() != Path(args.model).resolve():
+            write_text_atomically(args.write_model, model.text)
+        edit_model_file(args.write_model, add=added, remove=removed)
+    return result, {'rounds': rounds, 'fitted': sorted(found.fitted), 'added': added, 'removed': removed,
+                    'status': result.document['verdict']['status'], 'equivalent': equivalent,
+                    'written': written}
+
+
+def _print_search(search, out):
+    print('search: the model the data ask for (BIC; rounds of linearized search and full refit)', file=out)
+    for entry in search['rounds']:
+        moves = '; '.join(entry['moves']) or 'no change: the search ends here'
+        print(f'  round {entry["round"]}: {entry["status"]:<15} RMS {entry["rms_arcsec"]:.3f}"  -> {moves}', file=out)
+    change = ', '.join([*(f'+{name}' for name in search['added']), *(f'-{name}' for name in search['removed'])])
+    print(f'  found: {change or "the model as given"} ({search["status"]})', file=out)
+    for entry in search['equivalent'][:5]:
+        print(f'  equivalent (within delta-BIC 10): {entry["model"]} (delta-BIC {entry["delta_bic"]:+.1f})', file=out)
+    if search['written']:
+        print(f'  model written: {search["written"]}', file=out)
 
 
 def anchor_memory_bytes(duration_s, anchor_s):
@@ -283,6 +340,7 @@ def _round_trip_yaml():
 
     editor = YAML()  # round trip: comments, order, quotes and flow style stay as the user wrote them
     editor.preserve_quotes = True
+    editor.width = 4096  # folded text (description: >) is kept as written, not re-wrapped at 80 columns
     return editor
 
 
@@ -294,10 +352,11 @@ def run_model_add(args, out):
     if args.action == 'replace':
         if not args.replacement:
             raise ConfigError('usage: sofia model replace OLD NEW --model M.yaml (NEW takes the place of OLD)')
-        old, new = get_effect(args.effect).name, get_effect(args.replacement).name
-        edit_model_file(path, add=(new,), remove=(old,))
-        print(f'{path}: {old} replaced by {new} as a fitted term (starting at its thesis defaults); rerun sofia '
-              'compare', file=out)
+        old = tuple(get_effect(name).name for name in args.effect.split(','))
+        new = get_effect(args.replacement).name
+        edit_model_file(path, add=(new,), remove=old)
+        print(f'{path}: {" and ".join(old)} replaced by {new} as a fitted term (starting at its thesis defaults); '
+              'rerun sofia compare', file=out)
         return 0
     if args.replacement:
         raise ConfigError(f'sofia model {args.action} takes one effect; did you mean `sofia model replace '

@@ -11,16 +11,10 @@ from __future__ import annotations
 
 from typing import Iterable, Mapping, TypedDict
 
-import numpy as np
-import scipy.sparse
-
-from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, CandidateTerm, CompetingSet,
-                                        RankedCandidate, competing_margin, rank_candidates)
-from sofia_ros.compare.fit import vanishing_values
+from sofia_ros.analysis.ranking import CompetingSet, RankedCandidate
 from sofia_ros.effects.empirical import is_empirical
 
-__all__ = ['AfterMember', 'CompetingEntry', 'ModelChange', 'ModelTermEntry', 'TermRival', 'model_term_alternatives',
-           'proposed_change', 'REFINED_CANDIDATES', 'REFINED_PHYSICAL', 'SEPARATING_RATIO_GAP',
+__all__ = ['AfterMember', 'CompetingEntry', 'REFINED_CANDIDATES', 'REFINED_PHYSICAL', 'SEPARATING_RATIO_GAP',
            'competing_document', 'competing_set_of', 'contenders', 'preferred_best', 'refit_order']
 
 #: The strongest candidates of the linearized ranking are refitted in full (nonlinear, robust)...
@@ -108,80 +102,3 @@ def competing_document(competing: Iterable[CompetingSet], after: Mapping[str, Af
             verdict_with_each={name: after[name]['status'] if name in after else None for name in entry.effects},
             separable_by=_separating_observables(members)))
     return document
-
-
-class TermRival(TypedDict):
-    """A candidate that would take a fitted term's place: its delta-BIC in the model without the term."""
-
-    effect: str
-    delta_bic: float
-    shared_fraction: float
-
-
-class ModelTermEntry(TypedDict):
-    """A fitted term of the model questioned again (docs/compare.md, ``model_terms``)."""
-
-    term: str
-    delta_bic: float
-    pays: bool
-    rivals: list
-
-
-def model_term_alternatives(residual, jacobian, free, values, offset, candidate_terms) -> list:
-    """Each fitted effect of the model questioned again, linearized at the fit (ModelTermEntry, strongest last).
-
-    The effect is switched off (its parameters to vanishing_values, the residual grown by what its
-    columns explained) and ranked against the model's other terms together with every candidate:
-    its delta-BIC there says whether it still pays for itself, and a candidate that shares its
-    explanation (SHARED_FRACTION) and scores within the competing margin of it, or above it, is a
-    rival that could take its place. ``offset`` is the number of Jacobian columns before the
-    parameters' (the attitude anchors of a bag).
-    """
-    groups = {}
-    for index, parameter in enumerate(free):
-        groups.setdefault(parameter.effect, []).append(index)
-    off = vanishing_values(free)
-    entries = []
-    for effect, indices in groups.items():
-        columns = offset + np.array(indices)
-        own = jacobian[:, columns]
-        own = own.toarray() if scipy.sparse.issparse(own) else np.asarray(own)
-        kept = np.setdiff1d(np.arange(jacobian.shape[1]), columns)
-        base = jacobian[:, kept]
-        without = residual + own @ (values[indices] - off[indices])
-        term = CandidateTerm(effect, tuple(free[i].name for i in indices), off[indices], own)
-        ranked = {c.name: c for c in rank_candidates(without, base, [term, *candidate_terms])}
-        own_rank = ranked[effect]
-        rivals = [TermRival(effect=name, delta_bic=float(c.delta_bic), shared_fraction=round(shared, 4))
-                  for name, shared in own_rank.shared_with.items()
-                  for c in (ranked[name],)
-                  if shared >= SHARED_FRACTION and c.delta_bic > own_rank.delta_bic
-                  - competing_margin(own_rank.delta_bic, c.delta_bic)]
-        entries.append(ModelTermEntry(term=effect, delta_bic=float(own_rank.delta_bic),
-                                      pays=bool(own_rank.delta_bic >= SIGNIFICANT_DELTA_BIC),
-                                      rivals=sorted(rivals, key=lambda rival: -rival['delta_bic'])))
-    return entries
-
-
-class ModelChange(TypedDict):
-    """The change of the model's own terms the comparison proposes: remove a term, or replace it by a rival."""
-
-    action: str
-    term: str
-    effect: str | None
-    expected_delta_bic: float
-
-
-def proposed_change(model_terms: Iterable[ModelTermEntry]) -> ModelChange | None:
-    """The most promising change of the model's terms (linearized gain in BIC), or None when every term pays and
-    none has a rival that explains its part better."""
-    proposals = []
-    for entry in model_terms:
-        if not entry['pays']:
-            proposals.append(ModelChange(action='remove', term=entry['term'], effect=None,
-                                         expected_delta_bic=-entry['delta_bic']))
-        better = [rival for rival in entry['rivals'] if rival['delta_bic'] > entry['delta_bic']]
-        if better:
-            proposals.append(ModelChange(action='replace', term=entry['term'], effect=better[0]['effect'],
-                                         expected_delta_bic=better[0]['delta_bic'] - entry['delta_bic']))
-    return max(proposals, key=lambda change: change['expected_delta_bic'], default=None)

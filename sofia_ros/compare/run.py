@@ -28,9 +28,9 @@ from sofia_ros.compare.observations import read_observations
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
-from sofia_ros.compare.competing import (competing_document, contenders, model_term_alternatives, preferred_best,
-                                        proposed_change, refit_order)
+from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
 from sofia_ros.compare.verdict import after_member, empirical_candidate_names, judge
+from sofia_ros.compare.search import LinearizedModels, equivalent_models, model_terms, search_pool, structural_change
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.effects import CATALOGUE, get_effect, resolve_params
 from sofia_ros.effects.empirical import empirical_parts, is_empirical
@@ -54,6 +54,7 @@ class CompareResult:
     best_fit: object
     best_name: str | None
     predictor: object
+    candidate_terms: tuple = ()
 
 
 def _rms_by_camera(fit, centroids):
@@ -122,15 +123,21 @@ def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, detectable=Tr
     return entry
 
 
-def _checked_change(change, predictor, final, noise_arcsec, prior):
-    """The proposed change refitted in full: its real delta-BIC against the model as it is, or None if it fails."""
+def _checked_change(change, models, predictor, final, noise_arcsec, prior):
+    """The proposed change refitted in full from its linearized values: its real delta-BIC against the model as it
+    is, or None if the fit fails."""
     if change is None:
         return None
-    effects = {name: params for name, params in final.effects.items() if name != change['term']}
-    free = tuple(p for p in final.free if p.effect != change['term'])
+    removed = set(change['term'].split(','))
+    chosen = {p.effect for p in final.free} - removed | ({change['effect']} - {None})
+    linearized = models.values(chosen)
+    effects = {name: params for name, params in final.effects.items() if name not in removed}
+    free = tuple(p for p in final.free if p.effect not in removed)
     if change['effect'] is not None:
         effects[change['effect']] = resolve_params(change['effect'], {})
         free += free_parameters([change['effect']])
+    for name, values in linearized.items():
+        effects[name] = {**effects[name], **values}
     try:
         trial = fit_model(predictor, effects, free, noise_arcsec, prior, anchors_rad=final.anchors_rad)
     except FitError:
@@ -220,9 +227,10 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     degenerate = degenerate_pairs(ranked, scores)
     competing = competing_sets(ranked, scores, preferred=lambda name: not is_empirical(name))
     alternatives_started = time.perf_counter()
-    model_terms = model_term_alternatives(final.augmented_residual, final.jacobian, final.free, final.values,
-                                          final.anchors_rad.size, terms)
-    change = _checked_change(proposed_change(model_terms), predictor, final, noise_arcsec, prior)
+    fitted_now = frozenset(p.effect for p in final.free)
+    models = LinearizedModels.at_fit(final.augmented_residual, final.jacobian, final.free, final.values,
+                                     final.anchors_rad.size, search_pool(terms, list(entries.values())))
+    change = _checked_change(structural_change(models, fitted_now), models, predictor, final, noise_arcsec, prior)
     alternatives_s = time.perf_counter() - alternatives_started
     diagnostics_started = time.perf_counter()
     after = {name: (residual_diagnostics(observations, refits[name], predictor, noise_arcsec, prior),
@@ -248,8 +256,9 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         'candidates': candidates,
         'degenerate': [list(pair) for pair in degenerate],
         'competing': competing_document(competing, members),
-        'model_terms': model_terms,
+        'model_terms': model_terms(models, fitted_now),
         'model_change': change,
+        'equivalent_models': equivalent_models(models, fitted_now),
         'unobservable': [c['effect'] for c in candidates if not c['detectable']],
         'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
         'signature': diagnostics.as_document(),
@@ -269,5 +278,5 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
         document['star_hop'] = star_hop_analysis(predictor, final.effects, windows, fpi_noise_arcsec=fpi_noise_arcsec,
                                                  arw_rad_per_sqrt_s=arw)
     document['seconds']['total'] = round(time.perf_counter() - started, 3)
-    return CompareResult(document, observations, final, best_fit, best_name, predictor)
+    return CompareResult(document, observations, final, best_fit, best_name, predictor, tuple(terms))
 

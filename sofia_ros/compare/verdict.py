@@ -167,8 +167,11 @@ def _change_clause(change):
     if change['action'] == 'remove':
         return (f'{change["term"]} no longer pays for itself: without it the BIC falls by '
                 f'{change["delta_bic"]:.0f}; remove it')
-    return (f'{change["effect"]} explains what {change["term"]} does, better: the BIC falls by '
-            f'{change["delta_bic"]:.0f} when it takes its place; replace it')
+    terms = change['term'].split(',')
+    several = len(terms) > 1
+    return (f'{change["effect"]} explains what {" and ".join(terms)} {"do" if several else "does"}, better: the BIC '
+            f'falls by {change["delta_bic"]:.0f} when it takes {"their" if several else "its"} place; '
+            f'replace {"them" if several else "it"}')
 
 
 def _next(action, model_source, **names):

@@ -1,0 +1,332 @@
+"""`sofia compare BAG --model M.yaml --search`: a stepwise search for the model the data ask for (docs/compare.md).
+
+The user's loop (compare, add the best candidate, compare again) decides one term at a time and
+never takes back a term it added; when explanations compete it can end on the wrong physics
+(issue 25). The search instead scores whole models. At a fit, every model reachable by switching
+the fitted terms off and the strongest candidates on is linearized (LinearizedModels: the Gram
+matrix of the residual, the switch vectors and the columns, with the attitude anchors projected
+out once), so that a model's BIC costs a small solve. A stepwise search adds, removes and swaps
+terms while the BIC falls (an empirical shape pays EMPIRICAL_PENALTY more than physics, so a
+shape that only mimics an effect does not take its place); the model it ends on is fitted in
+full and linearized again, until a round changes nothing. The models within EQUIVALENT_DELTA_BIC
+of the end are the equivalence class the data allow.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TypedDict
+
+import itertools
+
+import numpy as np
+import scipy.sparse
+
+from sofia_ros.analysis.ranking import SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin, normal_pseudo_inverse
+from sofia_ros.compare.fit import vanishing_values
+from sofia_ros.config import EffectConfig
+from sofia_ros.effects import resolve_params
+from sofia_ros.effects.empirical import is_empirical
+from sofia_ros.errors import ConfigError
+
+__all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'MAX_SEARCH_ROUNDS', 'LinearizedModels', 'SearchRound',
+           'equivalent_models', 'model_terms', 'search_pool', 'search_model', 'structural_change']
+
+#: An empirical shape enters a model only where it beats the physics by this much BIC (a tie goes to physics).
+EMPIRICAL_PENALTY = 10.0
+#: Models whose BIC is within this of the best are equivalent: the data cannot choose among them.
+EQUIVALENT_DELTA_BIC = 10.0
+#: The candidates taken into the search besides the model's terms, the strongest first.
+SEARCH_POOL = 14
+#: Rounds of search and full refit (each a whole comparison) at most; the range --search-rounds takes.
+MAX_SEARCH_ROUNDS = 12
+SEARCH_ROUNDS_RANGE = (1, 20)
+#: Moves of one linearized search at most (each adds, removes or swaps one term).
+_MAX_MOVES = 30
+
+
+@dataclass(frozen=True)
+class LinearizedModels:
+    """Every model within reach of one fit, linearized there: BIC of a set of terms from a small Gram solve.
+
+    ``names`` are the blocks (the model's fitted effects, then candidates), ``in_model`` says
+    which are on at the fit. The Gram matrix is over [residual, one switch vector per block,
+    every block's columns], each with the nuisance columns (the attitude anchors) projected out.
+    Switching a model term off adds what its columns explained (J (value - vanishing value));
+    switching a candidate on subtracts its shift (the prediction's change at its start values).
+    """
+
+    names: tuple
+    in_model: tuple
+    widths: tuple
+    gram: np.ndarray
+    rows: int
+    nuisance_count: int
+    #: Per block: its parameters' names and where the linearization holds them (fitted values, candidate starts).
+    parameters: tuple = ()
+    starts: tuple = ()
+
+    @classmethod
+    def at_fit(cls, residual, jacobian, free, values, nuisance_count, candidate_terms):
+        """From a fit's residual and Jacobian (nuisance columns first) and CandidateTerms (analysis.ranking)."""
+        groups = {}
+        for index, parameter in enumerate(free):
+            groups.setdefault(parameter.effect, []).append(index)
+        off = vanishing_values(free)
+        names, in_model, switches, columns, parameters, starts = [], [], [], [], [], []
+        dense = jacobian.toarray if scipy.sparse.issparse(jacobian) else None
+        for effect, indices in groups.items():
+            own = jacobian[:, nuisance_count + np.array(indices)]
+            own = own.toarray() if dense is not None else np.asarray(own)
+            names.append(effect)
+            in_model.append(True)
+            switches.append(own @ (values[indices] - off[indices]))
+            columns.append(own)
+            parameters.append(tuple(free[i].name for i in indices))
+            starts.append(np.asarray(values[indices], dtype=float))
+        for term in candidate_terms:
+            names.append(term.name)
+            in_model.append(False)
+            shift = np.zeros(len(residual)) if term.shift is None else np.asarray(term.shift, dtype=float)
+            switches.append(-shift)
+            columns.append(np.asarray(term.jacobian, dtype=float).reshape(len(residual), -1))
+            parameters.append(tuple(term.param_names))
+            starts.append(np.asarray(term.start, dtype=float))
+        pieces = [np.asarray(residual, dtype=float)[:, None], *(s[:, None] for s in switches), *columns]
+        nuisance = jacobian[:, :nuisance_count]
+        gram = _projected_gram(pieces, nuisance)
+        return cls(tuple(names), tuple(in_model), tuple(c.shape[1] for c in columns), gram, len(residual),
+                   nuisance_count, tuple(parameters), tuple(starts))
+
+    def _column_slices(self):
+        start = 1 + len(self.names)
+        slices = []
+        for width in self.widths:
+            slices.append(np.arange(start, start + width))
+            start += width
+        return slices
+
+    def _solve(self, chosen):
+        """The switch mix, the chosen columns, the squared norm of the switched residual and the step."""
+        chosen = set(chosen)
+        mix = np.zeros(len(self.gram))
+        mix[0] = 1.0
+        for index, (name, on_now) in enumerate(zip(self.names, self.in_model)):
+            if on_now != (name in chosen):
+                mix[1 + index] = 1.0
+        slices = self._column_slices()
+        columns = np.concatenate([slices[i] for i, name in enumerate(self.names) if name in chosen] or
+                                 [np.zeros(0, dtype=int)])
+        total = float(mix @ self.gram @ mix)
+        if len(columns) == 0:
+            return columns, max(total, 0.0), np.zeros(0)
+        projection = self.gram[columns] @ mix
+        step = normal_pseudo_inverse(self.gram[np.ix_(columns, columns)]) @ projection
+        return columns, max(total - float(projection @ step), np.finfo(float).tiny), step
+
+    def rss(self, chosen):
+        """RSS of the linearized fit with exactly the blocks ``chosen`` (names) switched on."""
+        return self._solve(chosen)[1]
+
+    def values(self, chosen):
+        """The linearized fit's parameter values of each chosen block: {name: {parameter: value}}."""
+        _, _, step = self._solve(chosen)
+        out, position = {}, 0
+        for name, parameters, start in zip(self.names, self.parameters, self.starts):
+            if name in set(chosen):
+                values = start + step[position:position + len(parameters)]
+                out[name] = dict(zip(parameters, map(float, values)))
+                position += len(parameters)
+        return out
+
+    def bic(self, chosen, *, prefer_physics=True):
+        """BIC of the linearized fit with ``chosen`` on, plus EMPIRICAL_PENALTY per empirical shape (a preference,
+        not evidence: ``prefer_physics=False`` leaves it out)."""
+        width = sum(w for name, w in zip(self.names, self.widths) if name in set(chosen))
+        penalty = EMPIRICAL_PENALTY * sum(1 for name in chosen if is_empirical(name)) if prefer_physics else 0.0
+        return (self.rows * np.log(self.rss(chosen) / self.rows) + (self.nuisance_count + width) * np.log(self.rows)
+                + penalty)
+
+
+def _projected_gram(pieces, nuisance):
+    """[pieces]^T (I - N (N^T N)^+ N^T) [pieces], without forming the stacked pieces (each n x w)."""
+    widths = [piece.shape[1] for piece in pieces]
+    offsets = np.concatenate([[0], np.cumsum(widths)])
+    gram = np.empty((offsets[-1], offsets[-1]))
+    for i, first in enumerate(pieces):
+        for j in range(i, len(pieces)):
+            block = first.T @ pieces[j]
+            gram[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = block
+            gram[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = block.T
+    if nuisance.shape[1] == 0:
+        return gram
+    crossed = np.hstack([np.asarray(nuisance.T @ piece) for piece in pieces])
+    nuisance_gram = nuisance.T @ nuisance
+    nuisance_gram = nuisance_gram.toarray() if scipy.sparse.issparse(nuisance_gram) else np.asarray(nuisance_gram)
+    return gram - crossed.T @ normal_pseudo_inverse(nuisance_gram) @ crossed
+
+
+def model_terms(models, current):
+    """Each fitted term questioned again (competing.ModelTermEntry): its delta-BIC among the others, and the
+    candidates that share its part (SHARED_FRACTION of the smaller drop) and score within the competing margin
+    of it, or above it."""
+    current = frozenset(current)
+    entries = []
+    for term in [name for name in models.names if name in current]:
+        without = current - {term}
+        base = models.rss(without)
+        keep_drop = base - models.rss(current)
+        keep = models.bic(without, prefer_physics=False) - models.bic(current, prefer_physics=False)
+        rivals = []
+        for other in models.names:
+            if other in current:
+                continue
+            drop = base - models.rss(without | {other})
+            both = base - models.rss(current | {other})
+            smaller = min(keep_drop, drop)
+            shared = float(np.clip((keep_drop + drop - both) / smaller, 0.0, 1.0)) if smaller > 0 else 0.0
+            gain = models.bic(without, prefer_physics=False) - models.bic(without | {other}, prefer_physics=False)
+            if shared >= SHARED_FRACTION and gain > keep - competing_margin(keep, gain):
+                rivals.append({'effect': other, 'delta_bic': float(gain), 'shared_fraction': round(shared, 4)})
+        entries.append({'term': term, 'delta_bic': float(keep), 'pays': bool(keep >= SIGNIFICANT_DELTA_BIC),
+                        'rivals': sorted(rivals, key=lambda rival: -rival['delta_bic'])})
+    return entries
+
+
+def structural_change(models, current):
+    """The best change of the model's own terms by linearized BIC (physics preferred): remove one term, or put
+    one candidate in the place of one or two terms. None unless it lowers the BIC."""
+    current = frozenset(current)
+    score = models.bic(current)
+    terms = sorted(current)
+    outside = [name for name in models.names if name not in current]
+    options = [('remove', (term,), None, current - {term}) for term in terms]
+    for count in (1, 2):
+        for removed in itertools.combinations(terms, count):
+            options += [('replace', removed, other, (current - set(removed)) | {other}) for other in outside]
+    best = None
+    for action, removed, effect, chosen in options:
+        gain = score - models.bic(chosen)
+        if gain > 0.0 and (best is None or gain > best['expected_delta_bic']):
+            best = {'action': action, 'term': ','.join(removed), 'effect': effect, 'expected_delta_bic': float(gain)}
+    return best
+
+
+def equivalent_models(models, chosen):
+    """Models one term away from ``chosen`` (without a term, or another in its place) whose BIC is within
+    EQUIVALENT_DELTA_BIC of it, the physics preference left out: the data cannot choose among them."""
+    score = models.bic(chosen, prefer_physics=False)
+    out = []
+    for name in sorted(chosen):
+        options = [(f'without {name}', chosen - {name})]
+        options += [(f'{other} instead of {name}', (chosen - {name}) | {other})
+                    for other in models.names if other not in chosen]
+        for label, other in options:
+            gap = models.bic(other, prefer_physics=False) - score
+            if gap < EQUIVALENT_DELTA_BIC:
+                out.append({'model': label, 'delta_bic': round(float(gap), 1)})
+    return sorted(out, key=lambda entry: entry['delta_bic'])
+
+
+class SearchRound(TypedDict):
+    """One round of the search: the model compared, its status and BIC, and the moves the search made from it."""
+
+    round: int
+    fitted: list
+    status: str
+    rms_arcsec: float
+    bic: float
+    moves: list
+
+
+def search_pool(candidate_terms, candidates):
+    """The candidates a model's terms are questioned against: the SEARCH_POOL strongest observable ones."""
+    strongest = {c['effect'] for c in sorted(candidates, key=lambda c: -c['delta_bic']) if c['detectable']}
+    strongest = set(sorted(strongest, key=lambda name: -next(c['delta_bic'] for c in candidates
+                                                             if c['effect'] == name))[:SEARCH_POOL])
+    return [term for term in candidate_terms if term.name in strongest]
+
+
+def _next_model(model, result, step):
+    """The model after the verdict's next step: a term added at its refitted values, or terms removed/replaced."""
+    candidates = {c['effect']: c for c in result.document['candidates']}
+    removed = set(step['term'].split(',')) if step['term'] else set()
+    effects = {name: dict(params) for name, params in result.final_fit.effects.items() if name not in removed}
+    effects.update({name: dict(params) for name, params in model.effects.items()
+                    if name not in effects and name not in removed})
+    fitted = set(model.fitted) - removed
+    if step['effect'] is not None:
+        entry = candidates.get(step['effect'], {'params': {}})
+        start = {key: value for key, value in entry['params'].items() if value is not None and np.isfinite(value)}
+        effects[step['effect']] = resolve_params(step['effect'], start)
+        fitted.add(step['effect'])
+    return EffectConfig(effects, frozenset(fitted), model.scenario, model.text, model.source)
+
+
+def _steps(result):
+    """The steps worth trying from a comparison, each with the BIC it is expected to reach: the verdict's next
+    step, and adding each other refitted physical member of the best candidate's competing set instead."""
+    document = result.document
+    bic_now = float(result.final_fit.bic)
+    scores = {c['effect']: c['delta_bic'] for c in document['candidates']}
+    step = document['verdict']['next']
+    steps = []
+    if step['action'] == 'add':
+        steps.append((bic_now - scores[step['effect']], step))
+    elif step['action'] in ('remove', 'replace'):
+        steps.append((bic_now - document['model_change']['delta_bic'], step))
+    refined = {c['effect'] for c in document['candidates'] if c['refined']}
+    for entry in document['competing']:
+        if step['effect'] not in entry['effects']:
+            continue
+        for name in entry['effects']:
+            if name != step['effect'] and name in refined and not is_empirical(name):
+                steps.append((bic_now - scores[name], {'action': 'add', 'effect': name, 'term': None}))
+    return steps
+
+
+def search_model(observations, model, compare, *, rounds=MAX_SEARCH_ROUNDS, progress=lambda line: None):
+    """A best-first search over models: compare one, queue the steps it suggests (the verdict's next step and the
+    other members of a competing set, each with the BIC it is expected to reach), compare the most promising
+    model not yet compared, until nothing is queued or ``rounds`` comparisons are made. The answer is the
+    explained model with the lowest BIC (else the lowest BIC); the others explained within EQUIVALENT_DELTA_BIC
+    of it are its equivalents. ``compare(observations, model)`` is compare.run.compare_observations with its
+    options. Returns the answer's CompareResult, its model (EffectConfig), the SearchRounds and the equivalents
+    (the answer's one-term alternatives by linearized BIC, and the other explained models compared)."""
+    low, high = SEARCH_ROUNDS_RANGE
+    if not low <= rounds <= high:
+        raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')
+    history, compared, queue, order = [], {}, [(0.0, 0, model, 'the model given')], 0
+    while queue and len(compared) < rounds:
+        queue.sort(key=lambda item: (item[0], item[1]))
+        _, _, model, how = queue.pop(0)
+        if model.fitted in compared:
+            continue
+        progress(f'search: round {len(compared) + 1}/{rounds}, {how}')
+        result = compare(observations, model)
+        verdict = result.document['verdict']
+        compared[model.fitted] = (result, model)
+        steps = _steps(result)
+        history.append(SearchRound(round=len(compared), fitted=sorted(model.fitted), status=verdict['status'],
+                                   rms_arcsec=result.document['residual_rms_arcsec']['total'],
+                                   bic=float(result.final_fit.bic),
+                                   moves=[' '.join(filter(None, (step['action'], step['term'], step['effect'])))
+                                          for _, step in steps]))
+        for expected_bic, step in steps:
+            order += 1
+            following = _next_model(model, result, step)
+            if following.fitted not in compared:
+                label = ' '.join(filter(None, (step['action'], step['term'], step['effect'])))
+                queue.append((expected_bic, order, following, f'after round {len(compared)}: {label}'))
+    explained = {fitted: entry for fitted, entry in compared.items()
+                 if entry[0].document['verdict']['status'] == 'explained'}
+    pool = explained or compared
+    best = min(pool, key=lambda fitted: pool[fitted][0].final_fit.bic)
+    result, model = pool[best]
+    bic_best = result.final_fit.bic
+    equivalent = list(result.document['equivalent_models'])
+    for fitted, (other, _) in explained.items():
+        if fitted != best and other.final_fit.bic - bic_best < EQUIVALENT_DELTA_BIC:
+            equivalent.append({'model': ', '.join(sorted(fitted ^ best)) + ' (compared in full)',
+                               'delta_bic': round(float(other.final_fit.bic - bic_best), 1)})
+    return result, model, history, sorted(equivalent, key=lambda entry: entry['delta_bic'])

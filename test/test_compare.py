@@ -97,7 +97,8 @@ def test_cli_loop_compare_add_compare_shows_the_error_falling(campaign_bags, tmp
     assert 'fpi_internal_flexure' in load_effect_config(model_path).fitted
     assert main(['compare', str(bag), '--model', str(model_path), '--json', str(tmp_path / 'b.json'),
                  '--report', str(report)]) == 0
-    assert 'verdict: explained: the model explains every observable' in capsys.readouterr().out
+    second = capsys.readouterr().out
+    assert 'verdict: explained: nothing to do\n  why: the model explains every observable' in second
     import json
 
     before, after = (json.loads((tmp_path / name).read_text()) for name in ('a.json', 'b.json'))

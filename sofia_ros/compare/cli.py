@@ -107,9 +107,10 @@ def print_comparison(document, out):
             print(f'      {_format_params(candidate["params"], candidate["sigma"], candidate["units"])}', file=out)
     if document['unobservable']:
         print(f'  not observable in this campaign: {", ".join(document["unobservable"])}', file=out)
-    for first, second in document['degenerate']:
-        print(f'  degenerate: {first} and {second} explain the same residual; this campaign cannot tell them apart',
-              file=out)
+    from sofia_ros.compare.competing import competing_lines
+
+    for line in competing_lines(document, 'campaign'):
+        print(line, file=out)
     if 'star_hop' in document:
         _print_star_hop(document['star_hop'], out)
     _print_diagnostics(document, out)
@@ -205,7 +206,8 @@ def _print_diagnostics(document, out):
 
 def _print_verdict(document, out):
     verdict = document['verdict']
-    print(f'verdict: {verdict["status"]}: {verdict["text"]}', file=out)
+    print(f'verdict: {verdict["headline"]}', file=out)
+    print(f'  why: {verdict["text"]}', file=out)
 
 
 def run_compare(args, out):

@@ -15,7 +15,7 @@ from sofia_ros.analysis.ranking import CompetingSet, RankedCandidate
 from sofia_ros.effects.empirical import is_empirical
 
 __all__ = ['AfterMember', 'CompetingEntry', 'REFINED_CANDIDATES', 'REFINED_PHYSICAL', 'SEPARATING_RATIO_GAP',
-           'competing_document', 'competing_set_of', 'contenders', 'preferred_best', 'refit_order']
+           'competing_document', 'competing_lines', 'competing_set_of', 'contenders', 'preferred_best', 'refit_order']
 
 #: The strongest candidates of the linearized ranking are refitted in full (nonlinear, robust)...
 REFINED_CANDIDATES = 3
@@ -102,3 +102,29 @@ def competing_document(competing: Iterable[CompetingSet], after: Mapping[str, Af
             verdict_with_each={name: after[name]['status'] if name in after else None for name in entry.effects},
             separable_by=_separating_observables(members)))
     return document
+
+
+def competing_lines(document: Mapping, source: str) -> list:
+    """The printed block of competing explanations, degenerate pairs and the model's questioned terms (one
+    renderer for bags and measurement sets; ``source`` is 'campaign' or 'set')."""
+    lines = []
+    for first, second in document['degenerate']:
+        lines.append(f'  degenerate: {first} and {second} explain the same residual; this {source} cannot tell them '
+                     'apart')
+    for entry in document.get('competing', []):
+        scores = ', '.join(f'{name} {value:.0f}' for name, value in entry['delta_bic'].items())
+        judged = [f'{name} {status}' for name, status in entry['verdict_with_each'].items() if status]
+        where = f'; they differ most on {", ".join(entry["separable_by"])}' if entry['separable_by'] else ''
+        lines.append(f'  competing: {" or ".join(entry["effects"])} (delta-BIC {scores}; '
+                     f'{100 * entry["shared_fraction"]:.0f} % shared'
+                     + (f'; with each: {", ".join(judged)}' if judged else '') + f'{where})')
+    for entry in document.get('model_terms', []):
+        if not entry['pays']:
+            lines.append(f'  questioned: {entry["term"]} no longer pays for itself (delta-BIC {entry["delta_bic"]:.0f})')
+        for rival in entry['rivals'][:2]:
+            lines.append(f'  questioned: {rival["effect"]} could take the place of {entry["term"]} (delta-BIC '
+                         f'{rival["delta_bic"]:.0f} against {entry["delta_bic"]:.0f}, '
+                         f'{100 * rival["shared_fraction"]:.0f} % shared)')
+    for entry in document.get('equivalent_models', [])[:3]:
+        lines.append(f'  equivalent: {entry["model"]} (delta-BIC {entry["delta_bic"]:+.1f})')
+    return lines

@@ -285,6 +285,12 @@ def _page(document, runs):
                   t['unit']] for t in document['terms']]
     run_rows = [[index + 1, run['model'], run['last_term'], f'{run["residual_rms_arcsec"]["total"]:.3f}',
                  f'{run["noise_floor_arcsec"]:.3f}', run['top_candidate']] for index, run in enumerate(runs)]
+    competing = ''.join(
+        f'<p>competing: {html.escape(" or ".join(entry["effects"]))} (delta-BIC '
+        f'{html.escape(", ".join(f"{name} {value:.0f}" for name, value in entry["delta_bic"].items()))}; with each: '
+        f'{html.escape(", ".join(f"{name} {status or chr(45)}" for name, status in entry["verdict_with_each"].items()))}'
+        f'{"; they differ most on " + html.escape(", ".join(entry["separable_by"])) if entry["separable_by"] else ""})</p>'
+        for entry in document.get('competing', []))
     degenerate = ''.join(f'<li>{html.escape(a)} and {html.escape(b)} cannot be told apart by this campaign</li>'
                          for a, b in document['degenerate'])
     verdict = document['verdict']
@@ -307,7 +313,7 @@ td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}</style></head><bod
 <p>Bag <code>{html.escape(document["bag"])}</code>, model <code>{html.escape(document["model"])}</code>.
 Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {document["residual_rms_arcsec"]["total"]:.3f}";
 {document["outliers"]} outliers flagged.</p>
-<h2>Verdict: {html.escape(verdict["status"])}</h2><p>{html.escape(verdict["text"])}</p>
+<h2>Verdict: {html.escape(verdict["headline"])}</h2><p>{html.escape(verdict["text"])}</p>{competing}
 <h2>Every observable against its own floor</h2>
 {html_table(["observable", "kind", "RMS [arcsec]", "floor [arcsec]", "ratio", "explained", "structure"], observable_rows)}
 <h2>Structure in the residual</h2><p>Family-wise significance over {document["signature"]["tests_run"]} tests

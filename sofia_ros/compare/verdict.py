@@ -18,7 +18,8 @@ from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PRE
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
-__all__ = ['after_member', 'empirical_candidate_names', 'judge', 'model_command', 'MAX_EMPIRICAL_CANDIDATES']
+__all__ = ['after_member', 'empirical_candidate_names', 'headline', 'judge', 'model_command', 'next_step',
+           'HEADLINE_CHARACTERS', 'MAX_EMPIRICAL_CANDIDATES']
 
 #: At most this many empirical terms are tried, the strongest findings first.
 MAX_EMPIRICAL_CANDIDATES = 8
@@ -174,15 +175,45 @@ def _change_clause(change):
             f'replace {"them" if several else "it"}')
 
 
-def _next(action, model_source, **names):
+def next_step(action, model_source, **names):
+    """The verdict's ``next``: the action, the effect and term it names, and the command that takes it."""
     return {'action': action, **{key: names.get(key) for key in ('effect', 'term')},
             'command': model_command(action, model_source, **names) if action != 'none' else None}
+
+
+#: A verdict's first line is at most this long: the status and the one thing to do.
+HEADLINE_CHARACTERS = 100
+
+
+def headline(status, step):
+    """'status: what to do: command' in at most HEADLINE_CHARACTERS, ending with the command or 'nothing to do'
+    (the model file by its name alone where the whole path would not fit; ``next.command`` has it whole)."""
+    if step['action'] == 'none':
+        return f'{status}: nothing to do'
+    what = {'add': f'add {step["effect"]}', 'remove': f'remove {step["term"]}',
+            'replace': f'replace {step["term"]} by {step["effect"]}', 'plugin': 'write a plug-in for the shape'}
+    command = step['command']
+    for line in (f'{status}: {what[step["action"]]}: {command}', f'{status}: {command}'):
+        if len(line) <= HEADLINE_CHARACTERS:
+            return line
+    path = command.rsplit('--model ', 1)
+    short = f'{path[0]}--model {path[1].rsplit("/", 1)[-1]}' if len(path) == 2 else command
+    return f'{status}: {short}'[:HEADLINE_CHARACTERS]
 
 
 def judge(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
           significant_delta_bic, model_source, competing=(), members=None, change=None):
     """The verdict block: status, text, per-observable judgement, what is left after the best candidate, and the
-    next step (``next``: add, remove or replace a term, write a plug-in, or none)."""
+    next step (``next``: add, remove or replace a term, write a plug-in, or none) and its ``headline``."""
+    verdict = _judged(diagnostics, consistency, candidates, degenerate, best_name, after_best, rms_arcsec=rms_arcsec,
+                      significant_delta_bic=significant_delta_bic, model_source=model_source, competing=competing,
+                      members=members, change=change)
+    verdict['headline'] = headline(verdict['status'], verdict['next'])
+    return verdict
+
+
+def _judged(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
+            significant_delta_bic, model_source, competing, members, change):
     observables = {name: {key: entry[key] for key in ('rms_arcsec', 'floor_arcsec', 'ratio', 'excess_sigma',
                                                       'explained', 'structure', 'kind')}
                    for name, entry in diagnostics.observables.items()}
@@ -202,10 +233,10 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
         text = f'the model explains every observable to its noise, with no structure left and consistent terms{detail}'
         if worthwhile is not None:
             verdict.update(status='explained', text=f'{text}; but {_change_clause(worthwhile)}',
-                           next=_next(worthwhile['action'], model_source, effect=worthwhile['effect'],
+                           next=next_step(worthwhile['action'], model_source, effect=worthwhile['effect'],
                                       term=worthwhile['term']))
         else:
-            verdict.update(status='explained', text=f'{text}; nothing to do', next=_next('none', model_source))
+            verdict.update(status='explained', text=f'{text}; nothing to do', next=next_step('none', model_source))
         return verdict
     best = next((c for c in candidates if c['effect'] == best_name), None)
     left = []
@@ -218,13 +249,13 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
     first = ''
     if worthwhile is not None and (best is None or worthwhile['delta_bic'] > best['delta_bic']):
         first = f'. First: {_change_clause(worthwhile)} (more than adding any candidate gains)'
-        verdict['next'] = _next(worthwhile['action'], model_source, effect=worthwhile['effect'],
+        verdict['next'] = next_step(worthwhile['action'], model_source, effect=worthwhile['effect'],
                                 term=worthwhile['term'])
     if best is None or best['delta_bic'] < significant_delta_bic:
         kind = 'gyro' if all(name.startswith('gyro.') for name in diagnostics.unexplained()) else 'camera'
         verdict.update(status='unexplained', text=f'not explained: {where}; no catalogue effect explains it, and no '
                                                   f'empirical shape either: look at the report\'s residual plots{first}')
-        verdict.setdefault('next', _next('plugin', model_source, kind=kind))
+        verdict.setdefault('next', next_step('plugin', model_source, kind=kind))
         return verdict
     gain = f'RMS {rms_arcsec:.3f}" -> {best["rms_after_arcsec"]:.3f}"'
     remaining = ('; with it every observable is explained' if not left else
@@ -235,7 +266,7 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
             f'not explained: {where}; no catalogue effect explains it, the empirical shape {best["effect"]} does '
             f'({gain}){remaining}. Turn it into physics: `sofia effects new NAME --kind {kind}` writes a plug-in '
             f'template; or keep the shape meanwhile: `sofia model add {best["effect"]} --model {model_source}`{first}'))
-        verdict.setdefault('next', _next('plugin', model_source, kind=kind))
+        verdict.setdefault('next', next_step('plugin', model_source, kind=kind))
         return verdict
     tied = [pair for pair in degenerate if best['effect'] in pair]
     rivals = competing_set_of(best['effect'], competing)
@@ -248,5 +279,5 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
     advice = (f'; add it with `sofia model add {best["effect"]} --model {model_source}`' if not left else
               f'; add it and compare again: `sofia model add {best["effect"]} --model {model_source}`')
     verdict.update(status='missing_effect', text=f'not explained: {where}; {choice}{remaining}{advice}{first}')
-    verdict.setdefault('next', _next('add', model_source, effect=best['effect']))
+    verdict.setdefault('next', next_step('add', model_source, effect=best['effect']))
     return verdict

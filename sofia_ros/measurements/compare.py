@@ -31,6 +31,7 @@ from sofia_ros.analysis.ranking import (
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
 from sofia_ros.compare.competing import competing_document, competing_set_of, contenders, preferred_best, refit_order
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA
+from sofia_ros.compare.verdict import headline, next_step
 from sofia_ros.compare.fit import free_parameters, vanishing_values
 from sofia_ros.effects import CATALOGUE, resolve_params
 from sofia_ros.errors import FitError
@@ -318,9 +319,15 @@ def _after_member(problem, whitened):
 def _verdict(problem, whitened, best, rivals, degenerate, model_source, signature):
     observables = _observable_status(problem, whitened, signature)
     failing = [name for name, entry in observables.items() if not entry['explained']]
+    verdict = _judged_set(observables, failing, best, rivals, degenerate, model_source)
+    return {**verdict, 'observables': observables, 'headline': headline(verdict['status'], verdict['next'])}
+
+
+def _judged_set(observables, failing, best, rivals, degenerate, model_source):
+    """Status, text and next step of a set's verdict (the bag's rule: compare.verdict)."""
     if not failing:
-        return {'status': 'explained', 'observables': observables,
-                'text': 'the model explains every observable of the set to its stated sigma'}
+        return {'status': 'explained', 'next': next_step('none', model_source),
+                'text': 'the model explains every observable of the set to its stated sigma; nothing to do'}
     if best is not None:
         tied = [pair for pair in degenerate if best['effect'] in pair]
         choice = ' or '.join(rivals.effects if rivals else tied[0] if tied else (best['effect'],))
@@ -328,10 +335,10 @@ def _verdict(problem, whitened, best, rivals, degenerate, model_source, signatur
                    if observables[name]['structure']]
         text = (f'missing effect {choice} ({", ".join(failing)} beyond the stated sigma'
                 + ''.join(f'; {clause}' for clause in follows) + '); '
-                + ('the data cannot choose between them' if tied or rivals else
+                + (f'the data cannot choose between them; taken first: {best["effect"]}' if tied or rivals else
                    f'add it with `sofia model add {best["effect"]} --model {model_source}`'))
-        return {'status': 'missing_effect', 'observables': observables, 'text': text}
-    return {'status': 'unexplained', 'observables': observables,
+        return {'status': 'missing_effect', 'text': text, 'next': next_step('add', model_source, effect=best['effect'])}
+    return {'status': 'unexplained', 'next': next_step('plugin', model_source, kind='camera'),
             'text': f'{", ".join(failing)} beyond the stated sigma and no catalogue effect explains it'}
 
 

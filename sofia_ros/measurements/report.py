@@ -68,14 +68,16 @@ def print_set_comparison(document, out):
             reasons.setdefault(candidate.get('reason', ''), []).append(candidate['effect'])
         for reason, names in reasons.items():
             print(f'    {", ".join(names)}: {reason}', file=out)
-    for first, second in document['degenerate']:
-        print(f'  degenerate: {first} and {second} explain the same residual; this set cannot tell them apart',
-              file=out)
+    from sofia_ros.compare.competing import competing_lines
+
+    for line in competing_lines(document, 'set'):
+        print(line, file=out)
     _print_rows(document, out)
     for name, table in document.get('earth_rate', {}).items():
         _print_earth_rate(name, table, out)
     verdict = document['verdict']
-    print(f'verdict: {verdict["status"]}: {verdict["text"]}', file=out)
+    print(f'verdict: {verdict["headline"]}', file=out)
+    print(f'  why: {verdict["text"]}', file=out)
     for name, entry in verdict['observables'].items():
         unit = 'arcsec_per_s' if 'rms_arcsec_per_s' in entry else 'arcsec'
         mark = '"/s' if unit == 'arcsec_per_s' else '"'
@@ -160,7 +162,7 @@ def write_set_report(result, document, directory):
     print_set_comparison(document, text)
     page = ['<!doctype html><html><head><meta charset="utf-8"><title>sofia compare: measurement set</title></head><body>',
             f'<h1>{html.escape(document["title"] or document["measurement_set"])}</h1>',
-            f'<p>verdict: <b>{html.escape(document["verdict"]["status"])}</b>: '
+            f'<p>verdict: <b>{html.escape(document["verdict"]["headline"])}</b>: '
             f'{html.escape(document["verdict"]["text"])}</p>']
     page += [f'<p><img src="{name}" alt="{name}"></p>' for name in images]
     page += [f'<pre>{html.escape(text.getvalue())}</pre>', '</body></html>']

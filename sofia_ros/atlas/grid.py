@@ -19,7 +19,7 @@ import yaml
 
 from sofia_ros.campaigns.registry import campaign_named
 from sofia_ros.config import EffectConfig, load_effect_config, parse_effect_config, safe_load_limited
-from sofia_ros.effects import CATALOGUE, get_effect, is_empirical
+from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
 from sofia_ros.input_files import read_text_capped
 
@@ -27,8 +27,6 @@ __all__ = ['AtlasGrid', 'AtlasTask', 'DEFAULT_MODEL', 'DEFAULT_TRUTH', 'FORCED_M
            'grid_from_file', 'grid_from_lists', 'hidden_truth_text', 'scaled_params', 'seeds_of_text']
 
 DEFAULT_MODEL, DEFAULT_TRUTH = 'config/model/nominal.yaml', 'config/truth/nominal.yaml'
-#: Random processes set the noise floor; compare never ranks them, so hiding them measures nothing.
-NOISE_EFFECTS = ('gyro_noise', 'seeing')
 #: Keys a grid file may hold.
 _GRID_KEYS = ('effects', 'sizes', 'campaigns', 'seeds', 'model', 'truth', 'candidates')
 _MAX_SEED = 2**32 - 1

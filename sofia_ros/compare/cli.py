@@ -16,8 +16,8 @@ from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import ConfigError
 from sofia_ros.output_files import current_umask, json_ready, output_target, write_text_atomically
 
-__all__ = ['add_compare_arguments', 'run_compare', 'add_model_arguments', 'run_model_add', 'edit_model_file', 'anchor_memory_bytes',
-           'MIN_ANCHOR_S']
+__all__ = ['print_fitted_terms', 'spread_text', 'add_compare_arguments', 'run_compare', 'add_model_arguments',
+           'run_model_add', 'edit_model_file', 'anchor_memory_bytes', 'MIN_ANCHOR_S']
 
 
 #: Attitude anchors closer than ten frames of the slowest camera (0.2 s ticks, 1 s HIPO cadence and
@@ -80,11 +80,7 @@ def print_comparison(document, out):
           f'of locked frames); outliers beyond 5 sigma (down-weighted, counted in the RMS): '
           f'{outliers or "none"}', file=out)
     if document['terms']:
-        print('fitted terms:', file=out)
-        for term in document['terms']:
-            spread = 'unconstrained' if term['sigma'] is None else f'+- {term["sigma"]:<9.4f}'
-            print(f'  {term["effect"] + "." + term["param"]:<44} {term["value"]:>12.4f} {spread:<12} {term["unit"]}',
-                  file=out)
+        print_fitted_terms(document['terms'], out)
         labels, matrix = document['correlation']['params'], np.array(document['correlation']['matrix'], dtype=float)
         strong = [(labels[i], labels[j], matrix[i, j]) for i in range(len(labels)) for j in range(i + 1, len(labels))
                   if np.isfinite(matrix[i, j]) and abs(matrix[i, j]) >= 0.9]
@@ -163,15 +159,24 @@ def _print_centroid_drift(holds, out):
     for hold in selected:
         sine = hold['row']['sinusoid']
         print(f'    {hold["star"]} (hold at {hold["hold_start_s"]:.0f} s): row '
-              f'{hold["row"]["drift_px_per_min"]:+.2f} {_spread(hold["row"]["drift_sigma"], ".2f")} px/min + '
+              f'{hold["row"]["drift_px_per_min"]:+.2f} {spread_text(hold["row"]["drift_sigma"], ".2f")} px/min + '
               f'sinusoid of {sine["period_s"]:.0f} '
-              f'{_spread(sine["period_sigma"], ".0f")} s, {sine["amplitude_px"]:.2f} '
-              f'{_spread(sine["amplitude_sigma"], ".2f")} px, phase {sine["phase_deg"]:+.0f} '
-              f'{_spread(sine["phase_sigma"], ".0f")} deg at {hold["reference_time_s"]:.0f} s', file=out)
+              f'{spread_text(sine["period_sigma"], ".0f")} s, {sine["amplitude_px"]:.2f} '
+              f'{spread_text(sine["amplitude_sigma"], ".2f")} px, phase {sine["phase_deg"]:+.0f} '
+              f'{spread_text(sine["phase_sigma"], ".0f")} deg at {hold["reference_time_s"]:.0f} s', file=out)
 
 
-def _spread(sigma, spec):
+def spread_text(sigma, spec='.2g'):
+    """'+- sigma' in ``spec``, or 'unconstrained' for a parameter the data do not determine (sigma null)."""
     return 'unconstrained' if sigma is None else f'+- {sigma:{spec}}'
+
+
+def print_fitted_terms(terms, out):
+    """The fitted terms' table of a comparison, bag or measurement set."""
+    print('fitted terms:', file=out)
+    for term in terms:
+        print(f'  {term["effect"] + "." + term["param"]:<44} {term["value"]:>12.4f} '
+              f'{spread_text(term["sigma"], "<9.4f"):<12} {term["unit"]}', file=out)
 
 
 def _print_diagnostics(document, out):

@@ -32,16 +32,14 @@ from sofia_ros.compare.competing import competing_document, contenders, preferre
 from sofia_ros.compare.verdict import after_member, empirical_candidate_names, judge
 from sofia_ros.compare.search import LinearizedModels, equivalent_models, model_terms, search_pool, structural_change
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
-from sofia_ros.effects import CATALOGUE, get_effect, resolve_params
+from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, resolve_params
 from sofia_ros.effects.empirical import empirical_parts, is_empirical
 from sofia_ros.errors import FitError
 from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
 from sofia_ros.units import ARCSEC_PER_RAD
 
-__all__ = ['CompareResult', 'compare_bag', 'compare_observations', 'NOISE_EFFECTS']
+__all__ = ['CompareResult', 'compare_bag', 'compare_observations']
 
-#: Random processes: they set the noise floor, they do not move a prediction.
-NOISE_EFFECTS = ('gyro_noise', 'seeing')
 
 
 @dataclass(frozen=True, eq=False)

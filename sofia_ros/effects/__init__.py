@@ -22,9 +22,11 @@ from sofia_ros.effects.empirical import empirical_spec, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
 
 __all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'PLUGIN_ENVIRONMENT_VARIABLE', 'get_effect', 'resolve_params',
-           'catalogue_as_json', 'load_catalogue', 'plugin_terms', 'HookTerm', 'is_empirical']
+           'catalogue_as_json', 'load_catalogue', 'plugin_terms', 'HookTerm', 'is_empirical', 'NOISE_EFFECTS']
 
 PLUGIN_ENVIRONMENT_VARIABLE = 'SOFIA_EFFECT_MODULES'
+#: Random processes: they set the noise floor (the sigmas), they do not move a prediction; never a candidate.
+NOISE_EFFECTS = ('gyro_noise', 'seeing')
 
 
 def _checked_plugin_specs(module_name, built_in):

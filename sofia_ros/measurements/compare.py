@@ -33,7 +33,7 @@ from sofia_ros.compare.competing import competing_document, competing_set_of, co
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA
 from sofia_ros.compare.verdict import headline, next_step
 from sofia_ros.compare.fit import free_parameters, vanishing_values
-from sofia_ros.effects import CATALOGUE, resolve_params
+from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, resolve_params
 from sofia_ros.errors import FitError
 from sofia_ros.measurements.format import ALIGNMENT, DRIFT_EFFECTS, KINDS
 from sofia_ros.measurements.predict import predict_table, star_geometry
@@ -41,8 +41,6 @@ from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
 
 __all__ = ['SetCompareResult', 'compare_measurement_set', 'EXPLAINED_QUANTILE']
 
-#: Effects that are noise: they set the sigma column, they are not fitted.
-NOISE_EFFECTS = ('gyro_noise', 'seeing')
 #: An observable is explained when its chi-square (RMS/floor)^2 n lies below this quantile.
 EXPLAINED_QUANTILE = 0.99
 #: A candidate parameter whose effect at its thesis magnitude is below this fraction of the candidate's strongest

@@ -8,13 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from sofia_ros.compare.cli import print_fitted_terms, spread_text
 from sofia_ros.output_files import json_ready, write_text_atomically
 
 __all__ = ['print_set_comparison', 'write_set_report', 'run_set_compare']
-
-
-def _spread(sigma, spec='.2g'):
-    return 'unconstrained' if sigma is None else f'+- {sigma:{spec}}'
 
 
 def _rms_text(rms):
@@ -35,11 +32,7 @@ def print_set_comparison(document, out):
         floor_text += (' ' if floor_text else '') + f'{document["noise_floor_arcsec_per_s"]:.4f} "/s (= deg/h)'
     print(f'  tables: {tables}; noise floor {floor_text} (the stated sigmas)', file=out)
     if document['terms']:
-        print('fitted terms:', file=out)
-        for term in document['terms']:
-            spread = 'unconstrained' if term['sigma'] is None else f'+- {term["sigma"]:<9.4f}'
-            print(f'  {term["effect"] + "." + term["param"]:<44} {term["value"]:>12.4f} {spread:<12} {term["unit"]}',
-                  file=out)
+        print_fitted_terms(document['terms'], out)
     for name, reason in document['not_observable_fitted_terms'].items():
         print(f'  {name} (fitted in the model) is not observable here: {reason}', file=out)
     print('ledger: residual RMS as terms are fitted', file=out)
@@ -57,7 +50,7 @@ def print_set_comparison(document, out):
         print(f' {mark}{candidate["effect"]:<28} dBIC {candidate["delta_bic"]:>9.1f}  RMS after {after_text}  '
               f'{"refit" if candidate["refined"] else "linear"}', file=out)
         if mark == '*':
-            params = ', '.join(f'{key} = {value:.4g} {_spread(candidate["sigma"].get(key))} {candidate["units"][key]}'
+            params = ', '.join(f'{key} = {value:.4g} {spread_text(candidate["sigma"].get(key))} {candidate["units"][key]}'
                                for key, value in candidate['params'].items())
             print(f'      {params}', file=out)
     hidden = [c for c in document['candidates'] if not c['detectable']]

@@ -5,6 +5,7 @@ import pytest
 
 from sofia_ros.analysis.ranking import (COMPETING_DELTA_BIC, COMPETING_FRACTION, SHARED_FRACTION, CandidateTerm,
                                         competing_sets, rank_candidates, shared_fraction)
+from sofia_ros.compare.verdict import HEADLINE_CHARACTERS, headline, next_step
 from sofia_ros.compare.competing import (REFINED_CANDIDATES, REFINED_PHYSICAL, competing_document, contenders,
                                          preferred_best, refit_order)
 
@@ -136,3 +137,31 @@ def test_the_document_says_what_each_member_leaves_and_where_they_differ():
     assert entry['verdict_with_each'] == {'physical_a': 'explained', 'empirical:fpi.x:time:poly1': 'not explained'}
     assert entry['separable_by'] == ['fpi.x']
     assert set(entry['delta_bic']) == set(entry['effects'])
+
+
+@pytest.mark.parametrize('status, action, names', [
+    ('explained', 'none', {}),
+    ('missing_effect', 'add', {'effect': 'timestamp_offset'}),
+    ('missing_effect', 'add', {'effect': 'empirical:hipo.y:detector_y:poly3@59.82..981.4'}),
+    ('explained', 'remove', {'term': 'imager_rotation_of_field'}),
+    ('missing_effect', 'replace', {'term': 'imager_boresight_offset,imager_rotation_of_field',
+                                   'effect': 'hipo_fiducial_error'}),
+    ('unexplained', 'plugin', {'kind': 'gyro'}),
+])
+@pytest.mark.parametrize('model', ['m.yaml', '/a/very/long/path/to/the/models/of/this/telescope/nominal-plus.yaml'])
+def test_a_headline_is_short_and_ends_with_what_to_run(status, action, names, model):
+    step = next_step(action, model, **names)
+    line = headline(status, step)
+    assert len(line) <= HEADLINE_CHARACTERS and line.startswith(f'{status}: ')
+    if action == 'none':
+        assert line.endswith('nothing to do') and step['command'] is None
+    else:
+        # The command whole where it fits; else its model file by name; else without --model (next.command has it).
+        command = line.split(': ', 1)[1].split(': ')[-1]
+        bare = step['command'].split(' --model ')[0]
+        if len(f'{status}: {bare}') <= HEADLINE_CHARACTERS:
+            assert command.startswith('sofia ') and step['command'].startswith(command.split(' --model ')[0])
+        else:  # only names too long for any form are cut, visibly
+            assert line.endswith('...') and bare.startswith(command[:-3])
+        if len(f'{status}: {step["command"]}') <= HEADLINE_CHARACTERS:
+            assert line.endswith(step['command'])

@@ -193,12 +193,13 @@ def headline(status, step):
     what = {'add': f'add {step["effect"]}', 'remove': f'remove {step["term"]}',
             'replace': f'replace {step["term"]} by {step["effect"]}', 'plugin': 'write a plug-in for the shape'}
     command = step['command']
-    for line in (f'{status}: {what[step["action"]]}: {command}', f'{status}: {command}'):
-        if len(line) <= HEADLINE_CHARACTERS:
-            return line
-    path = command.rsplit('--model ', 1)
-    short = f'{path[0]}--model {path[1].rsplit("/", 1)[-1]}' if len(path) == 2 else command
-    return f'{status}: {short}'[:HEADLINE_CHARACTERS]
+    head, _, path = command.partition(' --model ')
+    # Shorter and shorter: the whole command, the model file by its name, the command without --model.
+    forms = [f'{status}: {what[step["action"]]}: {command}', f'{status}: {command}']
+    if path:
+        forms += [f'{status}: {head} --model {path.rsplit("/", 1)[-1]}', f'{status}: {head}']
+    line = next((form for form in forms if len(form) <= HEADLINE_CHARACTERS), forms[-1])
+    return line if len(line) <= HEADLINE_CHARACTERS else line[:HEADLINE_CHARACTERS - 3] + '...'
 
 
 def judge(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,

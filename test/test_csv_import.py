@@ -43,7 +43,8 @@ def test_bad_logs_are_one_line_and_exit_2(campaign, tmp_path, capsys):
     (logs / 'gyro.csv').write_text('\n'.join([gyro[0], *late]) + '\n')
     assert main(['import', str(logs), '--bag', str(tmp_path / 'late')]) == 2
     error = capsys.readouterr().err.strip().splitlines()
-    assert len(error) == 1 and 'gyro.csv: time_ns must be ns since 1970-01-01 UTC, before 2038-01-19' in error[0]
+    assert len(error) == 1 and 'gyro.csv line 2: time_ns = ' in error[0]
+    assert 'to before 2038-01-19 (what the int32 seconds of a ROS stamp hold)' in error[0]
     assert not (tmp_path / 'late').exists()  # refused before a bag is begun
     (logs / 'scenario.yaml').unlink()
     assert main(['import', str(logs), '--bag', str(tmp_path / 'bag2')]) == 2

@@ -201,6 +201,28 @@ def test_a_bag_that_fills_the_disk_is_one_line_exit_3_naming_what_it_keeps(tmp_p
             folder.unmount()
 
 
+def test_a_graph_stopped_by_a_full_disk_leaves_nothing_in_the_ros_domain(disk, capfd):
+    """Its nodes destroyed though an exception ended the run: else a later graph of this process in the domain got
+    the old clock's /sim/stop and stopped at once (the --processes case below, run after these, did)."""
+    import time
+
+    import rclpy
+
+    code, _ = run_in_process(capfd, _run_args('alignment', 'all-dds', disk.path / 'bag'))
+    assert code == 3
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        probe = rclpy.create_node('full_disk_probe', context=context)
+        deadline = time.monotonic() + 3.0  # local discovery takes well under a second
+        while time.monotonic() < deadline:
+            assert probe.get_publishers_info_by_topic('/sim/stop') == []
+            time.sleep(0.2)
+        probe.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)
+
+
 @pytest.mark.parametrize('campaign,mode', [('alignment', 'direct'), ('alignment', 'default'), ('star-hop', 'direct'),
                                            ('star-hop', 'all-dds'), ('gyro-stability', 'default')])
 def test_a_disk_full_from_the_start_is_one_line_exit_3_and_no_bag(disk, capfd, campaign, mode):

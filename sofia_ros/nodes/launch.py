@@ -58,18 +58,22 @@ def run_graph_in_process(config, bag_path, *, documents=(), max_sim_s=DEFAULT_MA
 
 def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, progress, intra_process):
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    created, executor = [], None
     try:
         cores = build_cores(config)
         topics = graph_topics(cores)
         bus = IntraProcessBus() if intra_process else None
         nodes = [CoreNode(core, graph_topics=topics, tick_ns=config.tick_ns, bus=bus)
                  for core in cores if core.name != 'clock']
+        created.extend(nodes)
         clock_subscribers = len(topics[CLOCK.name][2]) + 1
         clock = ClockNode([*_participants(cores), 'recorder'], tick_ns=config.tick_ns, max_sim_s=max_sim_s,
                           subscribers=clock_subscribers, ending=[core.name for core in cores if core.ends_run], bus=bus)
+        created.append(clock)
         recorder = RecorderNode(bag_path, topics, [core.name for core in cores], tick_ns=config.tick_ns,
                                 epoch_ns=epoch_ns_of(config.scenario.start_utc), documents=documents, bus=bus,
                                 raise_bag_failures=False)
+        created.append(recorder)
         share_time_source(nodes[0], (*nodes[1:], clock, recorder), bus)
         # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor with this many entities.
         executor = EventsExecutor()
@@ -90,10 +94,15 @@ def _run_graph_in_process(config, bag_path, documents, max_sim_s, timeout_s, pro
             recorder.abort()
         calibration = next(node.core for node in nodes if node.core.ends_run)
         _, complete, reason = parse_stop(clock.stop_reason) if clock.stop_reason else (0, False, '')
-        for node in (*nodes, clock, recorder):
-            node.destroy_node()
         return calibration, reason, complete
     finally:
+        # Whatever ended the run (a full disk, the time limit), the executor lets go of the nodes and they are
+        # destroyed: else their DDS entities stay in the domain (an exception's traceback keeps the executor), and a
+        # graph this process ran there next got the old clock's /sim/stop and stopped at once.
+        if executor is not None:
+            executor.shutdown()
+        for node in created:
+            node.destroy_node()
         rclpy.try_shutdown()
 
 

@@ -143,7 +143,8 @@ def test_a_logbook_that_is_not_a_scenario_is_refused(tmp_path, capsys, text, mes
      "line 2: time_ns = '9999999999999999999999999999999999999999' must be ns since 1970-01-01 UTC"),
     ('attitude.csv', b'time_ns,qx,qy,qz,qw\n1094185971005000000,' + b'0' * 140_000 + b',0,0,1\n',
      'line 2: not a CSV row (field larger than field limit (131072))'),
-])
+], ids=['gyro-not-utf8', 'scenario-not-utf8', 'joints-short-row', 'temperature-short-row', 'centroids-short-row',
+        'hip-not-integer', 'time-40-digits', 'field-over-limit'])
 def test_what_raised_a_traceback_is_one_line(tmp_path, capsys, name, data, message):
     logs = write_logs(tmp_path / 'logs', files={name: data})
     assert f'{name}{":" if "line" not in message else ""} {message}' in refusal(tmp_path, capsys, logs)

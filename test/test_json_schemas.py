@@ -108,11 +108,17 @@ def _first_sigma_to(value):
 
 
 COMPARE_BREAKS = {
-    'verdict status outside the enum': (_set(('verdict', 'status'), 'missing effect'), "'missing effect' is not one of"),
+    'verdict status outside the enum': (_set(('verdict', 'status'), 'missing effect'),
+                                        "'missing effect' is not one of"),
     'next action outside the enum': (_set(('verdict', 'next', 'action'), 'fix'), "'fix' is not one of"),
     'an add without its command': (_set(('verdict', 'next'), {'action': 'add', 'effect': 'gyro_bias', 'term': None,
                                                               'command': None}), "None is not of type 'string'"),
+    'a remove without its term': (_set(('verdict', 'next'), {'action': 'remove', 'effect': None, 'term': None,
+                                                             'command': 'sofia model remove'}),
+                                  "None is not of type 'string'"),
     'a headline over 100 characters': (_set(('verdict', 'headline'), 'x' * 101), 'is too long'),
+    'a headline of another status': (_set(('verdict', 'headline'), 'explained: nothing to do'),
+                                     "does not match '\\^missing_effect: '"),
     'verdict.next missing': (_delete(('verdict', 'next')), "'next' is a required property"),
     'candidates missing': (_delete(('candidates',)), "'candidates' is a required property"),
     'a sigma written as the string NaN': (_first_sigma_to('NaN'), "'NaN' is not of type 'number', 'null'"),

@@ -153,7 +153,8 @@ def run_in_process(capfd, args):
 
 
 def _run_args(campaign, mode, bag):
-    return ['run', *CAMPAIGNS[campaign][:1], '--truth', TRUTH, '--bag', str(bag), *CAMPAIGNS[campaign][1:], *MODES[mode]]
+    name, *options = CAMPAIGNS[campaign]
+    return ['run', name, '--truth', TRUTH, '--bag', str(bag), *options, *MODES[mode]]
 
 
 def _graph_folders():

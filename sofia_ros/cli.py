@@ -377,7 +377,7 @@ def build_parser():
 
     imported = verbs.add_parser('import', help='turn plain CSV logs (gyro, encoders, centroids, logbook) into a bag')
     imported.add_argument('logs', help='directory of CSV logs (gyro.csv, gyro_temperature.csv, joints.csv, attitude.csv, '
-                                       'centroids.csv, [motion_status.csv], scenario.yaml; README)')
+                                       'centroids.csv, [motion_status.csv], scenario.yaml; docs/thesis-2004.md)')
     imported.add_argument('--bag', required=True, help='output bag directory (must not exist)')
     imported.set_defaults(handler=_import)
 

@@ -1,7 +1,7 @@
 """Every topic of the node graph and every document of a bag, in one place (docs/topics.md, docs/bag.md).
 
 ROS-free: the cores, the rclpy shells, the recorder, replay, ``sofia compare``, ``sofia noise``,
-``sofia perturb`` and the README's topic table all take topic names, types and meanings from here,
+``sofia perturb`` and the topic table of docs/topics.md all take topic names, types and meanings from here,
 so a topic is renamed or added in one line. Who subscribes is not listed: each core's ``inputs()``
 says what it reads, and ``sim.graph.graph_topics`` joins the two.
 """
@@ -39,7 +39,7 @@ FD_JOINTS = ('fd_el', 'fd_xel', 'fd_los')
 
 @dataclass(frozen=True)
 class TopicSpec:
-    """A topic: its name, ROS type string, one-line meaning (for the README's table) and publishing node."""
+    """A topic: its name, ROS type string, one-line meaning (for the table of docs/topics.md) and publishing node."""
 
     name: str
     msgtype: str

@@ -129,7 +129,8 @@ def campaign_bags(tmp_path_factory):
 #: modules whose tests are handed out one by one
 SPREAD = frozenset({'test_compare', 'test_discovery', 'test_fuzz_inputs'})
 #: modules that share a unit of work with others (module -> unit)
-UNITS = {'test_live_graph': 'dds', 'test_run_signals': 'dds', 'test_star_hop_processes': 'dds', 'test_mode_bags': 'dds'}
+UNITS = {'test_live_graph': 'dds', 'test_run_signals': 'dds', 'test_star_hop_processes': 'dds', 'test_mode_bags': 'dds',
+         'test_full_disk': 'dds'}
 #: units handed out first, in this order; every other unit follows in collection order
 FIRST = ('dds', 'test_star_hop')
 

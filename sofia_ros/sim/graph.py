@@ -88,7 +88,7 @@ def graph_topics(cores: Iterable[NodeCore]) -> dict[str, tuple[str, str | None, 
 
 
 def topic_table_markdown(config: GraphConfig) -> str:
-    """The README's topic table: every topic of the graph with type, publisher, subscribers, meaning."""
+    """The topic table of docs/topics.md: every topic of the graph with type, publisher, subscribers, meaning."""
     cores = build_cores(config)
     meanings = {spec.name: spec.meaning for core in cores for spec in (*core.outputs(), *core.inputs())}
     rows = ['| topic | type | published by | subscribed by (and the recorder) | meaning |', '|---|---|---|---|---|']

@@ -81,6 +81,13 @@ def test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scal
     document = compare_bag(bag, model).document
     assert ['gyro_axis_swap', 'gyro_scale_factor'] in document['degenerate']
     assert {c['effect'] for c in document['candidates'][:2]} == {'gyro_axis_swap', 'gyro_scale_factor'}
+    # Said as competing explanations, each closing the loop alone: the data cannot choose.
+    [rivals] = [entry for entry in document['competing'] if 'gyro_axis_swap' in entry['effects']]
+    assert set(rivals['effects']) == {'gyro_axis_swap', 'gyro_scale_factor'} and rivals['shared_fraction'] > 0.99
+    assert set(rivals['verdict_with_each'].values()) == {'explained'}
+    # The error follows the gyro's own rate: named by that variable, not by time or a force.
+    named = {(t['observable'], t['variable']) for t in document['signature']['trends'] if t['significance_sigma'] >= 5}
+    assert ('gyro.el', 'rate') in named
 
 
 def test_cli_loop_compare_add_compare_shows_the_error_falling(campaign_bags, tmp_path, capsys):

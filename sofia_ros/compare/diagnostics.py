@@ -46,7 +46,7 @@ from sofia_ros.analysis.structure import category_test, field_test, period_test,
 from sofia_ros.compare.fit import rows_scaled
 from sofia_ros.effects.empirical import DETECTOR_FIELD
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
-from sofia_ros.units import ARCSEC_PER_RAD, STANDARD_GRAVITY_M_PER_S2
+from sofia_ros.units import ARCSEC_PER_RAD, DEG_PER_RAD, STANDARD_GRAVITY_M_PER_S2
 
 __all__ = ['DETECTION_SIGMA', 'REPORT_SIGMA', 'RATIO_LIMIT', 'FRAME_VARIABLES', 'ROW_VARIABLES', 'DETECTOR_FIELD',
            'GYRO_AXES',
@@ -65,7 +65,7 @@ FRAME_VARIABLES = {'elevation': 'deg', 'time': 's', 'temperature': 'C', 'specifi
 ROW_VARIABLES = {'detector_x': 'px', 'detector_y': 'px', 'star': 'HIP'}
 #: Variables a gyro axis is tested against (the anchor intervals have no detector or star).
 GYRO_VARIABLES = ('elevation', 'time', 'temperature', 'specific_force_el', 'specific_force_xel',
-                  'specific_force_los')
+                  'specific_force_los', 'rate', 'rate_size')
 GYRO_AXES = ('el', 'xel', 'los')
 #: Two variables this correlated cannot be told apart by the data (e.g. elevation and the LOS load).
 _EQUIVALENT_CORRELATION = 0.95
@@ -186,7 +186,11 @@ def _gyro_series(observations, fit, prior):
         'elevation': np.interp(middle, centroids.stamp_s[order], centroids.elevation_deg[order]),
         'time': middle, 'temperature': np.interp(middle, gyro.tick_end_s, gyro.tick_temperature_c),
         'specific_force_el': force_g[:, 0], 'specific_force_xel': force_g[:, 1], 'specific_force_los': force_g[:, 2]}
+    rates_deg_per_s = _interval_mean_rates_deg_per_s(gyro, prior.knots_s, fit.effects)
     for axis_index, axis in enumerate(GYRO_AXES):
+        # The axis' own rate, its sense and its size: a scale factor follows the one, an asymmetry the other.
+        axis_variables = {**frame_variables, 'rate': rates_deg_per_s[:, axis_index],
+                          'rate_size': np.abs(rates_deg_per_s[:, axis_index])}
         axis_covariance = covariance[axis_index::3, axis_index::3]
         eigenvalues, vectors = np.linalg.eigh(axis_covariance)
         free = eigenvalues >= _MIN_FREEDOM
@@ -196,8 +200,22 @@ def _gyro_series(observations, fit, prior):
         decorrelated = vectors[:, free].T @ innovations[:, axis_index] / root * unit_arcsec
         design = root[:, None] * (vectors[:, free].T @ prior.whitening)
         floor = unit_arcsec * float(np.sqrt(np.mean(np.diag(axis_covariance))))
-        yield (f'gyro.{axis}', floor, decorrelated, frame_variables, innovations[:, axis_index] * unit_arcsec,
+        yield (f'gyro.{axis}', floor, decorrelated, axis_variables, innovations[:, axis_index] * unit_arcsec,
                unit_arcsec, design)
+
+
+def _interval_mean_rates_deg_per_s(gyro, knots_s, effects):
+    """The TARF rates averaged over each anchor interval (K-1, 3) [deg/s]: what a rate-driven error accumulates
+    over the interval, divided by its length; an interval without a tick takes the rate at its middle."""
+    rates = gyro.tick_mean_rates_gyrf_rad_per_s @ tarf_from_gyrf_dcm(effects).T * DEG_PER_RAD
+    times = gyro.tick_mean_time_s
+    edges = np.searchsorted(times, knots_s)
+    counts = np.diff(edges)
+    cumulative = np.vstack([np.zeros((1, 3)), np.cumsum(rates, axis=0)])
+    sums = cumulative[edges[1:]] - cumulative[edges[:-1]]
+    middle = (knots_s[:-1] + knots_s[1:]) / 2.0
+    at_middle = np.column_stack([np.interp(middle, times, rates[:, axis]) for axis in range(3)])
+    return np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], at_middle)
 
 
 def _ranges(values_by_variable, names):
@@ -294,7 +312,8 @@ def _finding_label(finding):
 
 #: Of variables the data cannot tell apart, the one named: the most direct physical quantity first.
 NAMING_PREFERENCE = ('elevation', 'time', 'temperature', 'los_angle', 'slew_angle', 'detector_x', 'detector_y',
-                     DETECTOR_FIELD, 'specific_force_los', 'specific_force_xel', 'specific_force_el', 'star')
+                     DETECTOR_FIELD, 'specific_force_los', 'specific_force_xel', 'specific_force_el', 'rate',
+                     'rate_size', 'star')
 
 
 def _preference(variable):

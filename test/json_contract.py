@@ -53,13 +53,15 @@ def _validate(name, document):
 
 
 def validate_compare(document):
-    """`sofia compare --json` of a bag or a measurement set (docs/schemas/compare.schema.json)."""
+    """`sofia compare --json` of a bag or a measurement set (docs/schemas/compare.schema.json); the document."""
     _validate('compare', document)
+    return document
 
 
 def validate_noise(document):
-    """`sofia noise --json` (docs/schemas/noise.schema.json)."""
+    """`sofia noise --json` (docs/schemas/noise.schema.json); the document."""
     _validate('noise', document)
+    return document
 
 
 def _refuse_constant(token):

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from json_contract import load_json, validate_compare
 from sofia_ros.cli import main
 from sofia_ros.compare.run import compare_bag
 from sofia_ros.config import load_effect_config
@@ -108,7 +109,7 @@ def test_cli_loop_compare_add_compare_shows_the_error_falling(campaign_bags, tmp
     assert 'verdict: explained: nothing to do\n  why: the model explains every observable' in second
     import json
 
-    before, after = (json.loads((tmp_path / name).read_text()) for name in ('a.json', 'b.json'))
+    before, after = (validate_compare(load_json(tmp_path / name)) for name in ('a.json', 'b.json'))
     assert after['residual_rms_arcsec']['fpi'] < 0.5 * before['residual_rms_arcsec']['fpi']
     assert {'index.html', 'residuals.png', 'vectors.png', 'ledger.png', 'ledger.json'} <= {
         p.name for p in report.iterdir()}

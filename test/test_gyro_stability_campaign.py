@@ -1,10 +1,10 @@
 """Gyro stability campaign (5.2): what reaches the bag is Earth rate through the true gyro errors."""
 
-import json
 
 import numpy as np
 import pytest
 
+from json_contract import load_json, validate_noise
 from sofia_ros.analysis.spectra import welch_rate_psd
 from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.gyro_stability import CASES, run_gyro_stability
@@ -88,7 +88,7 @@ def test_noise_analysis_finds_the_case_line_the_arw_and_the_earth_rate_table(tc3
     assert 'VIS natural frequency (uncaged)' in xel_sources  # TC-3: VIS uncaged, 2.3 Hz on XEL
     out = tmp_path / 'noise.json'
     assert main(['noise', str(tc3[2]), '--json', str(out)]) == 0
-    assert json.loads(out.read_text())['axes']['el']['arw_arcsec_per_sqrt_s'] == values_el(document)
+    assert validate_noise(load_json(out))['axes']['el']['arw_arcsec_per_sqrt_s'] == values_el(document)
 
 
 def test_without_pumps_the_fitted_arw_is_the_truths(tmp_path):

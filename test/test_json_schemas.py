@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 
-pytest.importorskip('jsonschema')
 
 from json_contract import ContractViolation, load_json, validate_compare, validate_noise  # noqa: E402
 

@@ -1,12 +1,12 @@
 """Measurement sets: validation (one-line errors), the thesis' 2004 data through `sofia compare`, the CLI."""
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from json_contract import load_json, validate_compare
 from sofia_ros.calibration.published import EQ_6_1
 from sofia_ros.cli import main
 from sofia_ros.config import load_effect_config, parse_effect_config
@@ -282,7 +282,7 @@ def test_cli_json_and_report(tmp_path, capsys):
                  '--report', str(tmp_path / 'report')]) == 0
     printed = capsys.readouterr().out
     assert 'degenerate: gyro_axis_swap and gyro_scale_factor' in printed
-    document = json.loads(out.read_text())
+    document = validate_compare(load_json(out))
     for key in ('residual_rms_arcsec', 'noise_floor_arcsec', 'candidates', 'degenerate', 'unobservable', 'terms',
                 'ledger', 'verdict'):
         assert key in document

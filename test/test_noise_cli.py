@@ -1,11 +1,11 @@
 """`sofia noise` as a user runs it: report, JSON contract (docs/noise.md), one-line errors, nothing half-written."""
 
-import json
 import re
 from pathlib import Path
 
 import pytest
 
+from json_contract import load_json, validate_noise
 from sofia_ros.bag import BagWriter
 from sofia_ros.campaigns.gyro_stability import CASES, run_gyro_stability
 from sofia_ros.cli import main
@@ -48,7 +48,7 @@ def test_report_writes_the_page_and_every_plot_and_the_json(bag, model, tmp_path
     assert 'TA subsystems (Table 5.2): ris activated, fd braked' in printed
     assert 'misalignment corrected (TARF)' in printed and 'degenerate on a stationary record' in printed
     assert 'missing terms, best first' in printed and 'main oil pump' in printed
-    document = json.loads(out.read_text())
+    document = validate_noise(load_json(out))
     assert document['subsystems'] == dict(CASES['TC-3'].subsystems)
     assert document['candidates'][0]['source'] == 'main oil pump'  # 30 Hz on EL, not in the model
 
@@ -70,7 +70,7 @@ def test_every_json_key_is_documented_and_the_json_is_stable(bag, model, tmp_pat
     for out in (first, second):
         assert main(['noise', str(bag), '--model', str(model), '--decimate', '2', '--json', str(out)]) == 0
     assert first.read_text() == second.read_text()
-    document = json.loads(first.read_text())
+    document = validate_noise(load_json(first))
     spans = re.findall(r'`([^`]+)`', re.sub(r'```.*?```', '', DOCS.read_text(), flags=re.S))
     documented = {name for span in spans for name in re.findall(r'[a-z][a-z_0-9]*', span)}
     # Axis names and the Table 5.2 subsystem names are listed in the text, not as keys of their own.

@@ -1,10 +1,10 @@
 """The search on a bag with two hidden effects (issue 25): it ends on the truth's effects, explained, in one command."""
 
-import json
 from pathlib import Path
 
 import yaml
 
+from json_contract import load_json, validate_compare
 from sofia_ros.cli import main
 from sofia_ros.config import load_effect_config
 
@@ -18,7 +18,7 @@ def test_the_search_ends_on_the_hidden_effects_and_writes_the_model(campaign_bag
     found, report = tmp_path / 'found.yaml', tmp_path / 'search.json'
     assert main(['compare', str(bag), '--model', str(NOMINAL_MODEL), '--search', '--search-rounds', '6',
                  '--json', str(report), '--write-model', str(found)]) == 0
-    document = json.loads(report.read_text())
+    document = validate_compare(load_json(report))
     search = document['search']
     assert search['status'] == 'explained' and document['verdict']['status'] == 'explained'
     assert sorted(search['added']) == sorted(HIDDEN) and search['removed'] == []

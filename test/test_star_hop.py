@@ -8,7 +8,6 @@ default (400 ppm, sofia_ros/effects/gyro.py), Table 3.3 (FEM flexure), the track
 
 import contextlib
 import io
-import json
 import shutil
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
+from json_contract import load_json, validate_compare
 from sofia_ros.campaigns.star_hop import run_star_hop
 from sofia_ros.cli import main
 from sofia_ros.compare.observations import read_observations
@@ -72,7 +72,7 @@ def nominal_compare(nominal_bag, tmp_path_factory):
         code = main(['compare', str(nominal_bag), '--model', str(ROOT / 'config/model/nominal.yaml'),
                      '--json', str(out / 'compare.json'), '--report', str(out / 'report')])
     assert code == 0
-    return json.loads((out / 'compare.json').read_text()), printed.getvalue(), out / 'report'
+    return validate_compare(load_json(out / 'compare.json')), printed.getvalue(), out / 'report'
 
 
 @pytest.fixture(scope='module')

@@ -249,13 +249,14 @@ def run_compare(args, out):
     print_comparison(document, out)
     if args.search:
         _print_search(document['search'], out)
-    if args.json:
-        write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
+    # The report first: a report the disk cannot hold leaves no JSON behind either.
     if args.report:
         from sofia_ros.compare.report import write_report
 
         path = write_report(result, document, args.report)
         print(f'report: {path}', file=out)
+    if args.json:
+        write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
     return 0
 
 

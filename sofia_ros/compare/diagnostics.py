@@ -134,8 +134,46 @@ def _frame_means(frame_index, columns):
     return [np.bincount(inverse, column) / counts for column in columns], counts
 
 
+@dataclass(frozen=True, eq=False)
+class CameraSeries:
+    """One camera axis to test: its rows' residuals and variables, and the same as frame means."""
+
+    observable: str
+    floor_arcsec: float
+    residual_arcsec: np.ndarray
+    row_variables: dict
+    frame_residual_arcsec: np.ndarray
+    frame_weights: np.ndarray
+    frame_variables: dict
+
+
+@dataclass(frozen=True, eq=False)
+class GyroSeries:
+    """One gyro axis to test: its anchor innovations, decorrelated, with the design that decorrelates a shape."""
+
+    observable: str
+    floor_arcsec: float
+    decorrelated_arcsec: np.ndarray
+    frame_variables: dict
+    innovations_arcsec: np.ndarray
+    unit_arcsec: float
+    design: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class _Test:
+    """One structure test: a trend or a period of an observable against a variable, and what it was run on."""
+
+    kind: str
+    observable: str
+    variable: str
+    result: object
+    frame_variables: dict | None
+    tested: np.ndarray | None
+
+
 def _camera_series(observations, fit, noise_arcsec, variables):
-    """(observable, floor, residual rows, row variables, frame residual, frame weights, frame variables)."""
+    """A CameraSeries per camera axis with at least two rows."""
     centroids = observations.centroids
     for index, camera in enumerate(centroids.cameras):
         rows = centroids.camera_index == index
@@ -145,9 +183,9 @@ def _camera_series(observations, fit, noise_arcsec, variables):
             residual = fit.residual_arcsec[rows, axis_index]
             frame_values, counts = _frame_means(centroids.frame_index[rows],
                                                 [residual] + [variables[key][rows] for key in FRAME_VARIABLES])
-            yield (f'{camera}.{axis}', float(noise_arcsec[index]), residual,
-                   {key: variables[key][rows] for key in ROW_VARIABLES}, frame_values[0], counts.astype(float),
-                   dict(zip(FRAME_VARIABLES, frame_values[1:])))
+            yield CameraSeries(f'{camera}.{axis}', float(noise_arcsec[index]), residual,
+                               {key: variables[key][rows] for key in ROW_VARIABLES}, frame_values[0],
+                               counts.astype(float), dict(zip(FRAME_VARIABLES, frame_values[1:])))
 
 
 def _prior_residual_covariance(fit):
@@ -200,8 +238,8 @@ def _gyro_series(observations, fit, prior):
         decorrelated = vectors[:, free].T @ innovations[:, axis_index] / root * unit_arcsec
         design = root[:, None] * (vectors[:, free].T @ prior.whitening)
         floor = unit_arcsec * float(np.sqrt(np.mean(np.diag(axis_covariance))))
-        yield (f'gyro.{axis}', floor, decorrelated, axis_variables, innovations[:, axis_index] * unit_arcsec,
-               unit_arcsec, design)
+        yield GyroSeries(f'gyro.{axis}', floor, decorrelated, axis_variables, innovations[:, axis_index] * unit_arcsec,
+                         unit_arcsec, design)
 
 
 def _interval_mean_rates_deg_per_s(gyro, knots_s, effects):
@@ -239,35 +277,41 @@ def residual_diagnostics(observations, fit, predictor, noise_arcsec, prior):
     """Judge every camera and gyro axis of a fit: RMS against floor, trends and periods (family-wise sigmas)."""
     variables = row_variables(observations, fit, predictor)
     tests, observables = [], {}
-    for name, floor, residual, row_values, frame_residual, weights, frame_variables in _camera_series(
-            observations, fit, noise_arcsec, variables):
+    for series in _camera_series(observations, fit, noise_arcsec, variables):
+        name, floor, residual = series.observable, series.floor_arcsec, series.residual_arcsec
+        frames, weights = series.frame_residual_arcsec, series.frame_weights
         rms = float(np.sqrt(np.mean(residual**2)))
         observables[name] = {'kind': 'camera', 'rms_arcsec': rms, 'floor_arcsec': floor, 'ratio': rms / floor,
                              'rows': int(len(residual)), 'chi2': float(np.sum((residual / floor) ** 2))}
-        for key, values in frame_variables.items():
-            tests.append(('trend', name, key, trend_test(values, frame_residual, weights), frame_variables, values))
-        for key, values in row_values.items():
+        for key, values in series.frame_variables.items():
+            tests.append(_Test('trend', name, key, trend_test(values, frames, weights), series.frame_variables,
+                               values))
+        for key, values in series.row_variables.items():
             test = category_test(values, residual) if key == 'star' else trend_test(values, residual)
-            tests.append(('trend', name, key, test, None, values))
-        tests.append(('trend', name, DETECTOR_FIELD,
-                      field_test(row_values['detector_x'], row_values['detector_y'], residual), None, None))
-        tests.append(('period', name, 'time', period_test(frame_variables['time'], frame_residual, weights), None,
-                      None))
-    for name, floor, decorrelated, frame_variables, innovations, unit_arcsec, design in _gyro_series(
-            observations, fit, prior):
+            tests.append(_Test('trend', name, key, test, None, values))
+        tests.append(_Test('trend', name, DETECTOR_FIELD, field_test(series.row_variables['detector_x'],
+                                                                     series.row_variables['detector_y'], residual),
+                           None, None))
+        tests.append(_Test('period', name, 'time', period_test(series.frame_variables['time'], frames, weights),
+                           None, None))
+    for series in _gyro_series(observations, fit, prior):
+        name, innovations, decorrelated = series.observable, series.innovations_arcsec, series.decorrelated_arcsec
         rms = float(np.sqrt(np.mean(innovations**2)))
         # The excess over the floor counts the decorrelated components (what the data leave free).
-        observables[name] = {'kind': 'gyro', 'rms_arcsec': rms, 'floor_arcsec': floor, 'ratio': rms / floor,
-                             'rows': int(len(decorrelated)), 'chi2': float(np.sum((decorrelated / unit_arcsec) ** 2))}
+        observables[name] = {'kind': 'gyro', 'rms_arcsec': rms, 'floor_arcsec': series.floor_arcsec,
+                             'ratio': rms / series.floor_arcsec, 'rows': int(len(decorrelated)),
+                             'chi2': float(np.sum((decorrelated / series.unit_arcsec) ** 2))}
         # Generalized least squares: a shape of the increments, decorrelated as the innovations are.
-        for key, values in frame_variables.items():
-            tests.append(('trend', name, key, trend_test(values, decorrelated, whitening=design), frame_variables,
-                          values))
-        tests.append(('period', name, 'time', period_test(frame_variables['time'], decorrelated, whitening=design),
-                      None, None))
-    count = sum(1 for test in tests if test[3] is not None)
+        for key, values in series.frame_variables.items():
+            tests.append(_Test('trend', name, key, trend_test(values, decorrelated, whitening=series.design),
+                               series.frame_variables, values))
+        tests.append(_Test('period', name, 'time', period_test(series.frame_variables['time'], decorrelated,
+                                                               whitening=series.design), None, None))
+    count = sum(1 for test in tests if test.result is not None)
     trends, periods = [], []
-    for kind, name, key, test, frame_variables, tested in tests:
+    for entry in tests:
+        kind, name, key, test = entry.kind, entry.observable, entry.variable, entry.result
+        frame_variables, tested = entry.frame_variables, entry.tested
         if test is None:
             continue
         probability = test.false_alarm_probability if kind == 'period' else test.p_value

@@ -16,7 +16,7 @@ HIDDEN = ('hipo_fiducial_error', 'timestamp_offset')
 def test_the_search_ends_on_the_hidden_effects_and_writes_the_model(campaign_bags, tmp_path, capsys):
     bag = campaign_bags.reduced_alignment(seed=5, effect='+'.join(HIDDEN))
     found, report = tmp_path / 'found.yaml', tmp_path / 'search.json'
-    assert main(['compare', str(bag), '--model', str(NOMINAL_MODEL), '--search', '--search-rounds', '6',
+    assert main(['compare', str(bag), '--model', str(NOMINAL_MODEL), '--search', '--search-rounds', '4',
                  '--json', str(report), '--write-model', str(found)]) == 0
     document = validate_compare(load_json(report))
     search = document['search']

@@ -124,8 +124,8 @@ def _candidate_entry(name, params, sigma, rms_after, delta_bic, *, detectable=Tr
 def _checked_change(change, models, predictor, final, noise_arcsec, prior):
     """The proposed change refitted in full from its linearized values: its real delta-BIC against the model as it
     is, or None if the fit fails."""
-    if change is None:
-        return None
+    if change is None or change['expected_delta_bic'] < SIGNIFICANT_DELTA_BIC:
+        return None  # a change the linearization already calls insignificant is not worth a full fit
     removed = set(change['term'].split(','))
     chosen = {p.effect for p in final.free} - removed | ({change['effect']} - {None})
     linearized = models.values(chosen)

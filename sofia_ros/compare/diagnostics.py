@@ -49,8 +49,8 @@ from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.units import ARCSEC_PER_RAD, DEG_PER_RAD, STANDARD_GRAVITY_M_PER_S2
 
 __all__ = ['DETECTION_SIGMA', 'REPORT_SIGMA', 'RATIO_LIMIT', 'FRAME_VARIABLES', 'ROW_VARIABLES', 'DETECTOR_FIELD',
-           'GYRO_AXES',
-           'Diagnostics', 'NAMING_PREFERENCE', 'distinct_findings', 'row_variables', 'residual_diagnostics', 'split_consistency']
+           'GYRO_AXES', 'GYRO_TEST_VARIABLES', 'CameraSeries', 'GyroSeries', 'Diagnostics', 'NAMING_PREFERENCE',
+           'distinct_findings', 'row_variables', 'residual_diagnostics', 'split_consistency']
 
 #: Family-wise significance at which a finding is structure the model must explain.
 DETECTION_SIGMA = 5.0
@@ -64,7 +64,7 @@ FRAME_VARIABLES = {'elevation': 'deg', 'time': 's', 'temperature': 'C', 'specifi
 #: Variables tested on the centroid rows themselves.
 ROW_VARIABLES = {'detector_x': 'px', 'detector_y': 'px', 'star': 'HIP'}
 #: Variables a gyro axis is tested against (the anchor intervals have no detector or star).
-GYRO_VARIABLES = ('elevation', 'time', 'temperature', 'specific_force_el', 'specific_force_xel',
+GYRO_TEST_VARIABLES = ('elevation', 'time', 'temperature', 'specific_force_el', 'specific_force_xel',
                   'specific_force_los', 'rate', 'rate_size')
 GYRO_AXES = ('el', 'xel', 'los')
 #: Two variables this correlated cannot be told apart by the data (e.g. elevation and the LOS load).
@@ -227,8 +227,9 @@ def _gyro_series(observations, fit, prior):
     rates_deg_per_s = _interval_mean_rates_deg_per_s(gyro, prior.knots_s, fit.effects)
     for axis_index, axis in enumerate(GYRO_AXES):
         # The axis' own rate, its sense and its size: a scale factor follows the one, an asymmetry the other.
-        axis_variables = {**frame_variables, 'rate': rates_deg_per_s[:, axis_index],
-                          'rate_size': np.abs(rates_deg_per_s[:, axis_index])}
+        tested = {**frame_variables, 'rate': rates_deg_per_s[:, axis_index],
+                  'rate_size': np.abs(rates_deg_per_s[:, axis_index])}
+        axis_variables = {key: tested[key] for key in GYRO_TEST_VARIABLES}
         axis_covariance = covariance[axis_index::3, axis_index::3]
         eigenvalues, vectors = np.linalg.eigh(axis_covariance)
         free = eigenvalues >= _MIN_FREEDOM

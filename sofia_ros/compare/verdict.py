@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from sofia_ros.compare.competing import competing_set_of
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
-from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_VARIABLES, VARIABLES, empirical_name,
+from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_TERM_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
 __all__ = ['after_member', 'empirical_candidate_names', 'headline', 'judge', 'model_command', 'next_step',
@@ -27,7 +27,7 @@ MAX_EMPIRICAL_CANDIDATES = 8
 
 def _expressible(finding, gyro):
     """The variable an empirical term can use for a trend finding (itself or an equivalent one), or None."""
-    allowed = GYRO_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD)
+    allowed = GYRO_TERM_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD)
     group = sorted((finding['variable'], *finding.get('equivalent_variables', ())),
                    key=lambda v: NAMING_PREFERENCE.index(v) if v in NAMING_PREFERENCE else len(NAMING_PREFERENCE))
     return next((variable for variable in group if variable in allowed), None)

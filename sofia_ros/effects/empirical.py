@@ -9,7 +9,7 @@ empirical term is an effect whose name says what it is:
 
 - observable: a camera axis ``hipo.x``, ``fpi.y``, ... (pixel column X / row Y) or a gyro axis
   ``gyro.el``, ``gyro.xel``, ``gyro.los`` (GYRF);
-- variable: see VARIABLES (cameras) and GYRO_VARIABLES (gyros), and for cameras
+- variable: see VARIABLES (cameras) and GYRO_TERM_VARIABLES (gyros), and for cameras
   ``detector_field``, the detector position x and y together;
 - shape: ``poly3@LOW..HIGH`` (Legendre polynomials P0..P3 of the variable mapped from LOW..HIGH
   onto -1..1, the range the data covered; gyro terms leave out P0, which is gyro_bias), ``poly3``
@@ -41,7 +41,7 @@ from sofia_ros.errors import UnknownEffectError
 from sofia_ros.frames import AXES, FFI, FPI, HIPO_2004, WFI
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
-__all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_VARIABLES', 'DETECTOR_FIELD',
+__all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_TERM_VARIABLES', 'DETECTOR_FIELD',
            'POLY_DEGREE', 'PERIOD_RANGE_S', 'RANGE_LIMIT', 'RANGE_RESOLUTION', 'field_columns', 'field_terms',
            'empirical_spec', 'empirical_name', 'empirical_parts', 'is_empirical', 'variable_values']
 
@@ -81,7 +81,7 @@ VARIABLES = {
     'detector_x': (lambda c: c.detector_x_px, None, None, 'px'),
     'detector_y': (lambda c: c.detector_y_px, None, None, 'px'),
 }
-GYRO_VARIABLES = ('time', 'temperature', 'specific_force_el', 'specific_force_xel', 'specific_force_los')
+GYRO_TERM_VARIABLES = ('time', 'temperature', 'specific_force_el', 'specific_force_xel', 'specific_force_los')
 #: The detector position as one variable of a camera term: x and y together, over the chip.
 DETECTOR_FIELD = 'detector_field'
 # Exponents may carry a sign: empirical_name writes 1.44e+04 for 14400.
@@ -132,7 +132,7 @@ def _parsed(name):
     if observable not in CAMERA_OBSERVABLES and not gyro:
         raise UnknownEffectError(f'{name!r}: unknown observable {observable!r} (known: '
                                  f'{", ".join(CAMERA_OBSERVABLES + GYRO_OBSERVABLES)})')
-    allowed = ('time',) if period_s is not None else (GYRO_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD))
+    allowed = ('time',) if period_s is not None else (GYRO_TERM_VARIABLES if gyro else (*VARIABLES, DETECTOR_FIELD))
     if variable not in allowed:
         raise UnknownEffectError(f'{name!r}: variable {variable!r} is not available here (known: {", ".join(allowed)})')
     if variable == DETECTOR_FIELD and range_ is not None:

@@ -9,6 +9,6 @@ rewrite's.
 
 from sofia_ros.perturb.observables import OBSERVABLES
 from sofia_ros.perturb.run import PERTURBATION_FILE, Perturbation, perturb_bag
-from sofia_ros.perturb.variables import CAMERA_VARIABLES, GYRO_VARIABLES
+from sofia_ros.perturb.variables import CAMERA_SHAPE_VARIABLES, GYRO_SHAPE_VARIABLES
 
-__all__ = ['CAMERA_VARIABLES', 'GYRO_VARIABLES', 'OBSERVABLES', 'PERTURBATION_FILE', 'Perturbation', 'perturb_bag']
+__all__ = ['CAMERA_SHAPE_VARIABLES', 'GYRO_SHAPE_VARIABLES', 'OBSERVABLES', 'PERTURBATION_FILE', 'Perturbation', 'perturb_bag']

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 from sofia_ros.perturb.observables import OBSERVABLES
 from sofia_ros.perturb.run import perturb_bag
 from sofia_ros.perturb.shapes import FUNCTIONS
-from sofia_ros.perturb.variables import CAMERA_VARIABLES
+from sofia_ros.perturb.variables import CAMERA_SHAPE_VARIABLES
 
 if TYPE_CHECKING:
     import argparse
@@ -23,7 +23,7 @@ def add_perturb_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--observable', required=True, metavar='OBS',
                         help=f'what to change: {", ".join(OBSERVABLES)}')
     parser.add_argument('--shape', required=True, metavar='EXPR',
-                        help=f'numpy expression added to it per row, in {", ".join(CAMERA_VARIABLES)} '
+                        help=f'numpy expression added to it per row, in {", ".join(CAMERA_SHAPE_VARIABLES)} '
                              f'(the last three: cameras only), constants pi, e and {", ".join(FUNCTIONS)}; '
                              "e.g. '2.0*(time_s > 600)'")
     parser.add_argument('--unit', help='unit of the shape: arcsec (default) or px for a camera axis, '

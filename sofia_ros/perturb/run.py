@@ -31,7 +31,7 @@ from sofia_ros.output_files import output_error
 from sofia_ros.perturb.observables import Observable, observable as observable_named
 from sofia_ros.perturb.rewrite import channel_id_of, channel_payloads, copy_mcap, read_summary
 from sofia_ros.perturb.shapes import evaluate_shape, parse_shape, shape_names
-from sofia_ros.perturb.variables import CAMERA_VARIABLES, GYRO_VARIABLES, Rows, row_variables
+from sofia_ros.perturb.variables import CAMERA_SHAPE_VARIABLES, GYRO_SHAPE_VARIABLES, Rows, row_variables
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterator
@@ -74,7 +74,7 @@ def perturb_bag(bag_path: str | PathLike[str], out_path: str | PathLike[str], ob
     ``observable`` at every row; PerturbationError or BagError (one line, nothing written) for bad input."""
     target = observable_named(observable)
     unit, recorded_per_unit = target.recorded_per(unit)
-    tree = parse_shape(shape, CAMERA_VARIABLES if target.camera else GYRO_VARIABLES)
+    tree = parse_shape(shape, CAMERA_SHAPE_VARIABLES if target.camera else GYRO_SHAPE_VARIABLES)
     source, out = Path(bag_path), Path(out_path)
     _check_new_directory(out)
     with BagReader(source) as bag:
@@ -88,7 +88,7 @@ def perturb_bag(bag_path: str | PathLike[str], out_path: str | PathLike[str], ob
         recorded = _camera(payloads, target) if target.camera else _gyro(payloads, target)
         if len(recorded.values) == 0:
             raise BagError(f'{target.topic} in bag {source} holds no rows; nothing to perturb')
-        variables = row_variables(bag, recorded.rows, shape_names(tree) & set(CAMERA_VARIABLES))
+        variables = row_variables(bag, recorded.rows, shape_names(tree) & set(CAMERA_SHAPE_VARIABLES))
     added = np.broadcast_to(evaluate_shape(tree, variables), recorded.values.shape)
     bad = ~np.isfinite(added)
     if bad.any():

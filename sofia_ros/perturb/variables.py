@@ -25,13 +25,13 @@ if TYPE_CHECKING:
 
     from sofia_ros.bag import BagReader
 
-__all__ = ['CAMERA_VARIABLES', 'GYRO_VARIABLES', 'Rows', 'row_variables']
+__all__ = ['CAMERA_SHAPE_VARIABLES', 'GYRO_SHAPE_VARIABLES', 'Rows', 'row_variables']
 
 SPECIFIC_FORCE_VARIABLES = ('specific_force_x_m_per_s2', 'specific_force_y_m_per_s2', 'specific_force_z_m_per_s2')
 #: The variables of gyro rows (Imu samples).
-GYRO_VARIABLES = ('time_s', 'elevation_deg', 'los_angle_deg', 'temperature_c', *SPECIFIC_FORCE_VARIABLES)
+GYRO_SHAPE_VARIABLES = ('time_s', 'elevation_deg', 'los_angle_deg', 'temperature_c', *SPECIFIC_FORCE_VARIABLES)
 #: The variables of camera rows (one star in one frame).
-CAMERA_VARIABLES = (*GYRO_VARIABLES, 'detector_x_px', 'detector_y_px', 'hip')
+CAMERA_SHAPE_VARIABLES = (*GYRO_SHAPE_VARIABLES, 'detector_x_px', 'detector_y_px', 'hip')
 _JOINT_TOPIC = JOINT_STATES.name
 
 
@@ -46,7 +46,7 @@ class Rows:
 
 
 def row_variables(bag: BagReader, rows: Rows, names: Iterable[str]) -> dict[str, np.ndarray]:
-    """The variables ``names`` (of CAMERA_VARIABLES or GYRO_VARIABLES) at every row, read from the open ``bag``."""
+    """The variables ``names`` (of CAMERA_SHAPE_VARIABLES or GYRO_SHAPE_VARIABLES) at every row, read from the open ``bag``."""
     names = set(names)
     values = {name: rows.own[name] for name in names if name in rows.own}
     origin_ns = int(rows.stamp_ns[0]) if len(rows.stamp_ns) else 0

@@ -3,10 +3,11 @@
 Each truth is the nominal truth plus k effects drawn (seeded) from the effects a reduced alignment
 campaign sees (VISIBLE_ON_ALIGNMENT), at their thesis defaults; the controls hide none. Each is
 recorded as the reduced alignment of the tests (2 repetitions, 1 verification; direct mode) and
-searched from config/model/nominal.yaml, in worker processes. A truth counts as found when the
-search ends `explained` with every hidden effect in the final model, or named equivalent to a term
-there ("X instead of Y" in its equivalents), and nothing else added that is not so named; a
-control counts when it ends explained with nothing added. Printed: one row per truth, then the
+searched from config/model/nominal.yaml, in worker processes. A truth is found when the search
+ends `explained` with exactly the hidden effects added; found up to equivalents when every hidden
+effect is in the final model, or named equivalent to a term there ("X instead of Y" in its
+equivalents), or said absorbed by its terms (the final comparison's `unobservable`), and nothing
+else is added that is not so named; a control counts when it ends explained with nothing added. Printed: one row per truth, then the
 success rate per k, the pairs most often confused, and the wall time per search.
 
 Run: .venv/bin/python bench/bench_search_truths.py [--truths N] [--controls M] [--k 2,3] [--workers W] [--seed S]
@@ -53,28 +54,35 @@ def _truths(count, controls, ks, seed):
     truths = []
     for index in range(count):
         k = ks[index % len(ks)]
-        truths.append(tuple(sorted(rng.choice(VISIBLE_ON_ALIGNMENT, size=k, replace=False))))
+        truths.append(tuple(sorted(str(name) for name in rng.choice(VISIBLE_ON_ALIGNMENT, size=k, replace=False))))
     return truths + [()] * controls
 
 
 def _equivalent_pairs(equivalents):
-    """{(in the model, could stand instead)} from the search's 'X instead of Y' equivalents."""
+    """{(in the model, could stand instead)} from the search's 'X instead of Y' equivalents (X, Y: names joined
+    by ' and ')."""
     pairs = set()
     for entry in equivalents:
         text = entry['model'].replace(' (compared in full)', '')
         if ' instead of ' in text:
-            other, term = text.split(' instead of ')
-            pairs.add((term, other))
+            others, terms = (part.split(' and ') for part in text.split(' instead of '))
+            pairs.update((term, other) for term in terms for other in others)
     return pairs
 
 
-def judge(hidden, found_added, status, equivalents):
-    """Whether a search found the truth up to its stated equivalents (module docstring)."""
+def judge(hidden, found_added, status, equivalents, absorbed=()):
+    """'found' (the hidden effects exactly), 'equivalent' (up to the equivalents the search states, or hidden
+    effects the final comparison says its terms absorb), or 'missed' (module docstring)."""
     pairs = _equivalent_pairs(equivalents)
     hidden, added = set(hidden), set(found_added)
-    covered = all(name in added or any((term, name) in pairs for term in added) for name in hidden)
+    if status != 'explained':
+        return 'missed'
+    if hidden == added:
+        return 'found'
+    covered = all(name in added or name in absorbed or any((term, name) in pairs for term in added)
+                  for name in hidden)
     clean = all(name in hidden or any((name, truth) in pairs for truth in hidden) for name in added)
-    return status == 'explained' and covered and clean
+    return 'equivalent' if covered and clean else 'missed'
 
 
 def run_one(job):
@@ -98,9 +106,11 @@ def run_one(job):
     added = sorted(found.fitted - model.fitted)
     removed = sorted(model.fitted - found.fitted)
     status = result.document['verdict']['status']
+    absorbed = sorted(set(hidden) & set(result.document['unobservable']))
+    outcome = judge(hidden, added, status, equivalents, absorbed) if not removed else 'missed'
     return {'index': index, 'hidden': list(hidden), 'seed': seed, 'added': added, 'removed': removed,
-            'status': status, 'rounds': len(rounds), 'equivalent': equivalents,
-            'found': judge(hidden, added, status, equivalents) and not removed,
+            'status': status, 'rounds': len(rounds), 'equivalent': equivalents, 'absorbed': absorbed,
+            'outcome': outcome,
             'record_s': round(recorded - started, 1), 'search_s': round(searched - recorded, 1)}
 
 
@@ -121,20 +131,22 @@ def main():
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
         for row in pool.map(run_one, jobs):
             rows.append(row)
-            mark = 'found' if row['found'] else 'MISSED'
-            print(f'{row["index"]:3d} {mark:6} hidden {"+".join(row["hidden"]) or "(control)":<58} '
+            print(f'{row["index"]:3d} {row["outcome"]:10} hidden {"+".join(row["hidden"]) or "(control)":<58} '
                   f'added {"+".join(row["added"]) or "-"}; removed {"+".join(row["removed"]) or "-"}; '
                   f'{row["status"]}; {row["rounds"]} rounds, {row["search_s"]:.0f} s', flush=True)
     by_k = collections.defaultdict(list)
     confused = collections.Counter()
     for row in rows:
-        by_k[len(row['hidden'])].append(row['found'])
+        by_k[len(row['hidden'])].append(row['outcome'])
         for name in set(row['hidden']) - set(row['added']):
             for other in set(row['added']) - set(row['hidden']):
                 confused[(name, other)] += 1
     print('success per number of hidden effects (reduced alignment, search from the nominal model):')
     for k in sorted(by_k):
-        print(f'  k={k}: {sum(by_k[k])}/{len(by_k[k])} ({100 * np.mean(by_k[k]):.0f} %)')
+        outcomes = collections.Counter(by_k[k])
+        right = outcomes['found'] + outcomes['equivalent']
+        print(f'  k={k}: {right}/{len(by_k[k])} ({100 * right / len(by_k[k]):.0f} %): {outcomes["found"]} exactly, '
+              f'{outcomes["equivalent"]} up to stated equivalents or absorbed effects, {outcomes["missed"]} missed')
     for (name, other), count in confused.most_common(8):
         print(f'  confused: {name} taken for {other} ({count}x)')
     searches = [row['search_s'] for row in rows]

@@ -285,6 +285,15 @@ def _steps(result):
     return steps
 
 
+def _difference(other, best):
+    """How another model differs from the best, in the words of equivalent_models: 'A instead of B', 'with A',
+    'without B'."""
+    added, removed = ' and '.join(sorted(other - best)), ' and '.join(sorted(best - other))
+    if added and removed:
+        return f'{added} instead of {removed}'
+    return f'with {added}' if added else f'without {removed}'
+
+
 def search_model(observations, model, compare, *, rounds=MAX_SEARCH_ROUNDS, progress=lambda line: None):
     """A best-first search over models: compare one, queue the steps it suggests (the verdict's next step and the
     other members of a competing set, each with the BIC it is expected to reach), compare the most promising
@@ -327,6 +336,6 @@ def search_model(observations, model, compare, *, rounds=MAX_SEARCH_ROUNDS, prog
     equivalent = list(result.document['equivalent_models'])
     for fitted, (other, _) in explained.items():
         if fitted != best and other.final_fit.bic - bic_best < EQUIVALENT_DELTA_BIC:
-            equivalent.append({'model': ', '.join(sorted(fitted ^ best)) + ' (compared in full)',
+            equivalent.append({'model': f'{_difference(fitted, best)} (compared in full)',
                                'delta_bic': round(float(other.final_fit.bic - bic_best), 1)})
     return result, model, history, sorted(equivalent, key=lambda entry: entry['delta_bic'])

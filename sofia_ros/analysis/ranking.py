@@ -38,6 +38,7 @@ __all__ = [
     'competing_margin',
     'competing_sets',
     'shared_fraction',
+    'shared_share',
     'COMPETING_DELTA_BIC',
     'COMPETING_FRACTION',
     'SHARED_FRACTION',
@@ -307,6 +308,11 @@ def shared_fraction(residual, first, second):
     projection = np.array([residual @ first, residual @ second])
     drop_first, drop_second = projection[0]**2 / gram[0, 0], projection[1]**2 / gram[1, 1]
     drop_both = float(projection @ np.linalg.pinv(gram) @ projection)
+    return shared_share(drop_first, drop_second, drop_both)
+
+
+def shared_share(drop_first, drop_second, drop_both):
+    """(d_a + d_b - d_ab) / min(d_a, d_b) of three RSS drops, clipped to [0, 1]; 0 where either drop is none."""
     smaller = min(drop_first, drop_second)
     if smaller <= 0.0:
         return 0.0

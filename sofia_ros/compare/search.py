@@ -22,7 +22,8 @@ import itertools
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin, normal_pseudo_inverse
+from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin, normal_pseudo_inverse,
+                                        shared_share)
 from sofia_ros.compare.fit import vanishing_values
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import resolve_params
@@ -183,8 +184,7 @@ def model_terms(models, current):
                 continue
             drop = base - models.rss(without | {other})
             both = base - models.rss(current | {other})
-            smaller = min(keep_drop, drop)
-            shared = float(np.clip((keep_drop + drop - both) / smaller, 0.0, 1.0)) if smaller > 0 else 0.0
+            shared = shared_share(keep_drop, drop, both)
             gain = models.bic(without, prefer_physics=False) - models.bic(without | {other}, prefer_physics=False)
             if shared >= SHARED_FRACTION and gain > keep - competing_margin(keep, gain):
                 rivals.append({'effect': other, 'delta_bic': float(gain), 'shared_fraction': round(shared, 4)})

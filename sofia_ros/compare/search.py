@@ -75,10 +75,9 @@ class LinearizedModels:
             groups.setdefault(parameter.effect, []).append(index)
         off = vanishing_values(free)
         names, in_model, switches, columns, parameters, starts = [], [], [], [], [], []
-        dense = jacobian.toarray if scipy.sparse.issparse(jacobian) else None
         for effect, indices in groups.items():
             own = jacobian[:, nuisance_count + np.array(indices)]
-            own = own.toarray() if dense is not None else np.asarray(own)
+            own = own.toarray() if scipy.sparse.issparse(own) else np.asarray(own)
             names.append(effect)
             in_model.append(True)
             switches.append(own @ (values[indices] - off[indices]))
@@ -223,7 +222,7 @@ def equivalent_models(models, chosen):
                     for other in models.names if other not in chosen]
         for label, other in options:
             gap = models.bic(other, prefer_physics=False) - score
-            if gap < EQUIVALENT_DELTA_BIC:
+            if abs(gap) < EQUIVALENT_DELTA_BIC:  # a far better model is no equivalent, it is the next step
                 out.append({'model': label, 'delta_bic': round(float(gap), 1)})
     return sorted(out, key=lambda entry: entry['delta_bic'])
 
@@ -241,9 +240,8 @@ class SearchRound(TypedDict):
 
 def search_pool(candidate_terms, candidates):
     """The candidates a model's terms are questioned against: the SEARCH_POOL strongest observable ones."""
-    strongest = {c['effect'] for c in sorted(candidates, key=lambda c: -c['delta_bic']) if c['detectable']}
-    strongest = set(sorted(strongest, key=lambda name: -next(c['delta_bic'] for c in candidates
-                                                             if c['effect'] == name))[:SEARCH_POOL])
+    ranked = sorted((c for c in candidates if c['detectable']), key=lambda c: -c['delta_bic'])
+    strongest = {c['effect'] for c in ranked[:SEARCH_POOL]}
     return [term for term in candidate_terms if term.name in strongest]
 
 

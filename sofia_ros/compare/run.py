@@ -35,6 +35,7 @@ from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, resolve_params
 from sofia_ros.effects.empirical import empirical_parts, is_empirical
 from sofia_ros.errors import FitError
+from sofia_ros.progress import Progress
 from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
 from sofia_ros.units import ARCSEC_PER_RAD
 
@@ -143,16 +144,20 @@ def _checked_change(change, models, predictor, final, noise_arcsec, prior):
     return {**change, 'delta_bic': float(final.bic - trial.bic)}
 
 
-def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None):
+def compare_bag(bag_path, model, *, anchor_spacing_s=30.0, candidate_names=None, progress=None):
     """Compare ``model`` (an EffectConfig) with the bag; return the CompareResult."""
     started = time.perf_counter()
+    progress = progress or Progress.silent()
+    progress.phase('reading the bag')
     return compare_observations(read_observations(bag_path), model, anchor_spacing_s=anchor_spacing_s,
-                                candidate_names=candidate_names, started=started)
+                                candidate_names=candidate_names, started=started, progress=progress)
 
 
-def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidate_names=None, started=None):
+def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidate_names=None, started=None,
+                         progress=None):
     """Compare ``model`` with observations already read (compare.observations); return the CompareResult."""
     started = time.perf_counter() if started is None else started
+    progress = progress or Progress.silent()
     centroids = observations.centroids
     noise_arcsec = centroid_noise_arcsec(centroids)
     counts = np.bincount(centroids.camera_index, minlength=len(centroids.cameras))
@@ -171,7 +176,8 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     # The ledger, as a pointing-model fit prints it: the fixed effects alone, then each fitted term
     # switched on (at its given values) and fitted together with those before it.
     ledger, fit, free = [], None, ()
-    for step_name in [None, *fitted_order]:
+    for step, step_name in enumerate([None, *fitted_order]):
+        progress.count('fitting the model, term', step, len(fitted_order))
         if step_name is None:
             start = {name: params for name, params in effects.items() if name not in model.fitted}
         else:
@@ -184,6 +190,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     final = fit
     rms = _rms_by_camera(final, centroids)
 
+    progress.phase('residual diagnostics')
     diagnostics_started = time.perf_counter()
     diagnostics = residual_diagnostics(observations, final, predictor, noise_arcsec, prior)
     consistency = split_consistency(observations, final, predictor)
@@ -191,6 +198,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     names = [name for name in (candidate_names or CATALOGUE) if name not in effects and name not in NOISE_EFFECTS]
     names += [name for name in empirical_candidate_names(diagnostics, observations.centroids.cameras, consistency)
               if name not in effects]
+    progress.phase(f'linearizing {len(names)} candidate effects')
     linear_started = time.perf_counter()
     terms = _linearized_candidates(predictor, final, noise_arcsec, prior, names)
     # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
@@ -205,7 +213,9 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
                                                    candidate.delta_bic, detectable=candidate.observable,
                                                    seconds=per_candidate_s)
     refits = {}
-    for candidate in refit_order(ranked):
+    order = refit_order(ranked)
+    for done, candidate in enumerate(order):
+        progress.count('refitting the best candidates', done, len(order))
         refine_started = time.perf_counter()
         trial_effects = {**final.effects, candidate.name: dict(resolve_params(candidate.name, {}), **candidate.params)}
         try:
@@ -224,12 +234,14 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     scores = {name: entry['delta_bic'] for name, entry in entries.items()}
     degenerate = degenerate_pairs(ranked, scores)
     competing = competing_sets(ranked, scores, preferred=lambda name: not is_empirical(name))
+    progress.phase('alternative models')
     alternatives_started = time.perf_counter()
     fitted_now = frozenset(p.effect for p in final.free)
     models = LinearizedModels.at_fit(final.augmented_residual, final.jacobian, final.free, final.values,
                                      final.anchors_rad.size, search_pool(terms, list(entries.values())))
     change = _checked_change(structural_change(models, fitted_now), models, predictor, final, noise_arcsec, prior)
     alternatives_s = time.perf_counter() - alternatives_started
+    progress.phase('diagnostics after the contenders')
     diagnostics_started = time.perf_counter()
     after = {name: (residual_diagnostics(observations, refits[name], predictor, noise_arcsec, prior),
                     split_consistency(observations, refits[name], predictor))
@@ -272,6 +284,7 @@ def compare_observations(observations, model, *, anchor_spacing_s=30.0, candidat
     }
     windows = hold_windows(observations.calibration_result) if observations.calibration_result else None
     if windows:
+        progress.phase('star-hop hold analysis')
         fpi_noise_arcsec = float(noise_arcsec[centroids.cameras.index('fpi')]) if 'fpi' in centroids.cameras else None
         document['star_hop'] = star_hop_analysis(predictor, final.effects, windows, fpi_noise_arcsec=fpi_noise_arcsec,
                                                  arw_rad_per_sqrt_s=arw)

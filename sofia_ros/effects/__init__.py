@@ -12,17 +12,21 @@ from __future__ import annotations
 import difflib
 import importlib
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any, TypedDict
 
 import numpy as np
 
 from sofia_ros.effects import gyro, pointing
-from sofia_ros.effects.base import HOOKS, EffectSpec, Parameter
+from sofia_ros.effects.base import HOOKS, EffectParams, Effects, EffectSpec, Parameter, ParameterValue
+from sofia_ros.effects.context import CameraContext, GyroContext
 from sofia_ros.effects.empirical import empirical_spec, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
 
 __all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'PLUGIN_ENVIRONMENT_VARIABLE', 'get_effect', 'resolve_params',
-           'catalogue_as_json', 'load_catalogue', 'plugin_terms', 'HookTerm', 'is_empirical', 'NOISE_EFFECTS']
+           'catalogue_as_json', 'load_catalogue', 'plugin_terms', 'HookTerm', 'is_empirical', 'NOISE_EFFECTS',
+           'EffectParams', 'Effects', 'ParameterValue', 'CatalogueEntry', 'CatalogueParameter']
 
 PLUGIN_ENVIRONMENT_VARIABLE = 'SOFIA_EFFECT_MODULES'
 #: Random processes: they set the noise floor (the sigmas), they do not move a prediction; never a candidate.
@@ -55,8 +59,18 @@ def _checked_plugin_specs(module_name, built_in):
     return specs
 
 
-def load_catalogue(environ=os.environ):
-    """The built-in effects plus those of the plug-in modules named in SOFIA_EFFECT_MODULES."""
+def load_catalogue(environ: Mapping[str, str] = os.environ) -> dict[str, EffectSpec]:
+    """The built-in effects plus those of the plug-in modules named in SOFIA_EFFECT_MODULES.
+
+    Args:
+        environ: the environment to read SOFIA_EFFECT_MODULES from.
+
+    Returns:
+        Effect name -> EffectSpec, the built-in effects first.
+
+    Raises:
+        ConfigError: a plug-in module cannot be imported, has no valid EFFECTS, or reuses a name.
+    """
     built_in = {spec.name: spec for spec in (*gyro.EFFECTS, *pointing.EFFECTS)}
     names = [name.strip() for name in environ.get(PLUGIN_ENVIRONMENT_VARIABLE, '').split(',') if name.strip()]
     plugins = {}
@@ -75,9 +89,9 @@ class HookTerm:
 
     spec: EffectSpec
     hook: str
-    params: dict
+    params: EffectParams
 
-    def __call__(self, context):
+    def __call__(self, context: GyroContext | CameraContext) -> np.ndarray:
         """The hook's (N, columns) result for a context of N rows; ConfigError names a failing plug-in."""
         function = getattr(self.spec, self.hook)
         columns = HOOKS[self.hook]
@@ -94,12 +108,20 @@ class HookTerm:
                               f'(parameters {self.params}); fix the plug-in')
         return result
 
-    def __repr__(self):
+    def __repr__(self) -> str:
         return f'HookTerm({self.spec.name!r}, {self.hook!r}, {self.params!r})'
 
 
-def plugin_terms(effects, hook):
-    """HookTerms of every effect in ``effects`` whose spec brings ``hook`` (plug-ins and empirical terms)."""
+def plugin_terms(effects: Mapping[str, EffectParams], hook: str) -> tuple[HookTerm, ...]:
+    """HookTerms of every effect in ``effects`` whose spec brings ``hook`` (plug-ins and empirical terms).
+
+    Args:
+        effects: effect name -> resolved parameters (a truth or model).
+        hook: one of effects.base.HOOKS.
+
+    Returns:
+        One HookTerm per effect with that hook, in the order of ``effects``.
+    """
     terms = []
     for name, params in effects.items():
         if name in CATALOGUE or is_empirical(name):
@@ -109,8 +131,18 @@ def plugin_terms(effects, hook):
     return tuple(terms)
 
 
-def get_effect(name):
-    """The catalogue entry (or empirical term) ``name``; UnknownEffectError naming the closest names otherwise."""
+def get_effect(name: str) -> EffectSpec:
+    """The catalogue entry (or empirical term) ``name``; UnknownEffectError naming the closest names otherwise.
+
+    Args:
+        name: a catalogue effect or an ``empirical:...`` term name.
+
+    Returns:
+        The effect's EffectSpec.
+
+    Raises:
+        UnknownEffectError: no such effect (the message names the closest ones).
+    """
     if is_empirical(name):
         return empirical_spec(name)
     try:
@@ -121,12 +153,25 @@ def get_effect(name):
         raise UnknownEffectError(f'unknown effect {name!r}{hint}') from err
 
 
-def resolve_params(name, given, *, within_ranges=False):
+def resolve_params(name: str, given: Mapping[str, Any] | None, *, within_ranges: bool = False) -> EffectParams:
     """Defaults of effect ``name`` overlaid with ``given`` (``{}`` or None takes the thesis defaults).
 
     Types, finiteness, text choices and the spec's check always hold; ``within_ranges`` also holds
     every number to its parameter's range - what a truth or model file may say (config). A fit
     (sofia compare, the noise loop) may wander outside the ranges while it searches.
+
+    Args:
+        name: the effect's name.
+        given: the parameters given (a ``fit`` flag is checked and left out), or None.
+        within_ranges: also hold every number to its parameter's minimum and maximum.
+
+    Returns:
+        Every parameter of the effect, numbers as float.
+
+    Raises:
+        UnknownEffectError: no effect of that name.
+        ConfigError: ``given`` is no mapping, names an unknown parameter, or holds a value of the wrong type,
+            not finite, out of range or choices, or failing the spec's check.
     """
     spec = get_effect(name)
     if given is None:
@@ -207,8 +252,28 @@ def _checked_value(effect_name, param, value, within_ranges):
     return _checked_entry(effect_name, param.name, param, default, value, within_ranges)
 
 
-def catalogue_as_json():
-    """The catalogue in the contract form of `sofia effects --json` (docs/effects.md)."""
+class CatalogueParameter(TypedDict):
+    """One parameter of a `sofia effects --json` entry."""
+
+    default: ParameterValue
+    unit: str
+
+
+class CatalogueEntry(TypedDict):
+    """One effect of `sofia effects --json` (docs/effects.md)."""
+
+    name: str
+    thesis: str
+    description: str
+    params: dict[str, CatalogueParameter]
+
+
+def catalogue_as_json() -> list[CatalogueEntry]:
+    """The catalogue in the contract form of `sofia effects --json` (docs/effects.md).
+
+    Returns:
+        One entry per effect of the catalogue, plug-ins included, in catalogue order.
+    """
     return [
         {
             'name': spec.name,

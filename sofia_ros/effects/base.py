@@ -4,8 +4,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
-__all__ = ['Parameter', 'EffectSpec', 'HOOKS']
+import numpy.typing as npt
+
+if TYPE_CHECKING:  # the contexts are only named here: no import at run time
+    from sofia_ros.effects.context import CameraContext, GyroContext
+
+__all__ = ['Parameter', 'EffectSpec', 'HOOKS', 'ParameterValue', 'EffectParams', 'Effects']
+
+#: A parameter's value: a number, a text, a flag, or a list of numbers or texts (docs/effects.md).
+ParameterValue = float | str | bool | list[float] | list[str]
+#: One effect's parameters, name -> value (a resolved set holds every parameter of the spec).
+EffectParams = dict[str, Any]
+#: A truth or model: effect name -> its parameters (the schema of docs/effects.md).
+Effects = dict[str, EffectParams]
 
 #: Hook name -> number of columns its result has per row.
 HOOKS = {'gyro_rate_offset': 3, 'camera_rotation': 3, 'camera_shift_px': 2}
@@ -16,7 +29,7 @@ class Parameter:
     """One physical parameter of an effect, with its unit and thesis default."""
 
     name: str
-    default: object
+    default: ParameterValue
     unit: str
     description: str
     #: True for a parameter that shapes the effect (period, phase, weather) rather than scaling it:
@@ -26,7 +39,7 @@ class Parameter:
     minimum: float | None = None
     maximum: float | None = None
     #: Allowed values of a text parameter (or of every entry of a list of texts); empty: any.
-    choices: tuple = ()
+    choices: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -56,22 +69,33 @@ class EffectSpec:
     family: str
     thesis: str
     description: str
-    params: tuple = field(default_factory=tuple)
-    gyro_rate_offset: Callable | None = None
-    camera_rotation: Callable | None = None
-    camera_shift_px: Callable | None = None
+    params: tuple[Parameter, ...] = field(default_factory=tuple)
+    gyro_rate_offset: Callable[[EffectParams, GyroContext], npt.ArrayLike] | None = None
+    camera_rotation: Callable[[EffectParams, CameraContext], npt.ArrayLike] | None = None
+    camera_shift_px: Callable[[EffectParams, CameraContext], npt.ArrayLike] | None = None
     #: check(resolved_params) -> None or a message: conditions between parameters (equal list lengths)
-    check: Callable | None = None
+    check: Callable[[EffectParams], str | None] | None = None
 
     @property
-    def hooks(self):
+    def hooks(self) -> tuple[str, ...]:
         """Names of the hooks this effect brings (empty for the built-in effects)."""
         return tuple(name for name in HOOKS if getattr(self, name) is not None)
 
-    def defaults(self):
-        """Parameter name -> default value (the thesis' magnitudes)."""
+    def defaults(self) -> EffectParams:
+        """Parameter name -> default value (the thesis' magnitudes).
+
+        Returns:
+            Every parameter of the spec at its default, a new dict.
+        """
         return {param.name: param.default for param in self.params}
 
-    def parameter(self, name):
-        """The Parameter called ``name``, or None."""
+    def parameter(self, name: str) -> Parameter | None:
+        """The Parameter called ``name``, or None.
+
+        Args:
+            name: the parameter's name.
+
+        Returns:
+            The spec's Parameter of that name, or None if it has none.
+        """
         return next((param for param in self.params if param.name == name), None)

@@ -21,14 +21,22 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from sofia_ros.flexure import gravity_load_tarf
 
 __all__ = ['GyroContext', 'CameraContext', 'resting_specific_force_tarf_m_per_s2']
 
 
-def resting_specific_force_tarf_m_per_s2(elevation_deg):
-    """Specific force of a telescope at rest, f = -g in TARF: (0, -g cos el, g sin el) (eq. 2.13, 3.24)."""
+def resting_specific_force_tarf_m_per_s2(elevation_deg: npt.ArrayLike) -> np.ndarray:
+    """Specific force of a telescope at rest, f = -g in TARF: (0, -g cos el, g sin el) (eq. 2.13, 3.24).
+
+    Args:
+        elevation_deg: telescope elevation [deg], a number or an array of N.
+
+    Returns:
+        The specific force [m/s^2], (3,) for a number, (N, 3) for an array.
+    """
     return -gravity_load_tarf(elevation_deg)
 
 
@@ -41,12 +49,23 @@ class GyroContext:
     specific_force_m_per_s2: np.ndarray
     rates_rad_per_s: np.ndarray
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.time_s)
 
     @classmethod
-    def at_rest(cls, times_s, temperature_c, elevation_deg=40.0, rates_rad_per_s=None):
-        """A context without recorded forces: the telescope at rest at one elevation."""
+    def at_rest(cls, times_s: npt.ArrayLike, temperature_c: npt.ArrayLike, elevation_deg: float = 40.0,
+                rates_rad_per_s: npt.ArrayLike | None = None) -> GyroContext:
+        """A context without recorded forces: the telescope at rest at one elevation.
+
+        Args:
+            times_s: sample times [s], a number or N of them.
+            temperature_c: gyro temperature [deg C], one for all samples or one per sample.
+            elevation_deg: the elevation the telescope rests at [deg].
+            rates_rad_per_s: (N, 3) GYRF rates [rad/s]; None for zeros.
+
+        Returns:
+            The context of N samples.
+        """
         times = np.atleast_1d(np.asarray(times_s, dtype=float))
         force = np.tile(resting_specific_force_tarf_m_per_s2(float(elevation_deg)), (len(times), 1))
         rates = np.zeros((len(times), 3)) if rates_rad_per_s is None else np.asarray(rates_rad_per_s, dtype=float)
@@ -71,28 +90,55 @@ class CameraContext:
     detector_y_px: np.ndarray | None = None
     hip: np.ndarray | None = None
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.elevation_deg)
 
     @classmethod
-    def at_rest(cls, camera, elevation_deg, *, time_s=0.0, temperature_c=np.nan, los_angle_deg=0.0):
-        """A context from the elevation alone (the telescope at rest), for one or many elevations."""
+    def at_rest(cls, camera: str, elevation_deg: npt.ArrayLike, *, time_s: npt.ArrayLike = 0.0,
+                temperature_c: npt.ArrayLike = np.nan, los_angle_deg: npt.ArrayLike = 0.0) -> CameraContext:
+        """A context from the elevation alone (the telescope at rest), for one or many elevations.
+
+        Args:
+            camera: the camera's name (fpi, ffi, wfi).
+            elevation_deg: telescope elevation [deg], a number or N of them.
+            time_s: frame time [s], one for all rows or one per row.
+            temperature_c: temperature [deg C], one for all rows or one per row (NaN: not recorded).
+            los_angle_deg: LOS rotation angle [deg], one for all rows or one per row.
+
+        Returns:
+            The context of N rows, without detector positions.
+        """
         elevation = np.atleast_1d(np.asarray(elevation_deg, dtype=float))
         return cls(camera, np.broadcast_to(np.asarray(time_s, dtype=float), elevation.shape), elevation,
                    np.broadcast_to(np.asarray(temperature_c, dtype=float), elevation.shape),
                    resting_specific_force_tarf_m_per_s2(elevation),
                    np.broadcast_to(np.asarray(los_angle_deg, dtype=float), elevation.shape))
 
-    def with_detector(self, pixels_px, hip):
-        """The same rows with the centroids they land on (for shift hooks)."""
+    def with_detector(self, pixels_px: npt.ArrayLike, hip: npt.ArrayLike) -> CameraContext:
+        """The same rows with the centroids they land on (for shift hooks).
+
+        Args:
+            pixels_px: (N, 2) centroids (X, Y) [px], one per row.
+            hip: the Hipparcos number of each row's star.
+
+        Returns:
+            A new context with detector_x_px, detector_y_px and hip set.
+        """
         pixels = np.asarray(pixels_px, dtype=float).reshape(-1, 2)
         return CameraContext(self.camera, self.time_s, self.elevation_deg, self.temperature_c,
                              self.specific_force_m_per_s2, self.los_angle_deg, pixels[:, 0], pixels[:, 1],
                              np.asarray(hip))
 
-    def rows(self, selection):
-        """The context of a subset of rows."""
-        def pick(values):
+    def rows(self, selection: npt.ArrayLike | slice) -> CameraContext:
+        """The context of a subset of rows.
+
+        Args:
+            selection: a boolean mask, indices or a slice of the rows.
+
+        Returns:
+            A new context holding the selected rows of every column.
+        """
+        def pick(values: np.ndarray | None) -> np.ndarray | None:
             return None if values is None else np.asarray(values)[selection]
 
         return CameraContext(self.camera, pick(self.time_s), pick(self.elevation_deg), pick(self.temperature_c),

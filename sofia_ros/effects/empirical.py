@@ -34,9 +34,11 @@ import re
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 from numpy.polynomial import legendre
 
 from sofia_ros.effects.base import EffectSpec, Parameter
+from sofia_ros.effects.context import CameraContext, GyroContext
 from sofia_ros.errors import UnknownEffectError
 from sofia_ros.frames import AXES, FFI, FPI, HIPO_2004, WFI
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
@@ -104,13 +106,30 @@ class _Parts(NamedTuple):
     range_: tuple[float, float] | None
 
 
-def is_empirical(name):
-    """True for a name of the empirical form."""
+def is_empirical(name: object) -> bool:
+    """True for a name of the empirical form.
+
+    Args:
+        name: an effect name (anything else is not empirical).
+
+    Returns:
+        Whether it is a text starting with ``empirical:`` (the rest is checked by empirical_parts).
+    """
     return isinstance(name, str) and name.startswith(PREFIX)
 
 
-def empirical_parts(name):
-    """(observable, variable, period in s or None) of an empirical term name; UnknownEffectError if it is not one."""
+def empirical_parts(name: str) -> tuple[str, str, float | None]:
+    """(observable, variable, period in s or None) of an empirical term name; UnknownEffectError if it is not one.
+
+    Args:
+        name: an ``empirical:<observable>:<variable>:<shape>`` name.
+
+    Returns:
+        The observable, the variable and the period [s] of a sinusoid (None for a polynomial).
+
+    Raises:
+        UnknownEffectError: the name breaks the grammar or a bound (the message says which and what is allowed).
+    """
     return _parsed(name)[:3]
 
 
@@ -162,8 +181,19 @@ def _range(name, low_text, high_text):
     return low, high
 
 
-def empirical_name(observable, variable, period_s=None, range_=None):
-    """The effect name of a polynomial (over ``range_`` (low, high), or the nominal range) or periodic term."""
+def empirical_name(observable: str, variable: str, period_s: float | None = None,
+                   range_: tuple[float, float] | None = None) -> str:
+    """The effect name of a polynomial (over ``range_`` (low, high), or the nominal range) or periodic term.
+
+    Args:
+        observable: a camera axis (``hipo.x``) or a gyro axis (``gyro.el``).
+        variable: the variable the term follows (VARIABLES, DETECTOR_FIELD).
+        period_s: the period [s] of a sinusoid in time; None for a polynomial.
+        range_: (low, high) the polynomial's variable is mapped from; None for its nominal range.
+
+    Returns:
+        The ``empirical:...`` name (numbers to as many digits as keep a range's ends apart).
+    """
     if period_s is not None:
         shape = f'period_{period_s:.4g}s'
     elif range_ is not None:
@@ -195,20 +225,44 @@ def _scaled(variable, camera, values, range_):
     return (np.asarray(values, dtype=float) - centre) / half
 
 
-def field_columns(x, y, degree=POLY_DEGREE):
-    """Columns P_i(x) P_j(y) for i + j <= degree, (i, j) in ``field_terms(degree)`` order; x, y scaled to [-1, 1]."""
+def field_columns(x: npt.ArrayLike, y: npt.ArrayLike, degree: int = POLY_DEGREE) -> np.ndarray:
+    """Columns P_i(x) P_j(y) for i + j <= degree, (i, j) in ``field_terms(degree)`` order; x, y scaled to [-1, 1].
+
+    Args:
+        x: N positions along X, scaled to [-1, 1].
+        y: N positions along Y, scaled to [-1, 1].
+        degree: the highest total degree i + j.
+
+    Returns:
+        (N, (degree + 1)(degree + 2) / 2) Legendre products.
+    """
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     eye = np.eye(degree + 1)
     return np.column_stack([legendre.legval(x, eye[i]) * legendre.legval(y, eye[j]) for i, j in field_terms(degree)])
 
 
-def field_terms(degree=POLY_DEGREE):
-    """The (i, j) degrees of a two-variable Legendre field, total degree first: (0, 0), (1, 0), (0, 1), (2, 0) ..."""
+def field_terms(degree: int = POLY_DEGREE) -> list[tuple[int, int]]:
+    """The (i, j) degrees of a two-variable Legendre field, total degree first: (0, 0), (1, 0), (0, 1), (2, 0) ...
+
+    Args:
+        degree: the highest total degree i + j.
+
+    Returns:
+        The (i, j) pairs in column order of field_columns.
+    """
     return [(total - j, j) for total in range(degree + 1) for j in range(total + 1)]
 
 
-def variable_values(variable, context):
-    """The values of a variable in a hook context."""
+def variable_values(variable: str, context: GyroContext | CameraContext) -> np.ndarray:
+    """The values of a variable in a hook context.
+
+    Args:
+        variable: a key of VARIABLES.
+        context: the hook context holding it.
+
+    Returns:
+        The variable's N values as floats, in its unit (VARIABLES).
+    """
     return np.asarray(VARIABLES[variable][0](context), dtype=float)
 
 
@@ -226,8 +280,18 @@ def _basis(variable, camera, context, degrees, period_s, range_):
 
 
 @functools.lru_cache(maxsize=256)
-def empirical_spec(name):
-    """The EffectSpec of an empirical term name; UnknownEffectError explains the grammar otherwise."""
+def empirical_spec(name: str) -> EffectSpec:
+    """The EffectSpec of an empirical term name; UnknownEffectError explains the grammar otherwise.
+
+    Args:
+        name: an ``empirical:<observable>:<variable>:<shape>`` name.
+
+    Returns:
+        The spec: one coefficient parameter per shape column and its gyro_rate_offset or camera_shift_px hook.
+
+    Raises:
+        UnknownEffectError: the name breaks the grammar or a bound.
+    """
     observable, variable, period_s, range_ = _parsed(name)
     gyro = observable in GYRO_OBSERVABLES
     unit = 'deg/h' if gyro else 'arcsec'

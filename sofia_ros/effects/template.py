@@ -103,8 +103,20 @@ EFFECTS = (
 '''
 
 
-def plugin_template(name, kind, folder='.'):
-    """The source of a plug-in module NAME of KIND; ConfigError for a name or kind that cannot work."""
+def plugin_template(name: str, kind: str, folder: str = '.') -> str:
+    """The source of a plug-in module NAME of KIND; ConfigError for a name or kind that cannot work.
+
+    Args:
+        name: the module's name (a short lower-case identifier, shadowing nothing).
+        kind: a key of KINDS.
+        folder: the folder the module goes to, written into its docstring's usage line.
+
+    Returns:
+        The module's Python source.
+
+    Raises:
+        ConfigError: an unknown kind, an unusable name, or a folder that cannot be written into the source.
+    """
     if kind not in KINDS:
         raise ConfigError(f'unknown plug-in kind {kind!r}; choose one of {", ".join(KINDS)}')
     _check_module_name(name)
@@ -150,8 +162,20 @@ def _check_module_name(name):
                           f'shadow on PYTHONPATH; choose another name (e.g. {name}_effect)')
 
 
-def write_plugin_template(name, kind, directory='.'):
-    """Write NAME.py into ``directory`` (which must exist; the file must not) whole or not at all; return its path."""
+def write_plugin_template(name: str, kind: str, directory: str | Path = '.') -> Path:
+    """Write NAME.py into ``directory`` (which must exist; the file must not) whole or not at all; return its path.
+
+    Args:
+        name: the module's name (plugin_template).
+        kind: a key of KINDS.
+        directory: an existing folder.
+
+    Returns:
+        The path of the module written.
+
+    Raises:
+        ConfigError: the folder is missing, the file exists, or plugin_template refuses the name or kind.
+    """
     directory = Path(directory)
     if not directory.is_dir():
         raise ConfigError(f'directory {directory} does not exist; create it or give another --dir')

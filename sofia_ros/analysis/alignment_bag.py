@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from os import PathLike
 
 import numpy as np
 import yaml
 
 from sofia_ros.bag import BagReader
 from sofia_ros.calibration.maneuver_records import maneuver_from_record
-from sofia_ros.calibration.solvers import fit_alignment
+from sofia_ros.calibration.solvers import AlignmentFit, fit_alignment
 from sofia_ros.errors import BagError
 from sofia_ros.sensors.imager_model import nominal_detector
 from sofia_ros.topics import CALIBRATION_MANEUVERS
@@ -23,11 +24,21 @@ class OfflineFit:
 
     purpose: str
     camera: str
-    fit: object  # AlignmentFit
+    fit: AlignmentFit
 
 
-def refit_alignments(bag_path):
-    """Every alignment fit of a run, solved again from /calibration/maneuvers, in recording order."""
+def refit_alignments(bag_path: str | PathLike[str]) -> list[OfflineFit]:
+    """Every alignment fit of a run, solved again from /calibration/maneuvers, in recording order.
+
+    Args:
+        bag_path: a bag recorded by an alignment campaign.
+
+    Returns:
+        One OfflineFit per maneuver record document, in recording order.
+
+    Raises:
+        BagError: the bag has no /calibration/maneuvers topic (or cannot be read).
+    """
     with BagReader(bag_path) as bag:
         if CALIBRATION_MANEUVERS.name not in {topic.name for topic in bag.topics}:
             raise BagError(f'{bag_path} has no /calibration/maneuvers; record an alignment campaign first')

@@ -26,6 +26,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import scipy.fft
 
 from sofia_ros.errors import InvalidArgumentError
@@ -69,16 +70,37 @@ class AllanCurve:
     sigma_rel: np.ndarray
 
 
-def allan_relative_error(n_clusters):
-    """1-sigma relative error of a root AV point from K clusters, 1/sqrt(2(K-1)) (eq. 4.25)."""
+def allan_relative_error(n_clusters: npt.ArrayLike) -> np.ndarray:
+    """1-sigma relative error of a root AV point from K clusters, 1/sqrt(2(K-1)) (eq. 4.25).
+
+    Args:
+        n_clusters: the number of clusters K of each point, at least 2.
+
+    Returns:
+        The relative error of each point, same shape.
+
+    Raises:
+        InvalidArgumentError: a K below 2 or not finite.
+    """
     clusters = finite_array('n_clusters', n_clusters)
     if np.any(clusters < 2):
         raise InvalidArgumentError(f'n_clusters must be >= 2, got {clusters.min():g}')
     return 1.0 / np.sqrt(2.0 * (clusters - 1.0))
 
 
-def required_test_time_s(tau_s, relative_error):
-    """Record length to reach a relative root-AV error at tau, tau (1 + 1/(2 error^2)) (eq. 4.26)."""
+def required_test_time_s(tau_s: npt.ArrayLike, relative_error: npt.ArrayLike) -> np.ndarray:
+    """Record length to reach a relative root-AV error at tau, tau (1 + 1/(2 error^2)) (eq. 4.26).
+
+    Args:
+        tau_s: cluster time [s], > 0.
+        relative_error: the relative 1-sigma error wanted, > 0 (broadcast with tau_s).
+
+    Returns:
+        The record length [s].
+
+    Raises:
+        InvalidArgumentError: a value not finite or not positive.
+    """
     tau = finite_array('tau_s', tau_s)
     error = finite_array('relative_error', relative_error)
     if np.any(tau <= 0.0):
@@ -88,19 +110,58 @@ def required_test_time_s(tau_s, relative_error):
     return tau * (1.0 + 1.0 / (2.0 * error**2))
 
 
-def arw_corrected_for_sampling(arw_sampled, sampled_rate_hz, readout_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """ARW of the read-out data from every k-th sample, N sqrt(f_sampled / f_read-out) (eq. 4.27)."""
+def arw_corrected_for_sampling(arw_sampled: npt.ArrayLike, sampled_rate_hz: float,
+                               readout_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> np.ndarray:
+    """ARW of the read-out data from every k-th sample, N sqrt(f_sampled / f_read-out) (eq. 4.27).
+
+    Args:
+        arw_sampled: the ARW N measured on the sampled data (any unit).
+        sampled_rate_hz: the rate the data were kept at [Hz].
+        readout_rate_hz: the gyro read-out rate [Hz], at least sampled_rate_hz.
+
+    Returns:
+        The ARW of the read-out data, in the unit of arw_sampled.
+
+    Raises:
+        InvalidArgumentError: a value not finite, a rate not positive, or sampled above read-out.
+    """
     return finite_array('arw_sampled', arw_sampled) * np.sqrt(_rate_ratio(sampled_rate_hz, readout_rate_hz))
 
 
-def adev_corrected_for_sampling(adev_sampled, sampled_rate_hz, readout_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """White-noise root AV corrected to the read-out rate, sigma sqrt(f_sampled / f_read-out) (eq. 4.28)."""
+def adev_corrected_for_sampling(adev_sampled: npt.ArrayLike, sampled_rate_hz: float,
+                                readout_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> np.ndarray:
+    """White-noise root AV corrected to the read-out rate, sigma sqrt(f_sampled / f_read-out) (eq. 4.28).
+
+    Args:
+        adev_sampled: the white-noise root AV of the sampled data (any unit).
+        sampled_rate_hz: the rate the data were kept at [Hz].
+        readout_rate_hz: the gyro read-out rate [Hz], at least sampled_rate_hz.
+
+    Returns:
+        The root AV of the read-out data, in the unit of adev_sampled.
+
+    Raises:
+        InvalidArgumentError: a value not finite, a rate not positive, or sampled above read-out.
+    """
     # 4.28 prints sqrt(f_sampled) alone; only the ratio is dimensionless and agrees with 4.27.
     return finite_array('adev_sampled', adev_sampled) * np.sqrt(_rate_ratio(sampled_rate_hz, readout_rate_hz))
 
 
-def psd_corrected_for_sampling(psd_sampled, sampled_rate_hz, readout_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """White rate PSD corrected to the read-out rate, S f_sampled / f_read-out (eq. 4.29, ratio as 4.28)."""
+def psd_corrected_for_sampling(psd_sampled: npt.ArrayLike, sampled_rate_hz: float,
+                               readout_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> np.ndarray:
+    """White rate PSD corrected to the read-out rate, S f_sampled / f_read-out (eq. 4.29, ratio as 4.28).
+
+    Args:
+        psd_sampled: the white rate PSD of the sampled data (any unit).
+        sampled_rate_hz: the rate the data were kept at [Hz].
+        readout_rate_hz: the gyro read-out rate [Hz], at least sampled_rate_hz.
+
+    Returns:
+        The PSD of the read-out data, in the unit of psd_sampled.
+
+    Raises:
+        InvalidArgumentError: a value not finite, a rate not positive, or sampled above read-out.
+    """
     return finite_array('psd_sampled', psd_sampled) * _rate_ratio(sampled_rate_hz, readout_rate_hz)
 
 
@@ -112,8 +173,21 @@ def _rate_ratio(sampled_rate_hz, readout_rate_hz):
     return sampled / readout
 
 
-def log_spaced_cluster_sizes(n_samples, n_taus=100, max_fraction=LARGEST_TAU_FRACTION):
-    """``n_taus`` distinct cluster sizes m, log-spaced from 1 to max_fraction * n (4.8 generalized)."""
+def log_spaced_cluster_sizes(n_samples: int, n_taus: int = 100,
+                             max_fraction: float = LARGEST_TAU_FRACTION) -> np.ndarray:
+    """``n_taus`` distinct cluster sizes m, log-spaced from 1 to max_fraction * n (4.8 generalized).
+
+    Args:
+        n_samples: the record's length n in samples.
+        n_taus: how many sizes.
+        max_fraction: the largest size as a fraction of the record, at most 0.5.
+
+    Returns:
+        The sizes, ascending int64: consecutive from 1 while a geometric step is under one sample.
+
+    Raises:
+        InvalidArgumentError: more sizes than distinct ones fit, a record too short, or max_fraction above 0.5.
+    """
     largest = _largest_cluster_size(n_samples, max_fraction)
     count = int(positive_scalar('n_taus', n_taus))
     if count > largest:
@@ -128,8 +202,19 @@ def log_spaced_cluster_sizes(n_samples, n_taus=100, max_fraction=LARGEST_TAU_FRA
     return np.unique(np.concatenate([head, tail]))
 
 
-def octave_cluster_sizes(n_samples, max_fraction=LARGEST_TAU_FRACTION):
-    """Cluster sizes m = 2^j up to max_fraction * n (eq. 4.8)."""
+def octave_cluster_sizes(n_samples: int, max_fraction: float = LARGEST_TAU_FRACTION) -> np.ndarray:
+    """Cluster sizes m = 2^j up to max_fraction * n (eq. 4.8).
+
+    Args:
+        n_samples: the record's length n in samples.
+        max_fraction: the largest size as a fraction of the record, at most 0.5.
+
+    Returns:
+        The sizes 1, 2, 4, ..., ascending int64.
+
+    Raises:
+        InvalidArgumentError: a record too short, or max_fraction above 0.5.
+    """
     largest = _largest_cluster_size(n_samples, max_fraction)
     return 2 ** np.arange(int(np.log2(largest)) + 1, dtype=np.int64)
 
@@ -145,8 +230,23 @@ def _largest_cluster_size(n_samples, max_fraction):
     return largest
 
 
-def overlapping_allan_deviation(rate, sample_rate_hz, cluster_sizes=None, rtol=1e-9):
-    """Overlapping root AV at cluster sizes m of rate N (a curve) or Nxk (k curves), exact to rtol (4.6-4.8)."""
+def overlapping_allan_deviation(rate: npt.ArrayLike, sample_rate_hz: float,
+                                cluster_sizes: npt.ArrayLike | None = None,
+                                rtol: float = 1e-9) -> AllanCurve | tuple[AllanCurve, ...]:
+    """Overlapping root AV at cluster sizes m of rate N (a curve) or Nxk (k curves), exact to rtol (4.6-4.8).
+
+    Args:
+        rate: N samples of one rate, or (N, k) of k rates (any unit).
+        sample_rate_hz: the sample rate [Hz].
+        cluster_sizes: the sizes m in samples, at most N // 2; None for up to 100 log-spaced up to N / 3.
+        rtol: the relative error allowed in each AV (rounding of the fast sums).
+
+    Returns:
+        One AllanCurve for a 1-D rate, a tuple of k for (N, k).
+
+    Raises:
+        InvalidArgumentError: a rate not 1-D or 2-D, too short or not finite, or invalid cluster sizes.
+    """
     data = finite_array('rate', rate)
     if data.ndim not in (1, 2):
         raise InvalidArgumentError(f'rate must have shape N or Nxk, got {data.shape}')

@@ -13,8 +13,10 @@ Sigmas are curve_fit's, scaled by the scatter about the fit.
 from __future__ import annotations
 
 import warnings
+from typing import TypedDict
 
 import numpy as np
+import numpy.typing as npt
 from scipy.optimize import OptimizeWarning, curve_fit
 
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC, bic
@@ -22,7 +24,8 @@ from sofia_ros.errors import FitError, InvalidArgumentError
 from sofia_ros.units import DEG_PER_RAD
 from sofia_ros.validate import finite_array
 
-__all__ = ['line_and_sinusoid_px', 'fit_centroid_drift', 'MIN_SINUSOID_FRAMES']
+__all__ = ['line_and_sinusoid_px', 'fit_centroid_drift', 'MIN_SINUSOID_FRAMES', 'CentroidDrift', 'LineDrift',
+           'RowDrift', 'SinusoidDrift']
 
 #: Line plus sinusoid has five parameters: fit it only to at least twice as many frames.
 MIN_SINUSOID_FRAMES = 10
@@ -32,8 +35,59 @@ _MIN_PERIOD_INTERVALS = 4.0
 _GRID_OVERSAMPLING = 5
 
 
-def line_and_sinusoid_px(time_s, offset_px, slope_px_per_s, amplitude_px, period_s, phase_rad):
-    """Residual centroid drift a + b t + A sin(2 pi t / P + phi), t from the series' reference time (6.3)."""
+class LineDrift(TypedDict):
+    """The linear drift of one pixel axis (its part of the JSON output)."""
+
+    drift_px_per_min: float
+    drift_sigma: float
+    offset_px: float
+    rms_px: float
+
+
+class SinusoidDrift(TypedDict):
+    """The sinusoid of the rows, where BIC keeps it; sigmas in the unit of their value."""
+
+    period_s: float
+    period_sigma: float
+    amplitude_px: float
+    amplitude_sigma: float
+    phase_deg: float
+    phase_sigma: float
+
+
+class RowDrift(LineDrift):
+    """The rows: the line (of line + sinusoid where kept), the sinusoid's delta-BIC and the sinusoid."""
+
+    #: None where the series is too short to try a sinusoid.
+    sinusoid_delta_bic: float | None
+    sinusoid: SinusoidDrift | None
+
+
+class CentroidDrift(TypedDict):
+    """The hold drift of one centroid series (fit_centroid_drift)."""
+
+    frames: int
+    span_s: float
+    reference_time_s: float
+    column: LineDrift
+    row: RowDrift
+
+
+def line_and_sinusoid_px(time_s: npt.ArrayLike, offset_px: float, slope_px_per_s: float, amplitude_px: float,
+                         period_s: float, phase_rad: float) -> np.ndarray:
+    """Residual centroid drift a + b t + A sin(2 pi t / P + phi), t from the series' reference time (6.3).
+
+    Args:
+        time_s: time from the series' reference time [s].
+        offset_px: a, the centroid at the reference time [px].
+        slope_px_per_s: b [px/s].
+        amplitude_px: A [px].
+        period_s: P [s].
+        phase_rad: phi [rad].
+
+    Returns:
+        The centroid [px] at each time.
+    """
     return offset_px + slope_px_per_s * time_s + amplitude_px * np.sin(2.0 * np.pi * time_s / period_s + phase_rad)
 
 
@@ -71,13 +125,26 @@ def _sinusoid_start(time_s, values_px, min_period_s, max_period_s):
     return [offset, slope, max(np.hypot(sine, cosine), 1e-9), period_s, np.arctan2(cosine, sine)]
 
 
-def _line_entry(values, sigma, rss, count):
+def _line_entry(values: np.ndarray, sigma: np.ndarray, rss: float, count: int) -> LineDrift:
     return {'drift_px_per_min': float(values[1] * 60.0), 'drift_sigma': float(sigma[1] * 60.0),
             'offset_px': float(values[0]), 'rms_px': float(np.sqrt(rss / count))}
 
 
-def fit_centroid_drift(time_s, column_px, row_px):
-    """Hold drift of a centroid series: column linear, row linear + sinusoid when BIC selects it (6.3)."""
+def fit_centroid_drift(time_s: npt.ArrayLike, column_px: npt.ArrayLike, row_px: npt.ArrayLike) -> CentroidDrift:
+    """Hold drift of a centroid series: column linear, row linear + sinusoid when BIC selects it (6.3).
+
+    Args:
+        time_s: N increasing frame times [s].
+        column_px: N centroid columns (X) [px].
+        row_px: N centroid rows (Y) [px].
+
+    Returns:
+        The column's line and the row's line with its sinusoid (None unless BIC keeps it).
+
+    Raises:
+        InvalidArgumentError: fewer than 3 frames, times not increasing, or values not finite or of other lengths.
+        FitError: a curve fit did not converge.
+    """
     times = finite_array('time_s', time_s, shape=(None,))
     count = len(times)
     columns = finite_array('column_px', column_px, shape=(count,))
@@ -90,7 +157,7 @@ def fit_centroid_drift(time_s, column_px, row_px):
     elapsed = times - reference_s
     column_fit = _curve_fit(_line_px, elapsed, columns, [columns.mean(), 0.0])
     row_line = _curve_fit(_line_px, elapsed, rows, [rows.mean(), 0.0])
-    row = {**_line_entry(*row_line, count), 'sinusoid_delta_bic': None, 'sinusoid': None}
+    row: RowDrift = {**_line_entry(*row_line, count), 'sinusoid_delta_bic': None, 'sinusoid': None}
     span_s = float(times[-1] - times[0])
     min_period_s = _MIN_PERIOD_INTERVALS * float(np.median(np.diff(times)))
     if count >= MIN_SINUSOID_FRAMES and span_s > min_period_s:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage, signal, stats
 
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
@@ -40,8 +42,15 @@ class SpectralLine:
     source: str
 
 
-def silent_sources(subsystems):
-    """Sources the record's Table 5.2 states rule out: their subsystem is off, or the FD is braked (TC-4 lines)."""
+def silent_sources(subsystems: Mapping[str, str] | None) -> frozenset[str]:
+    """Sources the record's Table 5.2 states rule out: their subsystem is off, or the FD is braked (TC-4 lines).
+
+    Args:
+        subsystems: Table 5.2 subsystem -> state ('on', 'off', 'braked', ...), or None if not recorded.
+
+    Returns:
+        The KNOWN_LINES_HZ sources that cannot have been running.
+    """
     if not subsystems:
         return frozenset()
     silent = {source for source, key in _SOURCE_SUBSYSTEM.items() if subsystems.get(key) == 'off'}
@@ -50,10 +59,20 @@ def silent_sources(subsystems):
     return frozenset(silent)
 
 
-def likely_source(freq_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, silent=frozenset()):
-    """The thesis' source of a line within 0.3 Hz, where it lands when sampled at sample_rate_hz, else 'unknown'."""
+def likely_source(freq_hz: float, sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ,
+                  silent: frozenset[str] = frozenset()) -> str:
+    """The thesis' source of a line within 0.3 Hz, where it lands when sampled at sample_rate_hz, else 'unknown'.
+
+    Args:
+        freq_hz: the line's frequency as measured [Hz].
+        sample_rate_hz: the record's sample rate [Hz].
+        silent: sources ruled out (silent_sources).
+
+    Returns:
+        A source of KNOWN_LINES_HZ, or 'unknown'.
+    """
     # The table values are as measured at 400 Hz; every k-th sample (4.2.5) folds them again.
-    def landed(known_hz):
+    def landed(known_hz: float) -> float:
         folded = known_hz % sample_rate_hz
         return min(folded, sample_rate_hz - folded)
 
@@ -62,15 +81,37 @@ def likely_source(freq_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, silent=frozenset(
     return best[1] if abs(landed(best[0]) - freq_hz) <= _MATCH_HZ else 'unknown'
 
 
-def line_threshold(dof, n_bins, false_alarms=0.01):
-    """Ratio to the running median that chi-square noise of dof degrees of freedom passes in false_alarms of records."""
+def line_threshold(dof: float, n_bins: int, false_alarms: float = 0.01) -> float:
+    """Ratio to the running median that chi-square noise of dof degrees of freedom passes in false_alarms of records.
+
+    Args:
+        dof: the chi-square degrees of freedom of a PSD value.
+        n_bins: the number of bins searched.
+        false_alarms: the fraction of noise-only records allowed one false line.
+
+    Returns:
+        The threshold as a ratio to the running median.
+    """
     # A Welch value is S chi^2_dof / dof and the running median S median(chi^2_dof) / dof, so noise
     # alone exceeds q times the median in a bin with probability P(chi^2_dof > q median(chi^2_dof)).
     return float(stats.chi2.isf(false_alarms / n_bins, dof) / stats.chi2.median(dof))
 
 
-def find_lines(freq_hz, psd, dof, *, min_freq_hz=0.3, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, silent=frozenset()):
-    """Lines standing out of a one-sided rate PSD of dof degrees of freedom, with amplitude and source (5.2.5)."""
+def find_lines(freq_hz: npt.ArrayLike, psd: npt.ArrayLike, dof: float, *, min_freq_hz: float = 0.3,
+               sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ, silent: frozenset[str] = frozenset()) -> list[SpectralLine]:
+    """Lines standing out of a one-sided rate PSD of dof degrees of freedom, with amplitude and source (5.2.5).
+
+    Args:
+        freq_hz: the PSD's equally spaced frequencies [Hz].
+        psd: the one-sided rate PSD [(arcsec/s)^2/Hz] at those frequencies.
+        dof: the chi-square degrees of freedom of a PSD value.
+        min_freq_hz: the lowest frequency searched [Hz].
+        sample_rate_hz: the record's sample rate [Hz] (its Nyquist frequency ends the search).
+        silent: sources ruled out (silent_sources).
+
+    Returns:
+        The lines in order of frequency.
+    """
     freq = np.asarray(freq_hz)
     power = np.asarray(psd)
     df = float(freq[1] - freq[0])

@@ -16,6 +16,7 @@ whose chi-square scatter sets the bias and the error of a log-PSD value.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from scipy import signal, special
 
 from sofia_ros.errors import InvalidArgumentError
@@ -55,9 +56,24 @@ def _rate_and_segments(rate, sample_rate_hz, segment_samples, overlap):
     return data, rate_hz, length, int(round(fraction * length))
 
 
-def welch_rate_psd(rate, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=WELCH_SEGMENT_SAMPLES,
-                   fft_points=WELCH_FFT_POINTS, overlap=0.5):
-    """(freq_hz, psd): one-sided rate PSD, (rate unit)^2/Hz per column, by Welch as in 5.2.5 (eq. 4.5)."""
+def welch_rate_psd(rate: npt.ArrayLike, sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ,
+                   segment_samples: int = WELCH_SEGMENT_SAMPLES, fft_points: int = WELCH_FFT_POINTS,
+                   overlap: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """(freq_hz, psd): one-sided rate PSD, (rate unit)^2/Hz per column, by Welch as in 5.2.5 (eq. 4.5).
+
+    Args:
+        rate: N samples of one rate, or (N, k) of k rates.
+        sample_rate_hz: the sample rate [Hz].
+        segment_samples: the Hamming segment length, at most N.
+        fft_points: the FFT length (zero padding), at least segment_samples.
+        overlap: the segments' overlap, a fraction in [0, 1).
+
+    Returns:
+        The frequencies [Hz] and the PSD, (F,) or (F, k).
+
+    Raises:
+        InvalidArgumentError: a rate not 1-D or 2-D, not finite or shorter than a segment, or invalid settings.
+    """
     data, rate_hz, length, overlap_samples = _rate_and_segments(rate, sample_rate_hz, segment_samples, overlap)
     points = int(positive_scalar('fft_points', fft_points))
     if points < length:
@@ -68,8 +84,18 @@ def welch_rate_psd(rate, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=WEL
     )
 
 
-def welch_segment_samples(n_samples):
-    """Segment length: 2^14 as in 5.2.5, or for short records the largest power of two leaving four segments."""
+def welch_segment_samples(n_samples: int) -> int:
+    """Segment length: 2^14 as in 5.2.5, or for short records the largest power of two leaving four segments.
+
+    Args:
+        n_samples: the record's length in samples.
+
+    Returns:
+        The segment length in samples.
+
+    Raises:
+        InvalidArgumentError: a record shorter than four of the shortest segments (2^8).
+    """
     count = int(positive_scalar('n_samples', n_samples))
     if count < 4 * _SHORTEST_SEGMENT:
         raise InvalidArgumentError(f'a rate PSD needs at least {4 * _SHORTEST_SEGMENT} samples, got {count}')
@@ -92,9 +118,24 @@ def _hamming_transform(frequency_hz, sample_rate_hz, segment_samples):
     return a0 * dirichlet(theta) - 0.5 * a1 * (dirichlet(theta - step) + dirichlet(theta + step))
 
 
-def welch_sinusoid_psd(freq_hz, amplitude_arcsec_per_s, line_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ,
-                       segment_samples=WELCH_SEGMENT_SAMPLES):
-    """Expected one-sided Welch PSD (5.2.5) of A sin(2 pi f0 t): A^2 (|W(f-f0)|^2 + |W(f+f0)|^2) / (2 fs sum w^2)."""
+def welch_sinusoid_psd(freq_hz: npt.ArrayLike, amplitude_arcsec_per_s: float, line_hz: float,
+                       sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ,
+                       segment_samples: int = WELCH_SEGMENT_SAMPLES) -> np.ndarray:
+    """Expected one-sided Welch PSD (5.2.5) of A sin(2 pi f0 t): A^2 (|W(f-f0)|^2 + |W(f+f0)|^2) / (2 fs sum w^2).
+
+    Args:
+        freq_hz: the frequencies the PSD is wanted at [Hz].
+        amplitude_arcsec_per_s: the sinusoid's rate amplitude A [arcsec/s].
+        line_hz: its frequency f0 [Hz] (above the Nyquist frequency it lands on its alias).
+        sample_rate_hz: the sample rate fs [Hz].
+        segment_samples: the Hamming segment length.
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz] at freq_hz.
+
+    Raises:
+        InvalidArgumentError: a frequency not finite, or a rate or segment length not positive.
+    """
     # Averaged over the line's phase in each segment; W is periodic in fs, so lines above the
     # Nyquist frequency land on their aliases (Tables 5.4, 5.5). Integrates to A^2 / 2 (4.5).
     rate_hz = positive_scalar('sample_rate_hz', sample_rate_hz)
@@ -107,8 +148,21 @@ def welch_sinusoid_psd(freq_hz, amplitude_arcsec_per_s, line_hz, sample_rate_hz=
     return amplitude_arcsec_per_s**2 * power / (2.0 * rate_hz * np.sum(window**2))
 
 
-def welch_equivalent_dof(n_samples, segment_samples=WELCH_SEGMENT_SAMPLES, overlap=0.5):
-    """Equivalent chi-square degrees of freedom of a Hamming Welch estimate, 2K / (1 + 2 sum (1-j/K) rho_j^2)."""
+def welch_equivalent_dof(n_samples: int, segment_samples: int = WELCH_SEGMENT_SAMPLES,
+                         overlap: float = 0.5) -> float:
+    """Equivalent chi-square degrees of freedom of a Hamming Welch estimate, 2K / (1 + 2 sum (1-j/K) rho_j^2).
+
+    Args:
+        n_samples: the record's length in samples.
+        segment_samples: the Hamming segment length.
+        overlap: the segments' overlap, a fraction in [0, 1).
+
+    Returns:
+        The equivalent degrees of freedom.
+
+    Raises:
+        InvalidArgumentError: a record shorter than one segment, or a length not positive.
+    """
     # Welch (1967); Percival & Walden (1993) eq. 292b: rho_j is the window's overlap correlation at
     # a shift of j segment steps, K the number of segments.
     length = int(positive_scalar('segment_samples', segment_samples))
@@ -127,15 +181,39 @@ def welch_equivalent_dof(n_samples, segment_samples=WELCH_SEGMENT_SAMPLES, overl
     return 2.0 * segments / (1.0 + 2.0 * total)
 
 
-def log_chi_square_bias_and_sigma(dof):
-    """Mean and standard deviation of ln(S_hat / S) for a chi-square estimate with dof degrees of freedom."""
+def log_chi_square_bias_and_sigma(dof: float) -> tuple[float, float]:
+    """Mean and standard deviation of ln(S_hat / S) for a chi-square estimate with dof degrees of freedom.
+
+    Args:
+        dof: the degrees of freedom, > 0.
+
+    Returns:
+        The mean (a bias, negative) and the standard deviation of the log estimate.
+
+    Raises:
+        InvalidArgumentError: dof not finite or not positive.
+    """
     # ln of chi^2_nu / nu: mean digamma(nu/2) - ln(nu/2), variance trigamma(nu/2).
     half = 0.5 * positive_scalar('dof', dof)
     return float(special.digamma(half) - np.log(half)), float(np.sqrt(special.polygamma(1, half)))
 
 
-def rate_spectrogram(rate, sample_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=2**12, overlap=0.5):
-    """(freq_hz, time_s, psd[freq, (column,) time]): short-time one-sided PSD as in Fig. 5.5 (5.2.2)."""
+def rate_spectrogram(rate: npt.ArrayLike, sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ, segment_samples: int = 2**12,
+                     overlap: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(freq_hz, time_s, psd[freq, (column,) time]): short-time one-sided PSD as in Fig. 5.5 (5.2.2).
+
+    Args:
+        rate: N samples of one rate, or (N, k) of k rates.
+        sample_rate_hz: the sample rate [Hz].
+        segment_samples: the Hamming segment length, at most N.
+        overlap: the segments' overlap, a fraction in [0, 1).
+
+    Returns:
+        The frequencies [Hz], the segments' centre times [s] and the PSD, (F, T) or (F, k, T).
+
+    Raises:
+        InvalidArgumentError: a rate not 1-D or 2-D, not finite or shorter than a segment, or invalid settings.
+    """
     data, rate_hz, length, overlap_samples = _rate_and_segments(rate, sample_rate_hz, segment_samples, overlap)
     return signal.spectrogram(
         data, fs=rate_hz, window='hamming', nperseg=length, noverlap=overlap_samples,

@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from numpy.polynomial import legendre
 from scipy import optimize, stats
 
@@ -62,8 +63,15 @@ class PeriodTest:
     false_alarm_probability: float
 
 
-def sigma_of_probability(probability):
-    """Two-sided Gaussian significance of a probability: p = erfc(sigma / sqrt 2)."""
+def sigma_of_probability(probability: float) -> float:
+    """Two-sided Gaussian significance of a probability: p = erfc(sigma / sqrt 2).
+
+    Args:
+        probability: a p-value (clipped to [1e-300, 1]).
+
+    Returns:
+        The significance in sigma.
+    """
     return float(stats.norm.isf(np.clip(probability, 1e-300, 1.0) / 2.0))
 
 
@@ -79,12 +87,27 @@ def _weighted_rss(design, values, weights):
     return float(weights @ residual**2), coefficients
 
 
-def trend_test(variable, values, weights=None, degree=TREND_DEGREE, *, whitening=None):
+def trend_test(variable: npt.ArrayLike, values: npt.ArrayLike, weights: npt.ArrayLike | None = None,
+               degree: int = TREND_DEGREE, *, whitening: npt.ArrayLike | None = None) -> TrendTest | None:
     """F-test of Legendre P0..P_degree of the variable against a constant; None where it cannot be tested.
 
     With ``whitening`` (rows of values x rows of variable), the values are already whitened
     residuals of correlated data and the test is generalized least squares: the Legendre columns
     are whitened the same way (the trend is then a shape of the data before whitening).
+
+    Args:
+        variable: the variable at each row (at each row before whitening, with ``whitening``).
+        values: the residuals.
+        weights: inverse variances up to a common factor; None for equal weights.
+        degree: the highest Legendre degree (lowered to the distinct values of the variable less one).
+        whitening: (residual rows, variable rows) matrix of whitened residuals; None for independent rows.
+
+    Returns:
+        The p-value, the shape's half range and the shape on 25 points over the variable's range; None with
+        fewer than 12 rows, a constant variable, or no degrees of freedom left.
+
+    Raises:
+        InvalidArgumentError: the variable's (or the whitening's) shape does not fit the residuals.
     """
     variable, values = np.asarray(variable, dtype=float), np.asarray(values, dtype=float)
     weights = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
@@ -115,11 +138,26 @@ def trend_test(variable, values, weights=None, degree=TREND_DEGREE, *, whitening
     return TrendTest(float(stats.f.sf(max(f_value, 0.0), degree, dof)), float(np.ptp(fitted) / 2.0), centres, shape)
 
 
-def field_test(x, y, values, weights=None, degree=TREND_DEGREE):
+def field_test(x: npt.ArrayLike, y: npt.ArrayLike, values: npt.ArrayLike, weights: npt.ArrayLike | None = None,
+               degree: int = TREND_DEGREE) -> TrendTest | None:
     """F-test of the products P_i(x) P_j(y), i + j <= degree, against a constant; None where it cannot be tested.
 
     Each variable is mapped onto [-1, 1] over the rows' range. The amplitude is half the range of the fitted
     field over the rows (the shape grid of a one-variable trend has no meaning here: both are empty).
+
+    Args:
+        x: the first variable at each row (the detector column).
+        y: the second variable at each row (the detector row).
+        values: the residuals.
+        weights: inverse variances up to a common factor; None for equal weights.
+        degree: the highest total degree i + j.
+
+    Returns:
+        The p-value and the field's half range (empty centres and shape); None with too few rows, a constant
+        variable, or fewer than two independent columns.
+
+    Raises:
+        InvalidArgumentError: x, y and values of different lengths.
     """
     x, y, values = (np.asarray(array, dtype=float) for array in (x, y, values))
     weights = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
@@ -143,8 +181,19 @@ def field_test(x, y, values, weights=None, degree=TREND_DEGREE):
                      np.zeros(0), np.zeros(0))
 
 
-def category_test(categories, values, weights=None):
-    """One-way ANOVA F-test of the residual's mean per category; None with fewer than two categories."""
+def category_test(categories: npt.ArrayLike, values: npt.ArrayLike,
+                  weights: npt.ArrayLike | None = None) -> TrendTest | None:
+    """One-way ANOVA F-test of the residual's mean per category; None with fewer than two categories.
+
+    Args:
+        categories: the category of each row (numeric labels, e.g. the star's HIP number).
+        values: the residuals.
+        weights: inverse variances up to a common factor; None for equal weights.
+
+    Returns:
+        The p-value, half the range of the means, the categories as centres and each mean less the grand mean
+        as shape; None with fewer than two categories, too few rows, or no scatter within them.
+    """
     values = np.asarray(values, dtype=float)
     weights = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
     labels, index = np.unique(np.asarray(categories), return_inverse=True)
@@ -199,7 +248,9 @@ def _refined(times, values, weights, frequencies, best, min_period, max_period, 
     return period, float(np.hypot(coefficients[0], coefficients[1]))
 
 
-def period_test(times, values, weights=None, *, min_period=None, max_period=None, whitening=None):
+def period_test(times: npt.ArrayLike, values: npt.ArrayLike, weights: npt.ArrayLike | None = None, *,
+                min_period: float | None = None, max_period: float | None = None,
+                whitening: npt.ArrayLike | None = None) -> PeriodTest | None:
     """The strongest period between the shortest the sampling resolves and half the record; None if too short.
 
     With ``whitening`` (rows of values x times), the values are whitened residuals of correlated
@@ -207,6 +258,21 @@ def period_test(times, values, weights=None, *, min_period=None, max_period=None
     columns whitened like the values, the reduction of the residual sum of squares over a
     constant, halved and in units of the residual variance: Exp(1) under the null as the
     classical power is), and the amplitude is the sinusoid's before whitening.
+
+    Args:
+        times: the time of each row (of each row before whitening, increasing, with ``whitening``).
+        values: the residuals.
+        weights: inverse variances up to a common factor; None for equal weights (ignored with ``whitening``).
+        min_period: the shortest period searched, at least two sample spacings; None for that.
+        max_period: the longest period searched, at most half the span; None for that.
+        whitening: (residual rows, time rows) matrix of whitened residuals; None for independent rows.
+
+    Returns:
+        The refined period, its amplitude, the normalized power and the false-alarm probability; None with
+        fewer than 12 rows, an empty band, or no scatter.
+
+    Raises:
+        InvalidArgumentError: a whitening whose shape does not fit the residuals and times.
     """
     if whitening is not None:
         return _whitened_period_test(times, values, whitening, min_period, max_period)

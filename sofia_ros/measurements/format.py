@@ -17,14 +17,18 @@ from __future__ import annotations
 
 import datetime as dt
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sofia_ros.config import MAX_CONFIG_BYTES
 
+if TYPE_CHECKING:  # named in annotations only: reading the format needs no ERFA
+    from sofia_ros.sky.places import Site, Weather
+
 __all__ = ['FORMAT_VERSION', 'KINDS', 'KindSpec', 'StarDistance', 'EarthRateMean', 'TurningPoint',
            'MisalignmentAngle', 'Table', 'MeasurementSet', 'REDUCED', 'ALIGNMENT', 'MAX_SET_BYTES', 'MAX_SET_ROWS',
-           'VALUE_RANGES', 'IDENTITY_MATRIX']
+           'VALUE_RANGES', 'IDENTITY_MATRIX', 'Row']
 
 FORMAT_VERSION = 1
 REDUCED = 'reduced'
@@ -70,16 +74,17 @@ class KindSpec:
     name: str
     family: str
     description: str
-    required: tuple
-    optional: tuple
-    table_keys: tuple
+    #: (column, unit) pairs
+    required: tuple[tuple[str, str], ...]
+    optional: tuple[tuple[str, str], ...]
+    table_keys: tuple[str, ...]
     #: effect -> why this kind's predictions depend on it
-    sees: dict
+    sees: dict[str, str]
     #: effect -> why not (the default reason covers the rest of the catalogue)
-    blind: dict
+    blind: dict[str, str]
     default_blind_reason: str
     #: observables (suffixes) each row yields
-    axes: tuple = ('',)
+    axes: tuple[str, ...] = ('',)
 
 
 _DISTANCE_BLIND = {
@@ -175,8 +180,10 @@ class StarDistance:
     time_2_utc: dt.datetime
     distance_arcsec: float
     sigma_arcsec: float
-    euler_arcsec: tuple | None = None
-    pixels_px: tuple | None = None
+    #: EL, XEL (and LOS) Euler angles of the move [arcsec]
+    euler_arcsec: tuple[float, ...] | None = None
+    #: x1, y1, x2, y2 [px]
+    pixels_px: tuple[float, float, float, float] | None = None
     source: str = ''
 
 
@@ -185,7 +192,7 @@ class EarthRateMean:
     """Mean EL, XEL, LOS rates in TARF of one record (Table 5.7), sigma per axis."""
 
     label: str
-    rate_tarf_deg_per_h: tuple
+    rate_tarf_deg_per_h: tuple[float, float, float]
     sigma_deg_per_h: float
     source: str = ''
 
@@ -195,7 +202,8 @@ class TurningPoint:
     """LOS turning point against the TARF origin along HIPO X, Y under an implemented matrix (Tables 6.1, 6.2)."""
 
     matrix: str
-    offset_arcsec: tuple
+    #: dx, dy [arcsec]
+    offset_arcsec: tuple[float, float]
     sigma_arcsec: float
     source: str = ''
 
@@ -211,13 +219,17 @@ class MisalignmentAngle:
     source: str = ''
 
 
+#: One row of a table, of its kind's record type.
+Row = StarDistance | EarthRateMean | TurningPoint | MisalignmentAngle
+
+
 @dataclass(frozen=True)
 class Table:
     """One table of a set: its name, kind, reduction flags and geometry, provenance, and rows."""
 
     name: str
     kind: str
-    rows: tuple
+    rows: tuple[Row, ...]
     provenance: str
     drift_removed: bool = False
     latitude_deg: float | None = None
@@ -225,12 +237,16 @@ class Table:
     elevation_deg: float | None = None
 
     @property
-    def spec(self):
+    def spec(self) -> KindSpec:
         """The KindSpec of this table."""
         return KINDS[self.kind]
 
-    def measured(self):
-        """The measured values (one per observable of each row), in the kind's units."""
+    def measured(self) -> np.ndarray:
+        """The measured values (one per observable of each row), in the kind's units.
+
+        Returns:
+            One value per observable_names() entry, row by row (axes within a row).
+        """
         if self.kind == 'star_distance':
             return np.array([row.distance_arcsec for row in self.rows])
         if self.kind == 'earth_rate':
@@ -239,8 +255,12 @@ class Table:
             return np.array([row.offset_arcsec for row in self.rows]).ravel()
         return np.array([row.angle_arcmin for row in self.rows])
 
-    def sigma(self):
-        """The stated 1-sigma of each measured value, same order and units as measured()."""
+    def sigma(self) -> np.ndarray:
+        """The stated 1-sigma of each measured value, same order and units as measured().
+
+        Returns:
+            One sigma per measured value (a row's sigma repeated over its axes).
+        """
         if self.kind == 'star_distance':
             return np.array([row.sigma_arcsec for row in self.rows])
         if self.kind == 'earth_rate':
@@ -249,8 +269,12 @@ class Table:
             return np.repeat([row.sigma_arcsec for row in self.rows], 2)
         return np.array([row.sigma_arcmin for row in self.rows])
 
-    def observable_names(self):
-        """'<kind>' or '<kind>.<axis>' of each measured value."""
+    def observable_names(self) -> list[str]:
+        """'<kind>' or '<kind>.<axis>' of each measured value.
+
+        Returns:
+            One name per measured value, same order as measured().
+        """
         axes = self.spec.axes
         if self.kind == 'misalignment_angle':
             return [f'{self.kind}.{row.axis}' for row in self.rows]
@@ -264,11 +288,12 @@ class MeasurementSet:
     source: str
     title: str
     family: str
-    site: object
+    site: Site
     epoch_utc: dt.datetime
-    night_utc: tuple | None
-    weather: object | None
+    night_utc: tuple[dt.datetime, dt.datetime] | None
+    weather: Weather | None
     heading_deg: float | None
     gyro_temperature_c: float
-    matrices: dict
-    tables: tuple
+    #: name -> implemented alignment matrix (3x3), IDENTITY_MATRIX included
+    matrices: dict[str, np.ndarray]
+    tables: tuple[Table, ...]

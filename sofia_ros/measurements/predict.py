@@ -17,14 +17,18 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.earth_rate import earth_rate_tarf_deg_per_h
 from sofia_ros.errors import ConfigError, InvalidArgumentError
+from sofia_ros.effects.base import EffectParams
 from sofia_ros.frames import HIPO_2004, vector_to_pixel
+from sofia_ros.measurements.format import MeasurementSet, Table
 from sofia_ros.mount import hrf_from_irf_dcm
 from sofia_ros.sensors.gyro_errors import (
     gyro_effect_names,
@@ -53,8 +57,19 @@ class StarGeometry:
     refracted_hrf: np.ndarray  # (N, 2, 3)
 
 
-def star_geometry(measurement_set, table):
-    """ERFA apparent places of every row's two stars at their times (C.4.2), with and without refraction (6.2)."""
+def star_geometry(measurement_set: MeasurementSet, table: Table) -> StarGeometry:
+    """ERFA apparent places of every row's two stars at their times (C.4.2), with and without refraction (6.2).
+
+    Args:
+        measurement_set: the set (site, weather, epoch).
+        table: one of its star_distance tables.
+
+    Returns:
+        The times since the epoch and both directions of each row's stars.
+
+    Raises:
+        ConfigError: a star below 5 deg altitude at its time, or a row whose refraction the weather refuses.
+    """
     times, unrefracted, refracted = [], [], []
     for number, row in enumerate(table.rows, start=1):
         pair = []
@@ -73,8 +88,16 @@ def star_geometry(measurement_set, table):
     return StarGeometry(np.array(times), np.array(unrefracted), np.array(refracted))
 
 
-def tarf_from_hrf_on_star(direction_hrf, heading_deg):
-    """A_TARF,HRF with the LOS on the star and the EL axis along the aircraft, level (C.3.2; fine drive XEL only)."""
+def tarf_from_hrf_on_star(direction_hrf: npt.ArrayLike, heading_deg: float) -> np.ndarray:
+    """A_TARF,HRF with the LOS on the star and the EL axis along the aircraft, level (C.3.2; fine drive XEL only).
+
+    Args:
+        direction_hrf: unit vector(s) to the star in HRF, (3,) or (..., 3).
+        heading_deg: the aircraft's true heading [deg].
+
+    Returns:
+        The DCM(s), (3, 3) or (..., 3, 3), rows EL, XEL, LOS.
+    """
     los = np.asarray(direction_hrf, dtype=float)
     heading = heading_deg * RAD_PER_DEG
     forward = np.array([np.cos(heading), -np.sin(heading), 0.0])
@@ -104,8 +127,19 @@ def _earth_rate_rad_per_s(effects):
     return earth['rate_deg_per_h'] * _RAD_PER_S_PER_DEG_PER_H if earth else 0.0
 
 
-def predict_star_distance_arcsec(measurement_set, table, geometry, effects):
-    """Distance of each move as the model's gyros would measure it, from EL and XEL (4.3.3, 4.38), arcsec."""
+def predict_star_distance_arcsec(measurement_set: MeasurementSet, table: Table, geometry: StarGeometry,
+                                 effects: Mapping[str, EffectParams]) -> np.ndarray:
+    """Distance of each move as the model's gyros would measure it, from EL and XEL (4.3.3, 4.38), arcsec.
+
+    Args:
+        measurement_set: the set (site, heading, gyro temperature).
+        table: one of its star_distance tables.
+        geometry: the table's star_geometry.
+        effects: the model, effect name -> resolved parameters.
+
+    Returns:
+        The predicted distance of each row [arcsec].
+    """
     directions_hrf = geometry.refracted_hrf if 'atmospheric_refraction' in effects else geometry.unrefracted_hrf
     latitude = measurement_set.site.latitude_deg
     rate = _earth_rate_rad_per_s(effects)
@@ -128,8 +162,18 @@ def predict_star_distance_arcsec(measurement_set, table, geometry, effects):
     return spherical_sum_arcsec(euler[:, 0], euler[:, 1])
 
 
-def predict_earth_rate_deg_per_h(measurement_set, table, effects):
-    """Mean rates EL, XEL, LOS (deg/h) a braked telescope's gyros read under the model (4.1-4.3, 5.2.4)."""
+def predict_earth_rate_deg_per_h(measurement_set: MeasurementSet, table: Table,
+                                 effects: Mapping[str, EffectParams]) -> np.ndarray:
+    """Mean rates EL, XEL, LOS (deg/h) a braked telescope's gyros read under the model (4.1-4.3, 5.2.4).
+
+    Args:
+        measurement_set: the set (gyro temperature).
+        table: one of its earth_rate tables (latitude, heading, elevation).
+        effects: the model, effect name -> resolved parameters.
+
+    Returns:
+        EL, XEL, LOS [deg/h] repeated for each row, flat (the order of Table.measured()).
+    """
     heading = table.heading_deg + effects.get('heading_error', {}).get('heading_error_deg', 0.0)
     earth = effects.get('earth_rotation')
     truth = earth_rate_tarf_deg_per_h(table.latitude_deg, heading, table.elevation_deg,
@@ -141,13 +185,31 @@ def predict_earth_rate_deg_per_h(measurement_set, table, effects):
     return np.tile(reading, len(table.rows))
 
 
-def residual_alignment_dcm(effects, implemented):
-    """M = A_TARF,GYRF A_k^T: what is left of the mounting under the implemented matrix A_k (3.20, 3.18-3.19)."""
+def residual_alignment_dcm(effects: Mapping[str, EffectParams], implemented: npt.ArrayLike) -> np.ndarray:
+    """M = A_TARF,GYRF A_k^T: what is left of the mounting under the implemented matrix A_k (3.20, 3.18-3.19).
+
+    Args:
+        effects: the model, effect name -> resolved parameters (its gyro_misalignment).
+        implemented: the implemented alignment matrix A_k (3x3).
+
+    Returns:
+        The residual rotation M (3x3).
+    """
     return tarf_from_gyrf_dcm(effects) @ np.asarray(implemented).T
 
 
-def predict_turning_point_arcsec(measurement_set, table, effects):
-    """LOS turning point minus the TARF origin along HIPO X, Y in arcsec (3.10, 3.5-3.7; Tables 6.1, 6.2)."""
+def predict_turning_point_arcsec(measurement_set: MeasurementSet, table: Table,
+                                 effects: Mapping[str, EffectParams]) -> np.ndarray:
+    """LOS turning point minus the TARF origin along HIPO X, Y in arcsec (3.10, 3.5-3.7; Tables 6.1, 6.2).
+
+    Args:
+        measurement_set: the set (its matrices).
+        table: one of its turning_point tables.
+        effects: the model, effect name -> resolved parameters.
+
+    Returns:
+        X, Y [arcsec] of each row, flat (the order of Table.measured()).
+    """
     out = []
     for row in table.rows:
         residual = residual_alignment_dcm(effects, measurement_set.matrices[row.matrix])
@@ -157,8 +219,18 @@ def predict_turning_point_arcsec(measurement_set, table, effects):
     return np.ravel(out)
 
 
-def predict_misalignment_angle_arcmin(measurement_set, table, effects):
-    """beta, the turn about LOS left by the implemented matrix, in arcmin (3.18-3.19, Table 6.4)."""
+def predict_misalignment_angle_arcmin(measurement_set: MeasurementSet, table: Table,
+                                      effects: Mapping[str, EffectParams]) -> np.ndarray:
+    """beta, the turn about LOS left by the implemented matrix, in arcmin (3.18-3.19, Table 6.4).
+
+    Args:
+        measurement_set: the set (its matrices).
+        table: one of its misalignment_angle tables.
+        effects: the model, effect name -> resolved parameters.
+
+    Returns:
+        beta [arcmin] of each row.
+    """
     out = []
     for row in table.rows:
         residual = residual_alignment_dcm(effects, measurement_set.matrices[row.matrix])
@@ -167,8 +239,19 @@ def predict_misalignment_angle_arcmin(measurement_set, table, effects):
     return np.array(out)
 
 
-def predict_table(measurement_set, table, effects, geometry=None):
-    """Predicted values of one table (same order and units as Table.measured())."""
+def predict_table(measurement_set: MeasurementSet, table: Table, effects: Mapping[str, EffectParams],
+                  geometry: StarGeometry | None = None) -> np.ndarray:
+    """Predicted values of one table (same order and units as Table.measured()).
+
+    Args:
+        measurement_set: the set the table belongs to.
+        table: the table.
+        effects: the model, effect name -> resolved parameters.
+        geometry: the table's star_geometry (needed for star_distance only).
+
+    Returns:
+        One predicted value per measured value.
+    """
     if table.kind == 'star_distance':
         return predict_star_distance_arcsec(measurement_set, table, geometry, effects)
     if table.kind == 'earth_rate':

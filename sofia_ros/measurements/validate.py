@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 import re
+from os import PathLike
 
 import numpy as np
 
@@ -49,13 +50,30 @@ _HIP_PREFIX = re.compile(r'\s*hip(?![a-z])', re.IGNORECASE)
 _HIP_DESIGNATION = re.compile(r'\s*hip\s*0*[1-9][0-9]*\s*', re.IGNORECASE)
 
 
-def is_measurement_set_path(path):
-    """True for a file path ending .yaml or .yml (a bag is a directory)."""
+def is_measurement_set_path(path: str | PathLike[str]) -> bool:
+    """True for a file path ending .yaml or .yml (a bag is a directory).
+
+    Args:
+        path: the path given on the command line.
+
+    Returns:
+        Whether it names a measurement set rather than a bag (by its suffix alone).
+    """
     return str(path).lower().endswith(('.yaml', '.yml'))
 
 
-def load_measurement_set(path):
-    """Read and validate a measurement set of at most MAX_SET_BYTES; ConfigError (one line) on any problem."""
+def load_measurement_set(path: str | PathLike[str]) -> MeasurementSet:
+    """Read and validate a measurement set of at most MAX_SET_BYTES; ConfigError (one line) on any problem.
+
+    Args:
+        path: a measurement-set YAML file.
+
+    Returns:
+        The parsed set.
+
+    Raises:
+        ConfigError: the file is no regular file, too large, not UTF-8, or not a valid set.
+    """
     text = read_text_capped(path, MAX_SET_BYTES, 'measurement set')
     return parse_measurement_set(text, str(path))
 
@@ -202,8 +220,19 @@ def _check_columns(kind, columns, where, source):
                           f'for kind {kind}')
 
 
-def parse_measurement_set(text, source='<text>'):
-    """Parse a measurement-set document into a MeasurementSet (docs/measurement-sets.md)."""
+def parse_measurement_set(text: str, source: str = '<text>') -> MeasurementSet:
+    """Parse a measurement-set document into a MeasurementSet (docs/measurement-sets.md).
+
+    Args:
+        text: the YAML document.
+        source: where it came from, the first word of every message.
+
+    Returns:
+        The parsed set: times in UTC, gyrf earth rates turned into TARF, every number within VALUE_RANGES.
+
+    Raises:
+        ConfigError: the first problem found, naming the table, row and fix.
+    """
     document = _mapping(safe_load_limited(text, source), 'the document', source)
     unknown = [key for key in document if key not in _TOP_KEYS]
     if unknown:

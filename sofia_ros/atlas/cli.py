@@ -5,6 +5,7 @@ The arguments are built with every `sofia` command, so the engine, Parquet and p
 
 from __future__ import annotations
 
+import re
 import time
 import uuid
 from pathlib import Path
@@ -19,6 +20,8 @@ __all__ = ['TABLE_DIRECTORY', 'add_atlas_arguments', 'run_atlas']
 TABLE_DIRECTORY = 'table'
 
 _AXES = ('effects', 'sizes', 'campaigns', 'seeds')
+#: The flags of truths with several effects (a grid file has them as truths, draws, controls, search_rounds).
+_TRUTH_FLAGS = ('truths', 'draws', 'draw_k', 'draw_pool', 'draw_seed', 'controls', 'search_rounds')
 _DEFAULTS = {'effects': 'all', 'sizes': '0,0.25,0.5,1', 'campaigns': 'alignment:reduced', 'seeds': '5'}
 
 
@@ -38,6 +41,18 @@ def add_atlas_arguments(parser) -> None:
     parser.add_argument('--model', help='the model compare fits (default config/model/nominal.yaml)')
     parser.add_argument('--truth', help='the truth the effects are hidden in (default config/truth/nominal.yaml)')
     parser.add_argument('--candidates', help='comma-separated effects compare ranks (default: the whole catalogue)')
+    parser.add_argument('--truths', help='comma-separated truths hiding several effects at their defaults, each A+B '
+                                         '(none: a control); --effects then defaults to none')
+    parser.add_argument('--draws', type=integer(1, 1_000_000, 'drawn truths'),
+                        help='N truths of k effects drawn at random (each set once) from --draw-pool')
+    parser.add_argument('--draw-k', help='effects per drawn truth, cycled: K, K-K or a comma list (default 2,3)')
+    parser.add_argument('--draw-pool', help='comma-separated effects to draw from (default: the campaign\'s visible '
+                                            'catalogue effects, docs/atlas.md)')
+    parser.add_argument('--draw-seed', type=integer(0, 2**32 - 1, 'draw seed'), help='seed of the draws (default 1)')
+    parser.add_argument('--controls', type=integer(0, 1_000_000, 'controls'),
+                        help='control truths per campaign (nothing hidden; each its own seed)')
+    parser.add_argument('--search-rounds', type=integer(1, 20, 'search rounds'),
+                        help='run the search (compare --search) for up to N rounds on each truth instead of one compare')
     where = parser.add_mutually_exclusive_group()
     where.add_argument('--scheduler', metavar='tcp://HOST:PORT', help='an existing Dask scheduler (default: a '
                                                                       'LocalCluster on this machine)')
@@ -55,23 +70,55 @@ def _split(text: str) -> list[str]:
     return [part.strip() for part in text.split(',') if part.strip()]
 
 
+def _draw_ks(text: str) -> list[int]:
+    """--draw-k: K, K-K (a range) or a comma list; ConfigError otherwise."""
+    text = text.strip()
+    match = re.fullmatch(r'(\d{1,2})-(\d{1,2})', text)
+    if match and int(match[1]) <= int(match[2]):
+        return list(range(int(match[1]), int(match[2]) + 1))
+    if re.fullmatch(r'\d{1,2}(,\d{1,2})*', text):
+        return [int(part) for part in text.split(',')]
+    raise ConfigError(f'--draw-k {text!r}: give K, a range such as 2-3 or a comma list such as 2,3')
+
+
+def _truth_arguments(args, max_tasks: int) -> dict:
+    """grid_from_lists' truth arguments of the flags; ConfigError for a draw option without --draws."""
+    from sofia_ros.atlas.grid import truth_draws
+
+    orphan = next((name for name in ('draw_k', 'draw_pool', 'draw_seed') if getattr(args, name) is not None), None)
+    if orphan is not None and args.draws is None:
+        raise ConfigError(f'--{orphan.replace("_", "-")} shapes the draws: give --draws N too')
+    draws = None
+    if args.draws is not None:
+        draws = truth_draws(args.draws, _draw_ks(args.draw_k) if args.draw_k is not None else [2, 3],
+                            args.draw_seed if args.draw_seed is not None else 1,
+                            _split(args.draw_pool) if args.draw_pool is not None else None, max_tasks)
+    return {'truths': _split(args.truths) if args.truths is not None else [], 'draws': draws,
+            'controls': args.controls or 0, 'search_rounds': args.search_rounds or 0}
+
+
 def grid_of_arguments(args):
-    """The AtlasGrid of --grid, or of the axis flags (with their defaults)."""
+    """The AtlasGrid of --grid, or of the axis and truth flags (with their defaults)."""
     from sofia_ros.atlas.grid import FORCED_MAX_TASKS, MAX_TASKS, grid_from_file, grid_from_lists, seeds_of_text
 
     max_tasks = FORCED_MAX_TASKS if args.force else MAX_TASKS
-    given = [axis for axis in (*_AXES, 'model', 'truth', 'candidates') if getattr(args, axis) is not None]
+    given = [axis for axis in (*_AXES, 'model', 'truth', 'candidates', *_TRUTH_FLAGS) if getattr(args, axis) is not None]
     if args.grid is not None:
         if given:
-            raise ConfigError(f'--grid and --{given[0]} both given; put the whole grid in the file or use flags only')
+            raise ConfigError(f'--grid and --{given[0].replace("_", "-")} both given; put the whole grid in the file '
+                              'or use flags only')
         return grid_from_file(args.grid, max_tasks)
-    value = {axis: getattr(args, axis) if getattr(args, axis) is not None else _DEFAULTS[axis] for axis in _AXES}
+    truths = _truth_arguments(args, max_tasks)
+    has_truths = bool(truths['truths']) or truths['draws'] is not None or truths['controls'] > 0
+    # with truths, the effects axis is empty unless asked for (its default, all, is a single-effect atlas)
+    defaults = {**_DEFAULTS, 'effects': '' if has_truths else _DEFAULTS['effects']}
+    value = {axis: getattr(args, axis) if getattr(args, axis) is not None else defaults[axis] for axis in _AXES}
     files = {name: getattr(args, name) for name in ('model', 'truth') if getattr(args, name) is not None}
     return grid_from_lists(effects=_split(value['effects']), sizes=_split(value['sizes']),
                            campaigns=_split(value['campaigns']),
                            seeds=seeds_of_text(value['seeds'], '--seeds', max_tasks) if value['seeds'].strip() else [],
                            candidates=_split(args.candidates) if args.candidates is not None else None,
-                           max_tasks=max_tasks, **files)
+                           max_tasks=max_tasks, **truths, **files)
 
 
 def run_atlas(args, out: TextIO, err: TextIO) -> int:
@@ -92,9 +139,15 @@ def run_atlas(args, out: TextIO, err: TextIO) -> int:
     # every stored key is a cell of this grid (the store refuses another grid's parts)
     missing = total - len(store.finished_keys())
     engine = 'serial' if args.serial else (args.scheduler or 'a LocalCluster')
-    out.write(f'atlas: {total} tasks ({len(grid.effects)} effects x {len(grid.sizes)} sizes x '
-              f'{len(grid.campaigns)} campaigns x {len(grid.seeds)} seeds), {total - missing} already in '
-              f'{args.out}; running {missing} on {engine} (run {run_id})\n')
+    truths = sum(map(len, grid.truths))
+    shape = [f'{len(grid.effects)} effects x {len(grid.sizes)} sizes x {len(grid.campaigns)} campaigns x '
+             f'{len(grid.seeds)} seeds'] if grid.effects or not truths else []
+    if truths:
+        how = f'the search, up to {grid.search_rounds} rounds' if grid.search_rounds else 'one compare'
+        shape.append(f'{truths} truths over {len(grid.campaigns)} campaigns ({how}) x {len(grid.seeds)} seeds')
+    shape = '; '.join(shape)
+    out.write(f'atlas: {total} tasks ({shape}), {total - missing} already in {args.out}; running {missing} on '
+              f'{engine} (run {run_id})\n')
     out.flush()
     if missing:
         try:

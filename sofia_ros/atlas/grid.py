@@ -1,8 +1,13 @@
-"""The atlas grid: effects x sizes x campaign variants x seeds, from command-line lists or a YAML file.
+"""The atlas grid: effects x sizes x campaign variants x seeds, and truths with several effects hidden at once,
+from command-line lists or a YAML file.
 
 A size is a multiple of the effect's thesis default: every scaling parameter (docs/effects.md) is
 multiplied by it, the shaping ones (periods, phases, weather, axis names) keep their defaults, so
 size 0 hides nothing (a control run) and size 1 is the thesis' magnitude.
+
+A **truth** hides a set of effects at their defaults: an explicit list, k effects drawn (seeded, each
+set once) from a pool, or none (a control). Truth number i of a campaign is flown with seed s + i for
+every seed s of the grid, so no two truths share a noise realisation.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
 import yaml
 
 from sofia_ros.campaigns.registry import campaign_named
@@ -23,12 +29,28 @@ from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
 from sofia_ros.input_files import read_text_capped
 
-__all__ = ['AtlasGrid', 'AtlasTask', 'DEFAULT_MODEL', 'DEFAULT_TRUTH', 'FORCED_MAX_TASKS', 'MAX_TASKS', 'NOISE_EFFECTS',
-           'grid_from_file', 'grid_from_lists', 'hidden_truth_text', 'scaled_params', 'seeds_of_text']
+__all__ = ['AtlasGrid', 'AtlasTask', 'CONTROL', 'DEFAULT_MODEL', 'DEFAULT_TRUTH', 'FORCED_MAX_TASKS', 'MAX_TASKS',
+           'NOISE_EFFECTS', 'TruthDraws', 'VISIBLE_EFFECTS', 'draw_truths', 'grid_from_file', 'grid_from_lists',
+           'truth_draws',
+           'hidden_truth_text', 'scaled_params', 'seeds_of_text', 'truth_label']
 
 DEFAULT_MODEL, DEFAULT_TRUTH = 'config/model/nominal.yaml', 'config/truth/nominal.yaml'
 #: Keys a grid file may hold.
-_GRID_KEYS = ('effects', 'sizes', 'campaigns', 'seeds', 'model', 'truth', 'candidates')
+_GRID_KEYS = ('effects', 'sizes', 'campaigns', 'seeds', 'model', 'truth', 'candidates', 'truths', 'draws', 'controls',
+              'search_rounds')
+_DRAW_KEYS = ('count', 'k', 'pool', 'seed')
+#: The label of a truth that hides nothing (a control), in its key and its ``effect`` column.
+CONTROL = 'none'
+#: The catalogue effects each campaign reveals alone at their defaults, the pool truths are drawn from by default.
+#: Alignment: the single-effect atlas rows and bench/bench_search_truths.py of the reduced alignment (each found
+#: alone at delta-BIC >= 6). Star hop: not yet measured by an atlas; the same list, which holds the Waco 2004
+#: star hop's five effects (docs/tutorials/search-waco-2004.md).
+VISIBLE_EFFECTS = {
+    'alignment': ('gyro_scale_factor', 'gyro_axis_swap', 'fpi_internal_flexure', 'imager_boresight_offset',
+                  'imager_rotation_of_field', 'imager_scale_error', 'hipo_fiducial_error', 'tracker_drift',
+                  'timestamp_offset'),
+}
+VISIBLE_EFFECTS['star-hop'] = VISIBLE_EFFECTS['alignment']
 _MAX_SEED = 2**32 - 1
 #: The most tasks a grid may have: 10 000 tasks of ~20 s are days on a workstation, so more is a typo.
 MAX_TASKS = 10_000
@@ -40,20 +62,52 @@ _FORCED_HINT = ' even with --force'
 _MAX_GRID_FILE_BYTES = 1 << 20
 
 
+def truth_label(effects) -> str:
+    """A truth's name in keys and rows: its effects joined by '+', or 'none' for a control."""
+    return '+'.join(effects) or CONTROL
+
+
 @dataclass(frozen=True)
 class AtlasTask:
-    """One cell of the grid: hide ``effect`` at ``size`` x default in one campaign variant, one seed."""
+    """One cell of the grid: hide ``effect`` at ``size`` x default in one campaign variant, one seed.
+
+    A truth task (``truth_index`` set) hides the effects of its label (truth_label) at their defaults,
+    or nothing (a control, size 0), and runs the search when ``search_rounds`` > 0.
+    """
 
     effect: str
     size: float
     campaign: str
     variant: str
     seed: int
+    #: the truth's place in its campaign's list (None: a cell of the effects axis)
+    truth_index: int | None = None
+    #: rounds of compare.search.search_model (0: one compare of the model)
+    search_rounds: int = 0
 
     @property
     def key(self) -> str:
         """The row's key in the results table (a resumed atlas skips the keys it holds)."""
-        return f'{self.effect}|{self.size:g}|{self.campaign}|{self.variant}|{self.seed}'
+        key = f'{self.effect}|{self.size:g}|{self.campaign}|{self.variant}|{self.seed}'
+        return key if self.truth_index is None else f'{key}|truth{self.truth_index}'
+
+    @property
+    def hidden(self) -> tuple[str, ...]:
+        """The effects hidden in the truth (none for a size-0 cell or a control)."""
+        if self.truth_index is None:
+            return (self.effect,) if self.size > 0 else ()
+        return () if self.effect == CONTROL else tuple(self.effect.split('+'))
+
+
+@dataclass(frozen=True)
+class TruthDraws:
+    """Random truths: ``count`` distinct sets of k effects (k cycling through ``ks``) from a pool, seeded."""
+
+    count: int
+    ks: tuple[int, ...]
+    seed: int
+    #: None: the campaign's VISIBLE_EFFECTS less what the model or the truth already holds
+    pool: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -69,15 +123,25 @@ class AtlasGrid:
     model: EffectConfig
     #: compare's catalogue candidates (None: the whole catalogue); empirical shapes are always ranked
     candidates: tuple[str, ...] | None = None
+    #: per (campaign, variant) of ``campaigns``: the truths hidden there (effect sets; () a control), in order
+    truths: tuple[tuple[tuple[str, ...], ...], ...] = ()
+    #: rounds of the search each truth task runs (0: one compare)
+    search_rounds: int = 0
 
     def iter_tasks(self) -> Iterator[AtlasTask]:
-        """Every cell, campaigns outermost and seeds innermost (a partial atlas covers every effect early).
+        """Every cell, campaigns outermost and seeds innermost (a partial atlas covers every effect early), then
+        each campaign's truths.
 
         One at a time, so a grid of a million tasks is never a list of them.
         """
-        return (AtlasTask(effect, size, campaign, variant, seed)
-                for campaign, variant in self.campaigns for seed in self.seeds
-                for size in self.sizes for effect in self.effects)
+        for index, (campaign, variant) in enumerate(self.campaigns):
+            for seed in self.seeds:
+                for size in self.sizes:
+                    for effect in self.effects:
+                        yield AtlasTask(effect, size, campaign, variant, seed)
+                for number, effects in enumerate(self.truths[index] if self.truths else ()):
+                    yield AtlasTask(truth_label(effects), 1.0 if effects else 0.0, campaign, variant, seed + number,
+                                    number, self.search_rounds)
 
     def tasks(self) -> list[AtlasTask]:
         """Every cell as a list (iter_tasks' order)."""
@@ -85,13 +149,22 @@ class AtlasGrid:
 
     def task_count(self) -> int:
         """How many cells the grid has."""
-        return len(self.effects) * len(self.sizes) * len(self.campaigns) * len(self.seeds)
+        return (len(self.effects) * len(self.sizes) * len(self.campaigns) + sum(map(len, self.truths))) * len(self.seeds)
+
+    def _truth_document(self) -> dict:
+        """The truths and the search, only when the grid has truths (a single-effect grid keeps its fingerprint)."""
+        if not any(self.truths):
+            return {}
+        return {'truths': {f'{c}:{v}': [truth_label(effects) for effects in truths]
+                           for (c, v), truths in zip(self.campaigns, self.truths)},
+                'search_rounds': self.search_rounds}
 
     def fingerprint(self) -> str:
         """sha256 of everything that decides a row: a results table from another grid is refused with it."""
         document = {'effects': self.effects, 'sizes': [float(s) for s in self.sizes],
                     'campaigns': [list(pair) for pair in self.campaigns], 'seeds': self.seeds,
-                    'truth': self.truth.text, 'model': self.model.text, 'candidates': self.candidates}
+                    'truth': self.truth.text, 'model': self.model.text, 'candidates': self.candidates,
+                    **self._truth_document()}
         return hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()
 
     def describe(self) -> dict:
@@ -100,7 +173,7 @@ class AtlasGrid:
                 'campaigns': [f'{c}:{v}' for c, v in self.campaigns], 'seeds': list(self.seeds),
                 'truth': self.truth.source, 'model': self.model.source,
                 'candidates': None if self.candidates is None else list(self.candidates),
-                'fingerprint': self.fingerprint()}
+                **self._truth_document(), 'fingerprint': self.fingerprint()}
 
 
 def scaled_params(effect: str, size: float) -> dict:
@@ -119,15 +192,17 @@ def scaled_params(effect: str, size: float) -> dict:
     return params
 
 
-def hidden_truth_text(truth: EffectConfig, effect: str, size: float) -> str:
-    """The truth document with ``effect`` added at ``size`` x its default (YAML text)."""
+def hidden_truth_text(truth: EffectConfig, effect: str | tuple[str, ...], size: float) -> str:
+    """The truth document with ``effect`` (a name or several) added at ``size`` x its default (YAML text)."""
+    hidden = (effect,) if isinstance(effect, str) else tuple(effect)
     document = safe_load_limited(truth.text, truth.source) or {}
     effects = dict(document.get('effects') or {})
-    effects[effect] = scaled_params(effect, size)
+    for name in hidden:
+        effects[name] = scaled_params(name, size)
     document['effects'] = effects
     document.pop('description', None)
-    return f'# {truth.source} with {effect} at {size:g} x its default (sofia atlas)\n' + yaml.safe_dump(
-        document, sort_keys=False)
+    return (f'# {truth.source} with {truth_label(hidden)} at {size:g} x the default (sofia atlas)\n'
+            + yaml.safe_dump(document, sort_keys=False))
 
 
 def _campaign_pair(text: str) -> tuple[str, str]:
@@ -154,6 +229,84 @@ def _checked_effect(name: str, model: EffectConfig, truth: EffectConfig) -> str:
         raise ConfigError(f'atlas effect {name!r} is already in the truth {truth.source}; '
                           'hide effects the truth lacks')
     return name
+
+
+def _truth_set(value, model: EffectConfig, truth: EffectConfig) -> tuple[str, ...]:
+    """One explicit truth: a list of effect names or 'a+b' ('none' or [] a control), checked, sorted."""
+    if isinstance(value, str):
+        names = [] if value.strip() == CONTROL else [part.strip() for part in value.split('+')]
+    elif isinstance(value, list):
+        names = value
+    else:
+        raise ConfigError(f'atlas truth {value!r}: give a list of effects, A+B, or [] / none for a control')
+    checked = [_checked_effect(name, model, truth) for name in names]
+    if len(set(checked)) < len(checked):
+        raise ConfigError(f'atlas truth {truth_label(checked)} names an effect twice; hide each effect once')
+    return tuple(sorted(checked))
+
+
+def draw_truths(pool: tuple[str, ...], count: int, ks: tuple[int, ...], seed: int) -> list[tuple[str, ...]]:
+    """``count`` distinct sets of k effects from ``pool`` (k cycling through ``ks``), the same for the same seed."""
+    for k in ks:
+        if not 1 <= k <= len(pool):
+            raise ConfigError(f'draws: k = {k} is outside 1..{len(pool)} (the {len(pool)} effects of the pool); '
+                              'give k within it')
+    for k in set(ks):
+        wanted = sum(1 for index in range(count) if ks[index % len(ks)] == k)
+        if wanted > math.comb(len(pool), k):
+            raise ConfigError(f'draws: {wanted} distinct sets of {k} effects asked from a pool of {len(pool)}, which '
+                              f'has only {math.comb(len(pool), k)}; draw fewer or widen the pool')
+    rng = np.random.default_rng(seed)
+    drawn: list[tuple[str, ...]] = []
+    seen: set[tuple[str, ...]] = set()
+    for index in range(count):
+        k = ks[index % len(ks)]
+        chosen = tuple(sorted(str(name) for name in rng.choice(pool, size=k, replace=False)))
+        while chosen in seen:  # each set once: a repeated set would only count its truth twice
+            chosen = tuple(sorted(str(name) for name in rng.choice(pool, size=k, replace=False)))
+        seen.add(chosen)
+        drawn.append(chosen)
+    return drawn
+
+
+def _draw_pool(draws: TruthDraws, campaign: str, model: EffectConfig, truth: EffectConfig) -> tuple[str, ...]:
+    """The pool of one campaign: the one given (checked) or the campaign's visible effects the model and truth lack."""
+    if draws.pool is not None:
+        return _unique([_checked_effect(name, model, truth) for name in draws.pool])
+    return tuple(name for name in VISIBLE_EFFECTS[campaign] if name not in model.effects and name not in truth.effects)
+
+
+def _checked_truths(campaign: str, explicit: list, draws: TruthDraws | None, controls: int,
+                    model: EffectConfig, truth: EffectConfig) -> tuple[tuple[str, ...], ...]:
+    """One campaign's truths: the explicit ones, then the draws (a set already listed is not drawn again), with
+    the controls spread evenly among them (a partial atlas has its share of controls)."""
+    truths = list(_unique([_truth_set(value, model, truth) for value in explicit]))
+    if draws is not None:
+        truths += [drawn for drawn in draw_truths(_draw_pool(draws, campaign, model, truth), draws.count, draws.ks,
+                                                  draws.seed) if drawn not in truths]
+    spread: list[tuple[str, ...]] = []
+    for index, effects in enumerate(truths):
+        spread.append(effects)
+        while spread.count(()) < (index + 1) * controls // len(truths):
+            spread.append(())
+    return tuple(spread + [()] * (controls - spread.count(())))
+
+
+def _count(value, what: str, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ConfigError(f'{what} {value!r} must be an integer in {low}..{high}')
+    return value
+
+
+def truth_draws(count, ks, seed, pool=None, max_tasks: int = MAX_TASKS) -> TruthDraws:
+    """TruthDraws checked: a count within the task limit, each k >= 1, a seed, an optional pool of names."""
+    if not isinstance(ks, list) or not ks:
+        ks = [ks]
+    if pool is not None and (not isinstance(pool, list) or not pool):
+        raise ConfigError('draws: pool must be a non-empty list of effect names (leave it out for the campaign\'s '
+                          'visible effects)')
+    return TruthDraws(_count(count, 'draws: count', 1, max_tasks), tuple(_count(k, 'draws: k', 1, 64) for k in ks),
+                      _seed(seed), None if pool is None else tuple(pool))
 
 
 def _size(value) -> float:
@@ -207,11 +360,14 @@ def seeds_of_text(text: str, what: str, max_tasks: int = MAX_TASKS) -> list[int]
     raise ConfigError(f'{what} {text!r}: give N (seeds 1..N), A-B or a comma list such as 1,2,7')
 
 
-def _checked_task_count(counts: dict, max_tasks: int) -> None:
-    """ConfigError when the axes multiply to more than ``max_tasks`` (before any hidden truth is built)."""
-    total = math.prod(counts.values())
+def _checked_task_count(counts: dict, max_tasks: int, truths: int = 0) -> None:
+    """ConfigError when the axes multiply to more than ``max_tasks`` (before any hidden truth is built); ``truths``
+    are the truth tasks of every campaign, flown with every seed."""
+    seeds = counts.pop('seeds')
+    total = (math.prod(counts.values()) + truths) * seeds
     if total > max_tasks:
         axes = ' x '.join(f'{count} {name}' for name, count in counts.items())
+        axes = f'{axes} x {seeds} seeds' if not truths else f'{axes} + {truths} truths, x {seeds} seeds'
         raise ConfigError(f'the grid is {total} tasks ({axes}), more than the {max_tasks} an atlas may have'
                           f'{_FORCE_HINT if max_tasks < FORCED_MAX_TASKS else _FORCED_HINT}; narrow an axis')
 
@@ -228,21 +384,40 @@ def _unique(values: list) -> tuple:
 
 
 def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MODEL, truth: str = DEFAULT_TRUTH,
-                    candidates=None, max_tasks: int = MAX_TASKS) -> AtlasGrid:
-    """The grid from plain lists (``effects`` may be ['all']: every effect the model lacks); ConfigError if bad
-    or if it has more than ``max_tasks`` tasks."""
+                    candidates=None, max_tasks: int = MAX_TASKS, truths=(), draws: TruthDraws | None = None,
+                    controls: int = 0, search_rounds: int = 0) -> AtlasGrid:
+    """The grid from plain lists (``effects`` may be ['all']: every effect the model lacks), with the truths
+    (``truths`` explicit sets, ``draws``, ``controls``) of each campaign; ConfigError if bad or if it has more than
+    ``max_tasks`` tasks."""
+    from sofia_ros.compare.search import SEARCH_ROUNDS_RANGE
+
     model_config = load_effect_config(model)
     truth_config = load_effect_config(truth)
-    effects = _nonempty('effects', effects)
+    controls = _count(controls, 'controls', 0, max_tasks)
+    has_truths = bool(truths) or draws is not None or controls > 0
+    effects = list(effects) if has_truths else _nonempty('effects', effects)
     if effects == ['all']:
         effects = [name for name in CATALOGUE if name not in model_config.effects and name not in truth_config.effects
                    and name not in NOISE_EFFECTS]
     effect_names = _unique([_checked_effect(name, model_config, truth_config) for name in effects])
-    size_values = _unique([_size(value) for value in _nonempty('sizes', sizes)])
+    size_values = _unique([_size(value) for value in (_nonempty('sizes', sizes) if effect_names else sizes)])
     pairs = _unique([_campaign_pair(text) for text in _nonempty('campaigns', campaigns)])
     seed_values = _unique([_seed(value) for value in _nonempty('seeds', seeds)])
+    if search_rounds and not has_truths:
+        raise ConfigError('search_rounds is for truths (truths, draws or controls); the effects axis runs one compare '
+                          'per cell')
+    low, high = SEARCH_ROUNDS_RANGE
+    if search_rounds != 0:
+        _count(search_rounds, 'search_rounds', low, high)
+    truth_count = len(truths) + (draws.count if draws is not None else 0) + controls
     _checked_task_count({'effects': len(effect_names), 'sizes': len(size_values), 'campaigns': len(pairs),
-                         'seeds': len(seed_values)}, max_tasks)
+                         'seeds': len(seed_values)}, max_tasks, truth_count * len(pairs))
+    truth_sets = tuple(_checked_truths(campaign, list(truths), draws, controls, model_config, truth_config)
+                       for campaign, _ in pairs) if has_truths else ()
+    longest = max(map(len, truth_sets), default=0)
+    if longest and max(seed_values) + longest - 1 > _MAX_SEED:
+        raise ConfigError(f'seed {max(seed_values)} + {longest - 1} (truth {longest - 1} is flown with seed s + '
+                          f'{longest - 1}) is beyond the largest seed {_MAX_SEED}; give smaller seeds')
     if candidates is not None:
         for name in candidates:
             get_effect(name)
@@ -250,7 +425,10 @@ def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MO
     for effect in effect_names:  # every hidden truth must be a valid truth file (ranges) before anything runs
         for size in size_values:
             parse_effect_config(hidden_truth_text(truth_config, effect, size), f'{truth} with {effect} at {size:g}x')
-    return AtlasGrid(effect_names, size_values, pairs, seed_values, truth_config, model_config, candidates)
+    for hidden in sorted({effects for campaign_truths in truth_sets for effects in campaign_truths}):
+        parse_effect_config(hidden_truth_text(truth_config, hidden, 1.0), f'{truth} with {truth_label(hidden)}')
+    return AtlasGrid(effect_names, size_values, pairs, seed_values, truth_config, model_config, candidates,
+                     truth_sets, search_rounds)
 
 
 def _listed(document: dict, key: str, max_tasks: int):
@@ -265,27 +443,47 @@ def _listed(document: dict, key: str, max_tasks: int):
     return value
 
 
+def _draws_of_document(value, max_tasks: int) -> TruthDraws | None:
+    """The ``draws:`` mapping of a grid file (count, k, pool, seed)."""
+    if value is None:
+        return None
+    if not isinstance(value, dict):
+        raise ConfigError(f'draws must be a mapping with {", ".join(_DRAW_KEYS)} (e.g. {{count: 20, k: [2, 3], '
+                          'seed: 1}})')
+    unknown = sorted(set(map(str, value)) - set(_DRAW_KEYS))
+    if unknown:
+        raise ConfigError(f'draws: unknown key(s) {", ".join(unknown)} (allowed: {", ".join(_DRAW_KEYS)})')
+    if 'count' not in value:
+        raise ConfigError('draws: count missing; give how many truths to draw')
+    return truth_draws(value['count'], value.get('k', [2, 3]), value.get('seed', 1), value.get('pool'), max_tasks)
+
+
 def grid_from_file(path, max_tasks: int = MAX_TASKS) -> AtlasGrid:
-    """The grid of a YAML file (keys: effects, sizes, campaigns, seeds, model, truth, candidates)."""
+    """The grid of a YAML file (keys: effects, sizes, campaigns, seeds, model, truth, candidates, and the truths:
+    truths, draws, controls, search_rounds)."""
     path = Path(path)
     text = read_text_capped(path, _MAX_GRID_FILE_BYTES, 'grid file')
     document = safe_load_limited(text, str(path))
     if not isinstance(document, dict):
         raise ConfigError(f'{path}: a grid file is a mapping with effects, sizes, campaigns and seeds')
-    unknown = sorted(set(document) - set(_GRID_KEYS))
+    unknown = sorted(set(map(str, document)) - set(_GRID_KEYS))
     if unknown:
-        raise ConfigError(f'{path}: unknown key(s) {", ".join(map(str, unknown))} (allowed: {", ".join(_GRID_KEYS)})')
+        raise ConfigError(f'{path}: unknown key(s) {", ".join(unknown)} (allowed: {", ".join(_GRID_KEYS)})')
     candidates = document.get('candidates')
     if candidates is not None and not isinstance(candidates, list):
         raise ConfigError(f'{path}: candidates must be a list of effect names')
     try:
+        truths = _listed(document, 'truths', max_tasks)
         return grid_from_lists(effects=_listed(document, 'effects', max_tasks),
                                sizes=_listed(document, 'sizes', max_tasks),
                                campaigns=_listed(document, 'campaigns', max_tasks),
                                seeds=_listed(document, 'seeds', max_tasks),
                                model=str(document.get('model', DEFAULT_MODEL)),
                                truth=str(document.get('truth', DEFAULT_TRUTH)), candidates=candidates,
-                               max_tasks=max_tasks)
+                               max_tasks=max_tasks, truths=truths,
+                               draws=_draws_of_document(document.get('draws'), max_tasks),
+                               controls=document.get('controls', 0),
+                               search_rounds=document.get('search_rounds', 0))
     except UnknownEffectError as err:
         raise UnknownEffectError(f'{path}: {err}') from err
     except ConfigError as err:

@@ -1,4 +1,6 @@
-"""The atlas for a planner: a one-screen text table and an HTML page with PNG plots (matplotlib)."""
+"""The atlas for a planner: a one-screen text table and an HTML page with PNG plots (matplotlib); for truths
+with several effects, the success rates per campaign and k, the controls' rate, the pairs most often confused and
+every truth that did not end right."""
 
 from __future__ import annotations
 
@@ -8,12 +10,14 @@ from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
+from sofia_ros.atlas.scoring import SCORES
 from sofia_ros.atlas.stats import (CONFIDENCE, TABLE_6_5, confusions, detectable_sizes, detection_curves,
-                                   fit_calibration, table_6_5_slice, thesis_sigmas_arcsec)
+                                   fit_calibration, table_6_5_slice, thesis_sigmas_arcsec, truth_confusions,
+                                   truth_misses, truth_rates)
 from sofia_ros.compare.report import html_table
 from sofia_ros.output_files import atomic_output, write_text_atomically
 
-__all__ = ['AtlasSummary', 'summarize', 'text_table', 'write_html']
+__all__ = ['AtlasSummary', 'miss_line', 'summarize', 'text_table', 'truth_lines', 'write_html']
 
 #: Lines of the confusion and calibration blocks on the one-screen table (the page has them all).
 _SCREEN_LINES = 5
@@ -30,13 +34,50 @@ class AtlasSummary:
     confused: list
     table_6_5: list
     table_6_5_rows: str
+    truth_rates: list = ()
+    truth_confused: list = ()
+    truth_misses: list = ()
 
 
 def summarize(rows: list[dict]) -> AtlasSummary:
     """The derived tables (atlas.stats) of the rows."""
     points = detection_curves(rows)
     table, which = table_6_5_slice(rows)
-    return AtlasSummary(rows, points, detectable_sizes(points), fit_calibration(rows), confusions(rows), table, which)
+    return AtlasSummary(rows, points, detectable_sizes(points), fit_calibration(rows), confusions(rows), table, which,
+                        truth_rates(rows), truth_confusions(rows), truth_misses(rows))
+
+
+def miss_line(row: dict) -> str:
+    """One truth that did not end right: its key, what was hidden, the final model's changes, status and rounds."""
+    change = ' '.join([*(f'+{name}' for name in (row['final_added'] or '').split(',') if name),
+                       *(f'-{name}' for name in (row['final_removed'] or '').split(',') if name)])
+    return (f'{row["score"]}: {row["key"]}: hidden {row["truth_effects"] or "nothing"} -> final '
+            f'{change or "the model as given"} ({row["verdict"]}, {row["rounds"]} comparisons)')
+
+
+def truth_lines(summary: AtlasSummary, screen: bool = True) -> list[str]:
+    """The truth block: success per campaign and k with the controls, the pairs most often confused, the misses
+    (on a screen the first few of each)."""
+    if not summary.truth_rates:
+        return []
+    limit = _SCREEN_LINES if screen else None
+    lines = ['truths: right = exact, or equivalent up to the competitors or equivalent models the output states;',
+             '  a control (k=0) is right when it ends explained with nothing added',
+             f'  {"campaign":<20} {"k":>2} {"right/runs":>10} {"rate":>5} {"95% interval":>12}  '
+             + ' '.join(f'{name:>10}' for name in SCORES)]
+    for rate in summary.truth_rates:
+        lines.append(f'  {rate.campaign:<20} {rate.k:>2} {f"{rate.successes}/{rate.trials}":>10} '
+                     f'{rate.probability:>5.0%} {f"{rate.low:.2f}-{rate.high:.2f}":>12}  '
+                     + ' '.join(f'{rate.counts[name]:>10}' for name in SCORES))
+    if summary.truth_confused:
+        lines.append('  pairs most often confused (hidden -> in the final model instead; times, of them stated as '
+                     'competitors):')
+        lines += [f'    {c.hidden} -> {c.named} ({c.campaign}): {c.count}x, {c.stated} stated'
+                  for c in summary.truth_confused[:limit]]
+    if summary.truth_misses:
+        lines.append(f'  not right ({len(summary.truth_misses)}):')
+        lines += [f'    {miss_line(row)}' for row in summary.truth_misses[:limit]]
+    return lines
 
 
 def _size_text(found) -> str:
@@ -56,8 +97,9 @@ def text_table(summary: AtlasSummary) -> str:
     """One screen: detections per size, the 50/90 % sizes, the worst confusions and sigma calibrations, Table 6.5."""
     failed = sum(row['error'] is not None for row in summary.rows)
     lines = [f'atlas: {len(summary.rows)} rows, {failed} failed; detected = the hidden effect is compare\'s top '
-             'candidate at delta-BIC >= 6',
-             f'{"effect":<28} {"campaign":<20} {"50%":>7} {"90%":>7}  detected/runs by size (x default)']
+             'candidate at delta-BIC >= 6']
+    if summary.points:
+        lines.append(f'{"effect":<28} {"campaign":<20} {"50%":>7} {"90%":>7}  detected/runs by size (x default)')
     curves = defaultdict(list)
     for point in summary.points:
         curves[(point.effect, point.campaign)].append(point)
@@ -84,6 +126,7 @@ def text_table(summary: AtlasSummary) -> str:
                          f'{row.predicted_tilt_arcsec:>10.2f} {row.thesis_sigma_r_arcsec:>15.2f} '
                          f'{row.los_rms_arcsec:>9.1f} {row.predicted_los_arcsec:>10.1f} '
                          f'{row.thesis_sigma_beta_arcsec:>18.1f}')
+    lines += truth_lines(summary)
     return '\n'.join(lines) + '\n'
 
 
@@ -148,6 +191,28 @@ def _table_6_5_plot(summary, path):
     plt.close(figure)
 
 
+def _truth_section(summary: AtlasSummary) -> str:
+    """The page's truth tables: rates per campaign and k, the confused pairs, every truth not ended right."""
+    if not summary.truth_rates:
+        return ''
+    rates = [[r.campaign, r.k if r.k else '0 (controls)', f'{r.successes}/{r.trials}', f'{r.probability:.2f}',
+              f'{r.low:.2f}-{r.high:.2f}', *(r.counts[name] for name in SCORES)] for r in summary.truth_rates]
+    confused = [[c.hidden, c.named, c.campaign, c.count, c.stated] for c in summary.truth_confused]
+    misses = [[row['key'], row['score'], row['truth_effects'] or 'nothing', row['final_added'] or '-',
+               row['final_removed'] or '-', row['verdict'], row['rounds']] for row in summary.truth_misses]
+    return ('<h2>Truths with several effects: success per campaign and k</h2>'
+            '<p>right = exact, or equivalent up to the competing sets and equivalent models the output states; a '
+            f'control (k = 0) is right when it ends explained with nothing added; {CONFIDENCE:.0%} Clopper-Pearson '
+            'intervals.</p>'
+            + html_table(['campaign', 'k', 'right/runs', 'rate', 'interval', *SCORES], rates)
+            + '<h2>Pairs most often confused (hidden, in the final model instead)</h2>'
+            + (html_table(['hidden', 'named instead', 'campaign', 'times', 'stated as competitors'], confused)
+               if confused else '<p>none</p>')
+            + '<h2>Truths not ended right</h2>'
+            + (html_table(['key', 'score', 'hidden', 'added', 'removed', 'status', 'comparisons'], misses)
+               if misses else '<p>none</p>'))
+
+
 def write_html(summary: AtlasSummary, directory, title: str) -> Path:
     """index.html with a detection plot per campaign, the tables, and the Table 6.5 slice; its path."""
     directory = Path(directory)
@@ -194,6 +259,7 @@ def write_html(summary: AtlasSummary, directory, title: str) -> Path:
 {html_table(['effect', 'param', 'campaign', 'size', 'runs', 'true', 'bias', 'scatter', 'median sigma',
              'pull mean', 'pull std'], calibration_rows) if calibration_rows else '<p>no fitted values</p>'}
 {table_6_5}
+{_truth_section(summary)}
 </body></html>
 """
     path = directory / 'index.html'

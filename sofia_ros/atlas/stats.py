@@ -1,11 +1,14 @@
 """What a planner reads from the atlas' rows: detection against size, detectable sizes, sigma calibration,
-confused pairs, and the thesis' Table 6.5 as one slice.
+confused pairs, the thesis' Table 6.5 as one slice, and for truths with several effects the success rates per
+campaign and k, the controls' rate and the pairs most often confused.
 
-Rows are the dicts of atlas.task.ROW_FIELDS; failed rows (``error`` set) count nowhere.
+Rows are the dicts of atlas.task.ROW_FIELDS; failed rows (``error`` set) count nowhere. The rows of the effects
+axis (``truth_effects`` null) make the single-effect tables, the truth rows the truth tables.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections import Counter, defaultdict
 from dataclasses import dataclass
@@ -13,12 +16,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import binomtest
 
+from sofia_ros.atlas.scoring import SCORES, SUCCESSES, confused_pairs, stated_pairs
 from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_rad, standard_error_of_mean
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 
 __all__ = ['CONFIDENCE', 'Calibration', 'Confusion', 'DetectableSize', 'DetectionPoint', 'Table65Row',
-           'TABLE_6_5', 'campaign_label', 'thesis_sigmas_arcsec', 'confusions', 'detectable_sizes', 'detection_curves', 'fit_calibration',
-           'table_6_5_slice']
+           'TABLE_6_5', 'TruthConfusion', 'TruthRate', 'campaign_label', 'thesis_sigmas_arcsec', 'confusions',
+           'detectable_sizes', 'detection_curves', 'fit_calibration', 'table_6_5_slice', 'truth_confusions',
+           'truth_misses', 'truth_rates']
 
 #: Two-sided confidence of the binomial intervals (Clopper-Pearson, scipy.stats.binomtest).
 CONFIDENCE = 0.95
@@ -107,6 +112,33 @@ class Table65Row:
     thesis_sigma_beta_arcsec: float
 
 
+@dataclass(frozen=True)
+class TruthRate:
+    """How often the truths with k hidden effects (k = 0: the controls) of one campaign variant ended right."""
+
+    campaign: str
+    k: int
+    trials: int
+    #: exact + equivalent (docs/atlas.md: a control is right when explained with nothing added)
+    successes: int
+    counts: dict
+    probability: float
+    low: float
+    high: float
+
+
+@dataclass(frozen=True)
+class TruthConfusion:
+    """A hidden effect missing from final models that held ``named`` instead; ``stated``: of them, how often the
+    output named the two as competitors or equivalents."""
+
+    hidden: str
+    named: str
+    campaign: str
+    count: int
+    stated: int
+
+
 def campaign_label(row: dict) -> str:
     """``campaign:variant``, as the grid names it."""
     return f'{row["campaign"]}:{row["variant"]}'
@@ -116,10 +148,58 @@ def _good(rows):
     return [row for row in rows if row['error'] is None]
 
 
+def _cells(rows):
+    """The good rows of the effects axis (one hidden effect at a size)."""
+    return [row for row in _good(rows) if row['truth_effects'] is None]
+
+
+def _truth_rows(rows):
+    """The good rows of truths (several effects, or a control)."""
+    return [row for row in _good(rows) if row['truth_effects'] is not None]
+
+
+def _names(text) -> list[str]:
+    return [name for name in (text or '').split(',') if name]
+
+
+def truth_rates(rows: list[dict]) -> list[TruthRate]:
+    """Success per campaign variant and number of hidden effects (k = 0: the controls), with its Clopper-Pearson
+    interval and the count of each score."""
+    groups = defaultdict(list)
+    for row in _truth_rows(rows):
+        groups[(campaign_label(row), row['k'])].append(row['score'])
+    rates = []
+    for (campaign, k), scores in sorted(groups.items()):
+        successes = sum(score in SUCCESSES for score in scores)
+        interval = binomtest(successes, len(scores)).proportion_ci(confidence_level=CONFIDENCE)
+        rates.append(TruthRate(campaign, k, len(scores), successes, {name: scores.count(name) for name in SCORES},
+                               successes / len(scores), float(interval.low), float(interval.high)))
+    return rates
+
+
+def truth_confusions(rows: list[dict]) -> list[TruthConfusion]:
+    """Pairs (hidden, in the final model instead) over the truth rows, most often first."""
+    counts, stated = Counter(), Counter()
+    for row in _truth_rows(rows):
+        pairs = stated_pairs(json.loads(row['competing'] or '[]'),
+                             [{'model': label} for label in json.loads(row['equivalents'] or '[]')])
+        for hidden, named in confused_pairs(_names(row['truth_effects']), _names(row['final_added'])):
+            key = (hidden, named, campaign_label(row))
+            counts[key] += 1
+            stated[key] += frozenset((hidden, named)) in pairs
+    return sorted((TruthConfusion(*key, count, stated[key]) for key, count in counts.items()),
+                  key=lambda c: (-c.count, c.hidden, c.named, c.campaign))
+
+
+def truth_misses(rows: list[dict]) -> list[dict]:
+    """The truth rows that did not end right (score extra or missed), in key order."""
+    return sorted((row for row in _truth_rows(rows) if row['score'] not in SUCCESSES), key=lambda row: row['key'])
+
+
 def detection_curves(rows: list[dict]) -> list[DetectionPoint]:
     """Detection probability per effect, campaign variant and size, with its Clopper-Pearson interval."""
     groups = defaultdict(list)
-    for row in _good(rows):
+    for row in _cells(rows):
         groups[(row['effect'], campaign_label(row), row['size'])].append(bool(row['detected']))
     points = []
     for (effect, campaign, size), hits in sorted(groups.items()):
@@ -155,7 +235,7 @@ def detectable_sizes(points: list[DetectionPoint], levels=(0.5, 0.9)) -> list[De
 def fit_calibration(rows: list[dict]) -> list[Calibration]:
     """Bias and scatter of the fitted reference parameter against the sigma compare reported, per size."""
     groups = defaultdict(list)
-    for row in _good(rows):
+    for row in _cells(rows):
         if row['size'] > 0 and row['fitted_value'] is not None and row['true_value'] is not None:
             groups[(row['effect'], campaign_label(row), row['size'], row['param'])].append(row)
     found = []
@@ -178,7 +258,7 @@ def confusions(rows: list[dict]) -> list[Confusion]:
     """Effects compare took for the hidden one (a significant other top candidate), and degenerate partners."""
     trials = Counter()
     named = Counter()
-    for row in _good(rows):
+    for row in _cells(rows):
         if row['size'] <= 0:
             continue
         campaign = campaign_label(row)
@@ -205,9 +285,10 @@ def thesis_sigmas_arcsec(measurements: int) -> tuple[float, float]:
 def table_6_5_slice(rows: list[dict]) -> tuple[list[Table65Row], str]:
     """Alignment accuracy against the number of measurements per axis, and which rows it used.
 
-    The control rows (size 0, nothing hidden) when the grid has them, else every alignment row.
+    The control rows (size 0, nothing hidden; truth controls too) when the grid has them, else every alignment row
+    of one hidden effect.
     """
-    alignment = [row for row in _good(rows) if row['campaign'] == 'alignment'
+    alignment = [row for row in _good(rows) if row['campaign'] == 'alignment' and not row['k']
                  and row['misalignment_el_arcsec'] is not None and row['measurements'] is not None]
     control = [row for row in alignment if row['size'] == 0]
     used, which = (control, 'control runs (size 0)') if control else (alignment, 'every alignment run')

@@ -1,4 +1,5 @@
-"""One atlas task: a direct-mode campaign (no DDS) with one effect hidden in the truth, then `sofia compare`.
+"""One atlas task: a direct-mode campaign (no DDS) with one effect (or a truth's set) hidden, then `sofia compare`
+or, for a truth, the search (compare.search.search_model) scored against what was hidden (atlas.scoring).
 
 :func:`run_task` is what a Dask worker (or the serial loop) calls; it returns one row, a plain dict
 of the fields in :data:`ROW_FIELDS`. A task that fails returns its row with ``error`` set rather
@@ -7,6 +8,7 @@ than raising, so one bad cell never stops the atlas; only a worker that dies mak
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 import tempfile
@@ -19,6 +21,7 @@ from typing import Iterator
 from sofia_ros import interrupts
 from sofia_ros.analysis.ranking import SIGNIFICANT_DELTA_BIC
 from sofia_ros.atlas.grid import AtlasTask, hidden_truth_text, scaled_params
+from sofia_ros.atlas.scoring import score_truth, stated_competitors, stated_pairs
 from sofia_ros.campaigns.registry import campaign_named
 from sofia_ros.config import EffectConfig, parse_effect_config
 
@@ -36,6 +39,10 @@ ROW_FIELDS = {
     # the alignment campaign's own result against /truth (summary.json) and its predicted 1-sigma
     'misalignment_el_arcsec': 'float', 'misalignment_xel_arcsec': 'float', 'misalignment_los_arcsec': 'float',
     'predicted_sigma_el_arcsec': 'float', 'predicted_sigma_los_arcsec': 'float',
+    # a truth task (null for a cell of the effects axis): what was hidden, what the search (or one compare) ended on
+    'truth_effects': 'str', 'k': 'int', 'mode': 'str', 'rounds': 'int', 'final_added': 'str', 'final_removed': 'str',
+    # JSON: the competing sets the final comparison states (lists of effects), the equivalent models (their labels)
+    'competing': 'str', 'equivalents': 'str', 'absorbed': 'str', 'score': 'str',
     'wall_s': 'float', 'error': 'str', 'run_id': 'str',
 }
 
@@ -122,8 +129,61 @@ def _compare_fields(task: AtlasTask, document: dict) -> dict:
     return fields
 
 
+def _joined(names) -> str:
+    return ','.join(sorted(names))
+
+
+def _truth_fields(task: AtlasTask, model: EffectConfig, result, final: EffectConfig, rounds: int,
+                  equivalents: list) -> dict:
+    """The row's truth part: what was hidden, the final model against the one given, its competitors, the score."""
+    document = result.document
+    added, removed = sorted(final.fitted - model.fitted), sorted(model.fitted - final.fitted)
+    status = document['verdict']['status']
+    competing = stated_competitors(document)
+    absorbed = sorted(set(task.hidden) & set(document['unobservable']))
+    return {'truth_effects': _joined(task.hidden), 'k': len(task.hidden),
+            'mode': 'search' if task.search_rounds else 'compare', 'rounds': rounds,
+            'final_added': _joined(added), 'final_removed': _joined(removed), 'verdict': status,
+            'competing': json.dumps(competing), 'equivalents': json.dumps([entry['model'] for entry in equivalents]),
+            'absorbed': _joined(absorbed),
+            'score': score_truth(task.hidden, added, removed, status, stated_pairs(competing, equivalents), absorbed)}
+
+
+def _final_comparison_fields(document: dict) -> dict:
+    """What a truth row keeps of its final comparison besides the truth part: the top candidate and the RMS."""
+    candidates = document['candidates']
+    top = candidates[0] if candidates and candidates[0]['detectable'] else None
+    return {'top_candidate': top['effect'] if top else None, 'top_delta_bic': top['delta_bic'] if top else None,
+            'rms_over_floor': max((o['ratio'] for o in document['verdict']['observables'].values()), default=None)}
+
+
+def _run_truth(task: AtlasTask, setup: TaskSetup, bag_path: Path) -> dict:
+    """A truth's bag searched for ``task.search_rounds`` rounds (or compared once); the row's truth fields."""
+    from sofia_ros.compare.observations import read_observations
+    from sofia_ros.compare.run import compare_observations
+    from sofia_ros.compare.search import search_model
+
+    observations = read_observations(bag_path)
+
+    def compare(observed, model):
+        return compare_observations(observed, model, candidate_names=setup.candidates)
+
+    if task.search_rounds:
+        # Each round is a whole comparison: a Ctrl-C of `--serial` stops the search between rounds.
+        result, final, rounds, equivalents = search_model(
+            observations, setup.model, compare, rounds=task.search_rounds,
+            progress=lambda line: interrupts.raise_if_requested())
+        count = len(rounds)
+    else:
+        result, final, count = compare(observations, setup.model), setup.model, 1
+        equivalents = result.document['equivalent_models']
+    return {**_final_comparison_fields(result.document),
+            **_truth_fields(task, setup.model, result, final, count, equivalents)}
+
+
 def run_task(task: AtlasTask, setup: TaskSetup) -> dict:
-    """Run one cell: campaign in direct mode with the effect hidden, compare against the model; one row."""
+    """Run one cell: campaign in direct mode with the effect (or the truth's set) hidden, compare against the model
+    (a truth: search, or compare once, and score); one row."""
     from sofia_ros.compare.run import compare_bag
 
     started = time.perf_counter()
@@ -138,15 +198,20 @@ def run_task(task: AtlasTask, setup: TaskSetup) -> dict:
     try:
         spec = campaign_named(task.campaign)
         plan = spec.plan(task.variant)
-        truth = parse_effect_config(hidden_truth_text(setup.truth, task.effect, task.size),
+        # a cell keeps its effect at size 0 (its parameters zeroed); a truth hides its set, a control nothing
+        hidden = task.effect if task.truth_index is None else task.hidden
+        truth = parse_effect_config(hidden_truth_text(setup.truth, hidden, task.size),
                                     f'{setup.truth.source} with {task.effect} at {task.size:g}x')
         run = spec.run(truth, seed=task.seed, bag_path=str(bag_path), plan=plan, mode='direct',
                        model_text=setup.model.text)
         # the alignment returns an AlignmentRun, the star hop its summary
         interrupts.raise_if_requested()  # `--serial` and Ctrl-C: the campaign stopped early, compare nothing
         row.update(_campaign_fields(plan, run.summary if hasattr(run, 'summary') else run))
-        result = compare_bag(bag_path, setup.model, candidate_names=setup.candidates)
-        row.update(_compare_fields(task, result.document))
+        if task.truth_index is None:
+            result = compare_bag(bag_path, setup.model, candidate_names=setup.candidates)
+            row.update(_compare_fields(task, result.document))
+        else:
+            row.update(_run_truth(task, setup, bag_path))
     except Exception as err:  # one failed cell is a row with its error, never a stopped atlas
         row['error'] = f'{type(err).__name__}: {err}'.splitlines()[0][:500]
     finally:

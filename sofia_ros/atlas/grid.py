@@ -245,20 +245,23 @@ def _truth_set(value, model: EffectConfig, truth: EffectConfig) -> tuple[str, ..
     return tuple(sorted(checked))
 
 
-def draw_truths(pool: tuple[str, ...], count: int, ks: tuple[int, ...], seed: int) -> list[tuple[str, ...]]:
-    """``count`` distinct sets of k effects from ``pool`` (k cycling through ``ks``), the same for the same seed."""
+def draw_truths(pool: tuple[str, ...], count: int, ks: tuple[int, ...], seed: int,
+                listed: tuple[tuple[str, ...], ...] = ()) -> list[tuple[str, ...]]:
+    """``count`` distinct sets of k effects from ``pool`` (k cycling through ``ks``), none of the sets ``listed``
+    already (sorted tuples), the same for the same seed."""
     for k in ks:
         if not 1 <= k <= len(pool):
             raise ConfigError(f'draws: k = {k} is outside 1..{len(pool)} (the {len(pool)} effects of the pool); '
                               'give k within it')
     for k in set(ks):
         wanted = sum(1 for index in range(count) if ks[index % len(ks)] == k)
-        if wanted > math.comb(len(pool), k):
+        free = math.comb(len(pool), k) - sum(1 for truth in set(listed) if len(truth) == k and set(truth) <= set(pool))
+        if wanted > free:
             raise ConfigError(f'draws: {wanted} distinct sets of {k} effects asked from a pool of {len(pool)}, which '
-                              f'has only {math.comb(len(pool), k)}; draw fewer or widen the pool')
+                              f'has only {free} (besides the truths listed); draw fewer or widen the pool')
     rng = np.random.default_rng(seed)
     drawn: list[tuple[str, ...]] = []
-    seen: set[tuple[str, ...]] = set()
+    seen: set[tuple[str, ...]] = set(listed)
     for index in range(count):
         k = ks[index % len(ks)]
         chosen = tuple(sorted(str(name) for name in rng.choice(pool, size=k, replace=False)))
@@ -278,18 +281,20 @@ def _draw_pool(draws: TruthDraws, campaign: str, model: EffectConfig, truth: Eff
 
 def _checked_truths(campaign: str, explicit: list, draws: TruthDraws | None, controls: int,
                     model: EffectConfig, truth: EffectConfig) -> tuple[tuple[str, ...], ...]:
-    """One campaign's truths: the explicit ones, then the draws (a set already listed is not drawn again), with
+    """One campaign's truths: the explicit ones, then the draws (none of the sets listed), with
     the controls spread evenly among them (a partial atlas has its share of controls)."""
     truths = list(_unique([_truth_set(value, model, truth) for value in explicit]))
     if draws is not None:
-        truths += [drawn for drawn in draw_truths(_draw_pool(draws, campaign, model, truth), draws.count, draws.ks,
-                                                  draws.seed) if drawn not in truths]
+        truths += draw_truths(_draw_pool(draws, campaign, model, truth), draws.count, draws.ks, draws.seed,
+                              tuple(truths))
     spread: list[tuple[str, ...]] = []
+    placed = 0
     for index, effects in enumerate(truths):
         spread.append(effects)
-        while spread.count(()) < (index + 1) * controls // len(truths):
+        while placed < (index + 1) * controls // len(truths):
             spread.append(())
-    return tuple(spread + [()] * (controls - spread.count(())))
+            placed += 1
+    return tuple(spread + [()] * (controls - placed))
 
 
 def _count(value, what: str, low: int, high: int) -> int:
@@ -305,7 +310,7 @@ def truth_draws(count, ks, seed, pool=None, max_tasks: int = MAX_TASKS) -> Truth
     if pool is not None and (not isinstance(pool, list) or not pool):
         raise ConfigError('draws: pool must be a non-empty list of effect names (leave it out for the campaign\'s '
                           'visible effects)')
-    return TruthDraws(_count(count, 'draws: count', 1, max_tasks), tuple(_count(k, 'draws: k', 1, 64) for k in ks),
+    return TruthDraws(_count(count, 'draws: count', 1, max_tasks), tuple(_count(k, 'draws: k', 0, 1000) for k in ks),
                       _seed(seed), None if pool is None else tuple(pool))
 
 
@@ -364,10 +369,12 @@ def _checked_task_count(counts: dict, max_tasks: int, truths: int = 0) -> None:
     """ConfigError when the axes multiply to more than ``max_tasks`` (before any hidden truth is built); ``truths``
     are the truth tasks of every campaign, flown with every seed."""
     seeds = counts.pop('seeds')
-    total = (math.prod(counts.values()) + truths) * seeds
+    cells = math.prod(counts.values())
+    total = (cells + truths) * seeds
     if total > max_tasks:
-        axes = ' x '.join(f'{count} {name}' for name, count in counts.items())
-        axes = f'{axes} x {seeds} seeds' if not truths else f'{axes} + {truths} truths, x {seeds} seeds'
+        axes = [' x '.join(f'{count} {name}' for name, count in counts.items())] if cells or not truths else []
+        axes += [f'{truths} truths'] if truths else []
+        axes = f'{" + ".join(axes)}{", x" if truths and cells else " x"} {seeds} seeds'
         raise ConfigError(f'the grid is {total} tasks ({axes}), more than the {max_tasks} an atlas may have'
                           f'{_FORCE_HINT if max_tasks < FORCED_MAX_TASKS else _FORCED_HINT}; narrow an axis')
 

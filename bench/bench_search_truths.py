@@ -1,14 +1,14 @@
 """Benchmark: `sofia compare --search` on many truths with several effects hidden at once (issue 25).
 
 Each truth is the nominal truth plus k effects drawn (seeded) from the effects a reduced alignment
-campaign sees (VISIBLE_ON_ALIGNMENT), at their thesis defaults; the controls hide none. Each is
+campaign sees (the atlas' VISIBLE_EFFECTS), at their thesis defaults; the controls hide none. Each is
 recorded as the reduced alignment of the tests (2 repetitions, 1 verification; direct mode) and
-searched from config/model/nominal.yaml, in worker processes. A truth is found when the search
-ends `explained` with exactly the hidden effects added; found up to equivalents when every hidden
-effect is in the final model, or named equivalent to a term there ("X instead of Y" in its
-equivalents), or said absorbed by its terms (the final comparison's `unobservable`), and nothing
-else is added that is not so named; a control counts when it ends explained with nothing added. Printed: one row per truth, then the
-success rate per k, the pairs most often confused, and the wall time per search.
+searched from config/model/nominal.yaml, in worker processes. The draws and the score are the atlas'
+own (sofia_ros.atlas.grid.draw_truths, sofia_ros.atlas.scoring: exact, equivalent up to the stated
+competitors, equivalent models or absorbed effects, extra, missed; a control is exact when it ends
+explained with nothing added); `sofia atlas` runs the same on Dask (bench/bench_multi_effect_atlas.py).
+Printed: one row per truth, then the success rate per k, the pairs most often confused, and the wall
+time per search.
 
 Run: .venv/bin/python bench/bench_search_truths.py [--truths N] [--controls M] [--k 2,3] [--workers W] [--seed S]
 The figures are written to bench/results/search_truths.json (date, commit, load, machine).
@@ -35,6 +35,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from sofia_ros.atlas.grid import VISIBLE_EFFECTS, draw_truths  # noqa: E402
+from sofia_ros.atlas.scoring import SUCCESSES, confused_pairs, score_truth, stated_competitors, stated_pairs  # noqa: E402
 from sofia_ros.campaigns.alignment import run_alignment  # noqa: E402
 from sofia_ros.compare.observations import read_observations  # noqa: E402
 from sofia_ros.compare.run import compare_observations  # noqa: E402
@@ -42,47 +44,11 @@ from sofia_ros.compare.search import search_model  # noqa: E402
 from sofia_ros.config import load_effect_config, parse_effect_config  # noqa: E402
 from sofia_ros.sim.calibration import AlignmentPlan  # noqa: E402
 
-#: Effects the reduced alignment campaign detects alone at their defaults (the atlas' alignment rows).
-VISIBLE_ON_ALIGNMENT = ('gyro_scale_factor', 'gyro_axis_swap', 'fpi_internal_flexure', 'imager_boresight_offset',
-                        'imager_rotation_of_field', 'imager_scale_error', 'hipo_fiducial_error', 'tracker_drift',
-                        'timestamp_offset')
 NOMINAL_MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
 
 
 def _truths(count, controls, ks, seed):
-    rng = np.random.default_rng(seed)
-    truths = []
-    for index in range(count):
-        k = ks[index % len(ks)]
-        truths.append(tuple(sorted(str(name) for name in rng.choice(VISIBLE_ON_ALIGNMENT, size=k, replace=False))))
-    return truths + [()] * controls
-
-
-def _equivalent_pairs(equivalents):
-    """{(in the model, could stand instead)} from the search's 'X instead of Y' equivalents (X, Y: names joined
-    by ' and ')."""
-    pairs = set()
-    for entry in equivalents:
-        text = entry['model'].replace(' (compared in full)', '')
-        if ' instead of ' in text:
-            others, terms = (part.split(' and ') for part in text.split(' instead of '))
-            pairs.update((term, other) for term in terms for other in others)
-    return pairs
-
-
-def judge(hidden, found_added, status, equivalents, absorbed=()):
-    """'found' (the hidden effects exactly), 'equivalent' (up to the equivalents the search states, or hidden
-    effects the final comparison says its terms absorb), or 'missed' (module docstring)."""
-    pairs = _equivalent_pairs(equivalents)
-    hidden, added = set(hidden), set(found_added)
-    if status != 'explained':
-        return 'missed'
-    if hidden == added:
-        return 'found'
-    covered = all(name in added or name in absorbed or any((term, name) in pairs for term in added)
-                  for name in hidden)
-    clean = all(name in hidden or any((name, truth) in pairs for truth in hidden) for name in added)
-    return 'equivalent' if covered and clean else 'missed'
+    return draw_truths(VISIBLE_EFFECTS['alignment'], count, tuple(ks), seed) + [()] * controls
 
 
 def run_one(job):
@@ -107,10 +73,11 @@ def run_one(job):
     removed = sorted(model.fitted - found.fitted)
     status = result.document['verdict']['status']
     absorbed = sorted(set(hidden) & set(result.document['unobservable']))
-    outcome = judge(hidden, added, status, equivalents, absorbed) if not removed else 'missed'
+    competing = stated_competitors(result.document)
+    outcome = score_truth(hidden, added, removed, status, stated_pairs(competing, equivalents), absorbed)
     return {'index': index, 'hidden': list(hidden), 'seed': seed, 'added': added, 'removed': removed,
-            'status': status, 'rounds': len(rounds), 'equivalent': equivalents, 'absorbed': absorbed,
-            'outcome': outcome,
+            'status': status, 'rounds': len(rounds), 'equivalent': equivalents, 'competing': competing,
+            'absorbed': absorbed, 'outcome': outcome,
             'record_s': round(recorded - started, 1), 'search_s': round(searched - recorded, 1)}
 
 
@@ -138,15 +105,14 @@ def main():
     confused = collections.Counter()
     for row in rows:
         by_k[len(row['hidden'])].append(row['outcome'])
-        for name in set(row['hidden']) - set(row['added']):
-            for other in set(row['added']) - set(row['hidden']):
-                confused[(name, other)] += 1
+        confused.update(confused_pairs(row['hidden'], row['added']))
     print('success per number of hidden effects (reduced alignment, search from the nominal model):')
     for k in sorted(by_k):
         outcomes = collections.Counter(by_k[k])
-        right = outcomes['found'] + outcomes['equivalent']
-        print(f'  k={k}: {right}/{len(by_k[k])} ({100 * right / len(by_k[k]):.0f} %): {outcomes["found"]} exactly, '
-              f'{outcomes["equivalent"]} up to stated equivalents or absorbed effects, {outcomes["missed"]} missed')
+        right = sum(outcomes[name] for name in SUCCESSES)
+        print(f'  k={k}: {right}/{len(by_k[k])} ({100 * right / len(by_k[k]):.0f} %): {outcomes["exact"]} exactly, '
+              f'{outcomes["equivalent"]} up to stated competitors, equivalents or absorbed effects, '
+              f'{outcomes["extra"]} with an extra term, {outcomes["missed"]} missed')
     for (name, other), count in confused.most_common(8):
         print(f'  confused: {name} taken for {other} ({count}x)')
     searches = [row['search_s'] for row in rows]

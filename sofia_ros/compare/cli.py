@@ -15,6 +15,7 @@ import numpy as np
 from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import ConfigError
 from sofia_ros.output_files import current_umask, json_ready, output_target, write_text_atomically
+from sofia_ros.progress import Progress
 
 __all__ = ['print_fitted_terms', 'spread_text', 'add_compare_arguments', 'run_compare', 'add_model_arguments',
            'run_model_add', 'edit_model_file', 'anchor_memory_bytes', 'MIN_ANCHOR_S']
@@ -49,6 +50,11 @@ def add_compare_arguments(parser):
     parser.add_argument('--anchor-s', type=number(MIN_ANCHOR_S, MAX_ANCHOR_S, 's'), default=30.0,
                         help=f'spacing of the attitude anchors in s (default 30, at least {MIN_ANCHOR_S:g}: ten '
                              'frames of the slowest camera; they absorb the gyro random walk)')
+    parser.add_argument('--no-cache', action='store_true',
+                        help='decode the bag anew and keep no cache of its observations (by default they are kept in '
+                             '<bag>/.sofia-cache or ~/.cache/sofia_ros; docs/compare.md)')
+    parser.add_argument('--quiet', action='store_true',
+                        help='no progress lines on stderr (warnings and errors are still written)')
 
 
 def add_model_arguments(parser):
@@ -217,6 +223,8 @@ def _print_verdict(document, out):
 
 def run_compare(args, out):
     """`sofia compare`: fit, rank, print; then write JSON and report whole."""
+    from sofia_ros.compare.cache import ObservationCache
+    from sofia_ros.compare.observations import observation_cache
     from sofia_ros.compare.run import compare_bag
     from sofia_ros.config import load_effect_config
 
@@ -229,7 +237,7 @@ def run_compare(args, out):
     if args.json and Path(args.json).is_dir():
         raise ConfigError(f'--json {args.json} is a directory; give a file name, '
                           f'e.g. {Path(args.json) / "compare.json"}')
-    _check_bag_arguments(args.bag, args.anchor_s, lambda line: print(line, file=sys.stderr))
+    _check_bag_arguments(args.bag, args.anchor_s, _warn)
     if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
         raise ConfigError(f'--report {args.report} is a file; give a directory')
     if str(args.bag).lower().endswith(('.yaml', '.yml')):
@@ -240,12 +248,14 @@ def run_compare(args, out):
                               'and model_terms say what to change)')
 
         return run_set_compare(args, out, model)
-    if args.search:
-        result, found = _search(args, model, out)
-        document = json_ready({**result.document, 'search': found})
-    else:
-        result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s)
-        document = json_ready(result.document)
+    progress = Progress.silent() if args.quiet else Progress(sys.stderr, prefix='sofia compare')
+    with observation_cache(None if args.no_cache else ObservationCache(warn=_warn, progress=progress)):
+        if args.search:
+            result, found = _search(args, model, progress)
+            document = json_ready({**result.document, 'search': found})
+        else:
+            result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s, progress=progress)
+            document = json_ready(result.document)
     print_comparison(document, out)
     if args.search:
         _print_search(document['search'], out)
@@ -260,7 +270,12 @@ def run_compare(args, out):
     return 0
 
 
-def _search(args, model, out):
+def _warn(line):
+    """A warning of `sofia compare`: one line on stderr, also with --quiet."""
+    print(line, file=sys.stderr)
+
+
+def _search(args, model, progress):
     """--search: the rounds of compare.search on observations read once; the model written where asked."""
     from sofia_ros.compare.observations import read_observations
     from sofia_ros.compare.run import compare_observations
@@ -268,10 +283,12 @@ def _search(args, model, out):
 
     if args.write_model:
         output_target(args.write_model)
+    progress.phase('reading the bag')
     observations = read_observations(args.bag)
     result, found, rounds, equivalent = search_model(
-        observations, model, lambda obs, trial: compare_observations(obs, trial, anchor_spacing_s=args.anchor_s),
-        rounds=args.search_rounds, progress=lambda line: print(f'sofia compare: {line}', file=sys.stderr))
+        observations, model,
+        lambda obs, trial: compare_observations(obs, trial, anchor_spacing_s=args.anchor_s, progress=progress),
+        rounds=args.search_rounds, progress=progress.phase)
     given = set(model.fitted)
     added, removed = sorted(found.fitted - given), sorted(given - found.fitted)
     written = None

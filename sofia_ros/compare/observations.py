@@ -4,12 +4,19 @@ Per camera frame and star: the centroid, its stamp, the coarse-drive elevation, 
 LOS angle, the gyro-box temperature and the TASCU motion status at that time; the 400 Hz gyro
 samples with the temperature of their tick; the TASCU's first attitude (a starting guess only)
 and the scenario (site and epoch, as the logbook records them).
+
+`sofia compare` reads them through a cache of decoded observations (compare.cache) made active with
+``observation_cache``; without one (the library, the tests) ``read_observations`` decodes the bag.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -34,7 +41,12 @@ from sofia_ros.topics import (
 )
 from sofia_ros.units import DEG_PER_RAD
 
-__all__ = ['MOTION_STATES', 'Centroids', 'GyroSamples', 'Observations', 'read_observations']
+__all__ = ['MOTION_STATES', 'READER_VERSION', 'Centroids', 'GyroSamples', 'ObservationSource', 'Observations',
+           'decode_observations', 'observation_cache', 'read_observations']
+
+#: The version of what decode_observations returns. Bump it whenever the decoding or the dataclasses below
+#: change: caches of decoded observations (compare.cache) written by another version are then decoded again.
+READER_VERSION = 1
 
 #: TASCU motion states (6.3), coded by index in Centroids.motion_code.
 MOTION_STATES = ('transient', 'settled', 'locked')
@@ -155,8 +167,41 @@ def _at(stamps_s, series_s, values, what):
     return np.interp(stamps_s, series_s, values)
 
 
-def read_observations(bag_path):
-    """The observables of a campaign bag; BagError names a missing topic and how to get it."""
+class ObservationSource(Protocol):
+    """Where read_observations takes a bag's observations from when not decoding it itself (compare.cache)."""
+
+    def read(self, bag_path: Path, decode: Callable[[Path], Observations]) -> Observations:
+        """The observations of ``bag_path``, calling ``decode(bag_path)`` where it has none for the bag as it is."""
+
+
+_ACTIVE_SOURCE: ContextVar[ObservationSource | None] = ContextVar('observation_source', default=None)
+
+
+@contextmanager
+def observation_cache(source: ObservationSource | None) -> Iterator[None]:
+    """Within the block, read_observations reads through ``source`` (None: decodes every time).
+
+    A context rather than an argument: `sofia compare` reaches read_observations through compare.run's
+    compare_bag, which the cache need not know about.
+    """
+    token = _ACTIVE_SOURCE.set(source)
+    try:
+        yield
+    finally:
+        _ACTIVE_SOURCE.reset(token)
+
+
+def read_observations(bag_path) -> Observations:
+    """The observables of a campaign bag, through the active observation_cache if there is one, else decoded."""
+    source = _ACTIVE_SOURCE.get()
+    if source is None:
+        return decode_observations(Path(bag_path))
+    return source.read(Path(bag_path), decode_observations)
+
+
+def decode_observations(bag_path) -> Observations:
+    """The observables of a campaign bag decoded from its messages; BagError names a missing topic and how to get
+    it."""
     bag_path = Path(bag_path)
     try:
         # Campaign time: stamps in s since the scenario's start (float64 keeps them exact to the ns).

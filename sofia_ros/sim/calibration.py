@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import datetime as dt
 from dataclasses import asdict, dataclass
+from functools import cached_property
 from typing import ClassVar
 
 import numpy as np
 import yaml
+from diagnostic_msgs.msg import DiagnosticStatus
 from scipy.spatial.transform import Rotation
 
 from sofia_ros import messages as m
@@ -28,18 +30,91 @@ from sofia_ros.calibration.solvers import Maneuver, fit_alignment
 from sofia_ros.errors import CalibrationAbort, InvalidArgumentError
 from sofia_ros.graph_nodes import IMAGERS
 from sofia_ros.sensors.imager_model import nominal_detector
-from sofia_ros.sim.sequence import TOPICS, SequenceCore
+from sofia_ros.sim.sequence import (
+    TOPICS,
+    SequenceCore,
+    elements_from_yaml,
+    elements_to_yaml,
+    fine_drive_los,
+    hold_duration,
+    observing_elevation,
+)
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, visible_stars
 from sofia_ros.topics import CD_JOINT, FD_JOINTS
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_DEG
 
-__all__ = ['AlignmentPlan', 'CalibrationCore']
+__all__ = ['AlignmentPlan', 'CalibrationCore', 'ALIGNMENT_ELEMENTS', 'ManeuversAt', 'LosRotations', 'AlignmentHold']
 
 _FD_MARGIN_DEG = 2.9
 #: Stars for the elevation series: bright enough for every camera, within the fine drive's XEL reach.
 _SERIES_MAX_HP_MAG = 6.5
 _SERIES_REACH_DEG = 1.5
 _MIN_REPETITIONS_FOR_DRIFT_FIT = 4
+#: A plan element at an elevation stays on the current star within this much of it, else takes a star this close.
+_ELEVATION_TOLERANCE_DEG = 3.0
+
+
+# --- plan elements (docs/plans.md): flown after the sequence, in the order the plan lists them ----------
+def _optional_elevation(value):
+    return None if value is None else observing_elevation('elevation_deg', value)
+
+
+@dataclass(frozen=True)
+class ManeuversAt:
+    """Table 3.4's LOS and EL/XEL moves (maneuvers 2 and 3) repeated on a star near another elevation."""
+
+    kind: ClassVar[str] = 'maneuvers'
+    elevation_deg: float
+    #: moves per axis (None: the plan's repetitions)
+    repetitions: int | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, 'elevation_deg', observing_elevation('elevation_deg', self.elevation_deg))
+        if self.repetitions is not None and (isinstance(self.repetitions, bool)
+                                             or not isinstance(self.repetitions, int) or self.repetitions < 1):
+            raise InvalidArgumentError(f'repetitions must be an integer >= 1, got {self.repetitions!r}')
+
+
+@dataclass(frozen=True)
+class LosRotations:
+    """LOS rotations (maneuver 2) through the fine-drive LOS angles listed, each step one measured move."""
+
+    kind: ClassVar[str] = 'los_rotations'
+    #: fine-drive LOS angles, deg: the first is reached unmeasured, every later one by a measured rotation
+    angles_deg: tuple
+    #: on a star near this elevation (None: where the telescope is)
+    elevation_deg: float | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.angles_deg, (list, tuple)) or len(self.angles_deg) < 2:
+            raise InvalidArgumentError(f'angles_deg must list at least two LOS angles, got {self.angles_deg!r}')
+        angles = tuple(fine_drive_los(f'angles_deg[{index}]', angle) for index, angle in enumerate(self.angles_deg))
+        if any(after == before for before, after in zip(angles, angles[1:])):
+            raise InvalidArgumentError(f'angles_deg {list(angles)} repeats an angle: a rotation of 0 deg '
+                                       'measures nothing')
+        object.__setattr__(self, 'angles_deg', angles)
+        object.__setattr__(self, 'elevation_deg', _optional_elevation(self.elevation_deg))
+
+
+@dataclass(frozen=True)
+class AlignmentHold:
+    """The star held at HIPO's centre at one fine-drive LOS angle for a while, every camera recording."""
+
+    kind: ClassVar[str] = 'hold'
+    duration_s: float
+    #: fine-drive LOS angle during the hold, deg
+    los_deg: float = 0.0
+    #: on a star near this elevation (None: where the telescope is)
+    elevation_deg: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, 'duration_s', hold_duration('duration_s', self.duration_s))
+        object.__setattr__(self, 'los_deg', fine_drive_los('los_deg', self.los_deg))
+        object.__setattr__(self, 'elevation_deg', _optional_elevation(self.elevation_deg))
+
+
+#: the alignment's plan elements by the name a plan file gives them
+ALIGNMENT_ELEMENTS = {element.kind: element for element in (ManeuversAt, LosRotations, AlignmentHold)}
 
 
 @dataclass(frozen=True)
@@ -58,6 +133,9 @@ class AlignmentPlan:
     timeout_s: float = 120.0
     #: elevations of the boresight series (Table 3.5, 6.2: 23-60 deg); empty to skip it
     flexure_elevations_deg: tuple = (23.0, 40.0, 50.0, 59.0)
+    #: the plan elements flown after the sequence (ALIGNMENT_ELEMENTS, docs/plans.md) as YAML text: one
+    #: string, so that the plan still passes as node parameters (plan.elements_yaml)
+    elements_yaml: str = ''
 
     def __post_init__(self):
         if self.repetitions < 2 or self.frames_per_position < 1 or self.verification_repetitions < 1:
@@ -65,6 +143,16 @@ class AlignmentPlan:
         if not 0.0 < self.los_angle_deg <= 2 * _FD_MARGIN_DEG - 0.5:
             raise InvalidArgumentError(f'los_angle_deg must be in (0, {2 * _FD_MARGIN_DEG - 0.5}] to fit the '
                                        f'+-3 deg fine drive, got {self.los_angle_deg}')
+        for elevation_deg in self.flexure_elevations_deg:
+            observing_elevation('flexure_elevations_deg', elevation_deg)
+        # Parsed now (a bad element is refused before the run) and kept in one spelling, so equal plans compare equal.
+        object.__setattr__(self, 'elements_yaml',
+                           elements_to_yaml(elements_from_yaml(self.elements_yaml, ALIGNMENT_ELEMENTS, self.campaign)))
+
+    @cached_property
+    def elements(self):
+        """The plan elements, parsed from ``elements_yaml``."""
+        return elements_from_yaml(self.elements_yaml, ALIGNMENT_ELEMENTS, self.campaign)
 
 
 class CalibrationCore(SequenceCore):
@@ -93,6 +181,7 @@ class CalibrationCore(SequenceCore):
         yield from self._imager_rotation_of_field()
         if self.plan.flexure_elevations_deg and self.scenario is not None:
             yield from self._flexure_series()
+        yield from self._fly_elements()
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(self.result(), sort_keys=False))))
 
@@ -277,6 +366,69 @@ class CalibrationCore(SequenceCore):
             'points': rows,
             'fit': {camera: flexure_fit(rows, camera, reference_elevation_deg) for camera in IMAGERS},
         }
+
+    # --- the plan's elements (docs/plans.md) ------------------------------------------------
+    def _fly_elements(self):
+        """Each plan element in turn, recorded with its star, elevation and sim-time window."""
+        flown = []
+        for index, element in enumerate(self.plan.elements, 1):
+            self._progress('element', {'index': index, 'kind': element.kind})
+            start_s = self.stamp_ns / m.NS_PER_S
+            record = yield from getattr(self, f'_fly_{element.kind}')(element)
+            flown.append({'index': index, 'kind': element.kind, **record,
+                          'start_s': start_s, 'end_s': self.stamp_ns / m.NS_PER_S})
+        if flown:
+            self.record['elements'] = flown
+
+    def _near_elevation(self, target_deg):
+        """The star centred in HIPO near ``target_deg`` (None: the current one); where, or why it was skipped."""
+        here_deg = self.joints[CD_JOINT] / RAD_PER_DEG
+        if target_deg is not None and abs(here_deg - target_deg) > _ELEVATION_TOLERANCE_DEG:
+            star = self._reachable_star(target_deg, exclude=set())
+            if star is None:
+                self._progress('element_skipped', {'elevation_deg': target_deg}, DiagnosticStatus.WARN)
+                return {'skipped': f'no star brighter than Hp {_SERIES_MAX_HP_MAG} within '
+                                   f'{_ELEVATION_TOLERANCE_DEG:g} deg of {target_deg:g} deg in reach'}
+            yield from self._point_at(star.hip)
+            yield from self._acquire(star.hip)
+        yield from self._centre_star()
+        return {'hip': int(self.star_hip), 'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG}
+
+    def _turn_los_to(self, angle_deg):
+        """Turn the fine drive's LOS to ``angle_deg`` about the centred star (not measured)."""
+        fd_los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
+        yield from self._move(np.array([0.0, 0.0, (angle_deg - fd_los_deg) * RAD_PER_DEG]))
+
+    def _fly_maneuvers(self, element):
+        """Maneuvers 2 and 3 of Table 3.4 near another elevation, after a drift estimation there (6.1)."""
+        place = yield from self._near_elevation(element.elevation_deg)
+        if 'skipped' in place:
+            return place
+        repetitions = element.repetitions or self.plan.repetitions
+        yield from self._estimate_drift()
+        los = yield from self._los_block(repetitions)
+        elxel = yield from self._elxel_block(repetitions)
+        return {**place, 'los_maneuvers': len(los), 'elxel_maneuvers': len(elxel)}
+
+    def _fly_los_rotations(self, element):
+        """LOS rotations (maneuver 2) stepping through the element's fine-drive LOS angles about the centred star."""
+        place = yield from self._near_elevation(element.elevation_deg)
+        if 'skipped' in place:
+            return place
+        yield from self._turn_los_to(element.angles_deg[0])
+        for before_deg, after_deg in zip(element.angles_deg, element.angles_deg[1:]):
+            yield from self._maneuver('los', (after_deg - before_deg) * RAD_PER_DEG)
+        return {**place, 'los_maneuvers': len(element.angles_deg) - 1}
+
+    def _fly_hold(self, element):
+        """The centred star held at the element's LOS angle (the Earth's turn walks it while the TASCU holds)."""
+        place = yield from self._near_elevation(element.elevation_deg)
+        if 'skipped' in place:
+            return place
+        yield from self._turn_los_to(element.los_deg)
+        los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
+        hold_start_s, hold_end_s = yield from self._hold_for(element.duration_s)
+        return {**place, 'los_deg': los_deg, 'hold_start_s': hold_start_s, 'hold_end_s': hold_end_s}
 
     def result(self):
         """The accepted alignment and its predicted accuracy (3.32, 3.34, 3.37) as a plain mapping."""

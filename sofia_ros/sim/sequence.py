@@ -9,6 +9,8 @@ through the wide fields (6.1-6.4). Subclasses write ``_run``, the sequence itsel
 from __future__ import annotations
 
 import datetime as dt
+from dataclasses import MISSING, fields
+from typing import Any, Mapping
 
 import numpy as np
 import yaml
@@ -17,9 +19,12 @@ from geometry_msgs.msg import PointStamped
 
 from sofia_ros import messages as m
 from sofia_ros import mount
-from sofia_ros.errors import CalibrationAbort, SofiaError
+from sofia_ros.config import safe_load_limited
+from sofia_ros.control.tracker import centring_rotation_rad
+from sofia_ros.errors import CalibrationAbort, ConfigError, InvalidArgumentError, SofiaError, UnknownStarError
 from sofia_ros.frames import dcm_from_quaternion, dcm_from_rotation_angles, quaternion_from_dcm
 from sofia_ros.graph_nodes import CAMERAS
+from sofia_ros.sensors.imager_model import nominal_detector
 from sofia_ros.sim.protocol import SET_PARAMETERS, NodeCore, ParameterRequest, ParameterResult
 from sofia_ros.sim.tascu import TOPICS as TASCU_TOPICS
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, observed_place
@@ -32,13 +37,150 @@ from sofia_ros.topics import (
     centroid_topic,
 )
 from sofia_ros.units import RAD_PER_DEG
+from sofia_ros.validate import finite_array, finite_scalar
 
-__all__ = ['SequenceCore', 'TOPICS']
+__all__ = ['SequenceCore', 'TOPICS', 'OBSERVING_ELEVATIONS_DEG', 'PLAN_FILE_NAME', 'plan_document', 'plan_text',
+           'elements_from_yaml', 'elements_to_yaml',
+           'elements_budget_s', 'observing_elevation', 'fine_drive_los', 'hold_duration', 'detector_offset']
 
 #: the topics the calibration node publishes besides the TASCU's commands, by the short names its methods use
 TOPICS = {'progress': CALIBRATION_PROGRESS, 'result': CALIBRATION_RESULT, 'maneuvers': CALIBRATION_MANEUVERS}
+#: the plan beside a recorded bag, like truth.yaml
+PLAN_FILE_NAME = 'plan.yaml'
 _KEPT_FRAMES = 200
 _RECENTRE_LOS_DEG = 1.0
+#: The elevations a plan may observe at: the door drive's range, outside which the telescope vignettes (1.2).
+OBSERVING_ELEVATIONS_DEG = (TELESCOPE_MIN_ELEVATION_DEG, 60.0)
+#: A detector position a plan asks for keeps this share of the half-field free to the edge (a star there is lost).
+_DETECTOR_EDGE_MARGIN = 0.1
+#: Moves that place a star on a detector position: the first on the nominal geometry, the others correct it.
+_PLACEMENT_MOVES = 3
+
+
+# --- plan elements: what a plan appends to its campaign's sequence (docs/plans.md) --------------------
+def observing_elevation(name: str, value: Any) -> float:
+    """``value`` as an elevation in the observing range (1.2: 20-60 deg); InvalidArgumentError otherwise."""
+    elevation_deg = finite_scalar(name, value)
+    low, high = OBSERVING_ELEVATIONS_DEG
+    if not low <= elevation_deg <= high:
+        raise InvalidArgumentError(f'{name} is {elevation_deg:g} deg, outside the {low:g}-{high:g} deg elevations '
+                                   'the telescope observes at (its door drive, 1.2)')
+    return elevation_deg
+
+
+def fine_drive_los(name: str, value: Any) -> float:
+    """``value`` as a fine-drive LOS angle within its +-3 deg travel (mount); InvalidArgumentError otherwise."""
+    angle_deg = finite_scalar(name, value)
+    if abs(angle_deg) > mount.FINE_DRIVE_LIMIT_DEG:
+        raise InvalidArgumentError(f'{name} is {angle_deg:g} deg, outside the fine drive\'s '
+                                   f'+-{mount.FINE_DRIVE_LIMIT_DEG:g} deg LOS travel')
+    return angle_deg
+
+
+def hold_duration(name: str, value: Any) -> float:
+    """``value`` as a hold length in s, > 0; InvalidArgumentError otherwise."""
+    duration_s = finite_scalar(name, value)
+    if duration_s <= 0.0:
+        raise InvalidArgumentError(f'{name} must be > 0 s, got {duration_s:g}')
+    return duration_s
+
+
+def detector_offset(camera: Any, offset_arcsec: Any) -> tuple[str, tuple[float, float]]:
+    """(camera, offset) of a star placed off a detector's centre, in arcsec along its x and y pixel axes.
+
+    InvalidArgumentError for an unknown camera or a position off the detector (or within 10 % of its edge).
+    """
+    if camera not in CAMERAS:
+        raise InvalidArgumentError(f'camera {camera!r} is not one of {", ".join(CAMERAS)}')
+    offset = finite_array('detector_offset_arcsec', offset_arcsec, shape=(2,))
+    detector = nominal_detector(camera)
+    half_field_arcsec = (1.0 - _DETECTOR_EDGE_MARGIN) * detector.scale_arcsec_per_px * np.array(
+        [detector.width_px, detector.height_px]) / 2.0
+    if np.any(np.abs(offset) > half_field_arcsec):
+        raise InvalidArgumentError(
+            f'detector_offset_arcsec {offset.tolist()} leaves the {camera.upper()} field; keep |x| <= '
+            f'{half_field_arcsec[0]:.0f}" and |y| <= {half_field_arcsec[1]:.0f}"')
+    return camera, (float(offset[0]), float(offset[1]))
+
+
+def elements_from_yaml(text: str, kinds: Mapping[str, type], campaign: str) -> tuple:
+    """The plan elements of YAML ``text`` (a list of ``{kind: {field: value}}``), each a ``kinds`` dataclass.
+
+    InvalidArgumentError names an unknown kind or field and whatever the element itself refuses.
+    """
+    try:
+        document = safe_load_limited(text, 'plan elements') if text.strip() else []
+    except ConfigError as err:
+        raise InvalidArgumentError(str(err)) from err
+    if not isinstance(document, list):
+        raise InvalidArgumentError(f'elements must be a list of {{kind: {{field: value}}}}, got {document!r:.60}')
+    return tuple(_element(entry, kinds, campaign, index) for index, entry in enumerate(document, 1))
+
+
+def _element(entry: Any, kinds: Mapping[str, type], campaign: str, index: int) -> Any:
+    if not isinstance(entry, dict) or len(entry) != 1:
+        raise InvalidArgumentError(f'element {index} must be one {{kind: {{field: value}}}} mapping, got {entry!r:.60}')
+    ((kind, values),) = entry.items()
+    if kind not in kinds:
+        raise InvalidArgumentError(f'element {index}: unknown maneuver {kind!r} for the {campaign} campaign; '
+                                   f'use one of {", ".join(kinds)} (docs/plans.md)')
+    element_type = kinds[kind]
+    names = [spec.name for spec in fields(element_type)]
+    required = [spec.name for spec in fields(element_type) if spec.default is MISSING]
+    if not isinstance(values, dict) or set(values) - set(names):
+        unknown = sorted(map(str, set(values) - set(names))) if isinstance(values, dict) else [repr(values)]
+        raise InvalidArgumentError(f'element {index} ({kind}): unknown field {", ".join(unknown)}; '
+                                   f'{kind} takes {", ".join(names)}')
+    try:
+        return element_type(**values)
+    except TypeError as err:  # a required field left out
+        raise InvalidArgumentError(f'element {index} ({kind}) needs {", ".join(required)}') from err
+    except (InvalidArgumentError, UnknownStarError) as err:
+        raise InvalidArgumentError(f'element {index} ({kind}): {err}') from err
+
+
+def elements_to_yaml(elements: tuple) -> str:
+    """The YAML text of plan elements (one flow line; empty for none): what elements_from_yaml reads back."""
+    if not elements:
+        return ''
+    document = [{element.kind: {spec.name: _plain(getattr(element, spec.name)) for spec in fields(element)
+                                if getattr(element, spec.name) is not None}} for element in elements]
+    return yaml.safe_dump(document, default_flow_style=True, sort_keys=False, width=1 << 16).strip()
+
+
+# --- plan files (docs/plans.md; read and checked by campaigns.plan_files) ----------------------------
+def plan_document(plan: Any) -> dict[str, Any]:
+    """The plan as a plan file's mapping: its campaign, every field, its elements."""
+    document: dict[str, Any] = {'campaign': plan.campaign}
+    for spec in fields(plan):
+        if spec.name != 'elements_yaml':
+            document[spec.name] = _plain(getattr(plan, spec.name))
+    if plan.elements_yaml:
+        document['elements'] = yaml.safe_load(plan.elements_yaml)
+    return document
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with its tuples (rows too) as YAML lists."""
+    return [_plain(item) for item in value] if isinstance(value, tuple) else value
+
+
+def plan_text(plan: Any) -> str:
+    """The plan file of ``plan`` (every field spelled out): what campaigns.plan_files reads back as ``plan``."""
+    document = plan_document(plan)
+    elements = document.pop('elements', None)
+    text = yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=100)
+    if elements:
+        # One element per line, each as the maneuver mapping a user would write.
+        lines = [f'  - {yaml.safe_dump(element, default_flow_style=True, width=1 << 16).strip()}'
+                 for element in elements]
+        text += 'elements:\n' + '\n'.join(lines) + '\n'
+    return text
+
+
+def elements_budget_s(elements: tuple, timeout_s: float) -> float:
+    """Sim time to allow for flying ``elements``: their holds plus ten waits of ``timeout_s`` each (a cap only)."""
+    return sum(getattr(element, 'duration_s', 0.0) + 10.0 * timeout_s for element in elements)
 
 
 class SequenceCore(NodeCore):
@@ -199,6 +341,31 @@ class SequenceCore(NodeCore):
         target = dcm_from_rotation_angles(rotation) @ estimate
         yield from self._command('mtbs_inertial', m.quaternion_stamped(0, 'irf', quaternion_from_dcm(target)))
         yield from self._locked()
+
+    def _until(self, elapsed_s):
+        """Wait until sim time ``elapsed_s`` (no timeout: the plan sets the pace)."""
+        while self.stamp_ns < m.seconds_to_ns(elapsed_s):
+            yield
+
+    def _hold_for(self, duration_s):
+        """Hold the star (the TASCU keeps the attitude) ``duration_s`` while every camera records; (start, end) s."""
+        start_s = self.stamp_ns / m.NS_PER_S
+        yield from self._until(start_s + duration_s)
+        return start_s, self.stamp_ns / m.NS_PER_S
+
+    def _place_on_detector(self, camera, offset_arcsec):
+        """Move the tracked star to ``offset_arcsec`` (x, y) from ``camera``'s centre; its pixel there.
+
+        The first move uses the nominal detector and alignment; the others take out what the true ones
+        (and the TASCU's own model) leave, as the star is seen on the detector.
+        """
+        detector = nominal_detector(camera)
+        target_px = np.asarray(detector.center_px) + np.asarray(offset_arcsec) / detector.scale_arcsec_per_px
+        for _ in range(_PLACEMENT_MOVES):
+            pixel, _ = yield from self._star_frames(camera, 1)
+            yield from self._move(centring_rotation_rad(camera, pixel, target_px, np.eye(3)))
+        pixel, _ = yield from self._star_frames(camera, 1)
+        return pixel
 
     def _acquire(self, hip):
         """Star into HIPO through the wide fields: FFI centring first, then HIPO (6.2, 6.3)."""

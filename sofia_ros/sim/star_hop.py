@@ -14,7 +14,9 @@ measures a calibrated telescope.
 from __future__ import annotations
 
 import datetime as dt
+import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import ClassVar
 
 import numpy as np
@@ -24,12 +26,20 @@ from sofia_ros import messages as m
 from sofia_ros.calibration.published import EQ_6_1
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.graph_nodes import IMAGERS
-from sofia_ros.sim.sequence import TOPICS, SequenceCore
+from sofia_ros.sim.sequence import (
+    TOPICS,
+    SequenceCore,
+    detector_offset,
+    elements_from_yaml,
+    elements_to_yaml,
+    hold_duration,
+)
 from sofia_ros.sky.catalogue import star_by_name
 from sofia_ros.topics import CD_JOINT, FD_JOINTS
 from sofia_ros.units import RAD_PER_DEG
+from sofia_ros.validate import finite_array, orthonormal_dcm
 
-__all__ = ['StarHopPlan', 'StarHopCore', 'TABLE_D3_OBSERVATIONS', 'CDT']
+__all__ = ['StarHopPlan', 'StarHopCore', 'StarHold', 'STAR_HOP_ELEMENTS', 'TABLE_D3_OBSERVATIONS', 'CDT']
 
 CDT = dt.timezone(dt.timedelta(hours=-5), 'CDT')
 #: Table D.3: the star observed at each time (CDT), 2004-09-02/03.
@@ -51,6 +61,32 @@ def table_d3_offsets_s():
 
 
 @dataclass(frozen=True)
+class StarHold:
+    """A catalogue star held for a while, at HIPO's centre or at a chosen position on a camera's detector."""
+
+    kind: ClassVar[str] = 'hold'
+    star: str
+    duration_s: float
+    #: the camera on whose detector the star is placed (None: held at HIPO's centre, as an observation)
+    camera: str | None = None
+    #: the star's offset from that detector's centre, arcsec along its x and y pixel axes
+    detector_offset_arcsec: tuple | None = None
+
+    def __post_init__(self):
+        star_by_name(self.star)
+        object.__setattr__(self, 'duration_s', hold_duration('duration_s', self.duration_s))
+        if (self.camera is None) != (self.detector_offset_arcsec is None):
+            raise InvalidArgumentError('a hold on a detector position needs both camera and detector_offset_arcsec')
+        if self.camera is not None:
+            _, offset = detector_offset(self.camera, self.detector_offset_arcsec)
+            object.__setattr__(self, 'detector_offset_arcsec', offset)
+
+
+#: the star hop's plan elements by the name a plan file gives them
+STAR_HOP_ELEMENTS = {StarHold.kind: StarHold}
+
+
+@dataclass(frozen=True)
 class StarHopPlan:
     """The star-hop sequence: (star, start offset s) pairs, hold per star, timing and the TASCU's alignment."""
 
@@ -65,6 +101,9 @@ class StarHopPlan:
     frames_per_position: int = 3
     timeout_s: float = 180.0
     tarf_from_gyrf: tuple = tuple(float(value) for value in EQ_6_1.ravel())
+    #: the plan elements flown after the observations, back to back (STAR_HOP_ELEMENTS, docs/plans.md), as
+    #: YAML text: one string, so that the plan still passes as node parameters (plan.elements_yaml)
+    elements_yaml: str = ''
 
     def __post_init__(self):
         if len(self.observations) < 2:
@@ -75,6 +114,18 @@ class StarHopPlan:
                 raise InvalidArgumentError(f'observation of {star} starts at {offset_s} s; offsets must be >= 0')
         if self.hold_s <= 0:
             raise InvalidArgumentError(f'hold_s must be positive, got {self.hold_s}')
+        matrix = finite_array('tarf_from_gyrf', self.tarf_from_gyrf, shape=(9,)).reshape(3, 3)
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')  # eq. 6.1 is orthonormal to 1e-5 only; the TASCU takes it as printed
+            orthonormal_dcm('tarf_from_gyrf', matrix)
+        # Parsed now (a bad element is refused before the run) and kept in one spelling, so equal plans compare equal.
+        object.__setattr__(self, 'elements_yaml',
+                           elements_to_yaml(elements_from_yaml(self.elements_yaml, STAR_HOP_ELEMENTS, self.campaign)))
+
+    @cached_property
+    def elements(self):
+        """The plan elements, parsed from ``elements_yaml``."""
+        return elements_from_yaml(self.elements_yaml, STAR_HOP_ELEMENTS, self.campaign)
 
 
 class StarHopCore(SequenceCore):
@@ -106,14 +157,28 @@ class StarHopCore(SequenceCore):
                 'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG,
             })
             yield from self._park()
+        for index, element in enumerate(self.plan.elements, 1):
+            self._progress('element', {'index': index, 'kind': element.kind, 'star': element.star})
+            self.record.setdefault('elements', []).append({'index': index, **(yield from self._fly_hold(element))})
+            yield from self._park()
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(
             {'accepted': True, 'campaign': 'star-hop', **self.record}, sort_keys=False))))
 
-    def _until(self, elapsed_s):
-        """Wait until sim time ``elapsed_s`` (no timeout: the table sets the pace)."""
-        while self.stamp_ns < m.seconds_to_ns(elapsed_s):
-            yield
+    def _fly_hold(self, element):
+        """A hold element: the star centred in HIPO, placed on the detector position if one is asked, held."""
+        entry = star_by_name(element.star)
+        yield from self._recentre_los(_RECENTRE_LOS_DEG)
+        if not (yield from self._centre_from_imager(entry.hip)):
+            yield from self._point_at(entry.hip)
+            yield from self._acquire(entry.hip)
+        record = {'kind': element.kind, 'star': element.star, 'hip': int(entry.hip)}
+        if element.camera is not None:
+            pixel = yield from self._place_on_detector(element.camera, element.detector_offset_arcsec)
+            record.update(camera=element.camera, pixel=[float(pixel[0]), float(pixel[1])])
+        hold_start_s, hold_end_s = yield from self._hold_for(element.duration_s)
+        return {**record, 'hold_start_s': hold_start_s, 'hold_end_s': hold_end_s,
+                'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG}
 
     def _park(self):
         """Turn the fine drive's XEL and LOS back to zero: waiting on a star, the Earth walks them to the stops."""

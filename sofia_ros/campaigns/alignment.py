@@ -21,6 +21,7 @@ from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S, GraphConfig
+from sofia_ros.sim.sequence import PLAN_FILE_NAME, elements_budget_s, plan_text
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 from sofia_ros.topics import CALIBRATION_RESULT, CLOCK, STOP_DOCUMENT
 from sofia_ros.units import ARCSEC_PER_RAD
@@ -86,14 +87,17 @@ def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevati
     return Rotation.from_matrix(error.T).as_rotvec() * ARCSEC_PER_RAD
 
 
-def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=DEFAULT_MAX_SIM_S,
+def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=None,
                   model_text='effects: {}\n', progress=None, timeout_s=3600.0):
-    """Run the campaign and write the bag plus truth.yaml, model.yaml, calibration.yaml and summary.json.
+    """Run the campaign and write the bag plus truth.yaml, model.yaml, plan.yaml, calibration.yaml and summary.json.
 
-    ``mode``: one of recording.MODES ('direct' for Monte Carlo and fast tests).
+    ``mode``: one of recording.MODES ('direct' for Monte Carlo and fast tests). ``max_sim_s``: the sim-time
+    cap (default: DEFAULT_MAX_SIM_S and an allowance for the plan's elements).
     """
     bag_path = new_bag_path(bag_path)
     config = graph_config(truth, seed, plan)
+    if max_sim_s is None:
+        max_sim_s = DEFAULT_MAX_SIM_S + elements_budget_s(config.plan.elements, config.plan.timeout_s)
     wall_start = time.perf_counter()
     fault = record_campaign(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
                             timeout_s=timeout_s, progress=progress)
@@ -102,7 +106,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
     summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,
                        wall_seconds)
     finish_run(bag_path, summary, fault,
-               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, 'calibration.yaml': result_yaml})
+               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, PLAN_FILE_NAME: plan_text(config.plan),
+                           'calibration.yaml': result_yaml})
     return AlignmentRun(summary, result_yaml, bag_path)
 
 
@@ -124,6 +129,13 @@ def result_from_bag(bag_path):
     return result, sim_ns / 1e9
 
 
+def _elements_summary(elements):
+    """How many plan elements were flown and why any was skipped (no star in reach at its elevation)."""
+    skipped = [f'element {element["index"]} ({element["kind"]}): {element["skipped"]}'
+               for element in elements if 'skipped' in element]
+    return {'flown': len(elements) - len(skipped), 'skipped': skipped}
+
+
 def _summary(result, truth, elevation_deg, sim_seconds, wall_seconds):
     summary = {'sim_seconds': round(sim_seconds, 3), 'wall_seconds': round(wall_seconds, 3),
                'accepted': bool(result.get('accepted'))}
@@ -132,6 +144,8 @@ def _summary(result, truth, elevation_deg, sim_seconds, wall_seconds):
         summary['residual_misalignment_arcsec'] = dict(zip(AXES, (float(v) for v in residual)))
         summary['predicted_sigma_arcsec'] = result['predicted_sigma_arcsec']
         summary['iterations'] = len(result['iterations'])
+        if 'elements' in result:
+            summary['elements'] = _elements_summary(result['elements'])
     else:
         summary['reason'] = result.get('reason', 'not finished')
     return summary

@@ -3,7 +3,6 @@ every node in its own process."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import signal
@@ -13,7 +12,6 @@ from os import PathLike
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-import yaml
 
 from sofia_ros import interrupts
 from sofia_ros.bag import BagWriter
@@ -23,6 +21,7 @@ from sofia_ros.output_files import output_error, write_text_atomically
 from sofia_ros.scenario import scenario_document
 from sofia_ros.sim.graph import GraphConfig, build_cores
 from sofia_ros.sim.runner import LockstepRunner
+from sofia_ros.sim.sequence import plan_text
 from sofia_ros.topics import MODEL_DOCUMENT, PLAN_DOCUMENT, SCENARIO_DOCUMENT, STOP_DOCUMENT, TRUTH_DOCUMENT
 
 __all__ = ['MODES', 'graph_documents', 'record_campaign', 'record_graph', 'new_bag_path', 'write_summary', 'finish_run',
@@ -64,7 +63,7 @@ def graph_documents(config: GraphConfig, model_text: str | None = None) -> list[
     if model_text is not None:
         documents.append((MODEL_DOCUMENT.name, model_text))
     documents.append((SCENARIO_DOCUMENT.name, scenario_document(config.scenario)))
-    documents.append((PLAN_DOCUMENT.name, yaml.safe_dump(dataclasses.asdict(config.plan), sort_keys=False)))
+    documents.append((PLAN_DOCUMENT.name, plan_text(config.plan)))
     return documents
 
 

@@ -1,12 +1,13 @@
 """The campaigns, one record each: what a campaign is called, what plans it, how it runs, what reads its bags.
 
 ROS-free: the CLI, the graph parameters, the launch code, compare and the atlas look campaigns up
-here, so adding a campaign is one module under ``campaigns/`` plus one entry in :data:`CAMPAIGNS`.
+here, so adding a campaign is one module under ``campaigns/`` plus one entry in :data:`CAMPAIGNS` (and its
+named plans, config/plans/<campaign>-<variant>.yaml).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
@@ -17,7 +18,7 @@ __all__ = ['CAMPAIGNS', 'CampaignSpec', 'campaign_named']
 
 @dataclass(frozen=True)
 class CampaignSpec:
-    """One campaign: its plan dataclass, how its graph is configured and run, its named plan variants."""
+    """One campaign: its plan dataclass, how its graph is configured and run, its named plans."""
 
     name: str
     #: one line for `sofia run --help` and the README
@@ -30,48 +31,46 @@ class CampaignSpec:
     run: Callable[..., Any]
     #: the offline tools that understand its bags ('compare', 'noise')
     analyses: tuple[str, ...]
-    #: variant name -> plan field overrides; 'full' is the dataclass defaults
-    variants: Mapping[str, Mapping[str, Any]] = field(default_factory=lambda: MappingProxyType({'full': {}}))
+    #: its named plans, each the plan file config/plans/<campaign>-<variant>.yaml ('full': the thesis' own)
+    variants: tuple[str, ...] = ('full',)
 
     def plan(self, variant: str = 'full', **overrides: Any) -> Any:
         """The plan of a named variant (fields overridden by ``overrides``); ConfigError for an unknown variant."""
+        from sofia_ros.campaigns.plan_files import read_plan_file, variant_plan_path
+
         if self.plan_type is None:
             raise ConfigError(f'the {self.name} campaign has no plan; it takes its own options')
         if variant not in self.variants:
             raise ConfigError(f'the {self.name} campaign has no variant {variant!r}; '
                               f'use one of {", ".join(self.variants)}')
-        return replace(self.plan_type(), **{**self.variants[variant], **overrides})
+        return replace(read_plan_file(variant_plan_path(self.name, variant), self.name), **overrides)
 
 
 def _alignment() -> CampaignSpec:
     from sofia_ros.campaigns.alignment import graph_config, run_alignment
     from sofia_ros.sim.calibration import AlignmentPlan
 
+    # 'minimal' is the atlas' tests' plan: the same code path at the least sim time (one frame, no series).
     return CampaignSpec(
         AlignmentPlan.campaign, 'Table 3.4 at the reference elevation on Polaris, then the boresight series (6.1, 6.2)',
-        AlignmentPlan, graph_config, run_alignment, ('compare',),
-        MappingProxyType({'full': {}, 'reduced': {'repetitions': 2, 'verification_repetitions': 1},
-                          # the atlas' tests: the same code path at the least sim time (one frame, no series)
-                          'minimal': {'repetitions': 2, 'verification_repetitions': 1, 'frames_per_position': 1,
-                                      'drift_track_s': 5.0, 'flexure_elevations_deg': (), 'max_iterations': 1}}))
+        AlignmentPlan, graph_config, run_alignment, ('compare',), ('full', 'reduced', 'minimal'))
 
 
 def _star_hop() -> CampaignSpec:
     from sofia_ros.campaigns.star_hop import run_star_hop, star_hop_config
-    from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
+    from sofia_ros.sim.star_hop import StarHopPlan
 
     return CampaignSpec(
         StarHopPlan.campaign,
         "Table D.3's 17 observations of six stars: absolute pointing and differential flexure (6.2, 6.3)",
-        StarHopPlan, star_hop_config, run_star_hop, ('compare',),
-        MappingProxyType({'full': {}, 'reduced': {'observations': table_d3_offsets_s()[3:7]}}))
+        StarHopPlan, star_hop_config, run_star_hop, ('compare',), ('full', 'reduced'))
 
 
 def _gyro_stability() -> CampaignSpec:
     from sofia_ros.campaigns.gyro_stability import run_gyro_stability
 
     return CampaignSpec('gyro-stability', 'the gyro box alone, one Table 5.2 test case (5.3)',
-                        None, None, run_gyro_stability, ('noise',), MappingProxyType({}))
+                        None, None, run_gyro_stability, ('noise',), ())
 
 
 #: every campaign by name, in the order `sofia run` lists them

@@ -17,6 +17,7 @@ from sofia_ros.campaigns.recording import finish_run, new_bag_path, record_campa
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sim.graph import GraphConfig
+from sofia_ros.sim.sequence import PLAN_FILE_NAME, elements_budget_s, plan_text
 from sofia_ros.sim.star_hop import CDT, TABLE_D3_OBSERVATIONS, StarHopPlan
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_SITE, WACO_2004_WEATHER, observed_place
 
@@ -48,14 +49,15 @@ def star_hop_config(truth, seed, plan=None):
 
 def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_text='effects: {}\n', progress=None,
                  timeout_s=3600.0):
-    """Fly the sequence, record the bag, and write truth.yaml, model.yaml, star_hop.yaml and summary.json.
+    """Fly the sequence, record the bag, and write truth.yaml, model.yaml, plan.yaml, star_hop.yaml and summary.json.
 
     ``mode``: one of recording.MODES, as for the alignment campaign.
     """
     bag_path = new_bag_path(bag_path)
     config = star_hop_config(truth, seed, plan)
     last_offset_s = config.plan.observations[-1][1]
-    max_sim_s = last_offset_s - config.plan.observations[0][1] + 20.0 * config.plan.timeout_s + config.plan.hold_s
+    max_sim_s = (last_offset_s - config.plan.observations[0][1] + 20.0 * config.plan.timeout_s + config.plan.hold_s
+                 + elements_budget_s(config.plan.elements, config.plan.timeout_s))
     wall_start = time.perf_counter()
     fault = record_campaign(config, bag_path, model_text=model_text, mode=mode, max_sim_s=max_sim_s,
                             timeout_s=timeout_s, progress=progress)
@@ -63,9 +65,11 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
     result_yaml, sim_seconds = result_from_bag(bag_path)
     result = yaml.safe_load(result_yaml)
     summary = {'sim_seconds': round(sim_seconds, 3), 'wall_seconds': round(wall_seconds, 3),
-               'finished': bool(result.get('accepted')), 'observations': len(result.get('observations', []))}
+               'finished': bool(result.get('accepted')), 'observations': len(result.get('observations', [])),
+               'elements': len(result.get('elements', []))}
     if not summary['finished']:
         summary['reason'] = result.get('reason', 'not finished')
     finish_run(bag_path, summary, fault,
-               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, 'star_hop.yaml': result_yaml})
+               side_files={'truth.yaml': truth.text, 'model.yaml': model_text, PLAN_FILE_NAME: plan_text(config.plan),
+                           'star_hop.yaml': result_yaml})
     return summary

@@ -98,11 +98,11 @@ def _run_campaign(args):
     if spec.name == 'gyro-stability':
         return _run_gyro_stability(args)
     if spec.name == 'star-hop':
-        return _run_star_hop(args)
+        return _run_star_hop(spec, args)
     truth = load_effect_config(args.truth)
     model_text = _model_text(args)
-    # Options left out take the plan dataclass' own defaults.
-    plan = spec.plan(**_given(args, 'repetitions', 'verification_repetitions', 'drift_track_s'))
+    # Options left out take the plan's own values.
+    plan = _plan(spec, args, **_given(args, 'repetitions', 'verification_repetitions', 'drift_track_s'))
     progress = _Progress()
     try:
         run = spec.run(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=_mode(args),
@@ -111,6 +111,16 @@ def _run_campaign(args):
         progress.close()
     _print_alignment_summary(run)
     return 0
+
+
+def _plan(spec, args, **overrides):
+    """The run's plan: --plan's file or --variant's named plan (default: full), the options given over it."""
+    from dataclasses import replace
+
+    from sofia_ros.campaigns.plan_files import read_plan_file
+
+    plan = read_plan_file(args.plan, spec.name) if args.plan else spec.plan(args.variant or 'full')
+    return replace(plan, **overrides)
 
 
 def _given(args, *names):
@@ -132,6 +142,8 @@ def _run_gyro_stability(args):
 
     if args.case is None:
         raise ConfigError('gyro-stability needs --case TC-1|TC-2|TC-3|TC-4')
+    if args.plan or args.variant:
+        raise ConfigError('gyro-stability records the gyro box alone and has no plan; drop --plan / --variant')
     if _mode(args) != 'executor':
         raise ConfigError('gyro-stability records the gyro box alone, without a node graph; '
                           'drop --processes / --direct / --all-dds')
@@ -147,15 +159,16 @@ def _run_gyro_stability(args):
     return 0
 
 
-def _run_star_hop(args):
+def _run_star_hop(spec, args):
+    from dataclasses import replace
+
     from sofia_ros.campaigns.star_hop import run_star_hop
     from sofia_ros.config import load_effect_config
-    from sofia_ros.errors import InvalidArgumentError
-    from sofia_ros.sim.star_hop import StarHopPlan, table_d3_offsets_s
 
     truth = load_effect_config(args.truth)
     model_text = _model_text(args)
-    observations = table_d3_offsets_s()
+    plan = _plan(spec, args)
+    observations = plan.observations
     if args.observations is not None:
         first, _, last = args.observations.partition('-')
         try:
@@ -165,10 +178,8 @@ def _run_star_hop(args):
         if not 1 <= first < last <= len(observations):
             raise ConfigError(f'--observations needs 1 <= FIRST < LAST <= {len(observations)}, got {args.observations}')
         observations = observations[first - 1:last]
-    try:
-        plan = StarHopPlan(observations=observations, follow_times=not args.no_follow_times, **_given(args, 'hold_s'))
-    except InvalidArgumentError as err:
-        raise ConfigError(str(err)) from err
+    overrides = {'follow_times': False} if args.no_follow_times else {}
+    plan = replace(plan, observations=observations, **overrides, **_given(args, 'hold_s'))
     progress = _Progress()
     try:
         summary = run_star_hop(truth, seed=args.seed, bag_path=args.bag, plan=plan, mode=_mode(args),
@@ -316,8 +327,13 @@ def build_parser():
     where.add_argument('--all-dds', action='store_true',
                        help='every node in one process as by default, but every message over DDS as between '
                             'processes (by default the nodes hand messages over in the process)')
-    # No defaults here: an option left out takes the plan dataclass' default (sim.calibration.AlignmentPlan,
-    # sim.star_hop.StarHopPlan) or the campaign runner's (campaigns.recording.DEFAULT_MAX_SIM_S).
+    named = run.add_mutually_exclusive_group()
+    named.add_argument('--plan', help="the campaign's plan file (docs/plans.md; the options below override its "
+                                      'fields), e.g. config/plans/alignment-reduced.yaml')
+    named.add_argument('--variant', help='a named plan of the campaign (config/plans/CAMPAIGN-VARIANT.yaml): full '
+                                         '(default), reduced, minimal (alignment only)')
+    # No defaults here: an option left out takes the plan's value (--plan, --variant, else the plan dataclass'
+    # defaults: sim.calibration.AlignmentPlan, sim.star_hop.StarHopPlan) or the campaign runner's (max_sim_s).
     run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'),
                      help="maneuvers per axis (default: the plan's, six as in 6.1)")
     run.add_argument('--verification-repetitions', type=integer(1, 100, 'maneuvers per axis'),
@@ -325,12 +341,15 @@ def build_parser():
     run.add_argument('--drift-track-s', type=number(1.0, 3600.0, 's'),
                      help="drift estimation on the star, s (default: the plan's)")
     run.add_argument('--max-sim-s', type=number(0.0, 172800.0, 's', low_open=True),
-                     help='alignment: stop after this much sim time (default: two hours)')
+                     help="alignment: stop after this much sim time (default: two hours and the plan elements' "
+                          'allowance)')
     run.add_argument('--hold-s', type=number(0.0, 7200.0, 's', low_open=True),
                      help="star-hop: seconds each star is held and recorded (default: the plan's)")
     run.add_argument('--no-follow-times', action='store_true',
                      help='star-hop: go to the next star at once instead of at its Table D.3 time')
-    run.add_argument('--observations', help='star-hop: only observations FIRST-LAST of Table D.3 (e.g. 4-9)')
+    run.add_argument('--observations',
+                     help="star-hop: only the plan's observations FIRST-LAST (1-based; Table D.3's by default, "
+                          'e.g. 4-9)')
     run.set_defaults(handler=_run_campaign)
 
     replay = verbs.add_parser('replay', help='re-publish a bag on its topics, with /clock, into a live graph')

@@ -36,7 +36,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sofia_ros.atlas.grid import VISIBLE_EFFECTS, draw_truths  # noqa: E402
-from sofia_ros.atlas.scoring import SUCCESSES, confused_pairs, score_truth, stated_competitors, stated_pairs  # noqa: E402
+from sofia_ros.atlas.scoring import (SUCCESSES, confused_pairs, score_truth, stated_competitors,  # noqa: E402
+                                     stated_pairs)
 from sofia_ros.campaigns.alignment import run_alignment  # noqa: E402
 from sofia_ros.compare.observations import read_observations  # noqa: E402
 from sofia_ros.compare.run import compare_observations  # noqa: E402

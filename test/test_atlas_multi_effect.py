@@ -32,8 +32,8 @@ def test_draws_are_distinct_sets_of_k_effects_the_same_for_the_same_seed():
     assert [len(truth) for truth in drawn] == [2, 3] * 15  # k cycles through the list
     assert len(set(drawn)) == 30 and all(list(truth) == sorted(set(truth)) for truth in drawn)
     assert all(set(truth) <= set(POOL) for truth in drawn)
-    assert sorted(draw_truths(POOL[:3], 3, (2,), 1)) == sorted(tuple(sorted(pair)) for pair in
-                                                               ((POOL[0], POOL[1]), (POOL[0], POOL[2]), (POOL[1], POOL[2])))
+    pairs = ((POOL[0], POOL[1]), (POOL[0], POOL[2]), (POOL[1], POOL[2]))
+    assert sorted(draw_truths(POOL[:3], 3, (2,), 1)) == sorted(tuple(sorted(pair)) for pair in pairs)
     listed = ((POOL[0], POOL[1]),)
     assert listed[0] not in draw_truths(POOL[:3], 2, (2,), 1, listed)  # a truth listed is not drawn again
 
@@ -43,7 +43,8 @@ def test_a_grid_of_truths_draws_from_the_campaigns_visible_effects_less_the_mode
                            draws=truth_draws(4, [2, 3], 7), controls=2, search_rounds=3)
     tasks = grid.tasks()
     assert grid.task_count() == len(tasks) == 2 + 4 + 2 and len({task.key for task in tasks}) == len(tasks)
-    assert tasks[0].hidden == ('timestamp_offset', 'tracker_drift') and tasks[0].effect == 'timestamp_offset+tracker_drift'
+    assert tasks[0].hidden == ('timestamp_offset', 'tracker_drift')
+    assert tasks[0].effect == 'timestamp_offset+tracker_drift'
     assert [task.seed for task in tasks] == list(range(1, 9))  # truth i with seed 1 + i
     assert all(task.search_rounds == 3 and task.key.endswith(f'|truth{task.truth_index}') for task in tasks)
     drawn = [task.hidden for task in tasks if task.hidden and task.truth_index > 0]

@@ -52,7 +52,7 @@ def add_atlas_arguments(parser) -> None:
     parser.add_argument('--controls', type=integer(0, 1_000_000, 'controls'),
                         help='control truths per campaign (nothing hidden; each its own seed)')
     parser.add_argument('--search-rounds', type=integer(1, 20, 'search rounds'),
-                        help='run the search (compare --search) for up to N rounds on each truth instead of one compare')
+                        help='search (compare --search) up to N rounds on each truth instead of one compare')
     where = parser.add_mutually_exclusive_group()
     where.add_argument('--scheduler', metavar='tcp://HOST:PORT', help='an existing Dask scheduler (default: a '
                                                                       'LocalCluster on this machine)')
@@ -102,7 +102,8 @@ def grid_of_arguments(args):
     from sofia_ros.atlas.grid import FORCED_MAX_TASKS, MAX_TASKS, grid_from_file, grid_from_lists, seeds_of_text
 
     max_tasks = FORCED_MAX_TASKS if args.force else MAX_TASKS
-    given = [axis for axis in (*_AXES, 'model', 'truth', 'candidates', *_TRUTH_FLAGS) if getattr(args, axis) is not None]
+    given = [axis for axis in (*_AXES, 'model', 'truth', 'candidates', *_TRUTH_FLAGS)
+             if getattr(args, axis) is not None]
     if args.grid is not None:
         if given:
             raise ConfigError(f'--grid and --{given[0].replace("_", "-")} both given; put the whole grid in the file '

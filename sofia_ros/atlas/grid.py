@@ -149,7 +149,8 @@ class AtlasGrid:
 
     def task_count(self) -> int:
         """How many cells the grid has."""
-        return (len(self.effects) * len(self.sizes) * len(self.campaigns) + sum(map(len, self.truths))) * len(self.seeds)
+        cells = len(self.effects) * len(self.sizes) * len(self.campaigns)
+        return (cells + sum(map(len, self.truths))) * len(self.seeds)
 
     def _truth_document(self) -> dict:
         """The truths and the search, only when the grid has truths (a single-effect grid keeps its fingerprint)."""

@@ -31,8 +31,7 @@ from sofia_ros.input_files import read_text_capped
 
 __all__ = ['AtlasGrid', 'AtlasTask', 'CONTROL', 'DEFAULT_MODEL', 'DEFAULT_TRUTH', 'FORCED_MAX_TASKS', 'MAX_TASKS',
            'NOISE_EFFECTS', 'TruthDraws', 'VISIBLE_EFFECTS', 'draw_truths', 'grid_from_file', 'grid_from_lists',
-           'truth_draws',
-           'hidden_truth_text', 'scaled_params', 'seeds_of_text', 'truth_label']
+           'hidden_truth_text', 'scaled_params', 'seeds_of_text', 'truth_draws', 'truth_label']
 
 DEFAULT_MODEL, DEFAULT_TRUTH = 'config/model/nominal.yaml', 'config/truth/nominal.yaml'
 #: Keys a grid file may hold.
@@ -305,7 +304,8 @@ def _count(value, what: str, low: int, high: int) -> int:
 
 
 def truth_draws(count, ks, seed, pool=None, max_tasks: int = MAX_TASKS) -> TruthDraws:
-    """TruthDraws checked: a count within the task limit, each k >= 1, a seed, an optional pool of names."""
+    """TruthDraws checked: a count within the task limit, each k an integer (draw_truths holds it against the
+    pool), a seed, an optional pool of names."""
     if not isinstance(ks, list) or not ks:
         ks = [ks]
     if pool is not None and (not isinstance(pool, list) or not pool):

@@ -107,20 +107,25 @@ def _campaign_fields(plan, summary: dict) -> dict:
     return fields
 
 
-def _compare_fields(task: AtlasTask, document: dict) -> dict:
-    """The row's compare part: top candidate, the hidden effect's delta-BIC and fitted value, verdict."""
+def _comparison_fields(document: dict) -> dict:
+    """What every row keeps of a comparison: its best detectable candidate, its verdict and its largest RMS/floor."""
     candidates = document['candidates']
     top = candidates[0] if candidates and candidates[0]['detectable'] else None
-    hidden = next((c for c in candidates if c['effect'] == task.effect), None)
+    return {'top_candidate': top['effect'] if top else None, 'top_delta_bic': top['delta_bic'] if top else None,
+            'verdict': document['verdict']['status'],
+            'rms_over_floor': max((o['ratio'] for o in document['verdict']['observables'].values()), default=None)}
+
+
+def _compare_fields(task: AtlasTask, document: dict) -> dict:
+    """The row's compare part: top candidate, the hidden effect's delta-BIC and fitted value, verdict."""
+    hidden = next((c for c in document['candidates'] if c['effect'] == task.effect), None)
     param, true_default = reference_param(task.effect)
-    fields = {'param': param, 'true_value': true_default * task.size if param else None,
-              'top_candidate': top['effect'] if top else None, 'top_delta_bic': top['delta_bic'] if top else None,
-              'verdict': document['verdict']['status'],
-              'rms_over_floor': max((o['ratio'] for o in document['verdict']['observables'].values()), default=None),
+    fields = {**_comparison_fields(document), 'param': param,
+              'true_value': true_default * task.size if param else None,
               'degenerate_with': ','.join(sorted(b if a == task.effect else a for a, b in document['degenerate']
                                                  if task.effect in (a, b))) or None}
-    fields['detected'] = bool(top is not None and top['effect'] == task.effect
-                              and top['delta_bic'] >= SIGNIFICANT_DELTA_BIC)
+    fields['detected'] = bool(fields['top_candidate'] == task.effect
+                              and fields['top_delta_bic'] >= SIGNIFICANT_DELTA_BIC)
     if hidden is not None:
         fields['effect_delta_bic'] = hidden['delta_bic']
         if param is not None:
@@ -143,18 +148,10 @@ def _truth_fields(task: AtlasTask, model: EffectConfig, result, final: EffectCon
     absorbed = sorted(set(task.hidden) & set(document['unobservable']))
     return {'truth_effects': _joined(task.hidden), 'k': len(task.hidden),
             'mode': 'search' if task.search_rounds else 'compare', 'rounds': rounds,
-            'final_added': _joined(added), 'final_removed': _joined(removed), 'verdict': status,
+            'final_added': _joined(added), 'final_removed': _joined(removed),
             'competing': json.dumps(competing), 'equivalents': json.dumps([entry['model'] for entry in equivalents]),
             'absorbed': _joined(absorbed),
             'score': score_truth(task.hidden, added, removed, status, stated_pairs(competing, equivalents), absorbed)}
-
-
-def _final_comparison_fields(document: dict) -> dict:
-    """What a truth row keeps of its final comparison besides the truth part: the top candidate and the RMS."""
-    candidates = document['candidates']
-    top = candidates[0] if candidates and candidates[0]['detectable'] else None
-    return {'top_candidate': top['effect'] if top else None, 'top_delta_bic': top['delta_bic'] if top else None,
-            'rms_over_floor': max((o['ratio'] for o in document['verdict']['observables'].values()), default=None)}
 
 
 def _run_truth(task: AtlasTask, setup: TaskSetup, bag_path: Path) -> dict:
@@ -177,7 +174,7 @@ def _run_truth(task: AtlasTask, setup: TaskSetup, bag_path: Path) -> dict:
     else:
         result, final, count = compare(observations, setup.model), setup.model, 1
         equivalents = result.document['equivalent_models']
-    return {**_final_comparison_fields(result.document),
+    return {**_comparison_fields(result.document),
             **_truth_fields(task, setup.model, result, final, count, equivalents)}
 
 

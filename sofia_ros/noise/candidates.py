@@ -39,8 +39,9 @@ value the linearization can stand on.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Callable
+from typing import TypedDict
 
 import numpy as np
 from scipy import optimize, signal
@@ -50,6 +51,7 @@ from sofia_ros.analysis.lines import likely_source
 from sofia_ros.analysis.ranking import CandidateTerm, rank_candidates
 from sofia_ros.analysis.spectra import welch_sinusoid_psd
 from sofia_ros.effects import resolve_params
+from sofia_ros.effects.base import EffectParams, Effects
 from sofia_ros.errors import ConfigError
 from sofia_ros.frames import AXES
 from sofia_ros.noise.fit import (
@@ -60,6 +62,7 @@ from sofia_ros.noise.fit import (
     rrw_psd,
     sinusoid_adev,
 )
+from sofia_ros.noise.measure import MeasuredNoise
 from sofia_ros.noise.predict import model_lines, predicted_noise
 from sofia_ros.sensors.gyro_noise import (
     rate_ramp_arcsec_per_s2_to_deg_per_h2,
@@ -72,6 +75,9 @@ __all__ = [
     'rank_missing_terms',
     'residual_summary',
     'model_with_candidate',
+    'NoiseCandidate',
+    'ResidualSummary',
+    'AxisRms',
 ]
 
 #: A residual PSD peak is a line candidate when it stands this many chi-square sigmas above the model
@@ -88,6 +94,46 @@ _PERIOD_GRID = 80
 _PINNED = 1e-3
 _JACOBIAN_STEP = 1e-4
 _DEFAULT_BI_CUTOFF_HZ = 10.0
+
+
+class AxisRms(TypedDict):
+    """RMS of ln(measured / predicted) per axis and over all three."""
+
+    el: float
+    xel: float
+    los: float
+    all: float
+
+
+class ResidualSummary(TypedDict):
+    """The model's residual (the model.residual object of `sofia noise --json`, docs/noise.md)."""
+
+    allan_rms_ln: AxisRms
+    psd_rms_ln: AxisRms
+    chi2_per_point: float
+    points: int
+
+
+class _LineSource(TypedDict, total=False):
+    # A base of its own: NotRequired is not seen at run time under `from __future__ import annotations` (3.11).
+    #: the likely source of a line (Tables 5.4, 5.5), where the term is a line
+    source: str
+
+
+class NoiseCandidate(_LineSource):
+    """A missing term (one entry of the candidates of `sofia noise --json`, docs/noise.md)."""
+
+    effect: str
+    term: str
+    #: None for a term shared by the axes (gyro_noise)
+    axis: str | None
+    label: str
+    delta_bic: float
+    params: dict[str, float]
+    sigma: dict[str, float]
+    significant: bool
+    observable: bool
+    degenerate_with: list[str]
 
 
 def _linear(av, psd):
@@ -114,13 +160,22 @@ class BaseFit:
     jacobian: np.ndarray
 
     @property
-    def linear(self):
+    def linear(self) -> np.ndarray:
         """The prediction along the residual rows."""
         return _linear(self.av, self.psd)
 
 
-def fit_base(measured, effects):
-    """Refit the per-axis white level (AV a / tau, PSD 2 a) of the model to the record (module docstring)."""
+def fit_base(measured: MeasuredNoise, effects: Mapping[str, EffectParams]) -> BaseFit:
+    """Refit the per-axis white level (AV a / tau, PSD 2 a) of the model to the record (module docstring).
+
+    Args:
+        measured: the record on the loop's grid.
+        effects: the noise model, effect name -> parameters.
+
+    Returns:
+        The refitted prediction, white levels, the read-out ARW per axis, the weighted residual and its Jacobian
+        in the log white levels.
+    """
     grid = measured.grid
     rest_av, rest_psd = predicted_noise(effects, grid, include_arw=False)
     white_av, white_psd = 1.0 / grid.tau_s, np.full(grid.freq_hz.shape, 2.0)
@@ -153,13 +208,22 @@ def _central_jacobian(function, values, steps):
     return np.column_stack(columns)
 
 
-def residual_summary(measured, av, psd):
-    """RMS of ln(measured / predicted) per axis for root AV and PSD, and the weighted chi^2 per row."""
+def residual_summary(measured: MeasuredNoise, av: np.ndarray, psd: np.ndarray) -> ResidualSummary:
+    """RMS of ln(measured / predicted) per axis for root AV and PSD, and the weighted chi^2 per row.
+
+    Args:
+        measured: the record on the loop's grid.
+        av: the predicted AV, (3, n_tau) [(arcsec/s)^2].
+        psd: the predicted PSD, (3, n_freq) [(arcsec/s)^2/Hz].
+
+    Returns:
+        The RMS per axis and over all axes, the weighted chi^2 per row and the number of rows.
+    """
     allan = np.log(measured.adev) - 0.5 * np.log(av)
     spectrum = np.log(measured.psd) - np.log(psd) - measured.psd_log_bias
     weighted = _weighted_residual(measured, _linear(av, psd))
 
-    def rms(values):
+    def rms(values: np.ndarray) -> AxisRms:
         return {**{axis: float(np.sqrt(np.mean(row**2))) for axis, row in zip(AXES, values)},
                 'all': float(np.sqrt(np.mean(values**2)))}
 
@@ -175,7 +239,7 @@ class _Proposal:
     effect: str
     term: str
     axis: str | None
-    names: tuple
+    names: tuple[str, ...]
     start: np.ndarray
     lower: np.ndarray
     upper: np.ndarray
@@ -410,8 +474,19 @@ def _coefficient_proposal(measured, base, label, effect, term, axis, rows, shape
                      np.zeros(len(shapes)), np.full(len(shapes), np.inf), scales, rows, contribution, report)
 
 
-def rank_missing_terms(measured, base, effects, silent=frozenset()):
-    """Candidates (docs/noise.md `candidates`), best first, by ranking.rank_candidates; silent sources not named."""
+def rank_missing_terms(measured: MeasuredNoise, base: BaseFit, effects: Mapping[str, EffectParams],
+                       silent: frozenset[str] = frozenset()) -> list[NoiseCandidate]:
+    """Candidates (docs/noise.md `candidates`), best first, by ranking.rank_candidates; silent sources not named.
+
+    Args:
+        measured: the record on the loop's grid.
+        base: the model with its white levels refitted (fit_base).
+        effects: the noise model, effect name -> parameters.
+        silent: line sources the record's subsystem states rule out (analysis.lines.silent_sources).
+
+    Returns:
+        The candidates that survived refinement, best delta-BIC first.
+    """
     proposals = (_line_proposals(measured, base, effects, silent)
                  + _slow_sinusoid_proposals(measured, base, effects, silent)
                  + _noise_term_proposals(measured, base, effects))
@@ -430,7 +505,7 @@ def rank_missing_terms(measured, base, effects, silent=frozenset()):
         proposal = kept[candidate.name]
         params, sigma = proposal.report(np.array([candidate.params[n] for n in proposal.names]),
                                         np.array([candidate.sigma[n] for n in proposal.names]))
-        entry = {'effect': proposal.effect, 'term': proposal.term, 'axis': proposal.axis, 'label': candidate.name,
+        entry: NoiseCandidate = {'effect': proposal.effect, 'term': proposal.term, 'axis': proposal.axis, 'label': candidate.name,
                  'delta_bic': float(candidate.delta_bic), 'params': params, 'sigma': sigma,
                  'significant': bool(candidate.significant), 'observable': bool(candidate.observable),
                  'degenerate_with': list(candidate.degenerate_with)}
@@ -440,8 +515,19 @@ def rank_missing_terms(measured, base, effects, silent=frozenset()):
     return candidates
 
 
-def model_with_candidate(effects, candidate):
-    """The model's effects with a `candidates` entry added as a term (what `sofia model add` would write)."""
+def model_with_candidate(effects: Mapping[str, EffectParams], candidate: NoiseCandidate) -> Effects:
+    """The model's effects with a `candidates` entry added as a term (what `sofia model add` would write).
+
+    Args:
+        effects: the noise model, effect name -> parameters.
+        candidate: one entry of rank_missing_terms (or of the JSON's candidates).
+
+    Returns:
+        A new model with the term added (a line appended, a gyro_noise or drift parameter set).
+
+    Raises:
+        ConfigError: a candidate of an effect the noise loop does not add, or parameters the effect refuses.
+    """
     updated = {name: dict(params) for name, params in effects.items()}
     effect, params = candidate['effect'], candidate['params']
     if effect == 'vibration_lines':

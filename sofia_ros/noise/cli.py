@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -13,8 +14,12 @@ __all__ = ['add_noise_arguments', 'run_noise']
 _CANDIDATES_SHOWN = 8
 
 
-def add_noise_arguments(parser):
-    """Arguments of `sofia noise`."""
+def add_noise_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `sofia noise`.
+
+    Args:
+        parser: the `sofia noise` subparser.
+    """
     parser.add_argument('bag', help='bag directory of `sofia run gyro-stability`')
     parser.add_argument('--json', metavar='OUT', help='write the analysis as JSON (docs/noise.md)')
     parser.add_argument('--report', metavar='DIR',
@@ -35,8 +40,20 @@ def _check_json_target(path):
     return target
 
 
-def run_noise(args):
-    """`sofia noise`: check every input, analyze, write report and JSON, print the tables (5.2)."""
+def run_noise(args: argparse.Namespace) -> int:
+    """`sofia noise`: check every input, analyze, write report and JSON, print the tables (5.2).
+
+    Args:
+        args: the parsed arguments of add_noise_arguments.
+
+    Returns:
+        The exit code, 0 (every failure raises a SofiaError that sofia_ros.cli turns into one line and exit 2 or 3).
+
+    Raises:
+        ConfigError: a --json target in no existing directory, a --report directory in use, or a bad model.
+        InvalidArgumentError: a bad --decimate or a record too short.
+        BagError: a bag without the topics the analysis reads.
+    """
     from sofia_ros.noise.predict import check_noise_model
     from sofia_ros.noise.report import check_report_dir, write_report
     from sofia_ros.noise.run import analyze_record, checked_decimation, load_noise_record

@@ -18,12 +18,15 @@ logarithmically at f -> 0 (a ramp is not stationary); 4.22 is the exact AV of th
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.integrate import quad
 from scipy.optimize import lsq_linear
 
+from sofia_ros.analysis.allan import AllanCurve
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ
 from sofia_ros.validate import finite_array, finite_scalar, positive_scalar
@@ -83,45 +86,135 @@ def _tau(tau_s):
     return tau
 
 
-def quantization_psd(freq_hz, quantization_arcsec, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """Rate PSD of quantization, 2 SF^2 / (3 t_s) sin^2(pi f t_s) (eq. 4.11)."""
+def quantization_psd(freq_hz: npt.ArrayLike, quantization_arcsec: float,
+                     sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> np.ndarray:
+    """Rate PSD of quantization, 2 SF^2 / (3 t_s) sin^2(pi f t_s) (eq. 4.11).
+
+    Args:
+        freq_hz: the frequencies [Hz], > 0.
+        quantization_arcsec: the quantization SF [arcsec].
+        sample_rate_hz: the read-out rate 1 / t_s [Hz].
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz].
+
+    Raises:
+        InvalidArgumentError: a frequency not finite or not positive.
+    """
     sample_time_s = 1.0 / positive_scalar('sample_rate_hz', sample_rate_hz)
     phase = np.pi * _frequency(freq_hz) * sample_time_s
     return 2.0 * quantization_arcsec**2 / (3.0 * sample_time_s) * np.sin(phase) ** 2
 
 
-def quantization_psd_low_frequency(freq_hz, quantization_arcsec, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """Low-frequency limit of 4.11, 2 pi^2 SF^2 t_s f^2 / 3 (eq. 4.12, printed without the 2)."""
+def quantization_psd_low_frequency(freq_hz: npt.ArrayLike, quantization_arcsec: float,
+                                   sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> np.ndarray:
+    """Low-frequency limit of 4.11, 2 pi^2 SF^2 t_s f^2 / 3 (eq. 4.12, printed without the 2).
+
+    Args:
+        freq_hz: the frequencies [Hz], > 0.
+        quantization_arcsec: the quantization SF [arcsec].
+        sample_rate_hz: the read-out rate 1 / t_s [Hz].
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz].
+
+    Raises:
+        InvalidArgumentError: a frequency not finite or not positive.
+    """
     sample_time_s = 1.0 / positive_scalar('sample_rate_hz', sample_rate_hz)
     return 2.0 * np.pi**2 * quantization_arcsec**2 * sample_time_s * _frequency(freq_hz) ** 2 / 3.0
 
 
-def arw_psd(freq_hz, arw_arcsec_per_sqrt_s):
-    """Rate PSD of angle random walk, 2 N^2 (eq. 4.14)."""
+def arw_psd(freq_hz: npt.ArrayLike, arw_arcsec_per_sqrt_s: float) -> np.ndarray:
+    """Rate PSD of angle random walk, 2 N^2 (eq. 4.14).
+
+    Args:
+        freq_hz: the frequencies [Hz], > 0.
+        arw_arcsec_per_sqrt_s: the ARW N [arcsec/sqrt(s)].
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz], flat.
+
+    Raises:
+        InvalidArgumentError: a frequency not finite or not positive.
+    """
     return np.full_like(_frequency(freq_hz), 2.0 * arw_arcsec_per_sqrt_s**2)
 
 
-def bias_instability_psd(freq_hz, bias_instability_arcsec_per_s, cutoff_hz):
-    """Rate PSD of bias instability, B^2 / (pi f) up to f0 and zero above (eq. 4.17)."""
+def bias_instability_psd(freq_hz: npt.ArrayLike, bias_instability_arcsec_per_s: float,
+                         cutoff_hz: float) -> np.ndarray:
+    """Rate PSD of bias instability, B^2 / (pi f) up to f0 and zero above (eq. 4.17).
+
+    Args:
+        freq_hz: the frequencies [Hz], > 0.
+        bias_instability_arcsec_per_s: the bias instability B [arcsec/s].
+        cutoff_hz: the cutoff f0 [Hz], > 0.
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz].
+
+    Raises:
+        InvalidArgumentError: a frequency or the cutoff not finite or not positive.
+    """
     frequency = _frequency(freq_hz)
     cutoff = positive_scalar('cutoff_hz', cutoff_hz)
     return np.where(frequency <= cutoff, bias_instability_arcsec_per_s**2 / (np.pi * frequency), 0.0)
 
 
-def rrw_psd(freq_hz, rrw_arcsec_per_s_sqrt_s):
-    """Rate PSD of rate random walk, 2 (K / (2 pi f))^2 (eq. 4.19)."""
+def rrw_psd(freq_hz: npt.ArrayLike, rrw_arcsec_per_s_sqrt_s: float) -> np.ndarray:
+    """Rate PSD of rate random walk, 2 (K / (2 pi f))^2 (eq. 4.19).
+
+    Args:
+        freq_hz: the frequencies [Hz], > 0.
+        rrw_arcsec_per_s_sqrt_s: the rate random walk K [arcsec/s^1.5].
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz].
+
+    Raises:
+        InvalidArgumentError: a frequency not finite or not positive.
+    """
     return 2.0 * (rrw_arcsec_per_s_sqrt_s / (2.0 * np.pi * _frequency(freq_hz))) ** 2
 
 
-def rate_ramp_psd(freq_hz, rate_ramp_arcsec_per_s2):
-    """Rate PSD of rate ramp, 2 R^2 / (2 pi f)^3 (eq. 4.21)."""
+def rate_ramp_psd(freq_hz: npt.ArrayLike, rate_ramp_arcsec_per_s2: float) -> np.ndarray:
+    """Rate PSD of rate ramp, 2 R^2 / (2 pi f)^3 (eq. 4.21).
+
+    Args:
+        freq_hz: the frequencies [Hz], > 0.
+        rate_ramp_arcsec_per_s2: the rate ramp R [arcsec/s^2].
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz].
+
+    Raises:
+        InvalidArgumentError: a frequency not finite or not positive.
+    """
     return 2.0 * rate_ramp_arcsec_per_s2**2 / (2.0 * np.pi * _frequency(freq_hz)) ** 3
 
 
-def noise_psd(freq_hz, quantization_arcsec=0.0, arw_arcsec_per_sqrt_s=0.0, bias_instability_arcsec_per_s=0.0,
-              rrw_arcsec_per_s_sqrt_s=0.0, rate_ramp_arcsec_per_s2=0.0, sample_rate_hz=GYRO_SAMPLE_RATE_HZ,
-              bias_cutoff_hz=10.0):
-    """Rate PSD of the five independent processes, their sum (eq. 4.23)."""
+def noise_psd(freq_hz: npt.ArrayLike, quantization_arcsec: float = 0.0, arw_arcsec_per_sqrt_s: float = 0.0,
+              bias_instability_arcsec_per_s: float = 0.0, rrw_arcsec_per_s_sqrt_s: float = 0.0,
+              rate_ramp_arcsec_per_s2: float = 0.0, sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ,
+              bias_cutoff_hz: float = 10.0) -> np.ndarray:
+    """Rate PSD of the five independent processes, their sum (eq. 4.23).
+
+    Args:
+        freq_hz: the frequencies [Hz], > 0.
+        quantization_arcsec: SF [arcsec].
+        arw_arcsec_per_sqrt_s: N [arcsec/sqrt(s)].
+        bias_instability_arcsec_per_s: B [arcsec/s].
+        rrw_arcsec_per_s_sqrt_s: K [arcsec/s^1.5].
+        rate_ramp_arcsec_per_s2: R [arcsec/s^2].
+        sample_rate_hz: the read-out rate 1 / t_s [Hz].
+        bias_cutoff_hz: the bias instability's cutoff f0 [Hz].
+
+    Returns:
+        The PSD [(arcsec/s)^2/Hz].
+
+    Raises:
+        InvalidArgumentError: a frequency, rate or cutoff not finite or not positive.
+    """
     return (
         quantization_psd(freq_hz, quantization_arcsec, sample_rate_hz)
         + arw_psd(freq_hz, arw_arcsec_per_sqrt_s)
@@ -131,34 +224,105 @@ def noise_psd(freq_hz, quantization_arcsec=0.0, arw_arcsec_per_sqrt_s=0.0, bias_
     )
 
 
-def quantization_adev(tau_s, quantization_arcsec):
-    """Root AV of quantization noise, SF / (2 tau) (eq. 4.13)."""
+def quantization_adev(tau_s: npt.ArrayLike, quantization_arcsec: float) -> np.ndarray:
+    """Root AV of quantization noise, SF / (2 tau) (eq. 4.13).
+
+    Args:
+        tau_s: the cluster times [s], > 0.
+        quantization_arcsec: SF [arcsec].
+
+    Returns:
+        The root AV [arcsec/s].
+
+    Raises:
+        InvalidArgumentError: a tau not finite or not positive.
+    """
     return quantization_arcsec / (2.0 * _tau(tau_s))
 
 
-def arw_adev(tau_s, arw_arcsec_per_sqrt_s):
-    """Root AV of angle random walk, N tau^-0.5 (eq. 4.16)."""
+def arw_adev(tau_s: npt.ArrayLike, arw_arcsec_per_sqrt_s: float) -> np.ndarray:
+    """Root AV of angle random walk, N tau^-0.5 (eq. 4.16).
+
+    Args:
+        tau_s: the cluster times [s], > 0.
+        arw_arcsec_per_sqrt_s: N [arcsec/sqrt(s)].
+
+    Returns:
+        The root AV [arcsec/s].
+
+    Raises:
+        InvalidArgumentError: a tau not finite or not positive.
+    """
     return arw_arcsec_per_sqrt_s / np.sqrt(_tau(tau_s))
 
 
-def bias_instability_adev(tau_s, bias_instability_arcsec_per_s):
-    """Root AV plateau of bias instability for tau >> 1/f0, 0.6643 B (eq. 4.18 corrected, see module)."""
+def bias_instability_adev(tau_s: npt.ArrayLike, bias_instability_arcsec_per_s: float) -> np.ndarray:
+    """Root AV plateau of bias instability for tau >> 1/f0, 0.6643 B (eq. 4.18 corrected, see module).
+
+    Args:
+        tau_s: the cluster times [s], > 0.
+        bias_instability_arcsec_per_s: B [arcsec/s].
+
+    Returns:
+        The root AV [arcsec/s], flat.
+
+    Raises:
+        InvalidArgumentError: a tau not finite or not positive.
+    """
     return np.full_like(_tau(tau_s), BIAS_INSTABILITY_PLATEAU * bias_instability_arcsec_per_s)
 
 
-def rrw_adev(tau_s, rrw_arcsec_per_s_sqrt_s):
-    """Root AV of rate random walk, K tau^0.5 / sqrt(3) (eq. 4.20)."""
+def rrw_adev(tau_s: npt.ArrayLike, rrw_arcsec_per_s_sqrt_s: float) -> np.ndarray:
+    """Root AV of rate random walk, K tau^0.5 / sqrt(3) (eq. 4.20).
+
+    Args:
+        tau_s: the cluster times [s], > 0.
+        rrw_arcsec_per_s_sqrt_s: K [arcsec/s^1.5].
+
+    Returns:
+        The root AV [arcsec/s].
+
+    Raises:
+        InvalidArgumentError: a tau not finite or not positive.
+    """
     return rrw_arcsec_per_s_sqrt_s * np.sqrt(_tau(tau_s) / 3.0)
 
 
-def rate_ramp_adev(tau_s, rate_ramp_arcsec_per_s2):
-    """Root AV of rate ramp, R tau / sqrt(2) (eq. 4.22)."""
+def rate_ramp_adev(tau_s: npt.ArrayLike, rate_ramp_arcsec_per_s2: float) -> np.ndarray:
+    """Root AV of rate ramp, R tau / sqrt(2) (eq. 4.22).
+
+    Args:
+        tau_s: the cluster times [s], > 0.
+        rate_ramp_arcsec_per_s2: R [arcsec/s^2].
+
+    Returns:
+        The root AV [arcsec/s].
+
+    Raises:
+        InvalidArgumentError: a tau not finite or not positive.
+    """
     return rate_ramp_arcsec_per_s2 * _tau(tau_s) / np.sqrt(2.0)
 
 
-def noise_adev(tau_s, quantization_arcsec=0.0, arw_arcsec_per_sqrt_s=0.0, bias_instability_arcsec_per_s=0.0,
-               rrw_arcsec_per_s_sqrt_s=0.0, rate_ramp_arcsec_per_s2=0.0):
-    """Root of the summed AVs of the five processes (eq. 4.24)."""
+def noise_adev(tau_s: npt.ArrayLike, quantization_arcsec: float = 0.0, arw_arcsec_per_sqrt_s: float = 0.0,
+               bias_instability_arcsec_per_s: float = 0.0, rrw_arcsec_per_s_sqrt_s: float = 0.0,
+               rate_ramp_arcsec_per_s2: float = 0.0) -> np.ndarray:
+    """Root of the summed AVs of the five processes (eq. 4.24).
+
+    Args:
+        tau_s: the cluster times [s], > 0.
+        quantization_arcsec: SF [arcsec].
+        arw_arcsec_per_sqrt_s: N [arcsec/sqrt(s)].
+        bias_instability_arcsec_per_s: B [arcsec/s].
+        rrw_arcsec_per_s_sqrt_s: K [arcsec/s^1.5].
+        rate_ramp_arcsec_per_s2: R [arcsec/s^2].
+
+    Returns:
+        The root AV [arcsec/s].
+
+    Raises:
+        InvalidArgumentError: a tau not finite or not positive.
+    """
     return np.sqrt(
         quantization_adev(tau_s, quantization_arcsec) ** 2
         + arw_adev(tau_s, arw_arcsec_per_sqrt_s) ** 2
@@ -168,8 +332,22 @@ def noise_adev(tau_s, quantization_arcsec=0.0, arw_arcsec_per_sqrt_s=0.0, bias_i
     )
 
 
-def sinusoid_adev(tau_s, amplitude_arcsec_per_s, frequency_hz, sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """Root AV of a sampled sinusoid, A sin^2(pi f tau) / |m sin(pi f t_s)| (4.6-4.7 on A sin(2 pi f t))."""
+def sinusoid_adev(tau_s: npt.ArrayLike, amplitude_arcsec_per_s: float, frequency_hz: float,
+                  sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> np.ndarray:
+    """Root AV of a sampled sinusoid, A sin^2(pi f tau) / |m sin(pi f t_s)| (4.6-4.7 on A sin(2 pi f t)).
+
+    Args:
+        tau_s: the cluster times [s], > 0 (rounded to whole samples).
+        amplitude_arcsec_per_s: the rate amplitude A [arcsec/s].
+        frequency_hz: the line's frequency f [Hz] (above fs/2 it aliases).
+        sample_rate_hz: the sample rate 1 / t_s [Hz].
+
+    Returns:
+        The root AV [arcsec/s] (zero for a line at a multiple of the sample rate).
+
+    Raises:
+        InvalidArgumentError: a tau, the frequency or the rate not finite, or a tau or the rate not positive.
+    """
     # Cluster means of m samples scale the sinusoid by sin(pi f tau) / (m sin(pi f t_s)) (the
     # discrete form of 4.10's sin(x)/x, exact for every m and for lines above fs/2, which alias);
     # two means tau apart differ by 2 sin(pi f tau) times that, and 4.7 halves the mean square.
@@ -184,8 +362,20 @@ def sinusoid_adev(tau_s, amplitude_arcsec_per_s, frequency_hz, sample_rate_hz=GY
     return abs(amplitude_arcsec_per_s) * across_cluster**2 / (clusters * abs(across_sample))
 
 
-def decimated_quantization_variance(quantization_arcsec, readout_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """Rate variance quantization leaves in every k-th read-out (k >= 2), SF^2 / (6 t_s^2) (4.11 at full band)."""
+def decimated_quantization_variance(quantization_arcsec: float,
+                                    readout_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> float:
+    """Rate variance quantization leaves in every k-th read-out (k >= 2), SF^2 / (6 t_s^2) (4.11 at full band).
+
+    Args:
+        quantization_arcsec: SF [arcsec].
+        readout_rate_hz: the gyro read-out rate 1 / t_s [Hz].
+
+    Returns:
+        The white rate variance [(arcsec/s)^2] of the decimated samples.
+
+    Raises:
+        InvalidArgumentError: a read-out rate not finite or not positive.
+    """
     # The rate is the difference of two rounded angles (2.11), each off by a uniform error of
     # variance SF^2 / 12: at the read-out rate the difference is blue (4.11); samples k >= 2 apart
     # share no rounding error, so in decimated data it is white noise of variance 2 SF^2 / (12 t_s^2).
@@ -193,9 +383,23 @@ def decimated_quantization_variance(quantization_arcsec, readout_rate_hz=GYRO_SA
     return quantization_arcsec**2 / (6.0 * sample_time_s**2)
 
 
-def arw_of_decimated_record(arw_sampled_arcsec_per_sqrt_s, sampled_rate_hz, quantization_arcsec,
-                            readout_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """Read-out ARW from every k-th sample: 4.27, less the white quantization SF^2 / (6 t_s) it carries."""
+def arw_of_decimated_record(arw_sampled_arcsec_per_sqrt_s: npt.ArrayLike, sampled_rate_hz: float,
+                            quantization_arcsec: float,
+                            readout_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> np.ndarray:
+    """Read-out ARW from every k-th sample: 4.27, less the white quantization SF^2 / (6 t_s) it carries.
+
+    Args:
+        arw_sampled_arcsec_per_sqrt_s: the ARW N of the decimated record [arcsec/sqrt(s)].
+        sampled_rate_hz: the rate the record was kept at [Hz], below readout_rate_hz.
+        quantization_arcsec: SF [arcsec].
+        readout_rate_hz: the gyro read-out rate [Hz].
+
+    Returns:
+        The ARW of the read-out data [arcsec/sqrt(s)], zero where quantization explains it all.
+
+    Raises:
+        InvalidArgumentError: a value not finite, a rate not positive, or sampled not below read-out.
+    """
     # 4.27 assumes white read-out noise; quantization is not (4.11), so in every k-th sample it adds
     # decimated_quantization_variance x t_s = SF^2 / (6 t_s) to N^2 (0.0132"/sqrt(s) reads 0.0146 otherwise).
     sampled = positive_scalar('sampled_rate_hz', sampled_rate_hz)
@@ -207,8 +411,22 @@ def arw_of_decimated_record(arw_sampled_arcsec_per_sqrt_s, sampled_rate_hz, quan
     return np.sqrt(np.maximum(corrected_sq - floor_sq, 0.0))
 
 
-def allan_variance_from_psd(tau_s, psd_function, f_min_hz=0.0, f_max_hz=np.inf):
-    """AV from a one-sided rate PSD, 2 int S(f) sin^4(pi f tau) / (pi f tau)^2 df (eq. 4.10, factor 2)."""
+def allan_variance_from_psd(tau_s: float, psd_function: Callable[[np.ndarray], npt.ArrayLike],
+                            f_min_hz: float = 0.0, f_max_hz: float = np.inf) -> float:
+    """AV from a one-sided rate PSD, 2 int S(f) sin^4(pi f tau) / (pi f tau)^2 df (eq. 4.10, factor 2).
+
+    Args:
+        tau_s: one cluster time [s], > 0.
+        psd_function: the one-sided rate PSD as a function of frequency [Hz] (vectorized).
+        f_min_hz: the lower end of the integral [Hz].
+        f_max_hz: the upper end [Hz] (inf for none).
+
+    Returns:
+        The AV [(rate unit)^2].
+
+    Raises:
+        InvalidArgumentError: tau not positive, or not 0 <= f_min_hz < f_max_hz.
+    """
     # In x = pi f tau: Gauss-Legendre on log-spaced pieces of the first half period (where 1/f^n
     # PSDs are steep) and on each later half period, up to 2^18 of them; beyond, sin^4 is replaced
     # by its mean 3/8 and the smooth remainder integrated by quad.
@@ -238,16 +456,37 @@ def _psd_at(psd_function, x, tau):
     return np.asarray(psd_function(x / (np.pi * tau)), dtype=float)
 
 
-def arw_deg_per_sqrt_h_from_white_psd(psd_deg_per_h_sq_per_hz):
-    """ARW coefficient from the flat rate PSD level, sqrt(S / 2) / 60 (eq. 4.15)."""
+def arw_deg_per_sqrt_h_from_white_psd(psd_deg_per_h_sq_per_hz: npt.ArrayLike) -> np.ndarray:
+    """ARW coefficient from the flat rate PSD level, sqrt(S / 2) / 60 (eq. 4.15).
+
+    Args:
+        psd_deg_per_h_sq_per_hz: the flat PSD level S [(deg/h)^2/Hz], >= 0.
+
+    Returns:
+        The ARW [deg/sqrt(h)].
+
+    Raises:
+        InvalidArgumentError: a level not finite or negative.
+    """
     level = finite_array('psd_deg_per_h_sq_per_hz', psd_deg_per_h_sq_per_hz)
     if np.any(level < 0.0):
         raise InvalidArgumentError('psd_deg_per_h_sq_per_hz must be >= 0')
     return np.sqrt(level / 2.0) / 60.0
 
 
-def loglog_slope(x, y):
-    """Least-squares slope of log y against log x, to identify a process by Table 4.1."""
+def loglog_slope(x: npt.ArrayLike, y: npt.ArrayLike) -> float:
+    """Least-squares slope of log y against log x, to identify a process by Table 4.1.
+
+    Args:
+        x: abscissae (e.g. tau or f), 1-D, > 0.
+        y: ordinates (root AV or PSD), same shape, > 0.
+
+    Returns:
+        The slope d log y / d log x.
+
+    Raises:
+        InvalidArgumentError: shapes that differ, fewer than 2 points, or values not finite or not positive.
+    """
     abscissa, ordinate = finite_array('x', x), finite_array('y', y)
     if abscissa.ndim != 1 or abscissa.shape != ordinate.shape or abscissa.size < 2:
         raise InvalidArgumentError(
@@ -278,8 +517,12 @@ class NoiseFit:
     rrw_sigma_arcsec_per_s_sqrt_s: float
     rate_ramp_sigma_arcsec_per_s2: float
 
-    def as_arcsec(self):
-        """The fitted coefficients as keywords of noise_adev / noise_psd (eqs. 4.24, 4.23)."""
+    def as_arcsec(self) -> dict[str, float]:
+        """The fitted coefficients as keywords of noise_adev / noise_psd (eqs. 4.24, 4.23).
+
+        Returns:
+            The five coefficients by the keyword names of noise_adev and noise_psd.
+        """
         return {
             'quantization_arcsec': self.quantization_arcsec,
             'arw_arcsec_per_sqrt_s': self.arw_arcsec_per_sqrt_s,
@@ -289,8 +532,22 @@ class NoiseFit:
         }
 
 
-def fit_noise_model(curve, terms=NOISE_TERMS, lines_hz=(), sample_rate_hz=GYRO_SAMPLE_RATE_HZ):
-    """Weighted non-negative least squares of 4.24 (AV space) to a root AV curve in arcsec/s, errors 4.25."""
+def fit_noise_model(curve: AllanCurve, terms: Sequence[str] = NOISE_TERMS, lines_hz: Sequence[float] = (),
+                    sample_rate_hz: float = GYRO_SAMPLE_RATE_HZ) -> NoiseFit:
+    """Weighted non-negative least squares of 4.24 (AV space) to a root AV curve in arcsec/s, errors 4.25.
+
+    Args:
+        curve: a root AV curve [arcsec/s] with its 4.25 errors.
+        terms: the NOISE_TERMS fitted; the others are held at zero.
+        lines_hz: frequencies [Hz] of lines fitted as further AV terms and dropped.
+        sample_rate_hz: the record's sample rate [Hz] (for the lines' AV).
+
+    Returns:
+        The five coefficients with their 1-sigma errors (zero for terms not fitted).
+
+    Raises:
+        InvalidArgumentError: unknown or no terms, a curve not finite, or too few points for the terms and lines.
+    """
     # AV = sum_k a_k tau^p_k with a_k >= 0, where the terms add. An AV point's relative error is
     # twice the 4.25 error of its root, taken of the model AV (refitted a few times, so that low
     # fluctuations don't pull the fit). The covariance is multiplied by the points per octave, since
@@ -343,8 +600,20 @@ class ArwEstimate:
     tau_max_s: float
 
 
-def arw_from_slope_fit(curve, tau_min_s, tau_max_s):
-    """Least-squares fit of N tau^-0.5 to the curve between two taus, weighted by 4.25 (5.2.6, Table 5.8)."""
+def arw_from_slope_fit(curve: AllanCurve, tau_min_s: float, tau_max_s: float) -> ArwEstimate:
+    """Least-squares fit of N tau^-0.5 to the curve between two taus, weighted by 4.25 (5.2.6, Table 5.8).
+
+    Args:
+        curve: a root AV curve [arcsec/s] with its 4.25 errors.
+        tau_min_s: the shortest tau fitted [s].
+        tau_max_s: the longest tau fitted [s].
+
+    Returns:
+        N [arcsec/sqrt(s)] with its 1-sigma error and the tau range.
+
+    Raises:
+        InvalidArgumentError: a range not positive or holding no curve point.
+    """
     low, high = positive_scalar('tau_min_s', tau_min_s), positive_scalar('tau_max_s', tau_max_s)
     tau = _tau(curve.tau_s)
     inside = (tau >= low) & (tau <= high)
@@ -366,8 +635,19 @@ class BiasStability:
     sigma_arcsec_per_s: float
 
 
-def bias_stability(curve, max_sigma_rel=np.inf):
-    """Bias stability: the lowest root AV point with a 4.25 error <= max_sigma_rel, its tau and error (Table 5.8)."""
+def bias_stability(curve: AllanCurve, max_sigma_rel: float = np.inf) -> BiasStability:
+    """Bias stability: the lowest root AV point with a 4.25 error <= max_sigma_rel, its tau and error (Table 5.8).
+
+    Args:
+        curve: a root AV curve with its 4.25 errors.
+        max_sigma_rel: the largest relative error of a point read.
+
+    Returns:
+        The lowest eligible root AV, its tau and its 1-sigma error.
+
+    Raises:
+        InvalidArgumentError: no point with an error that small (the record is too short).
+    """
     # The last points of a curve run to T/3 with a 50 % error (5.2.6): the lowest of several such
     # points is mostly the one noise pushed down, so a record reads only where it knows the curve.
     adev = finite_array('curve.adev', curve.adev)

@@ -7,10 +7,13 @@ explains the residual).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
+from sofia_ros.analysis.allan import AllanCurve
 from sofia_ros.analysis.spectra import log_chi_square_bias_and_sigma, welch_equivalent_dof
 
 __all__ = ['NoiseGrid', 'MeasuredNoise', 'measured_noise', 'PSD_LOWEST_BIN']
@@ -36,7 +39,7 @@ class NoiseGrid:
     record_s: float
 
     @property
-    def decimation(self):
+    def decimation(self) -> float:
         """Read-out samples per analyzed sample (4.2.5)."""
         return self.readout_rate_hz / self.sample_rate_hz
 
@@ -65,12 +68,27 @@ class MeasuredNoise:
     log_factor: np.ndarray
     row_axis: np.ndarray
 
-    def allan_rows(self, index):
-        """Residual rows of one axis's root AV."""
+    def allan_rows(self, index: int) -> np.ndarray:
+        """Residual rows of one axis's root AV.
+
+        Args:
+            index: the axis index (0 el, 1 xel, 2 los).
+
+        Returns:
+            The row indices, one per tau.
+        """
         return index * self.grid.tau_s.size + np.arange(self.grid.tau_s.size)
 
-    def psd_rows(self, index, selection=slice(None)):
-        """Residual rows of one axis's PSD (all, or the selected grid frequencies)."""
+    def psd_rows(self, index: int, selection: npt.ArrayLike | slice = slice(None)) -> np.ndarray:
+        """Residual rows of one axis's PSD (all, or the selected grid frequencies).
+
+        Args:
+            index: the axis index (0 el, 1 xel, 2 los).
+            selection: a mask or indices of the grid frequencies; all by default.
+
+        Returns:
+            The row indices, one per selected frequency.
+        """
         start = 3 * self.grid.tau_s.size + index * self.grid.freq_hz.size
         return start + np.arange(self.grid.freq_hz.size)[selection]
 
@@ -82,9 +100,23 @@ def _points_per_octave(tau_s):
     return np.maximum(1.0, 1.0 / np.maximum(spacing, 1e-12))
 
 
-def measured_noise(curves, fine_freq_hz, fine_psd, *, sample_rate_hz, readout_rate_hz, segment_samples,
-                   n_samples):
-    """The loop's view of a record: Allan curves per axis and the Welch PSD (n_freq x 3) as computed."""
+def measured_noise(curves: Sequence[AllanCurve], fine_freq_hz: np.ndarray, fine_psd: np.ndarray, *,
+                   sample_rate_hz: float, readout_rate_hz: float, segment_samples: int,
+                   n_samples: int) -> MeasuredNoise:
+    """The loop's view of a record: Allan curves per axis and the Welch PSD (n_freq x 3) as computed.
+
+    Args:
+        curves: the root AV curves of el, xel, los [arcsec/s], on one tau grid.
+        fine_freq_hz: the Welch frequencies as computed (zero-padded FFT) [Hz].
+        fine_psd: the Welch PSD, (n_freq, 3) [(arcsec/s)^2/Hz].
+        sample_rate_hz: the record's sample rate [Hz].
+        readout_rate_hz: the gyro read-out rate [Hz] (above sample_rate_hz for a decimated record).
+        segment_samples: the Welch segment length.
+        n_samples: the record's length in samples.
+
+    Returns:
+        The grid (PSD rows one segment bin apart from PSD_LOWEST_BIN up), the measured values and their weights.
+    """
     tau_s = np.asarray(curves[0].tau_s, dtype=float)
     stride = max(1, int(round((fine_freq_hz.size - 1) * 2 / segment_samples)))
     coarse = np.arange(0, fine_freq_hz.size, stride)

@@ -7,9 +7,12 @@ and ``los_oscillation``; other effects are constant rates the mean removes.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from sofia_ros.analysis.spectra import welch_sinusoid_psd
+from sofia_ros.effects.base import EffectParams
 from sofia_ros.errors import ConfigError
 from sofia_ros.frames import AXES
 from sofia_ros.noise.fit import (
@@ -21,6 +24,7 @@ from sofia_ros.noise.fit import (
     rrw_psd,
     sinusoid_adev,
 )
+from sofia_ros.noise.measure import NoiseGrid
 from sofia_ros.sensors.gyro_noise import NoiseCoefficients, rate_ramp_deg_per_h2_to_arcsec_per_s2
 
 __all__ = ['model_lines', 'check_noise_model', 'predicted_noise']
@@ -65,8 +69,18 @@ def _gyro_noise_terms(params, grid, freq_hz, include_arw):
     return terms
 
 
-def model_lines(effects):
-    """(frequency Hz, amplitude arcsec/s, axis index) of the model's vibration_lines, checked."""
+def model_lines(effects: Mapping[str, EffectParams]) -> list[tuple[float, float, int]]:
+    """(frequency Hz, amplitude arcsec/s, axis index) of the model's vibration_lines, checked.
+
+    Args:
+        effects: the noise model, effect name -> parameters.
+
+    Returns:
+        One (frequency [Hz], amplitude [arcsec/s], axis index) per line; empty without vibration_lines.
+
+    Raises:
+        ConfigError: lists of different lengths, an unknown axis, or an entry that is no number.
+    """
     params = effects.get('vibration_lines')
     if not params:
         return []
@@ -83,8 +97,15 @@ def model_lines(effects):
         raise ConfigError(f'vibration_lines: frequencies and amplitudes must be numbers ({err})') from err
 
 
-def check_noise_model(effects):
-    """ConfigError naming the effect when a model cannot predict noise (lines, LOS period, noise coefficients)."""
+def check_noise_model(effects: Mapping[str, EffectParams]) -> None:
+    """ConfigError naming the effect when a model cannot predict noise (lines, LOS period, noise coefficients).
+
+    Args:
+        effects: the noise model, effect name -> parameters.
+
+    Raises:
+        ConfigError: bad vibration_lines (model_lines), a LOS period <= 0, or a negative gyro_noise coefficient.
+    """
     model_lines(effects)
     if effects.get('los_oscillation') and effects['los_oscillation']['period_s'] <= 0.0:
         raise ConfigError(f'los_oscillation: period_s must be > 0 s, got {effects["los_oscillation"]["period_s"]:g}')
@@ -94,8 +115,22 @@ def check_noise_model(effects):
         raise ConfigError(f'gyro_noise: {", ".join(negative)} must be >= 0 (noise coefficients, Table 5.1)')
 
 
-def predicted_noise(effects, grid, freq_hz=None, *, include_arw=True):
-    """Model AV (3 x taus, (arcsec/s)^2) and one-sided PSD (3 x freqs) per axis (module docstring)."""
+def predicted_noise(effects: Mapping[str, EffectParams], grid: NoiseGrid, freq_hz: np.ndarray | None = None, *,
+                    include_arw: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Model AV (3 x taus, (arcsec/s)^2) and one-sided PSD (3 x freqs) per axis (module docstring).
+
+    Args:
+        effects: the noise model, effect name -> parameters.
+        grid: the taus, sample and read-out rates and segment length compared on.
+        freq_hz: the PSD's frequencies [Hz]; None for the grid's.
+        include_arw: add gyro_noise's ARW (False when the caller fits the white level itself).
+
+    Returns:
+        The AV, (3, n_tau) [(arcsec/s)^2], and the PSD, (3, n_freq) [(arcsec/s)^2/Hz], rows el, xel, los.
+
+    Raises:
+        ConfigError: bad vibration_lines (model_lines).
+    """
     freq_hz = grid.freq_hz if freq_hz is None else freq_hz
     av, psd = np.zeros((3, grid.tau_s.size)), np.zeros((3, freq_hz.size))
     if effects.get('gyro_noise'):

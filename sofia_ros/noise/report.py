@@ -12,6 +12,7 @@ from __future__ import annotations
 import html
 import shutil
 import tempfile
+from os import PathLike
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ from sofia_ros.errors import ConfigError
 from sofia_ros.frames import AXES
 from sofia_ros.noise.fit import noise_adev
 from sofia_ros.noise.predict import predicted_noise
-from sofia_ros.noise.run import integrated_angle_arcsec
+from sofia_ros.noise.run import NoiseAnalysis, integrated_angle_arcsec
 
 __all__ = ['PLOTS', 'check_report_dir', 'write_report']
 
@@ -45,8 +46,18 @@ _SPECTROGRAM_COLUMNS = 600
 _COLOURS = {'el': 'tab:blue', 'xel': 'tab:orange', 'los': 'tab:green'}
 
 
-def check_report_dir(report_dir):
-    """Refuse a --report target that exists with content or whose parent is missing (before any work)."""
+def check_report_dir(report_dir: str | PathLike[str]) -> Path:
+    """Refuse a --report target that exists with content or whose parent is missing (before any work).
+
+    Args:
+        report_dir: the --report directory.
+
+    Returns:
+        It as a Path.
+
+    Raises:
+        ConfigError: it exists with content (or is no directory), or its parent is missing.
+    """
     target = Path(report_dir)
     if target.exists() and (not target.is_dir() or any(target.iterdir())):
         raise ConfigError(f'report directory {target} already exists and is not empty; choose another --report '
@@ -256,8 +267,19 @@ def _page(document):
             f'</title><style>{style}</style></head><body>{"".join(parts)}</body></html>\n')
 
 
-def write_report(analysis, report_dir):
-    """Write index.html and the PNGs of PLOTS to report_dir, all or nothing (module docstring)."""
+def write_report(analysis: NoiseAnalysis, report_dir: str | PathLike[str]) -> Path:
+    """Write index.html and the PNGs of PLOTS to report_dir, all or nothing (module docstring).
+
+    Args:
+        analysis: the analysis of a record (noise.run.analyze_record).
+        report_dir: the --report directory (absent or empty).
+
+    Returns:
+        The report directory.
+
+    Raises:
+        ConfigError: the directory is in use or its parent is missing (check_report_dir).
+    """
     target = check_report_dir(report_dir)
     building = Path(tempfile.mkdtemp(prefix=f'.{target.name}.', dir=target.parent))
     try:

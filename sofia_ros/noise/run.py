@@ -18,26 +18,39 @@ The document is the `sofia noise --json` contract (docs/noise.md).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 import yaml
 
-from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
-from sofia_ros.analysis.lines import find_lines, silent_sources
+from sofia_ros.analysis.allan import AllanCurve, log_spaced_cluster_sizes, overlapping_allan_deviation
+from sofia_ros.analysis.lines import SpectralLine, find_lines, silent_sources
 from sofia_ros.analysis.spectra import welch_equivalent_dof, welch_rate_psd, welch_segment_samples
 from sofia_ros.bag import BagReader
+from sofia_ros.effects.base import Effects
 from sofia_ros.errors import BagError, InvalidArgumentError
 from sofia_ros.frames import AXES
-from sofia_ros.noise.candidates import fit_base, rank_missing_terms, residual_summary
-from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
-from sofia_ros.noise.fit import arw_of_decimated_record, bias_stability, fit_noise_model
-from sofia_ros.noise.measure import measured_noise
+from sofia_ros.noise.candidates import (
+    BaseFit,
+    NoiseCandidate,
+    ResidualSummary,
+    fit_base,
+    rank_missing_terms,
+    residual_summary,
+)
+from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, EarthRateTable, earth_rate_table
+from sofia_ros.noise.fit import NoiseFit, arw_of_decimated_record, bias_stability, fit_noise_model
+from sofia_ros.noise.measure import MeasuredNoise, measured_noise
 from sofia_ros.noise.predict import check_noise_model
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.gyro_noise import QUANTIZATION_ARCSEC
 from sofia_ros.topics import CASE_DOCUMENT, GYRO_IMU, SUBSYSTEM_STATUS
 from sofia_ros.units import GYRO_SAMPLE_RATE_HZ, RAD_PER_ARCSEC
+
+if TYPE_CHECKING:  # the model arrives parsed: noise/ does not load config files itself
+    from sofia_ros.config import EffectConfig
 
 __all__ = [
     'MIN_SAMPLES',
@@ -48,6 +61,10 @@ __all__ = [
     'load_noise_record',
     'analyze_record',
     'analyze_noise',
+    'NoiseDocument',
+    'AxisNoise',
+    'NoiseLine',
+    'NoiseModelSummary',
 ]
 
 #: Shortest analyzable record: four Welch segments of 256 samples (spectra.welch_segment_samples).
@@ -57,35 +74,110 @@ _N_TAUS = 60
 BIAS_STABILITY_MAX_SIGMA_REL = 0.25
 
 
+class NoiseLine(TypedDict):
+    """A line of an axis's PSD with its likely source (analysis.lines.SpectralLine)."""
+
+    freq_hz: float
+    amplitude_arcsec_per_s: float
+    source: str
+
+
+class _DecimatedArw(TypedDict, total=False):
+    # A base of its own: NotRequired is not seen at run time under `from __future__ import annotations` (3.11).
+    #: the ARW as fitted on a decimated record, before 4.27
+    arw_sampled_arcsec_per_sqrt_s: float
+
+
+class AxisNoise(_DecimatedArw):
+    """One axis of `sofia noise --json` (docs/noise.md): the five-term fit, bias stability, lines, angle."""
+
+    arw_arcsec_per_sqrt_s: float
+    arw_sigma: float
+    bias_stability_arcsec_per_s: float
+    bias_stability_sigma: float
+    bias_stability_tau_s: float
+    bias_stability_resolved: bool
+    rrw_arcsec_per_s_sqrt_s: float
+    rrw_sigma: float
+    quantization_arcsec: float
+    quantization_sigma: float
+    bias_instability_arcsec_per_s: float
+    bias_instability_sigma: float
+    rate_ramp_arcsec_per_s2: float
+    rate_ramp_sigma: float
+    integrated_angle_max_arcsec: float
+    lines: list[NoiseLine]
+
+
+class NoiseModelSummary(TypedDict):
+    """The model object of `sofia noise --json`: the model, its refitted ARW and its residual."""
+
+    path: str | None
+    effects: list[str]
+    arw_refit_arcsec_per_sqrt_s: dict[str, float]
+    residual: ResidualSummary
+
+
+class NoiseDocument(TypedDict):
+    """The `sofia noise --json` document (docs/noise.md)."""
+
+    bag: str
+    case: str | None
+    description: str | None
+    samples_per_axis: int
+    record_s: float
+    sample_rate_hz: float
+    readout_rate_hz: float
+    decimation: int
+    subsystems: dict[str, str] | None
+    axes: dict[str, AxisNoise]
+    earth_rate_deg_per_h: EarthRateTable
+    model: NoiseModelSummary
+    candidates: list[NoiseCandidate]
+    degenerate: list[list[str]]
+
+
 @dataclass(frozen=True)
 class NoiseRecord:
     """What `sofia noise` reads from a bag: GYRF rates at the read-out rate, the case and the TA configuration."""
 
     bag_path: Path
     rates_arcsec_per_s: np.ndarray
-    case: dict
-    subsystems: dict | None
+    #: the /config/case document (case, description, latitude_deg, heading_deg, elevation_deg, ...)
+    case: dict[str, Any]
+    #: Table 5.2 subsystem -> state, as last recorded; None if the bag has none
+    subsystems: dict[str, str] | None
 
 
 @dataclass(frozen=True)
 class NoiseAnalysis:
     """The JSON document and the arrays the report plots."""
 
-    document: dict
+    document: NoiseDocument
     sample_rate_hz: float
     noise_arcsec_per_s: np.ndarray
-    curves: tuple
-    fits: tuple
+    curves: tuple[AllanCurve, ...]
+    fits: tuple[NoiseFit, ...]
     freq_hz: np.ndarray
     psd: np.ndarray
     segment_samples: int
-    measured: object
-    base: object
-    effects: dict
+    measured: MeasuredNoise
+    base: BaseFit
+    effects: Effects
 
 
-def checked_decimation(decimate):
-    """The --decimate factor as an int >= 1, or InvalidArgumentError naming the fix."""
+def checked_decimation(decimate: int | str) -> int:
+    """The --decimate factor as an int >= 1, or InvalidArgumentError naming the fix.
+
+    Args:
+        decimate: the factor as given (a number or the option's text).
+
+    Returns:
+        The factor as an int >= 1.
+
+    Raises:
+        InvalidArgumentError: not a whole number, or below 1.
+    """
     try:
         factor = int(str(decimate))
     except ValueError as err:
@@ -96,13 +188,32 @@ def checked_decimation(decimate):
     return factor
 
 
-def integrated_angle_arcsec(noise_arcsec_per_s, sample_rate_hz):
-    """Mean-removed rate summed into angle, the angular error of Figs. 5.8-5.9 (5.2.4)."""
+def integrated_angle_arcsec(noise_arcsec_per_s: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+    """Mean-removed rate summed into angle, the angular error of Figs. 5.8-5.9 (5.2.4).
+
+    Args:
+        noise_arcsec_per_s: (N, 3) rates [arcsec/s].
+        sample_rate_hz: their sample rate [Hz].
+
+    Returns:
+        (N, 3) angles [arcsec], the mean rate removed first.
+    """
     return np.cumsum(noise_arcsec_per_s - noise_arcsec_per_s.mean(axis=0), axis=0) / sample_rate_hz
 
 
-def load_noise_record(bag_path, imu_topic=GYRO_IMU.name):
-    """Read a gyro-stability bag: /gyro_box/imu, /config/case and, if recorded, /ta/subsystem_status."""
+def load_noise_record(bag_path: str | PathLike[str], imu_topic: str = GYRO_IMU.name) -> NoiseRecord:
+    """Read a gyro-stability bag: /gyro_box/imu, /config/case and, if recorded, /ta/subsystem_status.
+
+    Args:
+        bag_path: the bag of a gyro-stability run.
+        imu_topic: the IMU topic to read the rates from.
+
+    Returns:
+        The GYRF rates [arcsec/s], the case document and the last subsystem states (None if not recorded).
+
+    Raises:
+        BagError: the bag lacks the IMU topic or /config/case (or cannot be read).
+    """
     with BagReader(bag_path) as bag:
         names = {topic.name for topic in bag.topics}
         if imu_topic not in names:
@@ -127,13 +238,14 @@ def _decimated_arw(fit, sample_rate_hz, quantization_arcsec):
     return arw, float(fit.arw_sigma_arcsec_per_sqrt_s * slope)
 
 
-def _axis_document(curve, fit, lines, angle_max_arcsec, sample_rate_hz, quantization_arcsec):
+def _axis_document(curve: AllanCurve, fit: NoiseFit, lines: list[SpectralLine], angle_max_arcsec: float,
+                   sample_rate_hz: float, quantization_arcsec: float) -> AxisNoise:
     stability = bias_stability(curve, BIAS_STABILITY_MAX_SIGMA_REL)
     # Table 5.8 reads the minimum where the curve turns up again: resolved when a readable point after
     # it stands 2 sigma (4.25) above it; else the value is an upper bound (TC-4: "no statement possible").
     after = (curve.sigma_rel <= BIAS_STABILITY_MAX_SIGMA_REL) & (curve.tau_s > stability.tau_s)
     rise = curve.adev[after] - stability.bias_stability_arcsec_per_s
-    document = {
+    document: AxisNoise = {
         'arw_arcsec_per_sqrt_s': fit.arw_arcsec_per_sqrt_s, 'arw_sigma': fit.arw_sigma_arcsec_per_sqrt_s,
         'bias_stability_arcsec_per_s': stability.bias_stability_arcsec_per_s,
         'bias_stability_sigma': stability.sigma_arcsec_per_s,
@@ -155,7 +267,7 @@ def _axis_document(curve, fit, lines, angle_max_arcsec, sample_rate_hz, quantiza
     return document
 
 
-def _degenerate_pairs(candidates):
+def _degenerate_pairs(candidates: list[NoiseCandidate]) -> list[list[str]]:
     pairs = [list(DEGENERATE_PAIR)]
     for candidate in candidates:
         for other in candidate['degenerate_with']:
@@ -165,8 +277,22 @@ def _degenerate_pairs(candidates):
     return pairs
 
 
-def analyze_record(record, *, model=None, decimate=1):
-    """The `sofia noise` analysis of a record against a noise model (an EffectConfig, or None for none)."""
+def analyze_record(record: NoiseRecord, *, model: EffectConfig | None = None,
+                   decimate: int | str = 1) -> NoiseAnalysis:
+    """The `sofia noise` analysis of a record against a noise model (an EffectConfig, or None for none).
+
+    Args:
+        record: the record read by load_noise_record.
+        model: the noise model; None for no effects.
+        decimate: keep every k-th sample (4.2.5), k >= 1.
+
+    Returns:
+        The `sofia noise --json` document and the arrays the report plots.
+
+    Raises:
+        InvalidArgumentError: a bad factor, or fewer than MIN_SAMPLES samples after decimation.
+        ConfigError: a model that cannot predict noise (noise.predict.check_noise_model).
+    """
     factor = checked_decimation(decimate)
     effects = dict(model.effects) if model is not None else {}
     check_noise_model(effects)
@@ -200,7 +326,7 @@ def analyze_record(record, *, model=None, decimate=1):
                               readout_rate_hz=GYRO_SAMPLE_RATE_HZ, segment_samples=segment, n_samples=len(noise))
     base = fit_base(measured, effects)
     candidates = rank_missing_terms(measured, base, effects, silent)
-    document = {
+    document: NoiseDocument = {
         'bag': str(record.bag_path), 'case': case.get('case'), 'description': case.get('description'),
         'samples_per_axis': int(len(noise)), 'record_s': len(noise) / sample_rate_hz,
         'sample_rate_hz': sample_rate_hz, 'readout_rate_hz': GYRO_SAMPLE_RATE_HZ, 'decimation': factor,
@@ -219,6 +345,22 @@ def analyze_record(record, *, model=None, decimate=1):
     return NoiseAnalysis(document, sample_rate_hz, noise, curves, fits, freq_hz, psd, segment, measured, base, effects)
 
 
-def analyze_noise(bag_path, *, model=None, decimate=1, imu_topic=GYRO_IMU.name):
-    """The `sofia noise --json` document of a bag (docs/noise.md)."""
+def analyze_noise(bag_path: str | PathLike[str], *, model: EffectConfig | None = None, decimate: int | str = 1,
+                  imu_topic: str = GYRO_IMU.name) -> NoiseDocument:
+    """The `sofia noise --json` document of a bag (docs/noise.md).
+
+    Args:
+        bag_path: the bag of a gyro-stability run.
+        model: the noise model; None for no effects.
+        decimate: keep every k-th sample (4.2.5), k >= 1.
+        imu_topic: the IMU topic to read the rates from.
+
+    Returns:
+        The document.
+
+    Raises:
+        BagError: the bag lacks a topic the analysis reads.
+        InvalidArgumentError: a bad factor or a record too short.
+        ConfigError: a model that cannot predict noise.
+    """
     return analyze_record(load_noise_record(bag_path, imu_topic), model=model, decimate=decimate).document

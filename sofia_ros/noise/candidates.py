@@ -245,8 +245,10 @@ class _Proposal:
     upper: np.ndarray
     scale: np.ndarray
     rows: np.ndarray
-    contribution: Callable
-    report: Callable
+    #: fit-space values -> the term's linear AV/PSD on its rows
+    contribution: Callable[[np.ndarray], np.ndarray]
+    #: (values, sigmas) -> (params, sigma) of the candidate entry
+    report: Callable[[np.ndarray, np.ndarray], tuple[dict[str, float], dict[str, float]]]
     source: str | None = None
 
 

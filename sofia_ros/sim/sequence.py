@@ -58,9 +58,16 @@ _PLACEMENT_MOVES = 3
 
 
 # --- plan elements: what a plan appends to its campaign's sequence (docs/plans.md) --------------------
+def _number(name: str, value: Any) -> float:
+    """``value`` as a finite float; a YAML true or false is not a number here (finite_scalar would take it)."""
+    if isinstance(value, bool):
+        raise InvalidArgumentError(f'{name} must be a number, got {value}')
+    return finite_scalar(name, value)
+
+
 def observing_elevation(name: str, value: Any) -> float:
     """``value`` as an elevation in the observing range (1.2: 20-60 deg); InvalidArgumentError otherwise."""
-    elevation_deg = finite_scalar(name, value)
+    elevation_deg = _number(name, value)
     low, high = OBSERVING_ELEVATIONS_DEG
     if not low <= elevation_deg <= high:
         raise InvalidArgumentError(f'{name} is {elevation_deg:g} deg, outside the {low:g}-{high:g} deg elevations '
@@ -70,7 +77,7 @@ def observing_elevation(name: str, value: Any) -> float:
 
 def fine_drive_los(name: str, value: Any) -> float:
     """``value`` as a fine-drive LOS angle within its +-3 deg travel (mount); InvalidArgumentError otherwise."""
-    angle_deg = finite_scalar(name, value)
+    angle_deg = _number(name, value)
     if abs(angle_deg) > mount.FINE_DRIVE_LIMIT_DEG:
         raise InvalidArgumentError(f'{name} is {angle_deg:g} deg, outside the fine drive\'s '
                                    f'+-{mount.FINE_DRIVE_LIMIT_DEG:g} deg LOS travel')
@@ -79,14 +86,14 @@ def fine_drive_los(name: str, value: Any) -> float:
 
 def hold_duration(name: str, value: Any) -> float:
     """``value`` as a hold length in s, > 0; InvalidArgumentError otherwise."""
-    duration_s = finite_scalar(name, value)
+    duration_s = _number(name, value)
     if duration_s <= 0.0:
         raise InvalidArgumentError(f'{name} must be > 0 s, got {duration_s:g}')
     return duration_s
 
 
-def detector_offset(camera: Any, offset_arcsec: Any) -> tuple[str, tuple[float, float]]:
-    """(camera, offset) of a star placed off a detector's centre, in arcsec along its x and y pixel axes.
+def detector_offset(camera: Any, offset_arcsec: Any) -> tuple[float, float]:
+    """The offset of a star placed off ``camera``'s detector centre, arcsec along its x and y pixel axes.
 
     InvalidArgumentError for an unknown camera or a position off the detector (or within 10 % of its edge).
     """
@@ -100,7 +107,7 @@ def detector_offset(camera: Any, offset_arcsec: Any) -> tuple[str, tuple[float, 
         raise InvalidArgumentError(
             f'detector_offset_arcsec {offset.tolist()} leaves the {camera.upper()} field; keep |x| <= '
             f'{half_field_arcsec[0]:.0f}" and |y| <= {half_field_arcsec[1]:.0f}"')
-    return camera, (float(offset[0]), float(offset[1]))
+    return float(offset[0]), float(offset[1])
 
 
 def elements_from_yaml(text: str, kinds: Mapping[str, type], campaign: str) -> tuple:
@@ -127,8 +134,11 @@ def _element(entry: Any, kinds: Mapping[str, type], campaign: str, index: int) -
     element_type = kinds[kind]
     names = [spec.name for spec in fields(element_type)]
     required = [spec.name for spec in fields(element_type) if spec.default is MISSING]
-    if not isinstance(values, dict) or set(values) - set(names):
-        unknown = sorted(map(str, set(values) - set(names))) if isinstance(values, dict) else [repr(values)]
+    if not isinstance(values, dict):
+        raise InvalidArgumentError(f'element {index} ({kind}) must map its fields ({", ".join(names)}), '
+                                   f'got {values!r:.60}')
+    unknown = sorted(map(str, set(values) - set(names)))
+    if unknown:
         raise InvalidArgumentError(f'element {index} ({kind}): unknown field {", ".join(unknown)}; '
                                    f'{kind} takes {", ".join(names)}')
     try:

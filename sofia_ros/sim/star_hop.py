@@ -78,8 +78,7 @@ class StarHold:
         if (self.camera is None) != (self.detector_offset_arcsec is None):
             raise InvalidArgumentError('a hold on a detector position needs both camera and detector_offset_arcsec')
         if self.camera is not None:
-            _, offset = detector_offset(self.camera, self.detector_offset_arcsec)
-            object.__setattr__(self, 'detector_offset_arcsec', offset)
+            object.__setattr__(self, 'detector_offset_arcsec', detector_offset(self.camera, self.detector_offset_arcsec))
 
 
 #: the star hop's plan elements by the name a plan file gives them

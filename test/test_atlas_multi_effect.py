@@ -7,12 +7,13 @@ import pyarrow.parquet as pq
 import pytest
 
 from sofia_ros.atlas.grid import (MAX_TASKS, VISIBLE_EFFECTS, draw_truths, grid_from_file, grid_from_lists,
-                                  truth_draws)
+                                  hidden_truth_text, truth_draws)
 from sofia_ros.atlas.report import summarize, text_table, write_html
 from sofia_ros.atlas.scoring import SCORES, confused_pairs, score_truth, stated_competitors, stated_pairs
-from sofia_ros.atlas.stats import truth_confusions, truth_misses, truth_rates
+from sofia_ros.atlas.stats import table_6_5_slice, truth_confusions, truth_misses, truth_rates
 from sofia_ros.atlas.task import ROW_FIELDS
 from sofia_ros.cli import main
+from sofia_ros.config import parse_effect_config
 from sofia_ros.errors import ConfigError, UnknownEffectError
 
 BASE = dict(effects=[], sizes=[], campaigns=['alignment:reduced'], seeds=[1])
@@ -54,6 +55,13 @@ def test_a_grid_of_truths_draws_from_the_campaigns_visible_effects_less_the_mode
     # the controls are spread among the truths (a partial atlas has its share), the explicit one where it was listed
     assert [index for index, task in enumerate(tasks) if not task.hidden] == [1, 3, 7]
     assert grid.describe()['truths']['alignment:reduced'][0] == 'timestamp_offset+tracker_drift'
+
+
+def test_a_truth_hides_each_of_its_effects_at_its_default():
+    grid = grid_from_lists(**BASE, truths=['tracker_drift+timestamp_offset'])
+    truth = parse_effect_config(hidden_truth_text(grid.truth, grid.tasks()[0].hidden, 1.0))
+    assert set(truth.effects) == set(grid.truth.effects) | {'timestamp_offset', 'tracker_drift'}
+    assert truth.effects['timestamp_offset']['offset_s'] == 1.0
 
 
 def test_a_single_effect_grid_keeps_its_fingerprint_and_its_keys():
@@ -203,6 +211,16 @@ def test_the_pairs_most_often_confused_and_whether_they_were_stated():
     confused = {(c.hidden, c.named, c.campaign): (c.count, c.stated) for c in truth_confusions(ROWS)}
     assert confused == {('c', 'd', 'alignment:reduced'): (2, 1)}  # row 1 stated c or d, row 2 did not
     assert [row['key'] for row in truth_misses(ROWS)] == [ROWS[2]['key'], ROWS[5]['key']]
+
+
+def test_table_6_5_takes_the_truth_controls_and_never_a_truth_with_effects():
+    misaligned = dict(measurements=4, misalignment_el_arcsec=1.0, misalignment_xel_arcsec=1.0,
+                      predicted_sigma_el_arcsec=1.0, predicted_sigma_los_arcsec=1.0)
+    rows = [{**ROWS[4], **misaligned, 'misalignment_los_arcsec': 10.0},
+            {**ROWS[0], **misaligned, 'misalignment_los_arcsec': 1000.0}]
+    table, which = table_6_5_slice(rows)
+    assert which == 'control runs (size 0)' and table[0].runs == 1 and table[0].los_rms_arcsec == 10.0
+    assert table_6_5_slice(rows[1:])[0] == []
 
 
 def test_the_report_has_the_truth_tables(tmp_path):

@@ -96,9 +96,9 @@ def _detectable_by_key(summary):
 def text_table(summary: AtlasSummary) -> str:
     """One screen: detections per size, the 50/90 % sizes, the worst confusions and sigma calibrations, Table 6.5."""
     failed = sum(row['error'] is not None for row in summary.rows)
-    lines = [f'atlas: {len(summary.rows)} rows, {failed} failed; detected = the hidden effect is compare\'s top '
-             'candidate at delta-BIC >= 6']
+    lines = [f'atlas: {len(summary.rows)} rows, {failed} failed']
     if summary.points:
+        lines[0] += '; detected = the hidden effect is compare\'s top candidate at delta-BIC >= 6'
         lines.append(f'{"effect":<28} {"campaign":<20} {"50%":>7} {"90%":>7}  detected/runs by size (x default)')
     curves = defaultdict(list)
     for point in summary.points:

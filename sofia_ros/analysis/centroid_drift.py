@@ -73,7 +73,7 @@ class CentroidDrift(TypedDict):
     row: RowDrift
 
 
-def line_and_sinusoid_px(time_s: npt.ArrayLike, offset_px: float, slope_px_per_s: float, amplitude_px: float,
+def line_and_sinusoid_px(time_s: np.ndarray, offset_px: float, slope_px_per_s: float, amplitude_px: float,
                          period_s: float, phase_rad: float) -> np.ndarray:
     """Residual centroid drift a + b t + A sin(2 pi t / P + phi), t from the series' reference time (6.3).
 

@@ -73,7 +73,7 @@ def load_catalogue(environ: Mapping[str, str] = os.environ) -> dict[str, EffectS
     """
     built_in = {spec.name: spec for spec in (*gyro.EFFECTS, *pointing.EFFECTS)}
     names = [name.strip() for name in environ.get(PLUGIN_ENVIRONMENT_VARIABLE, '').split(',') if name.strip()]
-    plugins = {}
+    plugins: dict[str, EffectSpec] = {}
     for module_name in names:
         for spec in _checked_plugin_specs(module_name, {**built_in, **plugins}):
             plugins[spec.name] = spec

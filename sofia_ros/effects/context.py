@@ -129,7 +129,7 @@ class CameraContext:
                              self.specific_force_m_per_s2, self.los_angle_deg, pixels[:, 0], pixels[:, 1],
                              np.asarray(hip))
 
-    def rows(self, selection: npt.ArrayLike | slice) -> CameraContext:
+    def rows(self, selection: np.ndarray | slice) -> CameraContext:
         """The context of a subset of rows.
 
         Args:

@@ -61,7 +61,7 @@ class EarthRateTable(TypedDict):
     absolute_deg_per_h: AbsoluteRates
 
 
-def _row(values: npt.ArrayLike) -> AxisRates:
+def _row(values: np.ndarray) -> AxisRates:
     return {axis: float(value) for axis, value in zip(AXES, values)}
 
 

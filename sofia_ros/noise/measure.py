@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
 from sofia_ros.analysis.allan import AllanCurve
 from sofia_ros.analysis.spectra import log_chi_square_bias_and_sigma, welch_equivalent_dof
@@ -79,7 +78,7 @@ class MeasuredNoise:
         """
         return index * self.grid.tau_s.size + np.arange(self.grid.tau_s.size)
 
-    def psd_rows(self, index: int, selection: npt.ArrayLike | slice = slice(None)) -> np.ndarray:
+    def psd_rows(self, index: int, selection: np.ndarray | slice = slice(None)) -> np.ndarray:
         """Residual rows of one axis's PSD (all, or the selected grid frequencies).
 
         Args:

@@ -192,6 +192,20 @@ def test_a_bag_rewritten_with_a_changed_message_is_decoded_again(bag, home, deco
     assert _cache_files(bag / CACHE_DIRECTORY) == [f'observations-r{READER_VERSION}-{bag_key(bag)}.npz']
 
 
+def test_a_bag_damaged_after_it_was_cached_gets_its_one_error_line_alone(bag, home, decoded, tmp_path, monkeypatch,
+                                                                         capsys):
+    """The cache is stale, but a bag that cannot be decoded is told in one line: the bag's error, not the cache's."""
+    _count_decodes(monkeypatch, served=decoded)
+    _read_twice(bag, [])
+    monkeypatch.setattr(observations_module, 'decode_observations', decode_observations)
+    mcap = next(bag.glob('*.mcap'))
+    mcap.write_bytes(mcap.read_bytes()[:mcap.stat().st_size // 2])
+    assert main(['compare', str(bag), '--model', MODEL, '--json', str(tmp_path / 'out.json')]) == 2
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith('sofia: error: ') and str(bag) in line and 'cache' not in line
+    assert not (tmp_path / 'out.json').exists()
+
+
 def _touch(bag):
     mcap = next(bag.glob('*.mcap'))
     os.utime(mcap, ns=(mcap.stat().st_atime_ns, mcap.stat().st_mtime_ns + 1))

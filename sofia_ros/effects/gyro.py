@@ -1,10 +1,12 @@
 """Gyro effects: alignment, bias, scale factor, calibration assignment and noise (2.4.1, 4.2, 5, 6.1, 6.3)."""
 
-from sofia_ros.effects.base import EffectSpec, Parameter
+from __future__ import annotations
+
+from sofia_ros.effects.base import EffectParams, EffectSpec, Parameter
 from sofia_ros.frames import AXES
 
 
-def _equal_line_lists(params):
+def _equal_line_lists(params: EffectParams) -> str | None:
     """vibration_lines: one frequency, amplitude and axis per line."""
     lengths = [len(params[key]) for key in ('frequencies_hz', 'amplitudes_arcsec_per_s', 'axes')]
     if len(set(lengths)) > 1:
@@ -12,7 +14,7 @@ def _equal_line_lists(params):
                 f'{lengths[0]}, {lengths[1]} and {lengths[2]}')
     return None
 
-EFFECTS = (
+EFFECTS: tuple[EffectSpec, ...] = (
     EffectSpec(
         'gyro_misalignment', 'gyro', '3.3.2, 6.1, eq. 6.1',
         'GYRF rotated against TARF by small angles about the EL, XEL and LOS axes; defaults are the '

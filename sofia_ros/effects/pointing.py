@@ -1,8 +1,10 @@
 """Pointing geometry effects: Earth rotation, flexure, imagers, HIPO, atmosphere, timing (3, 4.1, 4.3, 6)."""
 
+from __future__ import annotations
+
 from sofia_ros.effects.base import EffectSpec, Parameter
 
-EFFECTS = (
+EFFECTS: tuple[EffectSpec, ...] = (
     EffectSpec(
         'earth_rotation', 'earth', '4.1, eqs. 4.1-4.3',
         'The Earth turns under the telescope: a braked telescope senses 4.1-4.3 for the site latitude, '

@@ -309,7 +309,11 @@ DAMAGE = {
     'a field missing': (lambda path: _rewrite(path, change_members=lambda members: {
         name: value for name, value in members.items() if name != 'gyro.time_s'}), 'not those of this reader'),
     'a text array': (lambda path: _rewrite(path, change_members=lambda members: {
-        **members, 'gyro.time_s': np.array(['0.0'])}), 'not numbers'),
+        **members, 'gyro.time_s': np.array(['0.0'])}), 'not arrays of numbers'),
+    'rows that do not agree': (lambda path: _rewrite(path, change_members=lambda members: {
+        **members, 'centroids.hip': members['centroids.hip'][:-1]}), 'do not agree in length'),
+    'a scalar array': (lambda path: _rewrite(path, change_members=lambda members: {
+        **members, 'move_start_s': np.float64(1.0)}), 'not arrays of numbers'),
     'a value of the wrong type': (lambda path: _rewrite(path, change_header=lambda header: {
         **header, 'values': {**header['values'], 'initial_time_s': '0'}}), 'initial_time_s is not what'),
     'an unknown camera': (lambda path: _rewrite(path, change_header=lambda header: {

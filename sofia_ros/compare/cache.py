@@ -146,8 +146,10 @@ def _load(path: Path, key: str, bag_path: Path) -> Observations:
     values = header['values']
     if set(members) != _array_names() or set(values) != set(_VALUE_CHECKS):
         raise UnusableCache('its fields are not those of this reader')
-    if any(value.dtype.kind not in 'biuf' for value in members.values()):
-        raise UnusableCache('it holds arrays that are not numbers')
+    if any(value.dtype.kind not in 'biuf' or value.ndim == 0 for value in members.values()):
+        raise UnusableCache('it holds members that are not arrays of numbers')
+    if not _rows_agree(members):
+        raise UnusableCache('its arrays do not agree in length')
     wrong = [name for name, check in _VALUE_CHECKS.items() if not check(values[name])]
     if wrong:
         raise UnusableCache(f'its {", ".join(wrong)} is not what the reader writes')
@@ -181,13 +183,28 @@ def _is_float(value: object) -> bool:
     return isinstance(value, float)
 
 
+def _is_camera_list(value: object) -> bool:
+    return isinstance(value, list) and bool(value) and all(camera in CAMERAS for camera in value)
+
+
 #: Observations' fields that are not arrays, stored in the header: what each must be.
 _VALUE_CHECKS: dict[str, Callable[[object], bool]] = {
-    'centroids.cameras': lambda value: isinstance(value, list) and all(camera in CAMERAS for camera in value),
+    'centroids.cameras': _is_camera_list,
     'gyro.sample_period_s': _is_float,
     'initial_time_s': _is_float,
     'calibration_result': lambda value: value is None or isinstance(value, str),
 }
+
+
+def _rows_agree(arrays: dict[str, np.ndarray]) -> bool:
+    """One row per centroid in every centroid array, per gyro sample and per tick in the gyro arrays."""
+    def lengths(names):
+        return {len(arrays[name]) for name in names}
+
+    centroids = lengths(name for name in arrays if name.startswith('centroids.'))
+    samples = lengths(('gyro.time_s', 'gyro.rates_gyrf_rad_per_s'))
+    ticks = lengths(name for name in arrays if name.startswith('gyro.tick_'))
+    return len(centroids) == len(samples) == len(ticks) == 1 and arrays['initial_tarf_from_irf'].shape == (3, 3)
 
 
 def _array_names() -> set[str]:

@@ -114,12 +114,16 @@ def _run_campaign(args):
 
 
 def _plan(spec, args, **overrides):
-    """The run's plan: --plan's file or --variant's named plan (default: full), the options given over it."""
+    """The run's plan: --plan's file, --variant's named plan or the thesis' (the plan dataclass' defaults, which
+    config/plans/CAMPAIGN-full.yaml spells: an install without config/plans runs it too); the options over it."""
     from dataclasses import replace
 
     from sofia_ros.campaigns.plan_files import read_plan_file
 
-    plan = read_plan_file(args.plan, spec.name) if args.plan else spec.plan(args.variant or 'full')
+    if args.plan:
+        plan = read_plan_file(args.plan, spec.name)
+    else:
+        plan = spec.plan(args.variant) if args.variant else spec.plan_type()
     return replace(plan, **overrides)
 
 

@@ -8,6 +8,8 @@ import pytest
 import yaml
 
 from sofia_ros.bag import BagReader
+from sofia_ros import cli
+from sofia_ros.campaigns import plan_files
 from sofia_ros.campaigns.graph_params import plan_from_parameters
 from sofia_ros.campaigns.plan_files import PLAN_TYPES, read_plan, read_plan_file, write_plan_file
 from sofia_ros.campaigns.registry import CAMPAIGNS, campaign_named
@@ -55,6 +57,17 @@ def test_the_named_variants_are_the_plan_files_under_config_plans():
     shipped = {path.stem for path in (ROOT / 'config' / 'plans').glob('*.yaml')}
     assert shipped == {f'{name}-{variant}' for name, spec in CAMPAIGNS.items() for variant in spec.variants}
     assert PLAN_TYPES == {name: spec.plan_type for name, spec in CAMPAIGNS.items() if spec.plan_type is not None}
+
+
+def test_without_config_plans_sofia_run_flies_the_thesis_plan_and_names_what_is_missing(monkeypatch):
+    # An install whose share/ lacks config/plans (an older setup.py): the default plan needs no file.
+    monkeypatch.setattr(plan_files, '__file__', '/nowhere/sofia_ros/campaigns/plan_files.py')
+    monkeypatch.setattr(plan_files.sys, 'prefix', '/nowhere')
+    spec = campaign_named('alignment')
+    arguments = ['run', 'alignment', '--truth', TRUTH, '--bag', 'bag', '--repetitions', '4']
+    assert cli._plan(spec, cli.build_parser().parse_args(arguments), repetitions=4) == AlignmentPlan(repetitions=4)
+    with pytest.raises(ConfigError, match=r'the named plans \(config/plans\) are not installed here; give a plan '):
+        cli._plan(spec, cli.build_parser().parse_args([*arguments, '--variant', 'reduced']))
 
 
 def test_elements_are_kept_in_one_spelling():

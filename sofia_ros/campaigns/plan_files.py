@@ -140,9 +140,11 @@ def read_plan(bag_path: str | PathLike[str]) -> Any:
 
 
 def plans_directory() -> Path:
-    """config/plans of the checkout, or of the install (share/sofia_ros); ConfigError if neither has it."""
-    for folder in (Path(__file__).resolve().parents[2] / 'config' / 'plans',
-                   Path(sys.prefix) / 'share' / 'sofia_ros' / 'config' / 'plans'):
+    """config/plans of the checkout, else share/sofia_ros/config/plans of the install (colcon: above the package;
+    pip: under sys.prefix); ConfigError if none has it."""
+    installed = [ancestor / 'share' / 'sofia_ros' / 'config' / 'plans'
+                 for ancestor in (*Path(__file__).resolve().parents, Path(sys.prefix))]
+    for folder in (Path(__file__).resolve().parents[2] / 'config' / 'plans', *installed):
         if folder.is_dir():
             return folder
     raise ConfigError('the named plans (config/plans) are not installed here; give a plan file with --plan')

@@ -25,6 +25,7 @@ from sofia_ros.errors import InvalidArgumentError
 
 __all__ = [
     'SIGNIFICANT_DELTA_BIC',
+    'normal_equations_fit',
     'normal_pseudo_inverse',
     'LinearFit',
     'CandidateTerm',
@@ -187,10 +188,22 @@ def linear_fit(residual, jacobian, names):
     n, k = jacobian.shape
     if k == 0:
         return LinearFit(names, np.zeros(0), np.zeros(0), np.zeros((0, 0)), float(residual @ residual), n)
-    inverse = _NormalInverse.of(_gram(jacobian))
-    step = inverse.matrix @ (jacobian.T @ residual)
-    after = residual - jacobian @ step
-    rss = float(after @ after)
+
+    def rss_after(step):
+        after = residual - jacobian @ step
+        return float(after @ after)
+
+    return normal_equations_fit(_gram(jacobian), jacobian.T @ residual, rss_after, names, n)
+
+
+def normal_equations_fit(gram, gradient, rss_after, names, n):
+    """linear_fit from its normal equations G = J^T J, g = J^T r: step G^+ g, covariance s^2 G^+ with s^2 = RSS/(n-k),
+    where rss_after(step) is |r - J step|^2 (for problems whose Gram matrix is cheaper assembled from its blocks)."""
+    names = tuple(names)
+    k = len(names)
+    inverse = _NormalInverse.of(gram)
+    step = inverse.matrix @ gradient
+    rss = rss_after(step)
     covariance = inverse.covariance(rss / max(n - k, 1))
     sigma = np.sqrt(np.diag(covariance))
     with np.errstate(invalid='ignore', divide='ignore'):

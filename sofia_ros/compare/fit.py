@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import bic, linear_fit
+from sofia_ros.analysis.ranking import bic, normal_equations_fit
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
@@ -119,15 +119,36 @@ class WhitenedProblem:
         self.predictor = predictor
         self.arcsec_per_px = centroids.arcsec_per_px()[:, None]
         self.row_sigma = np.asarray(sigma_arcsec)[centroids.camera_index][:, None]
+        self.anchor_prior = anchor_prior
         self.prior = anchor_prior.matrix
 
-    def augmented(self, whitened, jacobian, anchors):
-        """Data rows and prior rows stacked: residuals and Jacobian of the whole least-squares problem."""
+    def normal_equations(self, anchor_columns, parameter_columns, whitened, weights, anchors):
+        """Gram matrix and gradient of the Huber-weighted problem (data rows, then the anchors' prior rows) from its
+        blocks: the sparse anchor columns, the dense parameter columns and the prior's constant Gram matrix. Also a
+        function giving the weighted RSS after a step. Assembling the whole sparse Jacobian to multiply it by itself
+        costs several times more (the parameter columns are dense, the GLS prior rows nearly so)."""
+        weighted_anchors = rows_scaled(anchor_columns, weights)
+        weighted_parameters = parameter_columns * weights[:, None]
+        cross = np.asarray(weighted_anchors.T @ parameter_columns)
+        gram = np.block([[(anchor_columns.T @ weighted_anchors).toarray() + self.anchor_prior.gram, cross],
+                         [cross.T, parameter_columns.T @ weighted_parameters]])
         prior_residual = -(self.prior @ anchors.ravel())
+        gradient = np.concatenate([weighted_anchors.T @ whitened + self.prior.T @ prior_residual,
+                                   weighted_parameters.T @ whitened])
+        anchor_count = anchor_columns.shape[1]
+
+        def rss_after(step):
+            data = whitened - anchor_columns @ step[:anchor_count] - parameter_columns @ step[anchor_count:]
+            prior = prior_residual - self.prior @ step[:anchor_count]
+            return float(weights @ data**2 + prior @ prior)
+
+        return gram, gradient, rss_after
+
+    def augmented(self, jacobian, anchors):
+        """The prior's residual rows and the whole least-squares Jacobian (data rows, then prior rows), sparse."""
         prior_jacobian = scipy.sparse.hstack([self.prior, scipy.sparse.csr_matrix(
             (self.prior.shape[0], jacobian.shape[1] - self.prior.shape[1]))])
-        return (np.concatenate([whitened, prior_residual]),
-                scipy.sparse.vstack([jacobian, prior_jacobian], format='csr'))
+        return -(self.prior @ anchors.ravel()), scipy.sparse.vstack([jacobian, prior_jacobian], format='csr')
 
     def whiten(self, predicted_px):
         """(measured - predicted) in units of each camera's noise, flattened (x, y per row)."""
@@ -237,14 +258,15 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
     if predicted is None:
         raise FitError('the model\'s starting values put stars off their detectors; give closer values')
     whitened = problem.whiten(predicted)
+    names = [''] * (anchors.size + len(free))
+    rows = whitened.size + problem.prior.shape[0]
     for iteration in range(1, _MAX_ITERATIONS + 1):
         current = _with_values(effects, free, values)
         derivative = problem.irf_derivative(current, anchors, predicted)
         columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
-        jacobian = scipy.sparse.hstack([problem.anchor_columns(current, derivative), columns], format='csr')
-        residual, system = problem.augmented(whitened, jacobian, anchors)
-        root = np.concatenate([np.sqrt(_huber_weights(whitened)), np.ones(len(residual) - len(whitened))])
-        step = linear_fit(root * residual, rows_scaled(system, root), [''] * system.shape[1])
+        anchor_columns = problem.anchor_columns(current, derivative)
+        step = normal_equations_fit(*problem.normal_equations(anchor_columns, columns, whitened,
+                                                              _huber_weights(whitened), anchors), names, rows)
         anchor_step = step.step[:anchors.size].reshape(anchors.shape)
         parameter_step = step.step[anchors.size:]
         current_cost, scale = cost(whitened, anchors), 1.0
@@ -265,13 +287,12 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
             break
     # Converged steps are below 1 % of a sigma: the last Jacobian serves for the covariance.
     current = _with_values(effects, free, values)
-    residual, system = problem.augmented(whitened, jacobian, anchors)
     weights = _huber_weights(whitened)
-    root = np.concatenate([np.sqrt(weights), np.ones(len(residual) - len(whitened))])
-    final = linear_fit(root * residual, rows_scaled(system, root), [''] * system.shape[1])
+    final = normal_equations_fit(*problem.normal_equations(anchor_columns, columns, whitened, weights, anchors),
+                                 names, rows)
+    prior_residual, system = problem.augmented(scipy.sparse.hstack([anchor_columns, columns], format='csr'), anchors)
     parameters = slice(anchors.size, None)
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)
     return ModelFit(current, free, values, final.sigma[parameters], final.correlation[parameters, parameters],
-                    anchors, residual_arcsec, whitened, residual[len(whitened):], system, weights, outlier,
-                    iteration)
+                    anchors, residual_arcsec, whitened, prior_residual, system, weights, outlier, iteration)

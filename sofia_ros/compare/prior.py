@@ -15,6 +15,7 @@ effect: a trend with time, and biases that differ between halves.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -42,6 +43,11 @@ class AnchorPrior:
     whitening: np.ndarray
     unit_rad: float
     knots_s: np.ndarray
+
+    @cached_property
+    def gram(self):
+        """matrix^T matrix, dense: the prior's constant block of every fit's normal equations (compare.fit)."""
+        return (self.matrix.T @ self.matrix).toarray()
 
     @property
     def middle_s(self):

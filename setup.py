@@ -20,7 +20,7 @@ NODE_EXECUTABLES = {
 def config_data_files():
     """Install config/ (and its truth/ and model/ presets) under share/sofia_ros."""
     files = []
-    for folder in ('config', 'config/truth', 'config/model'):
+    for folder in ('config', 'config/truth', 'config/model', 'config/plans'):
         matches = sorted(glob(f'{folder}/*.yaml'))
         if matches:
             files.append((f'share/{PACKAGE_NAME}/{folder}', matches))

@@ -232,6 +232,7 @@ def test_the_report_has_the_truth_tables(tmp_path):
     page = write_html(summary, tmp_path / 'report', 'truths').read_text()
     assert 'Truths with several effects: success per campaign and k' in page and '0 (controls)' in page
     assert summary.points == [] and summary.calibration == []  # truth rows are no single-effect cells
+    assert 'Detection probability' not in page
 
 
 # --- one tiny grid end to end -------------------------------------------------------------------------------------

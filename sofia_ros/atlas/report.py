@@ -191,6 +191,20 @@ def _table_6_5_plot(summary, path):
     plt.close(figure)
 
 
+def _single_effect_section(detect_rows, confused_rows, calibration_rows) -> str:
+    """The page's tables of the effects axis: detection and detectable sizes, confused pairs, sigma calibration."""
+    return (f'<h2>Detection probability ({CONFIDENCE:.0%} Clopper-Pearson) and detectable sizes</h2>'
+            + html_table(['effect', 'campaign', 'size', 'detected', 'P', 'interval', '50 % size', '90 % size'],
+                         detect_rows)
+            + '<h2>Confused pairs</h2>'
+            + (html_table(['hidden', 'named', 'how', 'campaign', 'share'], confused_rows) if confused_rows
+               else '<p>none</p>')
+            + '<h2>Fit bias and scatter against the reported sigma</h2>'
+            + (html_table(['effect', 'param', 'campaign', 'size', 'runs', 'true', 'bias', 'scatter', 'median sigma',
+                           'pull mean', 'pull std'], calibration_rows) if calibration_rows
+               else '<p>no fitted values</p>'))
+
+
 def _truth_section(summary: AtlasSummary) -> str:
     """The page's truth tables: rates per campaign and k, the confused pairs, every truth not ended right."""
     if not summary.truth_rates:
@@ -251,13 +265,7 @@ def write_html(summary: AtlasSummary, directory, title: str) -> Path:
 <h1>sofia atlas: {html.escape(title)}</h1>
 <pre>{html.escape(text_table(summary))}</pre>
 {''.join(sections)}
-<h2>Detection probability ({CONFIDENCE:.0%} Clopper-Pearson) and detectable sizes</h2>
-{html_table(['effect', 'campaign', 'size', 'detected', 'P', 'interval', '50 % size', '90 % size'], detect_rows)}
-<h2>Confused pairs</h2>
-{html_table(['hidden', 'named', 'how', 'campaign', 'share'], confused_rows) if confused_rows else '<p>none</p>'}
-<h2>Fit bias and scatter against the reported sigma</h2>
-{html_table(['effect', 'param', 'campaign', 'size', 'runs', 'true', 'bias', 'scatter', 'median sigma',
-             'pull mean', 'pull std'], calibration_rows) if calibration_rows else '<p>no fitted values</p>'}
+{_single_effect_section(detect_rows, confused_rows, calibration_rows) if summary.points else ''}
 {table_6_5}
 {_truth_section(summary)}
 </body></html>

@@ -286,6 +286,12 @@ def _model(args):
     return run_model_add(args, sys.stdout)
 
 
+def _design(args):
+    from sofia_ros.design.cli import run_design
+
+    return run_design(args, sys.stdout)
+
+
 def _import(args):
     from sofia_ros.bag.csv_logs import import_csv_logs
 
@@ -393,6 +399,13 @@ def build_parser():
                                            'count: which campaign sees which effect at what size')
     add_atlas_arguments(atlas)
     atlas.set_defaults(handler=_atlas)
+
+    from sofia_ros.design.cli import add_design_arguments
+
+    design = verbs.add_parser('design', help='the plan elements that would tell a competing set apart: predict, '
+                                             'write the plan, and --check it once flown')
+    add_design_arguments(design)
+    design.set_defaults(handler=_design)
 
     model = verbs.add_parser('model', help='edit a model file: `sofia model add EFFECT --model M.yaml`')
     add_model_arguments(model)

@@ -1,0 +1,1 @@
+"""`sofia design`: the maneuvers that would tell a competing set's members apart (docs/design.md)."""

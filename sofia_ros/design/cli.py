@@ -1,0 +1,296 @@
+"""The `sofia design` command: the plan elements that would separate a competing set, then the check (docs/design.md).
+
+`sofia design SOURCE` takes a comparison's JSON (`sofia compare --json`) or a bag with --model,
+and a competing set (the comparison's first, --set N of it, or --between A,B). It flies the
+library of plan elements once on the nominal truth (kept in the user's cache), predicts, prints
+the table, and writes the plan. `sofia design --check NEW_BAG --prediction DESIGN.json` refits
+the members on the old and the new bag and prints predicted against achieved separation.
+
+This front end is the layer that may fly campaigns (campaigns/); the prediction itself
+(design.run, design.geometry, design.separation, design.elements) reads bags only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import shutil
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+
+from sofia_ros.cli_args import integer, number
+from sofia_ros.errors import ConfigError
+from sofia_ros.output_files import json_ready, output_target, write_text_atomically
+from sofia_ros.progress import Progress
+
+__all__ = ['add_design_arguments', 'run_design']
+
+_MAX_JSON_BYTES = 64 << 20
+#: The library flight: the minimal alignment (least sim time), then the library's elements (seed 0, nominal truth).
+_LIBRARY_BASE = {'campaign': 'alignment', 'repetitions': 2, 'verification_repetitions': 1, 'frames_per_position': 1,
+                 'drift_track_s': 5.0, 'flexure_elevations_deg': [], 'max_iterations': 1}
+_DEFAULT_TARGET = 20.0
+_DEFAULT_BUDGET_SHARE = 0.3
+
+
+def add_design_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `sofia design`.
+
+    Args:
+        parser: the `sofia design` subparser.
+    """
+    parser.add_argument('source', nargs='?', help="a comparison's JSON (sofia compare --json) or a bag (with --model)")
+    parser.add_argument('--model', metavar='M.yaml', help='the model compared (default: the JSON\'s model)')
+    parser.add_argument('--between', metavar='A,B',
+                        help="the competing set's two members; a member of several effects joins them with '+' "
+                             '(e.g. hipo_fiducial_error,imager_boresight_offset+imager_rotation_of_field)')
+    parser.add_argument('--set', type=integer(1, 1000, 'a competing set of the JSON'), default=1, metavar='N',
+                        help="the JSON's competing set to design for (default 1, the first)")
+    parser.add_argument('--budget-s', type=number(0.0, 1e6, 's', low_open=True), metavar='S',
+                        help="longest addition of flight time (default 30 %% of the bag's flight)")
+    parser.add_argument('--target', type=number(0.0, 1e9, 'delta-BIC', low_open=True), default=_DEFAULT_TARGET,
+                        metavar='DBIC', help='expected delta-BIC to reach both ways (default 20: twice the 10 that '
+                                             'decides, as a margin)')
+    parser.add_argument('--plan-out', metavar='PLAN.yaml', help="write the bag's plan with the chosen elements added")
+    parser.add_argument('--json', metavar='OUT', help='write the prediction as JSON (docs/design.md)')
+    parser.add_argument('--check', metavar='NEW_BAG', help='the designed plan flown: refit the members on it and '
+                                                          'on the old bag, print predicted against achieved')
+    parser.add_argument('--prediction', metavar='DESIGN.json', help='--check: the design JSON it checks')
+    parser.add_argument('--anchor-s', type=number(1.0, 3600.0, 's'), default=30.0,
+                        help='seconds between attitude anchors, as compare (default 30)')
+    parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
+
+
+def _members(text: str) -> list:
+    """--between A,B as two members, each a list of catalogue effects; ConfigError in one line otherwise."""
+    from sofia_ros.compare.fit import free_parameters
+    from sofia_ros.effects import get_effect
+
+    members = [[name.strip() for name in part.split('+')] for part in text.split(',')]
+    if len(members) != 2 or not all(all(member) for member in members):
+        raise ConfigError(f'--between {text!r}: give two members, A,B (a member of several effects: X+Y)')
+    for member in members:
+        for name in member:
+            get_effect(name)  # UnknownEffectError names the closest effects
+        if not free_parameters(member):
+            raise ConfigError(f'--between: {"+".join(member)} has no numeric parameter to fit; name a fittable effect')
+    if set(members[0]) & set(members[1]):
+        raise ConfigError(f'--between {text!r}: the members share {sorted(set(members[0]) & set(members[1]))[0]}; '
+                          'give two different explanations')
+    return members
+
+
+def _read_json(path: str, what: str) -> dict:
+    from sofia_ros.input_files import read_text_capped
+
+    text = read_text_capped(path, _MAX_JSON_BYTES, what)
+    try:
+        document = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise ConfigError(f'{path} is not JSON ({err.msg} at line {err.lineno}); give the file {what} wrote') from err
+    if not isinstance(document, dict):
+        raise ConfigError(f'{path} is not {what}: its top level is not an object')
+    return document
+
+
+def _source(args: argparse.Namespace) -> tuple:
+    """(bag path, model path, members) from a comparison's JSON or a bag and the options."""
+    if not args.source:
+        raise ConfigError('give a comparison JSON or a bag (sofia design SOURCE), or --check NEW_BAG')
+    source = Path(args.source)
+    if source.is_dir():
+        if not args.model:
+            raise ConfigError(f'{source} is a bag: give the model it is compared with, --model M.yaml')
+        if not args.between:
+            raise ConfigError(f'{source} is a bag: name the competing set with --between A,B (or give the JSON of '
+                              '`sofia compare --json`, whose competing sets it takes)')
+        return source, args.model, _members(args.between)
+    document = _read_json(args.source, 'a comparison (sofia compare --json)')
+    if not isinstance(document.get('bag'), str) or 'competing' not in document:
+        raise ConfigError(f'{args.source} is not the JSON of `sofia compare` on a bag (no bag or competing key)')
+    model = args.model or document.get('model')
+    if args.between:
+        return Path(document['bag']), model, _members(args.between)
+    sets = document['competing'] or []
+    if not sets:
+        raise ConfigError(f'{args.source} states no competing set: the comparison already tells its candidates '
+                          'apart; name one with --between A,B to design anyway')
+    if args.set > len(sets):
+        raise ConfigError(f'--set {args.set}: {args.source} states {len(sets)} competing set(s)')
+    effects = sets[args.set - 1].get('effects') or []
+    return Path(document['bag']), model, _members(','.join(effects[:2]))
+
+
+def _library_elements(campaign: str) -> tuple:
+    from sofia_ros.design.elements import ALIGNMENT_LIBRARY
+
+    if campaign != 'alignment':
+        raise ConfigError(f'sofia design plans alignment campaigns; a {campaign} bag has no element library yet '
+                          '(docs/design.md)')
+    return ALIGNMENT_LIBRARY
+
+
+def _library_bag(elements: tuple, progress: Progress) -> Path:
+    """The library flight's bag in the user's cache, flown (direct mode, nominal truth, seed 0) if not there yet."""
+    from sofia_ros.campaigns.plan_files import plan_from_document, plans_directory
+    from sofia_ros.campaigns.registry import campaign_named
+    from sofia_ros.compare.cache import user_cache_home
+    from sofia_ros.config import load_effect_config
+
+    document = {**_LIBRARY_BASE, 'elements': [dict(element.document) for element in elements]}
+    key = hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()[:16]
+    bag = user_cache_home() / 'design' / f'alignment-library-{key}'
+    if (bag / 'summary.json').is_file():
+        return bag
+    truth = load_effect_config(plans_directory().parent / 'truth' / 'nominal.yaml')
+    plan = plan_from_document(document, 'the design library', 'alignment')
+    flying = bag.with_name(bag.name + '.flying')
+    shutil.rmtree(flying, ignore_errors=True)
+    flying.parent.mkdir(parents=True, exist_ok=True)
+    progress.phase(f'flying the element library once ({len(elements)} elements; kept in {bag.parent})')
+    try:
+        campaign_named('alignment').run(truth, seed=0, bag_path=flying, plan=plan, mode='direct')
+        flying.rename(bag)
+    finally:
+        shutil.rmtree(flying, ignore_errors=True)
+    return bag
+
+
+def _flight_s(observations: Any) -> float:
+    return float(observations.centroids.stamp_s.max() - observations.initial_time_s)
+
+
+def _print_design(document: dict, out: TextIO) -> None:
+    first, second = document['members']
+    print(f'sofia design: {first} or {second} on {document["bag"]} (flight {document["flight_s"]:.0f} s, '
+          f'budget {document["budget_s"]:.0f} s)', file=out)
+    print(f'  model {document["model"]}; shared fitted terms: {len(document["shared"])}', file=out)
+    for name, sizes in document['sizes'].items():
+        text = ', '.join(f'{label.split(".", 1)[1]} {value:.4g}' for label, value in sizes.items())
+        print(f'  {name}: fitted size {text}; delta-BIC on the bag {document["observed_delta_bic"][name]:.0f}',
+              file=out)
+    before = document['before']
+    print(f'  expected separation now: {_ways(before)}', file=out)
+    print('elements (expected delta-BIC with the element added; per minute of flight)', file=out)
+    print(f'  {"element":42} {"flight":>7}  {("if " + first + " true")[:24]:>24}  {("if " + second + " true")[:24]:>24}',
+          file=out)
+    for entry in document['elements']:
+        cells = [f'{entry["separation"][name]:9.1f} ({entry["separation_per_minute"][name]:+7.1f}/min)'
+                 for name in document['members']]
+        print(f'  {entry["name"]:42} {entry["flight_s"]:6.0f}s  {cells[0]:>24}  {cells[1]:>24}', file=out)
+    for name in document['skipped']:
+        print(f'  {name:42} skipped: no star in reach in the library flight', file=out)
+    status = document['status']
+    if status == 'already_separated':
+        print(f'already separated: the bag tells them apart by delta-BIC >= {document["target_delta_bic"]:.0f} '
+              'whichever is true; no plan is needed', file=out)
+        return
+    chosen = ', '.join(entry['name'] for entry in document['chosen'])
+    print(f'{"designed" if status == "designed" else "best within the budget (target not reached)"}: {chosen} '
+          f'({document["chosen_flight_s"]:.0f} s, {100 * document["flight_share"]:.0f} % of the flight)', file=out)
+    print(f'  expected separation after: {_ways(document["predicted"])} (target {document["target_delta_bic"]:.0f})',
+          file=out)
+    for name in document['members']:
+        shrink = [f'{label.split(".", 1)[1]} {before_sigma:.3g}->{document["sigma_after"][name][label]:.3g}'
+                  for label, before_sigma in document['sigma_before'][name].items() if label.split('.')[0] in name]
+        print(f'  sigma with {name}: {", ".join(shrink)}', file=out)
+
+
+def _ways(separation: dict) -> str:
+    return ', '.join(f'if {name} true {value:.1f}' for name, value in separation.items())
+
+
+def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
+    from sofia_ros.campaigns.plan_files import plan_document, plan_from_document, read_plan, write_plan_file
+    from sofia_ros.compare.cache import ObservationCache
+    from sofia_ros.compare.observations import observation_cache, read_observations
+    from sofia_ros.config import load_effect_config
+    from sofia_ros.design.run import design_plan
+
+    bag, model_path, members = _source(args)
+    for target in (args.plan_out, args.json):
+        if target:
+            output_target(target)
+    if not model_path:
+        raise ConfigError('give the model with --model M.yaml (the JSON names none)')
+    model = load_effect_config(model_path)
+    old_plan = read_plan(bag)
+    elements = _library_elements(old_plan.campaign)
+    library = _library_bag(elements, progress)
+    with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):
+        progress.phase('reading the bags')
+        observations, library_observations = read_observations(bag), read_observations(library)
+    flight_s = _flight_s(observations)
+    budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
+    progress.phase('linearizing the members on the bag and on the library flight')
+    document = design_plan(observations, library_observations, elements, model, members, flight_s=flight_s,
+                           budget_s=budget_s, target=args.target, anchor_spacing_s=args.anchor_s)
+    _print_design(document, out)
+    if document['status'] != 'already_separated' and args.plan_out:
+        planned = plan_document(old_plan)
+        planned['elements'] = [*planned.get('elements', []), *(entry['element'] for entry in document['chosen'])]
+        write_plan_file(plan_from_document(planned, str(args.plan_out), old_plan.campaign), args.plan_out)
+        document['plan'] = str(args.plan_out)
+        print(f'plan: {args.plan_out} (fly it: sofia run {old_plan.campaign} --plan {args.plan_out} ...)', file=out)
+    if args.json:
+        write_text_atomically(args.json, json.dumps(json_ready(document), indent=2) + '\n')
+    return 0
+
+
+def _check(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
+    from sofia_ros.compare.observations import read_observations
+    from sofia_ros.config import load_effect_config
+    from sofia_ros.design.check import member_fits
+
+    if not args.prediction:
+        raise ConfigError('--check NEW_BAG needs --prediction DESIGN.json (the JSON `sofia design --json` wrote)')
+    if args.json:
+        output_target(args.json)
+    prediction = _read_json(args.prediction, 'a design (sofia design --json)')
+    if not isinstance(prediction.get('members'), list) or not isinstance(prediction.get('predicted'), dict):
+        raise ConfigError(f'{args.prediction} is not the JSON of `sofia design` (no members or predicted key)')
+    model = load_effect_config(args.model or prediction['model'])
+    members = _members(','.join(prediction['members']))
+    achieved = {}
+    for label, bag in (('before', prediction['bag']), ('after', args.check)):
+        progress.phase(f'refitting both members on the {label} bag {bag}')
+        fits = member_fits(read_observations(bag), model, members, anchor_spacing_s=args.anchor_s)
+        first, second = (fits['+'.join(member)]['bic'] for member in members)
+        # Positive: the first member wins (its BIC is lower).
+        achieved[label] = {'bag': str(bag), 'delta_bic': second - first,
+                           'winner': '+'.join(members[0] if second > first else members[1]), 'fits': fits}
+    first_name, second_name = prediction['members']
+    print(f'sofia design --check: {first_name} or {second_name}', file=out)
+    for label, entry in achieved.items():
+        predicted = prediction['predicted' if label == 'after' else 'before'][entry['winner']]
+        print(f'  {label:6} {entry["bag"]}: {entry["winner"]} wins by delta-BIC {abs(entry["delta_bic"]):.1f} '
+              f'(predicted if it is true: {predicted:.1f})', file=out)
+    if args.json:
+        write_text_atomically(args.json, json.dumps(json_ready({'prediction': str(args.prediction), **achieved}),
+                                                    indent=2) + '\n')
+    return 0
+
+
+def run_design(args: argparse.Namespace, out: TextIO) -> int:
+    """`sofia design`: the prediction and the plan, or with --check the achieved separation.
+
+    Args:
+        args: the parsed arguments of add_design_arguments.
+        out: where the tables go.
+
+    Returns:
+        The exit code, 0 (faults raise a SofiaError: one line, exit 2; an unwritable output: OutputError).
+
+    Raises:
+        ConfigError: a bad source, member, model, plan or output.
+        InvalidArgumentError: a budget below the shortest element.
+    """
+    progress = Progress.silent() if args.quiet else Progress(sys.stderr, prefix='sofia design')
+    if args.check:
+        return _check(args, out, progress)
+    if args.prediction:
+        raise ConfigError('--prediction goes with --check NEW_BAG')
+    return _design(args, out, progress)

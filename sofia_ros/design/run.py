@@ -1,0 +1,175 @@
+"""`sofia design`'s prediction: which plan elements separate a competing set, and by how much (docs/design.md).
+
+1. The old bag: the model fitted, both members linearized at the fit (design.geometry); each
+   member's size is its linearized fit on the bag (what the comparison would fit), the residual
+   variance that of the better member.
+2. The library flight: the same columns over each element's window of a bag that flew the
+   library on the nominal truth; each element's profiled information and flight time.
+3. Each element's expected separation per minute, each set's prediction, the choice
+   (design.elements.choose_elements).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence, TypedDict
+
+import numpy as np
+import yaml
+
+from sofia_ros.config import EffectConfig
+from sofia_ros.design.elements import Choice, Element, Hypothesis, Prediction, choose_elements, predict
+from sofia_ros.design.geometry import BagColumns, bag_columns, element_windows, member_labels
+from sofia_ros.design.separation import Information, fitted_values, rss_drop
+from sofia_ros.errors import BagError, ConfigError
+
+__all__ = ['DesignDocument', 'ElementEntry', 'design_plan', 'member_name']
+
+#: The separation the issue asks for: the truth's member wins by this delta-BIC.
+REQUIRED_DELTA_BIC = 10.0
+
+
+class ElementEntry(TypedDict):
+    """One library element in the JSON: what it is, how long it flies, what it adds."""
+
+    name: str
+    element: dict
+    flight_s: float
+    separation: dict
+    separation_per_minute: dict
+    sigma_ratio: dict
+
+
+class DesignDocument(TypedDict):
+    """`sofia design --json` (docs/design.md)."""
+
+    bag: str
+    model: str | None
+    members: list
+    shared: list
+    flight_s: float
+    budget_s: float
+    target_delta_bic: float
+    sizes: dict
+    observed_delta_bic: dict
+    before: dict
+    elements: list
+    status: str
+    chosen: list
+    chosen_flight_s: float
+    flight_share: float
+    predicted: dict
+    sigma_before: dict
+    sigma_after: dict
+    skipped: list
+
+
+def member_name(member: Sequence[str]) -> str:
+    """A member as the command line spells it: its effects joined by '+'."""
+    return '+'.join(member)
+
+
+def _observed_delta_bic(columns: BagColumns, information: Information, labels: Sequence[str]) -> float:
+    """compare's delta-BIC of a member on the bag, linearized: n ln(RSS / RSS after) - k ln n."""
+    after = columns.rss - rss_drop(information, [*columns.shared_labels, *labels])
+    return float(columns.rows * np.log(columns.rss / max(after, 1e-300)) - len(labels) * np.log(columns.rows))
+
+
+def _hypotheses(columns: BagColumns, information: Information, members: Sequence[Sequence[str]]) -> list:
+    shared = list(columns.shared_labels)
+    hypotheses = []
+    for member in members:
+        labels = member_labels(member)
+        values = fitted_values(information, [*shared, *labels])[len(shared):]
+        hypotheses.append(Hypothesis(member_name(member), labels, values))
+    return hypotheses
+
+
+def _element_information(library: BagColumns, calibration_text: str | None, library_elements: Sequence[Element]):
+    """(Element, Information with no gradient, flight s) of every element the library flight flew; skipped names."""
+    if not calibration_text:
+        raise BagError('the library flight has no calibration result; delete it so that it is flown again')
+    flown = {index: (kind, start, end) for index, kind, start, end in element_windows(yaml.safe_load(calibration_text))}
+    out, skipped = [], []
+    for index, element in enumerate(library_elements, start=1):
+        if index not in flown:
+            skipped.append(element.name)
+            continue
+        _, start, end = flown[index]
+        information = library.information(start, end)
+        out.append((element, Information(information.labels, information.gram, np.zeros_like(information.gradient),
+                                         information.rows), end - start))
+    return out, skipped
+
+
+def _sigma_ratio(before: Prediction, after: Prediction) -> dict:
+    return {name: {label: (after.sigma[name][label] / sigma if np.isfinite(sigma) and sigma > 0 else None)
+                   for label, sigma in before.sigma[name].items()} for name in before.sigma}
+
+
+def design_plan(observations: object, library_observations: object, library_elements: Sequence[Element],
+                model: EffectConfig, members: Sequence[Sequence[str]], *, flight_s: float, budget_s: float,
+                target: float, anchor_spacing_s: float = 30.0) -> DesignDocument:
+    """The prediction and the choice for one competing set of two members.
+
+    Args:
+        observations: the old bag's observations.
+        library_observations: the library flight's observations.
+        library_elements: the elements the library flight flew, in its plan's order.
+        model: the model compared (its fitted terms are shared by both members).
+        members: the two members, each a list of effect names.
+        flight_s: the old bag's flight time (s).
+        budget_s: the largest addition (s).
+        target: the expected delta-BIC to reach in both directions.
+        anchor_spacing_s: seconds between attitude anchors.
+
+    Returns:
+        The DesignDocument (``status``: already_separated, designed or not_reached).
+
+    Raises:
+        ConfigError: a member already in the model.
+        InvalidArgumentError: a budget below the shortest element.
+        FitError: the model's fit fails.
+    """
+    for member in members:
+        for name in member:
+            if name in model.effects:
+                raise ConfigError(f'{name} is already in the model {model.source}; a competing member is an effect '
+                                  'the model lacks (remove it from the model, or name another)')
+    old = bag_columns(observations, model, members, anchor_spacing_s=anchor_spacing_s)
+    library = bag_columns(library_observations, model, members, anchor_spacing_s=anchor_spacing_s)
+    base = old.information()
+    first, second = _hypotheses(old, base, members)
+    shared = list(old.shared_labels)
+    best_drop = max(rss_drop(base, [*shared, *member.labels]) for member in (first, second))
+    variance = max(old.rss - best_drop, 1.0) / old.rows
+    before = predict(base, shared, first, second, variance)
+    elements, skipped = _element_information(library, library_observations.calibration_result, library_elements)
+    if not elements:
+        raise BagError('the library flight flew none of its elements (no star in reach); see its summary.json')
+    entries = []
+    for element, information, seconds in elements:
+        alone = predict(base + information, shared, first, second, variance)
+        gain = {name: alone.separation[name] - before.separation[name] for name in alone.separation}
+        entries.append(ElementEntry(name=element.name, element=dict(element.document), flight_s=round(seconds, 1),
+                                    separation=alone.separation,
+                                    separation_per_minute={name: value / (seconds / 60.0) for name, value in gain.items()},
+                                    sigma_ratio=_sigma_ratio(before, alone)))
+    document = DesignDocument(
+        bag=str(observations.bag_path), model=model.source, members=[member_name(m) for m in members],
+        shared=shared, flight_s=round(flight_s, 1), budget_s=round(budget_s, 1), target_delta_bic=target,
+        sizes={member.name: dict(zip(member.labels, member.values.tolist())) for member in (first, second)},
+        observed_delta_bic={member_name(m): _observed_delta_bic(old, base, member_labels(m)) for m in members},
+        before=before.separation, elements=entries, status='already_separated', chosen=[], chosen_flight_s=0.0,
+        flight_share=0.0, predicted=before.separation, sigma_before=before.sigma, sigma_after=before.sigma,
+        skipped=skipped)
+    if before.weakest >= target:
+        return document
+    choice: Choice = choose_elements(base, [information for _, information, _ in elements],
+                                     [seconds for _, _, seconds in elements], shared, first, second, variance,
+                                     target=target, budget_s=budget_s)
+    document.update(status='designed' if choice.reached else 'not_reached',
+                    chosen=[{'name': elements[index][0].name, 'element': dict(elements[index][0].document)}
+                            for index in choice.indices],
+                    chosen_flight_s=round(choice.flight_s, 1), flight_share=choice.flight_s / flight_s,
+                    predicted=choice.prediction.separation, sigma_after=choice.prediction.sigma)
+    return document

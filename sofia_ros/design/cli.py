@@ -208,7 +208,7 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     from sofia_ros.compare.cache import ObservationCache
     from sofia_ros.compare.observations import observation_cache, read_observations
     from sofia_ros.config import load_effect_config
-    from sofia_ros.design.run import design_plan
+    from sofia_ros.design.run import design_plan, flown_elements
 
     bag, model_path, members = _source(args)
     for target in (args.plan_out, args.json):
@@ -226,7 +226,8 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
     progress.phase('linearizing the members on the bag and on the library flight')
-    document = design_plan(observations, library_observations, elements, model, members, flight_s=flight_s,
+    windows, skipped = flown_elements(library_observations.calibration_result, elements)
+    document = design_plan(observations, library_observations, windows, skipped, model, members, flight_s=flight_s,
                            budget_s=budget_s, target=args.target, anchor_spacing_s=args.anchor_s)
     _print_design(document, out)
     if document['status'] != 'already_separated' and args.plan_out:

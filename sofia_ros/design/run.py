@@ -22,11 +22,7 @@ from sofia_ros.design.geometry import BagColumns, bag_columns, element_windows, 
 from sofia_ros.design.separation import Information, fitted_values, rss_drop
 from sofia_ros.errors import BagError, ConfigError
 
-__all__ = ['DesignDocument', 'ElementEntry', 'design_plan', 'member_name']
-
-#: The separation the issue asks for: the truth's member wins by this delta-BIC.
-REQUIRED_DELTA_BIC = 10.0
-
+__all__ = ['DesignDocument', 'ElementEntry', 'design_plan', 'flown_elements', 'member_name']
 
 class ElementEntry(TypedDict):
     """One library element in the JSON: what it is, how long it flies, what it adds."""
@@ -84,21 +80,36 @@ def _hypotheses(columns: BagColumns, information: Information, members: Sequence
     return hypotheses
 
 
-def _element_information(library: BagColumns, calibration_text: str | None, library_elements: Sequence[Element]):
-    """(Element, Information with no gradient, flight s) of every element the library flight flew; skipped names."""
+def flown_elements(calibration_text: str | None, library_elements: Sequence[Element]) -> tuple[list, list]:
+    """The library elements a flight flew with their sim-time windows, from its calibration result; and the names of
+    those it skipped (no star in reach).
+
+    Args:
+        calibration_text: the flight's calibration result (calibration.yaml's text).
+        library_elements: the elements its plan listed, in order.
+
+    Returns:
+        ([(Element, start_s, end_s)], [skipped names]).
+
+    Raises:
+        BagError: the flight has no calibration result.
+    """
     if not calibration_text:
         raise BagError('the library flight has no calibration result; delete it so that it is flown again')
-    flown = {index: (kind, start, end) for index, kind, start, end in element_windows(yaml.safe_load(calibration_text))}
-    out, skipped = [], []
-    for index, element in enumerate(library_elements, start=1):
-        if index not in flown:
-            skipped.append(element.name)
-            continue
-        _, start, end = flown[index]
+    flown = {index: (start, end) for index, _, start, end in element_windows(yaml.safe_load(calibration_text))}
+    windows = [(element, *flown[index]) for index, element in enumerate(library_elements, start=1) if index in flown]
+    skipped = [element.name for index, element in enumerate(library_elements, start=1) if index not in flown]
+    return windows, skipped
+
+
+def _element_information(library: BagColumns, windows: Sequence[tuple]) -> list:
+    """(Element, Information without gradient, flight s) of each flown element: what its geometry adds."""
+    out = []
+    for element, start, end in windows:
         information = library.information(start, end)
         out.append((element, Information(information.labels, information.gram, np.zeros_like(information.gradient),
                                          information.rows), end - start))
-    return out, skipped
+    return out
 
 
 def _sigma_ratio(before: Prediction, after: Prediction) -> dict:
@@ -106,7 +117,7 @@ def _sigma_ratio(before: Prediction, after: Prediction) -> dict:
                    for label, sigma in before.sigma[name].items()} for name in before.sigma}
 
 
-def design_plan(observations: object, library_observations: object, library_elements: Sequence[Element],
+def design_plan(observations: object, library_observations: object, windows: Sequence[tuple], skipped: Sequence[str],
                 model: EffectConfig, members: Sequence[Sequence[str]], *, flight_s: float, budget_s: float,
                 target: float, anchor_spacing_s: float = 30.0) -> DesignDocument:
     """The prediction and the choice for one competing set of two members.
@@ -114,7 +125,8 @@ def design_plan(observations: object, library_observations: object, library_elem
     Args:
         observations: the old bag's observations.
         library_observations: the library flight's observations.
-        library_elements: the elements the library flight flew, in its plan's order.
+        windows: (Element, start_s, end_s) of each element the library flight flew (flown_elements).
+        skipped: the names of the library elements it could not fly.
         model: the model compared (its fitted terms are shared by both members).
         members: the two members, each a list of effect names.
         flight_s: the old bag's flight time (s).
@@ -143,7 +155,7 @@ def design_plan(observations: object, library_observations: object, library_elem
     best_drop = max(rss_drop(base, [*shared, *member.labels]) for member in (first, second))
     variance = max(old.rss - best_drop, 1.0) / old.rows
     before = predict(base, shared, first, second, variance)
-    elements, skipped = _element_information(library, library_observations.calibration_result, library_elements)
+    elements = _element_information(library, windows)
     if not elements:
         raise BagError('the library flight flew none of its elements (no star in reach); see its summary.json')
     entries = []
@@ -161,7 +173,7 @@ def design_plan(observations: object, library_observations: object, library_elem
         observed_delta_bic={member_name(m): _observed_delta_bic(old, base, member_labels(m)) for m in members},
         before=before.separation, elements=entries, status='already_separated', chosen=[], chosen_flight_s=0.0,
         flight_share=0.0, predicted=before.separation, sigma_before=before.sigma, sigma_after=before.sigma,
-        skipped=skipped)
+        skipped=list(skipped))
     if before.weakest >= target:
         return document
     choice: Choice = choose_elements(base, [information for _, information, _ in elements],

@@ -363,6 +363,24 @@ def test_two_bags_of_the_same_name_never_share_a_cache_folder(tmp_path, home):
     assert first != second and first.parent == second.parent == home
 
 
+def test_a_user_without_a_home_keeps_the_cache_beside_the_bag_or_none(bag, decoded, monkeypatch):
+    monkeypatch.delenv('XDG_CACHE_HOME', raising=False)
+    monkeypatch.setattr(Path, 'home', classmethod(lambda cls: (_ for _ in ()).throw(RuntimeError('no home'))))
+    _count_decodes(monkeypatch, served=decoded)
+    cache = ObservationCache(warn=print)
+    assert cache.folders(bag) == (bag / CACHE_DIRECTORY,)
+    _read_twice(bag, [])
+    assert len(_cache_files(bag / CACHE_DIRECTORY)) == 1
+    _refuse_writes_under(monkeypatch, bag / CACHE_DIRECTORY)
+    (bag / 'notes.txt').write_text('a change\n')
+    warnings = []
+    _read_twice(bag, warnings)
+    # Each read: one line, for the stale cache and for the cache that cannot be written.
+    assert len(warnings) == 2 and all(line.startswith('sofia compare: the bag or the reader changed since ') and
+                                      '; decoded the bag again; cannot cache the decoded observations (' in line
+                                      for line in warnings), warnings
+
+
 def test_nothing_writable_compares_without_a_cache_and_says_so_in_one_line(bag, home, decoded, comparison, monkeypatch,
                                                                           capsys):
     _refuse_writes_under(monkeypatch, bag, home.parent)

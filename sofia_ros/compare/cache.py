@@ -56,11 +56,17 @@ class UnusableCache(Exception):
     """A cache file that must not be used; the message says why, for the line on stderr."""
 
 
-def user_cache_home() -> Path:
-    """$XDG_CACHE_HOME/sofia_ros, or ~/.cache/sofia_ros (the XDG base directory default)."""
+def user_cache_home() -> Path | None:
+    """$XDG_CACHE_HOME/sofia_ros, or ~/.cache/sofia_ros (the XDG base directory default); None for a user without
+    a home directory."""
     base = os.environ.get('XDG_CACHE_HOME') or ''
     # The XDG specification ignores a relative path.
-    return (Path(base) if os.path.isabs(base) else Path.home() / '.cache') / 'sofia_ros'
+    if os.path.isabs(base):
+        return Path(base) / 'sofia_ros'
+    try:
+        return Path.home() / '.cache' / 'sofia_ros'
+    except RuntimeError:  # no $HOME and no entry in the password database
+        return None
 
 
 def bag_key(bag_path: Path) -> str | None:
@@ -227,8 +233,11 @@ class ObservationCache:
         self.progress = progress or Progress.silent()
         self.home = home or user_cache_home()
 
-    def folders(self, bag_path: Path) -> tuple[Path, Path]:
-        """The cache folder inside the bag, and the one under the user's cache home (never shared by two bags)."""
+    def folders(self, bag_path: Path) -> tuple[Path, ...]:
+        """The cache folder inside the bag, then the one under the user's cache home if there is one (never shared
+        by two bags)."""
+        if self.home is None:
+            return (bag_path / CACHE_DIRECTORY,)
         resolved = bag_path.resolve()
         path_hash = hashlib.sha256(os.fsencode(resolved)).hexdigest()[:16]
         return bag_path / CACHE_DIRECTORY, self.home / f'{resolved.name[:100]}-{path_hash}'
@@ -244,15 +253,21 @@ class ObservationCache:
             self.progress.phase('decoded observations from the cache')
             return cached
         observations = decode(bag_path)
-        # Told once the bag decoded: a bag that cannot be read gets its one error line alone.
+        unwritable = self._store(folders, key, observations)
+        # One line, once the bag decoded: a bag that cannot be read gets its one error line alone.
+        told = []
         if unusable:
-            self.warn(unusable)
-        self._store(folders, key, observations)
+            told.append(f'{unusable}; decoded the bag again')
+        if unwritable:
+            told.append(f'cannot cache the decoded observations ({unwritable}); compared without a cache '
+                        '(--no-cache skips it)')
+        if told:
+            self.warn('sofia compare: ' + '; '.join(told))
         return observations
 
     def _lookup(self, folders: tuple[Path, ...], key: str, bag_path: Path) -> tuple[Observations | None, str | None]:
-        """The cached observations of the bag as it is, else None and the line telling why the cache is not used
-        (None when there was none)."""
+        """The cached observations of the bag as it is, else None and why the cache is not used (None when there was
+        none)."""
         for folder in folders:
             path = folder / _file_name(key)
             if not (path.exists() or path.is_symlink()):
@@ -261,15 +276,15 @@ class ObservationCache:
                 return _load(path, key, bag_path), None
             except UnusableCache as err:
                 _remove(path)
-                return None, f'sofia compare: ignored the observation cache {path} ({err}); decoded the bag again'
+                return None, f'ignored the observation cache {path} ({err})'
         stale = [path for folder in folders for path in _cache_files(folder)]
         if stale:
-            return None, (f'sofia compare: the bag or the reader changed since {stale[0]} was written; '
-                          'decoded the bag again')
+            return None, f'the bag or the reader changed since {stale[0]} was written'
         return None, None
 
-    def _store(self, folders: tuple[Path, ...], key: str, observations: Observations) -> None:
-        """Write the cache file into the first folder that takes it, removing that folder's older files."""
+    def _store(self, folders: tuple[Path, ...], key: str, observations: Observations) -> str | None:
+        """Write the cache file into the first folder that takes it, removing that folder's older files; why none
+        took it, or None."""
         reasons = []
         for folder in folders:
             path = folder / _file_name(key)
@@ -282,9 +297,8 @@ class ObservationCache:
             for old in _cache_files(folder):
                 if old != path:
                     _remove(old)
-            return
-        self.warn(f'sofia compare: cannot cache the decoded observations ({"; ".join(reasons)}); compared '
-                  'without a cache (--no-cache skips it)')
+            return None
+        return '; '.join(reasons)
 
 
 def _cache_files(folder: Path) -> list[Path]:

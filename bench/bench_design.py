@@ -138,8 +138,8 @@ def main() -> None:
               f'ways, budget 30 % of the flight; a member wins at delta-BIC >= {DECIDES:.0f}\n'
               f'sofia design wall time: {design_s[0]:.1f} s for the first set (the element library flown, cold cache), '
               f'then {min(design_s[1:], default=float("nan")):.1f}-{max(design_s[1:], default=float("nan")):.1f} s '
-              f'(target <= {TARGET_S:.0f} s); predicted and achieved delta-BIC in the truth\'s direction (positive: the '
-              f'truth\'s member wins)')
+              f'(target <= {TARGET_S:.0f} s); predicted and achieved delta-BIC in the truth\'s direction '
+              f'(positive: the truth\'s member wins)')
     text = _text(rows, header)
     print(text)
     (RESULTS / 'design.txt').write_text(text)

@@ -34,6 +34,8 @@ _LIBRARY_BASE = {'campaign': 'alignment', 'repetitions': 2, 'verification_repeti
                  'drift_track_s': 5.0, 'flexure_elevations_deg': [], 'max_iterations': 1}
 _DEFAULT_TARGET = 20.0
 _DEFAULT_BUDGET_SHARE = 0.3
+#: An element adding less expected delta-BIC than this, in a direction, does not move it (printed as such).
+_NO_GAIN_DELTA_BIC = 1.0
 
 
 def add_design_arguments(parser: argparse.ArgumentParser) -> None:
@@ -175,14 +177,20 @@ def _print_design(document: dict, out: TextIO) -> None:
     before = document['before']
     print(f'  expected separation now: {_ways(before)}', file=out)
     print('elements (expected delta-BIC with the element added; per minute of flight)', file=out)
-    print(f'  {"element":42} {"flight":>7}  {("if " + first + " true")[:24]:>24}  {("if " + second + " true")[:24]:>24}',
-          file=out)
+    heads = [f'if {name} true'[:24] for name in (first, second)]
+    print(f'  {"element":42} {"flight":>7}  {heads[0]:>24}  {heads[1]:>24}', file=out)
     for entry in document['elements']:
         cells = [f'{entry["separation"][name]:9.1f} ({entry["separation_per_minute"][name]:+7.1f}/min)'
                  for name in document['members']]
         print(f'  {entry["name"]:42} {entry["flight_s"]:6.0f}s  {cells[0]:>24}  {cells[1]:>24}', file=out)
     for name in document['skipped']:
         print(f'  {name:42} skipped: no star in reach in the library flight', file=out)
+    for name in document['members']:
+        gains = [entry['separation'][name] - before[name] for entry in document['elements']]
+        if max(gains, default=0.0) < _NO_GAIN_DELTA_BIC:
+            print(f'  no element raises the separation if {name} is true: the other member reproduces its '
+                  "signature in every element's geometry (nested or equivalent at these sizes); no plan of these "
+                  'elements tells them apart that way', file=out)
     status = document['status']
     if status == 'already_separated':
         print(f'already separated: the bag tells them apart by delta-BIC >= {document["target_delta_bic"]:.0f} '

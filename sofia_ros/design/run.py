@@ -161,10 +161,10 @@ def design_plan(observations: object, library_observations: object, windows: Seq
     entries = []
     for element, information, seconds in elements:
         alone = predict(base + information, shared, first, second, variance)
-        gain = {name: alone.separation[name] - before.separation[name] for name in alone.separation}
+        per_minute = {name: 60.0 * (alone.separation[name] - before.separation[name]) / seconds
+                      for name in alone.separation}
         entries.append(ElementEntry(name=element.name, element=dict(element.document), flight_s=round(seconds, 1),
-                                    separation=alone.separation,
-                                    separation_per_minute={name: value / (seconds / 60.0) for name, value in gain.items()},
+                                    separation=alone.separation, separation_per_minute=per_minute,
                                     sigma_ratio=_sigma_ratio(before, alone)))
     document = DesignDocument(
         bag=str(observations.bag_path), model=model.source, members=[member_name(m) for m in members],

@@ -22,8 +22,8 @@ import numpy as np
 
 from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['Information', 'expected_delta_bic', 'fitted_values', 'noncentrality', 'profiled_gram', 'pseudo_inverse', 'rss_drop',
-           'sigma_of']
+__all__ = ['Information', 'expected_delta_bic', 'fitted_values', 'noncentrality', 'profiled_gram', 'pseudo_inverse',
+           'rss_drop', 'sigma_of']
 
 #: Relative singular-value cut of the pseudo-inverses: columns a block cannot see (a camera it lacks) drop out.
 _RCOND = 1e-10

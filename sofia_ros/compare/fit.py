@@ -188,24 +188,22 @@ class WhitenedProblem:
         """
         columns = np.empty((predicted.size, len(free)))
         predictor = self.predictor
-        projection, gyro = predictor.projection_key(effects), predictor.gyro_key(effects)
-        stepped_effects, keys, gyro_moved = [], [], []
+        stepped_effects, reaches = [], []
         for index, parameter in enumerate(free):
             stepped = values.copy()
             stepped[index] += parameter.step
             stepped_effects.append(_with_values(effects, free, stepped))
-            keys.append(predictor.projection_key(stepped_effects[-1]))
-            gyro_moved.append(keys[-1][:2] == projection[:2] and predictor.gyro_key(stepped_effects[-1]) != gyro)
+            reaches.append(predictor.parameter_reach(effects, parameter, stepped_effects[-1]))
         changes = iter(predictor.attitude_changes_irf(
-            effects, [moved for moved, attitude in zip(stepped_effects, gyro_moved) if attitude],
+            effects, [moved for moved, (_, attitude, _) in zip(stepped_effects, reaches) if attitude],
             predictor.row_times_s(effects)))
         in_tarf = None
-        for index, (parameter, moved_effects, key, attitude) in enumerate(zip(free, stepped_effects, keys, gyro_moved)):
-            if key[:2] != projection[:2]:
+        for index, (parameter, moved_effects, (moves_rows, attitude, cameras)) in enumerate(
+                zip(free, stepped_effects, reaches)):
+            if moves_rows:
                 columns[:, index] = self.scaled(predictor.predict_px(moved_effects, anchors) - predicted) / parameter.step
                 continue
             column = np.einsum('nai,ni->na', derivative, next(changes)).ravel() if attitude else np.zeros(predicted.size)
-            cameras = [camera for camera, (moved, now) in enumerate(zip(key[2], projection[2])) if moved != now]
             if cameras:
                 in_tarf = predictor.tarf_directions(effects, anchors) if in_tarf is None else in_tarf
                 column += self.scaled(predictor.reprojected_px(moved_effects, cameras, in_tarf, predicted) - predicted)

@@ -54,7 +54,7 @@ _PLACE_EPOCH_S = 300.0
 #: iteration). 'rows': attitudes at the rows and their linearization maps (a star hop's are 9 MB each): a
 #: Gauss-Newton step evaluates the same rows under the same gyro errors for its prediction, its derivatives
 #: and its columns. 'cameras': each camera's errors under an effect set (a column asks for them per camera).
-_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128}
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024}
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -265,6 +265,23 @@ class Predictor:
         """What a prediction depends on besides the gyro attitude: row times, star places, camera models."""
         return (repr(effects.get('timestamp_offset')), self._star_key(effects),
                 tuple(self._camera_key(effects, index)[0] for index in range(len(self.observations.centroids.cameras))))
+
+    def parameter_reach(self, effects, parameter, stepped_effects):
+        """What a step of one parameter moves: whether the row times or star places (projection_key's first two
+        parts), whether only the gyro attitude, and the indices of the cameras whose model it changes.
+
+        Found by comparing the keys of ``effects`` and ``stepped_effects`` (the parameter stepped) once per effect set
+        and parameter: which parts a parameter moves is a property of the effects present, not of their values, and
+        the keys cost a camera model per camera.
+        """
+        def compute():
+            projection, stepped = self.projection_key(effects), self.projection_key(stepped_effects)
+            moves_rows = stepped[:2] != projection[:2]
+            moves_gyro = not moves_rows and self.gyro_key(stepped_effects) != self.gyro_key(effects)
+            cameras = tuple(camera for camera, (moved, now) in enumerate(zip(stepped[2], projection[2])) if moved != now)
+            return moves_rows, moves_gyro, cameras
+
+        return self._cached((tuple(effects), parameter.effect, parameter.name), compute, kind='reach')
 
     def gyro_key(self, effects):
         """What the gyro attitude depends on: the model's gyro error terms."""

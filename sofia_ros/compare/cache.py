@@ -57,8 +57,12 @@ class UnusableCache(Exception):
 
 
 def user_cache_home() -> Path | None:
-    """$XDG_CACHE_HOME/sofia_ros, or ~/.cache/sofia_ros (the XDG base directory default); None for a user without
-    a home directory."""
+    """The user's cache folder of sofia_ros.
+
+    Returns:
+        $XDG_CACHE_HOME/sofia_ros, or ~/.cache/sofia_ros (the XDG base directory default); None for a user
+        without a home directory.
+    """
     base = os.environ.get('XDG_CACHE_HOME') or ''
     # The XDG specification ignores a relative path.
     if os.path.isabs(base):
@@ -70,8 +74,15 @@ def user_cache_home() -> Path | None:
 
 
 def bag_key(bag_path: Path) -> str | None:
-    """The cache key of the bag as it is now (module docstring); None when its files cannot be read (the
-    decoding then names what is wrong with the bag)."""
+    """The cache key of the bag as it is now (module docstring).
+
+    Args:
+        bag_path: the bag directory.
+
+    Returns:
+        A sha256 hex digest; None when the bag's files cannot be listed or read (the decoding then names
+        what is wrong with the bag).
+    """
     digest = hashlib.sha256(f'sofia_ros observations: reader {READER_VERSION}, format {CACHE_FORMAT}\n'.encode())
     try:
         entries = sorted(os.scandir(bag_path), key=lambda entry: entry.name)
@@ -234,8 +245,15 @@ class ObservationCache:
         self.home = home or user_cache_home()
 
     def folders(self, bag_path: Path) -> tuple[Path, ...]:
-        """The cache folder inside the bag, then the one under the user's cache home if there is one (never shared
-        by two bags)."""
+        """Where the cache of a bag may be, in the order tried.
+
+        Args:
+            bag_path: the bag directory.
+
+        Returns:
+            The cache folder inside the bag, then the bag's folder under the user's cache home if there is one
+            (named for the bag's resolved path: never shared by two bags).
+        """
         if self.home is None:
             return (bag_path / CACHE_DIRECTORY,)
         resolved = bag_path.resolve()
@@ -243,7 +261,15 @@ class ObservationCache:
         return bag_path / CACHE_DIRECTORY, self.home / f'{resolved.name[:100]}-{path_hash}'
 
     def read(self, bag_path: Path, decode: Callable[[Path], Observations]) -> Observations:
-        """The observations of ``bag_path`` from its cache file when it has a usable one, else decoded and cached."""
+        """The observations of a bag from its cache file when it has a usable one, else decoded and cached.
+
+        Args:
+            bag_path: the bag directory.
+            decode: decodes the bag (compare.observations.decode_observations); its errors pass through.
+
+        Returns:
+            The bag's Observations, with ``bag_path`` as given.
+        """
         key = bag_key(bag_path)
         if key is None:
             return decode(bag_path)

@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
+from os import PathLike
 from pathlib import Path
 from typing import Protocol
 
@@ -25,7 +26,7 @@ from sofia_ros.bag import BagReader
 from sofia_ros.compare.predict import tick_means
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.frames import dcm_from_quaternion
-from sofia_ros.scenario import scenario_from_document
+from sofia_ros.scenario import Scenario, scenario_from_document
 from sofia_ros.sensors.imager_model import CAMERAS, nominal_detector
 from sofia_ros.topics import (
     CALIBRATION_RESULT,
@@ -72,15 +73,20 @@ class Centroids:
     def __len__(self):
         return len(self.hip)
 
-    def arcsec_per_px(self):
-        """Nominal image scale of each row's camera (Table 2.6, 3.3.1)."""
+    def arcsec_per_px(self) -> np.ndarray:
+        """Nominal image scale of each row's camera (Table 2.6, 3.3.1).
+
+        Returns:
+            One scale per row, in arcsec per pixel.
+        """
         scales = np.array([nominal_detector(camera).scale_arcsec_per_px for camera in self.cameras])
         return scales[self.camera_index]
 
 
 @dataclass(frozen=True, eq=False)
 class GyroSamples:
-    """400 Hz GYRF rates, the ticks they belong to, and per tick their mean, mean time, count, temperature and specific force."""
+    """400 Hz GYRF rates, the ticks they belong to, and per tick their mean, mean time, count, temperature and
+    specific force."""
 
     time_s: np.ndarray
     rates_gyrf_rad_per_s: np.ndarray
@@ -100,7 +106,7 @@ class Observations:
     """Everything `sofia compare` reads from one bag."""
 
     bag_path: Path
-    scenario: object
+    scenario: Scenario
     centroids: Centroids
     gyro: GyroSamples
     initial_time_s: float
@@ -123,7 +129,8 @@ def _joint_deg(joints, name):
     at = np.flatnonzero(joints.values['name[]'] == name)
     if (not np.array_equal(joints.counts['name[]'], joints.counts['position[]'])
             or not np.array_equal(per_message[at], np.arange(len(joints)))):
-        raise BagError(f'{JOINT_STATES.name} does not give joint {name} a position in every message; the bag is damaged')
+        raise BagError(f'{JOINT_STATES.name} does not give joint {name} a position in every message; '
+                       'the bag is damaged')
     return joints.values['position[]'][at] * DEG_PER_RAD
 
 
@@ -171,7 +178,15 @@ class ObservationSource(Protocol):
     """Where read_observations takes a bag's observations from when not decoding it itself (compare.cache)."""
 
     def read(self, bag_path: Path, decode: Callable[[Path], Observations]) -> Observations:
-        """The observations of ``bag_path``, calling ``decode(bag_path)`` where it has none for the bag as it is."""
+        """The observations of a bag, decoded only where the source has none for the bag as it is.
+
+        Args:
+            bag_path: the bag directory.
+            decode: decodes the bag (decode_observations).
+
+        Returns:
+            The bag's Observations.
+        """
 
 
 _ACTIVE_SOURCE: ContextVar[ObservationSource | None] = ContextVar('observation_source', default=None)
@@ -179,10 +194,16 @@ _ACTIVE_SOURCE: ContextVar[ObservationSource | None] = ContextVar('observation_s
 
 @contextmanager
 def observation_cache(source: ObservationSource | None) -> Iterator[None]:
-    """Within the block, read_observations reads through ``source`` (None: decodes every time).
+    """Within the block, read_observations reads through ``source``.
 
     A context rather than an argument: `sofia compare` reaches read_observations through compare.run's
     compare_bag, which the cache need not know about.
+
+    Args:
+        source: where the observations come from (compare.cache.ObservationCache), or None to decode every time.
+
+    Yields:
+        Nothing; the block runs with ``source`` active.
     """
     token = _ACTIVE_SOURCE.set(source)
     try:
@@ -191,17 +212,34 @@ def observation_cache(source: ObservationSource | None) -> Iterator[None]:
         _ACTIVE_SOURCE.reset(token)
 
 
-def read_observations(bag_path) -> Observations:
-    """The observables of a campaign bag, through the active observation_cache if there is one, else decoded."""
+def read_observations(bag_path: str | PathLike[str]) -> Observations:
+    """The observables of a campaign bag, through the active observation_cache if there is one, else decoded.
+
+    Args:
+        bag_path: the bag directory.
+
+    Returns:
+        The bag's Observations.
+    """
     source = _ACTIVE_SOURCE.get()
     if source is None:
         return decode_observations(Path(bag_path))
     return source.read(Path(bag_path), decode_observations)
 
 
-def decode_observations(bag_path) -> Observations:
-    """The observables of a campaign bag decoded from its messages; BagError names a missing topic and how to get
-    it."""
+def decode_observations(bag_path: str | PathLike[str]) -> Observations:
+    """The observables of a campaign bag, decoded from its messages.
+
+    Args:
+        bag_path: the bag directory.
+
+    Returns:
+        The bag's Observations.
+
+    Raises:
+        BagError: the bag cannot be read, lacks a topic compare needs (named, with how to get it) or holds
+            no usable star or attitude.
+    """
     bag_path = Path(bag_path)
     try:
         # Campaign time: stamps in s since the scenario's start (float64 keeps them exact to the ns).

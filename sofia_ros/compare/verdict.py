@@ -18,8 +18,8 @@ from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PRE
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_TERM_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
-__all__ = ['after_member', 'empirical_candidate_names', 'headline', 'judge', 'model_command', 'next_step',
-           'HEADLINE_CHARACTERS', 'MAX_EMPIRICAL_CANDIDATES']
+__all__ = ['after_member', 'beyond_bag_floor', 'empirical_candidate_names', 'headline', 'judge', 'model_command',
+           'next_step', 'BAG_OBSERVABLE_KEYS', 'HEADLINE_CHARACTERS', 'MAX_EMPIRICAL_CANDIDATES']
 
 #: At most this many empirical terms are tried, the strongest findings first.
 MAX_EMPIRICAL_CANDIDATES = 8
@@ -93,12 +93,27 @@ def empirical_candidate_names(diagnostics, cameras, consistency=()):
 
 #: The verdict's text names this many unexplained observables and structures per observable; the JSON has all.
 _NAMED = 3
+#: The keys of a bag observable's judgement the verdict keeps (compare.diagnostics holds more).
+BAG_OBSERVABLE_KEYS = ('rms_arcsec', 'floor_arcsec', 'ratio', 'excess_sigma', 'explained', 'structure', 'kind')
 
 
-def _observable_problem(name, entry):
+def beyond_bag_floor(entry):
+    """A bag's rule for the RMS of an observable (compare.diagnostics): beyond RATIO_LIMIT of its floor with an
+    excess of DETECTION_SIGMA, family-wise."""
+    return entry['ratio'] > RATIO_LIMIT and entry['excess_sigma'] >= DETECTION_SIGMA
+
+
+def _rms_text(entry):
+    """An observable's RMS in its unit: arcsec, or arcsec/s for a set's rate observable."""
+    if 'rms_arcsec' in entry:
+        return f'{entry["rms_arcsec"]:.3f}"'
+    return f'{entry["rms_arcsec_per_s"]:.4f}"/s'
+
+
+def _observable_problem(name, entry, beyond_floor):
     reasons = []
-    if entry['ratio'] > RATIO_LIMIT and entry['excess_sigma'] >= DETECTION_SIGMA:
-        reasons.append(f'RMS {entry["rms_arcsec"]:.3f}" = {entry["ratio"]:.2f}x its floor')
+    if beyond_floor(entry):
+        reasons.append(f'RMS {_rms_text(entry)} = {entry["ratio"]:.2f}x its floor')
     if entry['structure']:
         more = len(entry['structure']) - 2
         reasons.append('follows ' + ', '.join(entry['structure'][:2]) + (f' (+{more} more)' if more > 0 else ''))
@@ -111,10 +126,10 @@ def _strength(diagnostics, name):
     return max((f['significance_sigma'] for f in findings), default=0.0), diagnostics.observables[name]['ratio']
 
 
-def _problems(diagnostics, consistency):
+def _problems(diagnostics, consistency, beyond_floor):
     """One clause per unexplained observable (the strongest few) and per inconsistent term."""
     failing = sorted(diagnostics.unexplained(), key=lambda name: _strength(diagnostics, name), reverse=True)
-    clauses = [_observable_problem(name, diagnostics.observables[name]) for name in failing[:_NAMED]]
+    clauses = [_observable_problem(name, diagnostics.observables[name], beyond_floor) for name in failing[:_NAMED]]
     if len(failing) > _NAMED:
         clauses.append(f'{len(failing) - _NAMED} more observables')
     for entry in consistency[:2]:
@@ -150,7 +165,7 @@ def _rivals_clause(best_name, rivals, members, gain):
         left = sorted({observable for name in others for observable in members[name]['unexplained']})
         return (f'missing effect {best_name} ({gain}); {" and ".join(others)} fit the same residual ({shared}) '
                 f'but leave {", ".join(left[:_NAMED])} unexplained')
-    return (f'{" or ".join(rivals.effects)}: this data cannot tell them apart ({shared}); '
+    return (f'{" or ".join(rivals.effects)}: this data cannot tell them apart ({shared}), so it cannot choose; '
             f'taken first: {best_name} ({gain})')
 
 
@@ -203,20 +218,35 @@ def headline(status, step):
 
 
 def judge(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
-          significant_delta_bic, model_source, competing=(), members=None, change=None):
+          significant_delta_bic, model_source, competing=(), members=None, change=None, rms_arcsec_per_s=None,
+          observable_keys=BAG_OBSERVABLE_KEYS, beyond_floor=beyond_bag_floor):
     """The verdict block: status, text, per-observable judgement, what is left after the best candidate, and the
-    next step (``next``: add, remove or replace a term, write a plug-in, or none) and its ``headline``."""
-    verdict = _judged(diagnostics, consistency, candidates, degenerate, best_name, after_best, rms_arcsec=rms_arcsec,
-                      significant_delta_bic=significant_delta_bic, model_source=model_source, competing=competing,
-                      members=members, change=change)
+    next step (``next``: add, remove or replace a term, write a plug-in, or none) and its ``headline``.
+
+    One rule for bags and measurement sets: what differs is the source's, in ``diagnostics`` (each
+    observable's ``explained``), ``beyond_floor`` (its rule for the RMS alone, named in the text) and
+    ``observable_keys`` (what the JSON keeps of each observable). ``rms_arcsec_per_s`` is the total
+    of a set's rate observables, the gain named where the set has no angles.
+    """
+    verdict = _judged(diagnostics, consistency, candidates, degenerate, best_name, after_best,
+                      rms=(rms_arcsec, rms_arcsec_per_s), significant_delta_bic=significant_delta_bic,
+                      model_source=model_source, competing=competing, members=members, change=change,
+                      observable_keys=observable_keys, beyond_floor=beyond_floor)
     verdict['headline'] = headline(verdict['status'], verdict['next'])
     return verdict
 
 
-def _judged(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
-            significant_delta_bic, model_source, competing, members, change):
-    observables = {name: {key: entry[key] for key in ('rms_arcsec', 'floor_arcsec', 'ratio', 'excess_sigma',
-                                                      'explained', 'structure', 'kind')}
+def _gain(rms, best):
+    """The total RMS now and with the best candidate: in arcsec, or in arcsec/s where the source has no angles."""
+    angle, rate = rms
+    if angle is not None and best['rms_after_arcsec'] is not None:
+        return f'RMS {angle:.3f}" -> {best["rms_after_arcsec"]:.3f}"'
+    return f'RMS {rate:.4f}"/s -> {best["rms_after_arcsec_per_s"]:.4f}"/s'
+
+
+def _judged(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms,
+            significant_delta_bic, model_source, competing, members, change, observable_keys, beyond_floor):
+    observables = {name: {key: entry[key] for key in observable_keys if key in entry}
                    for name, entry in diagnostics.observables.items()}
     # A term of an axis that changes between halves is structure of that axis: the axis is not explained.
     prefixes = {name.split('.')[0] for name in observables}
@@ -226,7 +256,7 @@ def _judged(diagnostics, consistency, candidates, degenerate, best_name, after_b
                 *observables[name]['structure'], f'{entry["param"]} changes with {entry["split"]}']}
     verdict = {'observables': observables, 'inconsistent_terms': [entry['param'] for entry in consistency],
                'after_best': None}
-    problems = _problems(diagnostics, consistency)
+    problems = _problems(diagnostics, consistency, beyond_floor)
     worthwhile = change if change is not None and change['delta_bic'] >= significant_delta_bic else None
     if not problems:
         worst = max(observables.items(), key=lambda item: item[1]['ratio'], default=None)
@@ -243,7 +273,7 @@ def _judged(diagnostics, consistency, candidates, degenerate, best_name, after_b
     left = []
     if best is not None and after_best is not None:
         left_diagnostics, left_consistency = after_best
-        left = _problems(left_diagnostics, left_consistency)
+        left = _problems(left_diagnostics, left_consistency, beyond_floor)
         verdict['after_best'] = {'effect': best_name, 'unexplained': left_diagnostics.unexplained(),
                                  'inconsistent_terms': [entry['param'] for entry in left_consistency]}
     where = '; '.join(problems)
@@ -258,7 +288,7 @@ def _judged(diagnostics, consistency, candidates, degenerate, best_name, after_b
                                                   f'empirical shape either: look at the report\'s residual plots{first}')
         verdict.setdefault('next', next_step('plugin', model_source, kind=kind))
         return verdict
-    gain = f'RMS {rms_arcsec:.3f}" -> {best["rms_after_arcsec"]:.3f}"'
+    gain = _gain(rms, best)
     remaining = ('; with it every observable is explained' if not left else
                  f'; it does not close the loop: with it, {"; ".join(left)}')
     if best['empirical']:

@@ -1,45 +1,40 @@
-"""`sofia compare SET.yaml --model M.yaml`: fit a model to a measurement set, rank what it lacks.
+"""`sofia compare SET.yaml --model M.yaml`: a measurement set as a source of the one comparison (compare.pipeline).
 
-The loop of a bag comparison (compare.run) on reduced observables: the model's fitted terms are
-fitted by Gauss-Newton on residuals whitened by each row's stated sigma (numeric Jacobian, steps of
-compare.fit.free_parameters), the ledger adds one fitted term at a time, every catalogue effect not
-in the model is linearized where it vanishes and ranked by delta-BIC with analysis.ranking (the
-same code `sofia compare` and `sofia noise` use), the best few are refitted in full, collinear ones
-are named degenerate. Effects that no table's kind can see are listed as not observable with the
-kind's reason; effects a kind could see but this set cannot (columns vanish or the model's terms
-absorb them) are listed with that reason.
+The ledger, ranking, refits, competing sets, model terms and verdict are those of a bag
+(compare.pipeline.run_comparison). What a set brings is its problem: reduced observables whose
+residuals are whitened by each row's stated sigma, fitted by trust-region least squares with a
+numeric Jacobian (steps of compare.fit.free_parameters); the model's fitted terms of a reduced set
+start at zero; each observable judged by the chi-square of its stated sigmas (its 0.99 quantile)
+and a trend against its own measured value. Effects that no table's kind can see are listed as
+not observable with the kind's reason; effects a kind could see but this set cannot (columns
+vanish or the model's terms absorb them) are listed with that reason.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-from sofia_ros.analysis.ranking import (
-    SIGNIFICANT_DELTA_BIC,
-    CandidateTerm,
-    bic,
-    competing_sets,
-    degenerate_pairs,
-    linear_fit,
-    rank_candidates,
-)
+from sofia_ros.analysis.ranking import CandidateTerm, bic, linear_fit
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
-from sofia_ros.compare.competing import competing_document, competing_set_of, contenders, preferred_best, refit_order
-from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA
-from sofia_ros.compare.verdict import headline, next_step
-from sofia_ros.compare.fit import free_parameters, vanishing_values
-from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, resolve_params
+from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA, Diagnostics
+from sofia_ros.compare.pipeline import (ABSORBED_FRACTION, Comparison, Judgement, LinearizedCandidate,
+                                        run_comparison, switched_on)
+from sofia_ros.config import EffectConfig
+from sofia_ros.effects import CATALOGUE
 from sofia_ros.errors import FitError
-from sofia_ros.measurements.format import ALIGNMENT, DRIFT_EFFECTS, KINDS
+from sofia_ros.measurements.format import ALIGNMENT, DRIFT_EFFECTS, KINDS, MeasurementSet
 from sofia_ros.measurements.predict import predict_table, star_geometry
 from sofia_ros.noise.earth_rate import DEGENERATE_PAIR, earth_rate_table
+from sofia_ros.progress import Progress
 
-__all__ = ['SetCompareResult', 'compare_measurement_set', 'EXPLAINED_QUANTILE']
+__all__ = ['SetCompareResult', 'SetSource', 'compare_measurement_set', 'EXPLAINED_QUANTILE']
 
 #: An observable is explained when its chi-square (RMS/floor)^2 n lies below this quantile.
 EXPLAINED_QUANTILE = 0.99
@@ -49,6 +44,7 @@ WEAK_COLUMN_FRACTION = 1e-2
 #: Rate kinds: their residuals are in arcsec/s (= deg/h), the others in arcsec.
 _RATE_KINDS = ('earth_rate',)
 _ARCSEC_PER_UNIT = {'star_distance': 1.0, 'turning_point': 1.0, 'misalignment_angle': 60.0, 'earth_rate': 1.0}
+_DRIFT_REMOVED = 'the drift correction of this set (6.3-6.4) removed constant rate offsets'
 
 
 @dataclass(frozen=True)
@@ -56,10 +52,11 @@ class SetCompareResult:
     """The JSON document, the set, the fits before and after the best candidate, per-table predictions."""
 
     document: dict
-    measurement_set: object
+    measurement_set: MeasurementSet
     predicted: dict
     predicted_best: dict | None
     best_name: str | None
+    final_fit: Any = None
 
 
 @dataclass(frozen=True)
@@ -74,7 +71,7 @@ class _Fit:
     rss: float
 
     @property
-    def bic(self):
+    def bic(self) -> float:
         return bic(self.rss, len(self.whitened), len(self.free))
 
 
@@ -146,9 +143,8 @@ def _fit(problem, effects, free):
     return _Fit(current, tuple(free), start, final.sigma, final.correlation, base, jacobian, float(base @ base))
 
 
-def _rms(problem, whitened, mask=None):
+def _rms(problem, whitened, mask):
     residual = whitened * problem.sigma * problem.to_arcsec
-    mask = np.ones(len(residual), bool) if mask is None else mask
     return float(np.sqrt(np.mean(residual[mask] ** 2))) if np.any(mask) else None
 
 
@@ -167,66 +163,6 @@ def _rms_table(problem, whitened):
     return out_angle, out_rate
 
 
-def _blind_reason(name, kinds):
-    reasons = []
-    for kind in kinds:
-        spec = KINDS[kind]
-        if name in spec.sees:
-            return None
-        reasons.append(spec.blind.get(name, spec.default_blind_reason))
-    return '; '.join(dict.fromkeys(reasons))
-
-
-def _linearized_candidates(problem, fit, names):
-    terms, vanished = [], {}
-    for name in names:
-        free = free_parameters([name])
-        spec = CATALOGUE[name]
-        start = vanishing_values(free)
-        switched = {**fit.effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
-        at_start = problem.whitened(switched)
-        columns = problem.columns(switched, free, start, at_start)
-        norms = np.linalg.norm(columns, axis=0)
-        # Compared at the thesis' magnitude of each parameter (its default), so that units do not matter.
-        magnitude = np.array([abs(spec.parameter(p.name).default) or 1e3 * p.step for p in free])
-        effect = norms * magnitude
-        live = (effect > WEAK_COLUMN_FRACTION * effect.max(initial=0.0)) & (norms > 1e-9 * np.sqrt(len(at_start)))
-        if not np.any(live):
-            vanished[name] = 'no prediction of this set changes with it'
-            continue
-        # A parameter the model's fitted terms absorb alone (e.g. the swap's bias difference against gyro_bias)
-        # is left at its start; the rest of the effect is still ranked.
-        if fit.jacobian.shape[1]:
-            coefficients, *_ = np.linalg.lstsq(fit.jacobian, columns, rcond=None)
-            outside = np.linalg.norm(columns - fit.jacobian @ coefficients, axis=0) / np.maximum(norms, 1e-300)
-            absorbed = live & (outside < 1e-3)
-            if np.any(absorbed) and not np.all(absorbed == live):
-                live = live & ~absorbed
-        kept = [p for p, keep in zip(free, live) if keep]
-        terms.append((CandidateTerm(name, tuple(p.name for p in kept), start[live], columns[:, live],
-                                    fit.whitened - at_start), kept, switched))
-    return terms, vanished
-
-
-def _absorbing_terms(fit, candidates):
-    """Candidate -> the single fitted effect whose columns alone absorb the candidate's (analysis.ranking's test)."""
-    out = {}
-    groups = {}
-    for index, parameter in enumerate(fit.free):
-        groups.setdefault(parameter.effect, []).append(index)
-    for name, term in candidates.items():
-        columns = np.asarray(term.jacobian)
-        for effect, indices in groups.items():
-            base = fit.jacobian[:, indices]
-            coefficients, *_ = np.linalg.lstsq(base, columns, rcond=None)
-            outside = np.linalg.norm(columns - base @ coefficients, axis=0) / np.maximum(
-                np.linalg.norm(columns, axis=0), 1e-300)
-            if np.all(outside < 1e-3):
-                out[name] = effect
-                break
-    return out
-
-
 def _earth_rate_tables(measurement_set):
     """Table 5.7 of each earth_rate table: theory at the stated heading and at the least-squares heading (5.2.4)."""
     out = {}
@@ -240,30 +176,12 @@ def _earth_rate_tables(measurement_set):
     return out
 
 
-def _candidate_entry(name, params, sigma, rms_after, rms_after_rate, delta_bic, *, detectable=True, refined=False,
-                     reason=None):
-    units = {param.name: param.unit for param in CATALOGUE[name].params}
-    entry = {'effect': name, 'rms_after_arcsec': rms_after, 'delta_bic': delta_bic, 'params': params, 'sigma': sigma,
-             'units': {key: units[key] for key in params}, 'detectable': detectable, 'refined': refined,
-             'empirical': False, 'observable': None, 'variable': None, 'period_s': None}
-    if rms_after_rate is not None:
-        entry['rms_after_arcsec_per_s'] = rms_after_rate
-    if reason:
-        entry['reason'] = reason
-    return entry
-
-
-def _term_table(fit):
-    return [{'effect': p.effect, 'param': p.name, 'value': float(v),
-             'sigma': None if not np.isfinite(s) else float(s), 'unit': p.unit}
-            for p, v, s in zip(fit.free, fit.values, fit.sigma)]
-
-
 def _signature(problem, whitened):
     """Trends of each observable's whitened residual against its own measured value (e.g. distance, Fig. 6.11).
 
     The same F-test and family-wise significance as a bag comparison (compare.diagnostics);
     with fewer than 30 rows only a straight line is tested (three cubic terms would eat the power).
+    Returns (trends, tests run).
     """
     observables = np.array(problem.observables)
     tests = []
@@ -282,195 +200,309 @@ def _signature(problem, whitened):
             variable = 'distance' if name.startswith('star_distance') else 'measured value'
             trends.append({'observable': name, 'variable': variable, 'amplitude_arcsec': test.amplitude * scale,
                            'significance_sigma': sigma, 'equivalent_variables': []})
-    return {'trends': sorted(trends, key=lambda t: -t['significance_sigma']), 'periods': [], 'tests_run': count,
-            'detection_sigma': DETECTION_SIGMA}
+    return sorted(trends, key=lambda t: -t['significance_sigma']), count
 
 
-def _observable_status(problem, whitened, signature):
+def _beyond_stated_sigma(entry):
+    """The set's rule for the RMS of an observable: its chi-square (RMS/floor)^2 n beyond the EXPLAINED_QUANTILE."""
+    return bool(entry['ratio'] ** 2 * entry['rows'] > chi2.ppf(EXPLAINED_QUANTILE, entry['rows']))
+
+
+def _observable_status(problem, whitened, trends):
     """Per observable: RMS against the stated sigma, ratio, rows, structure, explained (chi-square quantile)."""
     observables = {}
+    names = np.array(problem.observables)
     for name in dict.fromkeys(problem.observables):
-        mask = np.array(problem.observables) == name
-        kind = name.split('.')[0]
-        n = int(mask.sum())
+        mask = names == name
         scale = (problem.sigma * problem.to_arcsec)[mask]
         rms = float(np.sqrt(np.mean((whitened[mask] * scale) ** 2)))
         floor = float(np.sqrt(np.mean(scale ** 2)))
-        ratio = rms / floor
-        structure = [f'{t["variable"]}' for t in signature['trends']
-                     if t['observable'] == name and t['significance_sigma'] >= DETECTION_SIGMA]
-        explained = bool(ratio ** 2 * n <= chi2.ppf(EXPLAINED_QUANTILE, n)) and not structure
-        suffix = 'arcsec_per_s' if kind in _RATE_KINDS else 'arcsec'
-        observables[name] = {f'rms_{suffix}': rms, f'floor_{suffix}': floor, 'ratio': ratio, 'explained': explained,
-                             'rows': n, 'structure': structure}
+        suffix = 'arcsec_per_s' if name.split('.')[0] in _RATE_KINDS else 'arcsec'
+        entry = {f'rms_{suffix}': rms, f'floor_{suffix}': floor, 'ratio': rms / floor, 'rows': int(mask.sum()),
+                 'structure': [t['variable'] for t in trends
+                               if t['observable'] == name and t['significance_sigma'] >= DETECTION_SIGMA]}
+        entry['explained'] = not _beyond_stated_sigma(entry) and not entry['structure']
+        observables[name] = entry
     return observables
 
 
-def _after_member(problem, whitened):
-    """What the set's comparison says with a candidate refitted in (compare.competing.AfterMember)."""
-    observables = _observable_status(problem, whitened, _signature(problem, whitened))
-    unexplained = [name for name, entry in observables.items() if not entry['explained']]
-    return {'status': 'not explained' if unexplained else 'explained', 'unexplained': unexplained,
-            'ratios': {name: entry['ratio'] for name, entry in observables.items()}}
+class SetSource:
+    """A measurement set as a source of the one comparison (compare.pipeline.ComparisonSource).
+
+    Residuals are the reduced observables whitened by each row's stated sigma; no nuisance columns.
+    """
+
+    noun = 'set'
+    observable_keys = ('rms_arcsec', 'floor_arcsec', 'rms_arcsec_per_s', 'floor_arcsec_per_s', 'ratio', 'explained',
+                       'rows', 'structure')
+    # A set's ranking has no expected sizes: a candidate it cannot see is one the fitted terms absorb.
+    hidden_reason = "absorbed by the model's fitted terms in this set"
+    #: The chi-square (RMS/floor)^2 n beyond its EXPLAINED_QUANTILE.
+    beyond_floor = staticmethod(_beyond_stated_sigma)
+
+    def __init__(self, measurement_set: MeasurementSet, model: EffectConfig) -> None:
+        """Set up the set's problem, where its fitted terms start, and what its kinds cannot see.
+
+        Args:
+            measurement_set: the set (measurements.validate.load_measurement_set).
+            model: the model compared (EffectConfig).
+        """
+        self.measurement_set = measurement_set
+        self.problem = _Problem(measurement_set)
+        self.model_source = model.source
+        self.kinds = tuple(dict.fromkeys(table.kind for table in measurement_set.tables))
+        self.drift_removed = measurement_set.family != ALIGNMENT and all(
+            table.kind == 'star_distance' and table.drift_removed for table in measurement_set.tables)
+        self.fitted = [name for name in model.effects if name in model.fitted]
+        self.start_effects = _start_values(measurement_set, model.effects, self.fitted)
+        # Fitted terms no kind of this set can see are left at their start and listed.
+        self.blind_fitted = {name: reason for name in self.fitted if (reason := self.blind_reason(name))}
+
+    def blind_reason(self, name: str) -> str | None:
+        """Why no table of this set can see an effect (its kind's reason, or the drift correction), or None.
+
+        Args:
+            name: the effect.
+
+        Returns:
+            The reason, or None when a table can see it.
+        """
+        reasons = []
+        for kind in self.kinds:
+            spec = KINDS[kind]
+            if name in spec.sees:
+                return _DRIFT_REMOVED if self.drift_removed and name in DRIFT_EFFECTS else None
+            reasons.append(spec.blind.get(name, spec.default_blind_reason))
+        return '; '.join(dict.fromkeys(reasons))
+
+    def ledger_terms(self) -> list[str]:
+        """The model's fitted effects some table of the set can see, in the model's order.
+
+        Returns:
+            Effect names.
+        """
+        return [name for name in self.fitted if name not in self.blind_fitted]
+
+    def ledger_start(self, previous: Any, term: str | None) -> dict:
+        """Every step starts from the model's start values (fitted terms of a reduced set at zero).
+
+        Args:
+            previous: the fit of the step before (not used: a set's fit is cheap and starts afresh).
+            term: the fitted effect the step adds (not used).
+
+        Returns:
+            {effect: params}.
+        """
+        return self.start_effects
+
+    def fit(self, effects: dict, free: tuple, start: Any) -> Any:
+        """Trust-region least squares on the whitened residuals.
+
+        Args:
+            effects: {effect: params} at the starting values.
+            free: FreeParameters to fit.
+            start: not used (a set has no nuisance parameters).
+
+        Returns:
+            The fit.
+
+        Raises:
+            FitError: the fit leaves the model undefined for the set.
+        """
+        return _fit(self.problem, effects, free)
+
+    def ledger_row(self, term: str | None, fit: Any) -> dict:
+        """A row of the ledger: the term, the residual RMS of the angle and the rate kinds, the BIC.
+
+        Args:
+            term: the fitted effect the step added, or None.
+            fit: the step's fit.
+
+        Returns:
+            {term, residual_rms_arcsec, residual_rms_arcsec_per_s, bic}.
+        """
+        angle, rate = _rms_table(self.problem, fit.whitened)
+        return {'term': term or 'fixed effects only (fitted terms at their start)', 'residual_rms_arcsec': angle,
+                'residual_rms_arcsec_per_s': rate, 'bic': fit.bic}
+
+    def residual_rms(self, fit: Any) -> dict:
+        """{total, <kind>} over the angle kinds (arcsec).
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            The RMS table.
+        """
+        return _rms_table(self.problem, fit.whitened)[0]
+
+    def rms_after(self, fit: Any) -> dict:
+        """The totals of the angle kinds and of the rate kinds.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            {'rms_after_arcsec': ..., 'rms_after_arcsec_per_s': ...} (None where the set has none).
+        """
+        angle, rate = _rms_table(self.problem, fit.whitened)
+        return {'rms_after_arcsec': angle.get('total'), 'rms_after_arcsec_per_s': rate.get('total')}
+
+    def ranking_problem(self, fit: Any) -> tuple[np.ndarray, Any, int]:
+        """The whitened rows and the fitted terms' columns; no nuisance columns.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            (residual, Jacobian, 0).
+        """
+        return fit.whitened, fit.jacobian, 0
+
+    def judge_fit(self, fit: Any) -> Judgement:
+        """Each observable by the chi-square of its stated sigmas and a trend against its measured value.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            The Judgement (no consistency: a set is not split into halves).
+        """
+        trends, count = _signature(self.problem, fit.whitened)
+        return Judgement(Diagnostics(_observable_status(self.problem, fit.whitened, trends), trends, [], count), [])
+
+    def candidate_names(self, names: list[str], judgement: Judgement) -> list[str]:
+        """The catalogue's candidates alone (a set has no empirical shapes).
+
+        Args:
+            names: the catalogue effects not in the model.
+            judgement: the judgement of the model's fit (not used).
+
+        Returns:
+            Effect names.
+        """
+        return names
+
+    def linearize(self, fit: Any, names: Sequence[str]) -> tuple[list[LinearizedCandidate], dict[str, str]]:
+        """Each candidate a table can see linearized where it vanishes, its weak or absorbed parameters left out.
+
+        Args:
+            fit: the model's fit.
+            names: candidate effect names.
+
+        Returns:
+            (LinearizedCandidates, {name: why the set cannot see it}).
+        """
+        blind = {name: reason for name in names if (reason := self.blind_reason(name))}
+        out, vanished = [], {}
+        for name in names:
+            if name in blind:
+                continue
+            free, start, switched = switched_on(fit.effects, name)
+            spec = CATALOGUE[name]
+            at_start = self.problem.whitened(switched)
+            columns = self.problem.columns(switched, free, start, at_start)
+            norms = np.linalg.norm(columns, axis=0)
+            # Compared at the thesis' magnitude of each parameter (its default), so that units do not matter.
+            magnitude = np.array([abs(spec.parameter(p.name).default) or 1e3 * p.step for p in free])
+            effect = norms * magnitude
+            live = (effect > WEAK_COLUMN_FRACTION * effect.max(initial=0.0)) & (norms > 1e-9 * np.sqrt(len(at_start)))
+            if not np.any(live):
+                vanished[name] = 'no prediction of this set changes with it'
+                continue
+            # A parameter the model's fitted terms absorb alone (e.g. the swap's bias difference against gyro_bias)
+            # is left at its start; the rest of the effect is still ranked.
+            if fit.jacobian.shape[1]:
+                coefficients, *_ = np.linalg.lstsq(fit.jacobian, columns, rcond=None)
+                outside = np.linalg.norm(columns - fit.jacobian @ coefficients, axis=0) / np.maximum(norms, 1e-300)
+                absorbed = live & (outside < ABSORBED_FRACTION)
+                if np.any(absorbed) and not np.all(absorbed == live):
+                    live = live & ~absorbed
+            kept = tuple(p for p, keep in zip(free, live) if keep)
+            term = CandidateTerm(name, tuple(p.name for p in kept), start[live], columns[:, live],
+                                 fit.whitened - at_start)
+            out.append(LinearizedCandidate(term, kept, switched))
+        return out, {**blind, **vanished}
+
+    def extra_document(self, outcome: Comparison, progress: Progress) -> dict:
+        """The set's own keys: its tables, floors, blind fitted terms, rows, Earth-rate tables.
+
+        Args:
+            outcome: the comparison so far.
+            progress: not used (a set has no phase of its own).
+
+        Returns:
+            {key: value}.
+        """
+        measurement_set = self.measurement_set
+        angle_floor, rate_floor = _rms_table(self.problem, np.ones(len(self.problem.sigma)))
+        extra = {
+            'measurement_set': measurement_set.source,
+            'title': measurement_set.title,
+            'observations': {table.name: {'kind': table.kind, 'rows': len(table.rows),
+                                          'drift_removed': table.drift_removed if table.kind == 'star_distance'
+                                          else None}
+                             for table in measurement_set.tables},
+            'noise_floor_arcsec': angle_floor.get('total'),
+            'not_observable_fitted_terms': self.blind_fitted,
+            'rows': self.rows(outcome.final_fit, outcome.best_fit),
+            'earth_rate': _earth_rate_tables(measurement_set),
+        }
+        rate = _rms_table(self.problem, outcome.final_fit.whitened)[1]
+        if rate:
+            extra['residual_rms_arcsec_per_s'] = rate
+            extra['noise_floor_arcsec_per_s'] = rate_floor.get('total')
+        return extra
+
+    def rows(self, final: Any, best_fit: Any) -> list[dict]:
+        """Per measured value: table, observable, measured, sigma, residual now and after the best candidate.
+
+        Args:
+            final: the model's fit.
+            best_fit: the fit with the best candidate, or None.
+
+        Returns:
+            The JSON's ``rows``.
+        """
+        problem = self.problem
+        after = None if best_fit is None else best_fit.whitened * problem.sigma
+        residual = final.whitened * problem.sigma
+        labels = [getattr(row, 'move', '') or getattr(row, 'label', '') or getattr(row, 'matrix', '')
+                  for table in problem.tables for row in table.rows
+                  for _ in range(len(table.observable_names()) // len(table.rows))]
+        return [{'table': problem.table_of[index], 'observable': observable, 'label': labels[index],
+                 'measured': float(problem.measured[index]), 'sigma': float(problem.sigma[index]),
+                 'residual': float(residual[index]),
+                 'residual_after_best': None if after is None else float(after[index])}
+                for index, observable in enumerate(problem.observables)]
+
+    def predict(self, fit: Any) -> dict:
+        """Per table, the predictions of a fit's effects.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            {table name: predicted values}.
+        """
+        return self.problem.predict(fit.effects)
 
 
-def _verdict(problem, whitened, best, rivals, degenerate, model_source, signature):
-    observables = _observable_status(problem, whitened, signature)
-    failing = [name for name, entry in observables.items() if not entry['explained']]
-    verdict = _judged_set(observables, failing, best, rivals, degenerate, model_source)
-    return {**verdict, 'observables': observables, 'headline': headline(verdict['status'], verdict['next'])}
+def compare_measurement_set(measurement_set: MeasurementSet, model: EffectConfig, *,
+                            candidate_names: Sequence[str] | None = None) -> SetCompareResult:
+    """Compare ``model`` with a measurement set through compare.pipeline.
 
+    Args:
+        measurement_set: the set.
+        model: the model (EffectConfig).
+        candidate_names: the candidates to try, or None for the catalogue.
 
-def _judged_set(observables, failing, best, rivals, degenerate, model_source):
-    """Status, text and next step of a set's verdict (the bag's rule: compare.verdict)."""
-    if not failing:
-        return {'status': 'explained', 'next': next_step('none', model_source),
-                'text': 'the model explains every observable of the set to its stated sigma; nothing to do'}
-    if best is not None:
-        tied = [pair for pair in degenerate if best['effect'] in pair]
-        choice = ' or '.join(rivals.effects if rivals else tied[0] if tied else (best['effect'],))
-        follows = [f'{name} follows {", ".join(observables[name]["structure"])}' for name in failing
-                   if observables[name]['structure']]
-        text = (f'missing effect {choice} ({", ".join(failing)} beyond the stated sigma'
-                + ''.join(f'; {clause}' for clause in follows) + '); '
-                + (f'the data cannot choose between them; taken first: {best["effect"]}' if tied or rivals else
-                   f'add it with `sofia model add {best["effect"]} --model {model_source}`'))
-        return {'status': 'missing_effect', 'text': text, 'next': next_step('add', model_source, effect=best['effect'])}
-    return {'status': 'unexplained', 'next': next_step('plugin', model_source, kind='camera'),
-            'text': f'{", ".join(failing)} beyond the stated sigma and no catalogue effect explains it'}
-
-
-def compare_measurement_set(measurement_set, model, *, candidate_names=None):
-    """Compare ``model`` (an EffectConfig) with a MeasurementSet; return the SetCompareResult."""
+    Returns:
+        The SetCompareResult.
+    """
     started = time.perf_counter()
-    problem = _Problem(measurement_set)
-    kinds = tuple(dict.fromkeys(table.kind for table in measurement_set.tables))
-    fitted = [name for name in model.effects if name in model.fitted]
-    effects = _start_values(measurement_set, model.effects, fitted)
-    # Fitted terms no kind of this set can see are left at their start and listed.
-    blind_fitted = {name: _blind_reason(name, kinds) for name in fitted if _blind_reason(name, kinds)}
-    if measurement_set.family != ALIGNMENT and any(table.kind == 'star_distance' and table.drift_removed
-                                                   for table in measurement_set.tables):
-        if all(table.drift_removed for table in measurement_set.tables):
-            for name in set(fitted) & set(DRIFT_EFFECTS):
-                blind_fitted[name] = 'the drift correction of this set (6.3-6.4) removed constant rate offsets'
-    seen = [name for name in fitted if name not in blind_fitted]
-    ledger_fit = _fit(problem, effects, ())
-    angle, rate = _rms_table(problem, ledger_fit.whitened)
-    ledger = [{'term': 'fixed effects only (fitted terms at their start)', 'residual_rms_arcsec': angle,
-               'residual_rms_arcsec_per_s': rate}]
-    for index in range(len(seen)):
-        step = _fit(problem, effects, free_parameters(seen[:index + 1]))
-        angle, rate = _rms_table(problem, step.whitened)
-        ledger.append({'term': seen[index], 'residual_rms_arcsec': angle, 'residual_rms_arcsec_per_s': rate})
-    final = step if seen else ledger_fit
-    # Free parameters whose columns vanish are not determined by the set: shown as unconstrained.
-    angle, rate = _rms_table(problem, final.whitened)
-    names = [name for name in (candidate_names or CATALOGUE) if name not in model.effects and name not in NOISE_EFFECTS]
-    blind = {name: _blind_reason(name, kinds) for name in names}
-    for name in names:
-        if not blind[name] and measurement_set.family != ALIGNMENT and name in DRIFT_EFFECTS and all(
-                table.kind == 'star_distance' and table.drift_removed for table in measurement_set.tables):
-            blind[name] = 'the drift correction of this set (6.3-6.4) removed constant rate offsets'
-    terms, vanished = _linearized_candidates(problem, final, [name for name in names if not blind[name]])
-    ranked = rank_candidates(final.whitened, final.jacobian, [term for term, _, _ in terms])
-    rss_base = float(final.whitened @ final.whitened)
-    entries = {}
-
-    def scaled(total, rss_after):
-        return None if total is None else total * float(np.sqrt(rss_after / rss_base))
-
-    absorbed = _absorbing_terms(final, {term.name: term for term, _, _ in terms})
-    for candidate in ranked:
-        reason = None
-        if not candidate.observable:
-            by = absorbed.get(candidate.name)
-            reason = (f'absorbed by {by}: this set cannot tell them apart' if by
-                      else "absorbed by the model's fitted terms in this set")
-        entries[candidate.name] = _candidate_entry(candidate.name, candidate.params, candidate.sigma,
-                                                   scaled(angle.get('total'), candidate.rss_after),
-                                                   scaled(rate.get('total'), candidate.rss_after),
-                                                   candidate.delta_bic, detectable=candidate.observable,
-                                                   reason=reason)
-    by_name = {term.name: (kept, switched) for term, kept, switched in terms}
-    refits = {}
-    for candidate in refit_order(ranked):
-        kept, switched = by_name[candidate.name]
-        switched = {**switched, candidate.name: {**switched[candidate.name], **candidate.params}}
-        try:
-            trial = _fit(problem, switched, final.free + tuple(kept))
-        except FitError:
-            continue
-        extra = trial.free[len(final.free):]
-        trial_angle, trial_rate = _rms_table(problem, trial.whitened)
-        entries[candidate.name] = _candidate_entry(
-            candidate.name, {p.name: float(v) for p, v in zip(extra, trial.values[len(final.free):])},
-            {p.name: (float(s) if np.isfinite(s) else None) for p, s in zip(extra, trial.sigma[len(final.free):])},
-            trial_angle.get('total'), trial_rate.get('total'), final.bic - trial.bic, refined=True)
-        refits[candidate.name] = trial
-    for name, reason in {**{n: r for n, r in blind.items() if r}, **vanished}.items():
-        entries[name] = _candidate_entry(name, {}, {}, None, None, 0.0, detectable=False, reason=reason)
-    candidates = sorted(entries.values(), key=lambda entry: (not entry['detectable'], -entry['delta_bic']))
-    ranked_names = {c.name for c in ranked}
-    scores = {name: entry['delta_bic'] for name, entry in entries.items() if name in ranked_names}
-    degenerate = degenerate_pairs(ranked, scores)
-    # A candidate one fitted term absorbs alone is degenerate with it (e.g. heading_error ~ gyro_bias, 5.2.4).
-    degenerate = sorted(set(degenerate) | {tuple(sorted((name, by))) for name, by in absorbed.items()
-                                           if name in {c.name for c in ranked if not c.observable}})
-    competing = competing_sets(ranked, scores)
-    after = {name: _after_member(problem, refits[name].whitened) for name in contenders(refits, scores, competing)}
-    best_name = preferred_best(after, scores, after)
-    best_fit = refits.get(best_name)
-    signature = _signature(problem, final.whitened)
-    best = next((c for c in candidates if c['effect'] == best_name), None)
-    if best is None:
-        best = next((c for c in candidates if c['detectable'] and c['delta_bic'] >= SIGNIFICANT_DELTA_BIC), None)
-    floors = _rms_table(problem, np.ones(len(problem.sigma)))
-    document = {
-        'measurement_set': measurement_set.source,
-        'title': measurement_set.title,
-        'model': model.source,
-        'observations': {table.name: {'kind': table.kind, 'rows': len(table.rows),
-                                      'drift_removed': table.drift_removed if table.kind == 'star_distance' else None}
-                         for table in measurement_set.tables},
-        'residual_rms_arcsec': angle,
-        'noise_floor_arcsec': floors[0].get('total'),
-        'terms': _term_table(final),
-        'correlation': {'params': [p.label for p in final.free], 'matrix': np.round(final.correlation, 4).tolist()},
-        'ledger': ledger,
-        'candidates': candidates,
-        'degenerate': [list(pair) for pair in degenerate],
-        'competing': competing_document(competing, after),
-        'unobservable': [c['effect'] for c in candidates if not c['detectable']],
-        'not_observable_fitted_terms': blind_fitted,
-        'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
-        'signature': signature,
-        'verdict': _verdict(problem, final.whitened, best, competing_set_of(best and best['effect'], competing),
-                            degenerate, model.source, signature),
-        'rows': _rows(problem, final, best_fit),
-        'earth_rate': _earth_rate_tables(measurement_set),
-        'seconds': {'total': 0.0},
-    }
-    if rate:
-        document['residual_rms_arcsec_per_s'] = rate
-        document['noise_floor_arcsec_per_s'] = floors[1].get('total')
-    document['seconds']['total'] = round(time.perf_counter() - started, 3)
-    predicted = problem.predict(final.effects)
-    return SetCompareResult(document, measurement_set, predicted,
-                            problem.predict(best_fit.effects) if best_fit else None, best_name)
-
-
-def _rows(problem, final, best_fit):
-    """Per measured value: table, observable, measured, sigma, residual now and after the best candidate."""
-    out = []
-    after = None if best_fit is None else best_fit.whitened * problem.sigma
-    residual = final.whitened * problem.sigma
-    labels = [getattr(row, 'move', '') or getattr(row, 'label', '') or getattr(row, 'matrix', '')
-              for table in problem.tables for row in table.rows for _ in range(len(table.observable_names())
-                                                                                 // len(table.rows))]
-    for index, observable in enumerate(problem.observables):
-        out.append({'table': problem.table_of[index], 'observable': observable, 'label': labels[index],
-                    'measured': float(problem.measured[index]), 'sigma': float(problem.sigma[index]),
-                    'residual': float(residual[index]),
-                    'residual_after_best': None if after is None else float(after[index])})
-    return out
+    source = SetSource(measurement_set, model)
+    outcome = run_comparison(source, model.effects, CATALOGUE, candidate_names=candidate_names, started=started)
+    return SetCompareResult(outcome.document, measurement_set, source.predict(outcome.final_fit),
+                            source.predict(outcome.best_fit) if outcome.best_fit else None, outcome.best_name,
+                            outcome.final_fit)

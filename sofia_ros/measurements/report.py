@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
 import html
 import json
 from pathlib import Path
+from typing import Any, TextIO
 
 import numpy as np
 
 from sofia_ros.compare.cli import print_fitted_terms, spread_text
+from sofia_ros.config import EffectConfig
 from sofia_ros.output_files import json_ready, write_text_atomically
 
 __all__ = ['print_set_comparison', 'write_set_report', 'run_set_compare']
@@ -18,8 +21,13 @@ def _rms_text(rms):
     return ', '.join(f'{key} {value:.3f}' for key, value in rms.items() if value is not None)
 
 
-def print_set_comparison(document, out):
-    """The ten-second table of a measurement-set comparison."""
+def print_set_comparison(document: dict, out: TextIO) -> None:
+    """The ten-second table of a measurement-set comparison.
+
+    Args:
+        document: the comparison's JSON document (json_ready).
+        out: where the table goes.
+    """
     print(f'sofia compare: {document["measurement_set"]} against {document["model"]}', file=out)
     if document['title']:
         print(f'  {document["title"]}', file=out)
@@ -68,6 +76,7 @@ def print_set_comparison(document, out):
     _print_rows(document, out)
     for name, table in document.get('earth_rate', {}).items():
         _print_earth_rate(name, table, out)
+    _print_structure(document['signature'], out)
     verdict = document['verdict']
     print(f'verdict: {verdict["headline"]}', file=out)
     print(f'  why: {verdict["text"]}', file=out)
@@ -76,6 +85,16 @@ def print_set_comparison(document, out):
         mark = '"/s' if unit == 'arcsec_per_s' else '"'
         print(f'  {name:<24} RMS {entry[f"rms_{unit}"]:.4g}{mark} floor {entry[f"floor_{unit}"]:.4g}{mark} '
               f'ratio {entry["ratio"]:.2f} {"explained" if entry["explained"] else "NOT explained"}', file=out)
+
+
+def _print_structure(signature, out):
+    """Each observable's trend against its own measured value (the distance, for star pairs; Fig. 6.11)."""
+    if signature['trends']:
+        print(f'structure in the residual (family-wise significance over {signature["tests_run"]} tests; '
+              f'structure from {signature["detection_sigma"]:g} sigma):', file=out)
+    for trend in signature['trends']:
+        print(f'  {trend["observable"]} follows {trend["variable"]:<24} {trend["amplitude_arcsec"]:8.3f}" '
+              f'{trend["significance_sigma"]:5.1f} sigma', file=out)
 
 
 def _print_earth_rate(name, table, out):
@@ -104,8 +123,17 @@ def _print_rows(document, out):
               f'{row["residual"]:>+10.3f}{after}  (sigma {row["sigma"]:g})', file=out)
 
 
-def write_set_report(result, document, directory):
-    """index.html with the residuals against distance (Fig. 6.11) or per row, before and after the best candidate."""
+def write_set_report(result: Any, document: dict, directory: str | Path) -> Path:
+    """index.html with the residuals against distance (Fig. 6.11) or per row, before and after the best candidate.
+
+    Args:
+        result: the SetCompareResult (measurements.compare).
+        document: its JSON document (json_ready).
+        directory: where the report goes (created if needed).
+
+    Returns:
+        The path of index.html.
+    """
     import matplotlib
 
     matplotlib.use('Agg')
@@ -164,8 +192,17 @@ def write_set_report(result, document, directory):
     return directory / 'index.html'
 
 
-def run_set_compare(args, out, model):
-    """The measurement-set branch of `sofia compare` (dispatched from compare.cli on a .yaml/.yml path)."""
+def run_set_compare(args: argparse.Namespace, out: TextIO, model: EffectConfig) -> int:
+    """The measurement-set branch of `sofia compare` (dispatched from compare.cli on a .yaml/.yml path).
+
+    Args:
+        args: the parsed `sofia compare` arguments (bag: the set's path, json, report).
+        out: where the printed table goes.
+        model: the model compared.
+
+    Returns:
+        The exit code, 0.
+    """
     from sofia_ros.measurements.compare import compare_measurement_set
     from sofia_ros.measurements.validate import load_measurement_set
 

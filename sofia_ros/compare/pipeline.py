@@ -1,0 +1,516 @@
+"""One comparison for bags and measurement sets (docs/compare.md, "One pipeline for two sources").
+
+A bag (compare.run.BagSource) and a measurement set (measurements.compare.SetSource) are two
+sources of one problem: whitened residuals and parameter columns at a fit, a way to fit, a way to
+linearize a candidate where it vanishes, observables judged against their floors, and what only
+that source adds to the document. `run_comparison` runs the rest once for both:
+
+1. The ledger: the fixed effects alone, then each fitted term of the model added in turn.
+2. The judgement of the fit (the source's observables, structure and consistency).
+3. Candidates: every catalogue effect not in the model (and the source's empirical shapes)
+   linearized where it vanishes and ranked jointly with the model (analysis.ranking); the best
+   few refitted in full (compare.competing.refit_order); candidates the model's fitted terms
+   absorb, and collinear ones, named degenerate; competing sets.
+4. The model's own terms questioned (compare.search.LinearizedModels): model_terms, the best
+   change refitted in full, the equivalent models.
+5. The contenders refitted and judged again, the preferred best, the verdict (compare.verdict).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+import scipy.sparse
+
+from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, RankedCandidate, competing_sets,
+                                        degenerate_pairs, rank_candidates)
+from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
+from sofia_ros.compare.diagnostics import Diagnostics
+from sofia_ros.compare.fit import FreeParameter, free_parameters, vanishing_values
+from sofia_ros.compare.search import LinearizedModels, equivalent_models, model_terms, search_pool, structural_change
+from sofia_ros.compare.verdict import after_member, judge
+from sofia_ros.effects import NOISE_EFFECTS, get_effect, resolve_params
+from sofia_ros.effects.empirical import empirical_parts, is_empirical
+from sofia_ros.errors import FitError
+from sofia_ros.progress import Progress
+
+__all__ = ['ABSORBED_FRACTION', 'Comparison', 'ComparisonSource', 'Judgement', 'LinearizedCandidate', 'SourceFit',
+           'candidate_entry', 'missing_names', 'run_comparison', 'switched_on', 'term_table']
+
+#: A candidate whose columns one fitted effect reproduces to within this fraction of their norm is absorbed by it
+#: (the pair is named degenerate). Looser than analysis.ranking's IN_BASE_SPAN_FRACTION: the columns are finite
+#: differences of whole predictions, and an effect that one term absorbs only to 1e-4 still cannot be told from it.
+ABSORBED_FRACTION = 1e-3
+
+
+class SourceFit(Protocol):
+    """A fit of a source's model (compare.fit.ModelFit for a bag, the set's least-squares fit for a set)."""
+
+    effects: dict
+    free: tuple
+    values: np.ndarray
+    sigma: np.ndarray
+    correlation: np.ndarray
+
+    @property
+    def bic(self) -> float:
+        """BIC of the whole whitened problem at the fit (analysis.ranking.bic)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Judgement:
+    """A fit judged by its source: every observable against its floor with its structure, and the fitted terms
+    that change between halves of the data (empty where a source cannot split its data)."""
+
+    diagnostics: Diagnostics
+    consistency: list
+
+
+@dataclass(frozen=True, eq=False)
+class LinearizedCandidate:
+    """A candidate linearized where it vanishes: its ranking term, the parameters a full refit frees and the
+    effects of the fit with the candidate switched on at its start."""
+
+    term: CandidateTerm
+    free: tuple
+    effects: dict
+
+
+class ComparisonSource(Protocol):
+    """What a bag or a measurement set gives the one comparison (docs/compare.md, "One pipeline").
+
+    ``model_source`` names the model file; ``noun`` ('campaign' or 'set') is how the texts name the
+    source; ``observable_keys`` are the keys of an observable's judgement the verdict keeps;
+    ``hidden_reason`` is why a candidate the ranking cannot see is hidden where the source knows one
+    reason for all (a set's ranking has no expected sizes: only the fitted terms can hide one), else None.
+    """
+
+    model_source: str
+    noun: str
+    observable_keys: tuple
+    hidden_reason: str | None
+
+    def ledger_terms(self) -> list[str]:
+        """The model's fitted effects the ledger adds one at a time, in the model's order.
+
+        Returns:
+            Effect names.
+        """
+
+    def ledger_start(self, previous: SourceFit | None, term: str | None) -> dict:
+        """Where a ledger step starts.
+
+        Args:
+            previous: the fit of the step before (None for the first, the fixed effects alone).
+            term: the fitted effect this step adds (None for the first).
+
+        Returns:
+            {effect: params} to fit from.
+        """
+
+    def fit(self, effects: dict, free: tuple, start: SourceFit | None) -> SourceFit:
+        """Fit ``free`` from ``effects``.
+
+        Args:
+            effects: {effect: params} at the starting values.
+            free: FreeParameters to fit.
+            start: a fit whose nuisance parameters (a bag's attitude anchors) the fit starts from, or None.
+
+        Returns:
+            The converged fit.
+
+        Raises:
+            FitError: the fit cannot proceed (a prediction is undefined at the start).
+        """
+
+    def ledger_row(self, term: str | None, fit: SourceFit) -> dict:
+        """One row of the ledger.
+
+        Args:
+            term: the fitted effect the step added (None: the fixed effects alone).
+            fit: the step's fit.
+
+        Returns:
+            The row of the JSON's ``ledger``.
+        """
+
+    def residual_rms(self, fit: SourceFit) -> dict:
+        """The JSON's ``residual_rms_arcsec`` of a fit.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            {total, per part}.
+        """
+
+    def rms_after(self, fit: SourceFit) -> dict:
+        """The total RMS of a fit as a candidate entry names it.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            {'rms_after_arcsec': ..., and 'rms_after_arcsec_per_s' where the source has rate observables}.
+        """
+
+    def ranking_problem(self, fit: SourceFit) -> tuple[np.ndarray, Any, int]:
+        """The whitened linear problem at a fit.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            (residual, Jacobian with the nuisance columns first, number of nuisance columns).
+        """
+
+    def judge_fit(self, fit: SourceFit) -> Judgement:
+        """Every observable of a fit against its floor, its structure, the terms that change between halves.
+
+        Args:
+            fit: the fit.
+
+        Returns:
+            The Judgement.
+        """
+
+    def beyond_floor(self, entry: Mapping) -> bool:
+        """Whether an observable's RMS is beyond what its floor allows (the source's rule, docs/compare.md).
+
+        Args:
+            entry: the observable's judgement.
+
+        Returns:
+            True when the RMS alone leaves the observable unexplained.
+        """
+
+    def candidate_names(self, names: list[str], judgement: Judgement) -> list[str]:
+        """The candidates to linearize: ``names`` and the source's own (a bag's empirical shapes).
+
+        Args:
+            names: the catalogue effects not in the model.
+            judgement: the judgement of the model's fit.
+
+        Returns:
+            Effect names.
+        """
+
+    def linearize(self, fit: SourceFit, names: list[str]) -> tuple[list[LinearizedCandidate], dict[str, str]]:
+        """Each candidate linearized where it vanishes.
+
+        Args:
+            fit: the model's fit.
+            names: candidate effect names.
+
+        Returns:
+            (the LinearizedCandidates, {name: why this source cannot see it} for the others).
+        """
+
+    def extra_document(self, outcome: Comparison, progress: Progress) -> dict:
+        """What only this source adds to the JSON document.
+
+        Args:
+            outcome: the comparison so far (its document holds the common keys).
+            progress: where a phase of its own goes.
+
+        Returns:
+            {key: value} added to the document.
+        """
+
+
+@dataclass(frozen=True, eq=False)
+class Comparison:
+    """The outcome of run_comparison: the document and what plots, tables and the search need."""
+
+    document: dict
+    final_fit: Any
+    best_fit: Any
+    best_name: str | None
+    judgement: Judgement
+    linearized: tuple
+    refits: dict
+
+
+def switched_on(effects: Mapping, name: str) -> tuple[tuple, np.ndarray, dict]:
+    """A candidate switched on where it vanishes: scaling parameters 0, shaping ones at their default.
+
+    Args:
+        effects: the fit's {effect: params}.
+        name: the candidate effect.
+
+    Returns:
+        (its FreeParameters, their vanishing values, the effects with it switched on there).
+    """
+    free = free_parameters([name])
+    start = vanishing_values(free)
+    switched = {**effects, name: {**resolve_params(name, {}), **dict(zip((p.name for p in free), start))}}
+    return free, start, switched
+
+
+def missing_names(model_effects: Iterable[str], candidate_names: Iterable[str] | None,
+                  catalogue: Iterable[str]) -> list[str]:
+    """The catalogue effects (or ``candidate_names``) not in the model, the noise terms aside.
+
+    Args:
+        model_effects: the model's effect names.
+        candidate_names: the candidates asked for, or None for the whole catalogue.
+        catalogue: the catalogue's names.
+
+    Returns:
+        Effect names.
+    """
+    present = set(model_effects)
+    return [name for name in (candidate_names or catalogue) if name not in present and name not in NOISE_EFFECTS]
+
+
+def candidate_entry(name: str, params: Mapping, sigma: Mapping, rms_after: Mapping, delta_bic: float, *,
+                    detectable: bool = True, refined: bool = False, seconds: float = 0.0,
+                    reason: str | None = None) -> dict:
+    """One candidate of the JSON (docs/compare.md); an empirical one names its observable, variable and period.
+
+    Args:
+        name: the effect.
+        params: {parameter: value}.
+        sigma: {parameter: sigma} (inf where the data do not determine it).
+        rms_after: the source's RMS keys with the candidate (rms_after_arcsec, rms_after_arcsec_per_s).
+        delta_bic: the BIC's fall with the candidate.
+        detectable: whether the source can see it.
+        refined: whether it was refitted in full.
+        seconds: wall time it took.
+        reason: why it is not observable, where the source says.
+
+    Returns:
+        The entry.
+    """
+    spec = get_effect(name)
+    units = {param.name: param.unit for param in spec.params}
+    entry = {'effect': name, 'rms_after_arcsec': rms_after.get('rms_after_arcsec'), 'delta_bic': delta_bic,
+             'params': dict(params), 'sigma': dict(sigma), 'units': {key: units[key] for key in params},
+             'detectable': detectable, 'refined': refined, 'seconds': round(seconds, 3),
+             'empirical': spec.family == 'empirical', 'observable': None, 'variable': None, 'period_s': None}
+    if rms_after.get('rms_after_arcsec_per_s') is not None:
+        entry['rms_after_arcsec_per_s'] = rms_after['rms_after_arcsec_per_s']
+    if entry['empirical']:
+        observable, variable, period_s = empirical_parts(name)
+        entry.update(observable=observable, variable=variable, period_s=period_s)
+    if reason:
+        entry['reason'] = reason
+    return entry
+
+
+def term_table(fit: SourceFit) -> list[dict]:
+    """The JSON's ``terms``: each fitted parameter with its unit, value and sigma.
+
+    Args:
+        fit: the model's fit.
+
+    Returns:
+        [{effect, param, unit, value, sigma}].
+    """
+    return [{'effect': p.effect, 'param': p.name, 'unit': p.unit, 'value': float(value), 'sigma': float(sigma)}
+            for p, value, sigma in zip(fit.free, fit.values, fit.sigma)]
+
+
+def _ledger(source: ComparisonSource, progress: Progress) -> tuple[list, SourceFit]:
+    """The fixed effects alone, then each fitted term switched on and fitted with those before it."""
+    terms = source.ledger_terms()
+    rows, fit, free = [], None, ()
+    for step, term in enumerate([None, *terms]):
+        progress.count('fitting the model, term', step, len(terms))
+        if term is not None:
+            free = free + free_parameters([term])
+        fit = source.fit(source.ledger_start(fit, term), free, fit)
+        rows.append(source.ledger_row(term, fit))
+    return rows, fit
+
+
+def _scaled(totals: Mapping, ratio: float) -> dict:
+    """The RMS totals a linearized candidate leaves: each total scaled by sqrt(RSS after / RSS now)."""
+    return {key: None if value is None else value * float(np.sqrt(ratio)) for key, value in totals.items()}
+
+
+def _dense(matrix: Any) -> np.ndarray:
+    return matrix.toarray() if scipy.sparse.issparse(matrix) else np.asarray(matrix)
+
+
+def _absorbing_terms(jacobian: Any, nuisance: int, free: Sequence[FreeParameter],
+                     candidates: Iterable[CandidateTerm]) -> dict[str, str]:
+    """Candidate -> the single fitted effect whose columns alone reproduce the candidate's (ABSORBED_FRACTION)."""
+    groups: dict[str, list[int]] = {}
+    for index, parameter in enumerate(free):
+        groups.setdefault(parameter.effect, []).append(nuisance + index)
+    out = {}
+    for term in candidates:
+        columns = np.asarray(term.jacobian, dtype=float).reshape(jacobian.shape[0], -1)
+        for effect, indices in groups.items():
+            base = _dense(jacobian[:, indices])
+            coefficients, *_ = np.linalg.lstsq(base, columns, rcond=None)
+            outside = np.linalg.norm(columns - base @ coefficients, axis=0) / np.maximum(
+                np.linalg.norm(columns, axis=0), 1e-300)
+            if np.all(outside < ABSORBED_FRACTION):
+                out[term.name] = effect
+                break
+    return out
+
+
+def _refits(source: ComparisonSource, final: SourceFit, ranked: list[RankedCandidate],
+            linearized: Mapping[str, LinearizedCandidate], entries: dict, per_candidate_s: float,
+            progress: Progress) -> dict:
+    """The best few (compare.competing.refit_order) refitted in full from their linearized values; their entries
+    replaced. A refit that fails leaves the linearized entry standing."""
+    refits = {}
+    order = refit_order(ranked)
+    for done, candidate in enumerate(order):
+        progress.count('refitting the best candidates', done, len(order))
+        started = time.perf_counter()
+        start = linearized[candidate.name]
+        effects = {**start.effects, candidate.name: {**start.effects[candidate.name], **candidate.params}}
+        try:
+            trial = source.fit(effects, final.free + start.free, final)
+        except FitError:
+            continue
+        extra = trial.free[len(final.free):]
+        entries[candidate.name] = candidate_entry(
+            candidate.name, {p.name: float(v) for p, v in zip(extra, trial.values[len(final.free):])},
+            {p.name: float(s) for p, s in zip(extra, trial.sigma[len(final.free):])}, source.rms_after(trial),
+            final.bic - trial.bic, refined=True, seconds=per_candidate_s + time.perf_counter() - started)
+        refits[candidate.name] = trial
+    return refits
+
+
+def _checked_change(source: ComparisonSource, change: dict | None, models: LinearizedModels, final: SourceFit,
+                    linearized: Mapping[str, LinearizedCandidate]) -> dict | None:
+    """The proposed change refitted in full from its linearized values: its real delta-BIC against the model as it
+    is, or None if the fit fails."""
+    if change is None or change['expected_delta_bic'] < SIGNIFICANT_DELTA_BIC:
+        return None  # a change the linearization already calls insignificant is not worth a full fit
+    removed = set(change['term'].split(','))
+    chosen = {p.effect for p in final.free} - removed | ({change['effect']} - {None})
+    effects = {name: params for name, params in final.effects.items() if name not in removed}
+    free = tuple(p for p in final.free if p.effect not in removed)
+    if change['effect'] is not None:
+        incoming = linearized[change['effect']]
+        effects[change['effect']] = dict(incoming.effects[change['effect']])
+        free += incoming.free
+    for name, values in models.values(chosen).items():
+        effects[name] = {**effects[name], **values}
+    try:
+        trial = source.fit(effects, free, final)
+    except FitError:
+        return None
+    return {**change, 'delta_bic': float(final.bic - trial.bic)}
+
+
+def run_comparison(source: ComparisonSource, model_effects: Iterable[str], catalogue: Iterable[str], *,
+                   candidate_names: Sequence[str] | None = None, started: float | None = None,
+                   progress: Progress | None = None) -> Comparison:
+    """Compare a source's model with its data: ledger, ranking, refits, competing sets, model terms, verdict.
+
+    Args:
+        source: the bag or measurement set (ComparisonSource).
+        model_effects: the model's effect names (not candidates).
+        catalogue: the catalogue's names (candidates unless ``candidate_names`` is given).
+        candidate_names: the candidates to try, or None for the catalogue.
+        started: perf_counter at which the comparison began (the bag's reading counts), or None for now.
+        progress: where the phases go (Progress), or None for nowhere.
+
+    Returns:
+        The Comparison, its document complete with the source's own keys.
+
+    Raises:
+        FitError: the model's own fit fails.
+    """
+    started = time.perf_counter() if started is None else started
+    progress = progress or Progress.silent()
+    ledger, final = _ledger(source, progress)
+    rms = source.residual_rms(final)
+    totals = source.rms_after(final)
+
+    progress.phase('residual diagnostics')
+    diagnostics_started = time.perf_counter()
+    judgement = source.judge_fit(final)
+    diagnostics_s = time.perf_counter() - diagnostics_started
+    names = source.candidate_names(missing_names(model_effects, candidate_names, catalogue), judgement)
+    progress.phase(f'linearizing {len(names)} candidate effects')
+    linear_started = time.perf_counter()
+    linearized, unseen = source.linearize(final, names)
+    terms = [candidate.term for candidate in linearized]
+    residual, jacobian, nuisance = source.ranking_problem(final)
+    # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
+    # "outliers", and the Huber weights that protect a bag's fit would hide that failure from the ranking.
+    ranked = rank_candidates(residual, jacobian, terms)
+    per_candidate_s = (time.perf_counter() - linear_started) / max(len(terms), 1)
+    rss_base = float(residual @ residual)
+    hidden = [candidate for candidate in ranked if not candidate.observable]
+    absorbed = _absorbing_terms(jacobian, nuisance, final.free,
+                                [term for term in terms if term.name in {c.name for c in hidden}])
+    entries = {}
+    for candidate in ranked:
+        reason = None
+        if not candidate.observable:
+            by = absorbed.get(candidate.name)
+            reason = f'absorbed by {by}: this {source.noun} cannot tell them apart' if by else source.hidden_reason
+        entries[candidate.name] = candidate_entry(candidate.name, candidate.params, candidate.sigma,
+                                                  _scaled(totals, candidate.rss_after / rss_base), candidate.delta_bic,
+                                                  detectable=candidate.observable, seconds=per_candidate_s,
+                                                  reason=reason)
+    by_name = {candidate.term.name: candidate for candidate in linearized}
+    refits = _refits(source, final, ranked, by_name, entries, per_candidate_s, progress)
+    scores = {candidate.name: entries[candidate.name]['delta_bic'] for candidate in ranked}
+    for name, reason in unseen.items():
+        entries[name] = candidate_entry(name, {}, {}, {}, 0.0, detectable=False, reason=reason)
+    candidates = sorted(entries.values(), key=lambda entry: (not entry['detectable'], -entry['delta_bic']))
+    # A candidate one fitted term absorbs alone is degenerate with it (e.g. heading_error ~ gyro_bias, 5.2.4).
+    degenerate = sorted(set(degenerate_pairs(ranked, scores))
+                        | {tuple(sorted((name, by))) for name, by in absorbed.items()})
+    competing = competing_sets(ranked, scores, preferred=lambda name: not is_empirical(name))
+
+    progress.phase('alternative models')
+    alternatives_started = time.perf_counter()
+    fitted_now = frozenset(p.effect for p in final.free)
+    models = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance,
+                                     search_pool(terms, [entries[name] for name in scores]))
+    change = _checked_change(source, structural_change(models, fitted_now), models, final, by_name)
+    alternatives_s = time.perf_counter() - alternatives_started
+
+    progress.phase('diagnostics after the contenders')
+    diagnostics_started = time.perf_counter()
+    after = {name: source.judge_fit(refits[name]) for name in contenders(refits, scores, competing)}
+    diagnostics_s += time.perf_counter() - diagnostics_started
+    members = {name: after_member(judged.diagnostics, judged.consistency) for name, judged in after.items()}
+    best_name = preferred_best(after, scores, members)
+    after_best = after.get(best_name)
+    verdict = judge(judgement.diagnostics, judgement.consistency, candidates, degenerate, best_name,
+                    None if after_best is None else (after_best.diagnostics, after_best.consistency),
+                    competing=competing, members=members, change=change, rms_arcsec=totals.get('rms_after_arcsec'),
+                    rms_arcsec_per_s=totals.get('rms_after_arcsec_per_s'),
+                    significant_delta_bic=SIGNIFICANT_DELTA_BIC, model_source=source.model_source,
+                    observable_keys=source.observable_keys, beyond_floor=source.beyond_floor)
+    document = {
+        'model': source.model_source,
+        'residual_rms_arcsec': rms,
+        'terms': term_table(final),
+        'correlation': {'params': [p.label for p in final.free], 'matrix': np.round(final.correlation, 4).tolist()},
+        'ledger': ledger,
+        'candidates': candidates,
+        'degenerate': [list(pair) for pair in degenerate],
+        'competing': competing_document(competing, members),
+        'model_terms': model_terms(models, fitted_now),
+        'model_change': change,
+        'equivalent_models': equivalent_models(models, fitted_now),
+        'unobservable': [c['effect'] for c in candidates if not c['detectable']],
+        'significant_delta_bic': SIGNIFICANT_DELTA_BIC,
+        'signature': judgement.diagnostics.as_document(),
+        'verdict': verdict,
+        'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4), 'diagnostics': round(diagnostics_s, 3),
+                    'model_terms': round(alternatives_s, 3)},
+    }
+    outcome = Comparison(document, final, refits.get(best_name), best_name, judgement, tuple(linearized), refits)
+    document.update(source.extra_document(outcome, progress))
+    document['seconds']['total'] = round(time.perf_counter() - started, 3)
+    return outcome
+

@@ -137,7 +137,7 @@ def _model(*fitted):
 
 
 def _compare(model):
-    return run_comparison(FakeSource(model), model.effects, CANDIDATES)
+    return run_comparison(FakeSource(model), model.effects, candidate_names=CANDIDATES)
 
 
 @pytest.fixture(scope='module')

@@ -33,13 +33,13 @@ from sofia_ros.compare.diagnostics import Diagnostics
 from sofia_ros.compare.fit import FreeParameter, free_parameters, vanishing_values
 from sofia_ros.compare.search import LinearizedModels, equivalent_models, model_terms, search_pool, structural_change
 from sofia_ros.compare.verdict import after_member, judge
-from sofia_ros.effects import NOISE_EFFECTS, get_effect, resolve_params
+from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, resolve_params
 from sofia_ros.effects.empirical import empirical_parts, is_empirical
 from sofia_ros.errors import FitError
 from sofia_ros.progress import Progress
 
 __all__ = ['ABSORBED_FRACTION', 'Comparison', 'ComparisonSource', 'Judgement', 'LinearizedCandidate', 'SourceFit',
-           'candidate_entry', 'missing_names', 'run_comparison', 'switched_on', 'term_table']
+           'candidate_entry', 'run_comparison', 'switched_on', 'term_table']
 
 #: A candidate whose columns one fitted effect reproduces to within this fraction of their norm is absorbed by it
 #: (the pair is named degenerate). Looser than analysis.ranking's IN_BASE_SPAN_FRACTION: the columns are finite
@@ -251,20 +251,10 @@ def switched_on(effects: Mapping, name: str) -> tuple[tuple, np.ndarray, dict]:
     return free, start, switched
 
 
-def missing_names(model_effects: Iterable[str], candidate_names: Iterable[str] | None,
-                  catalogue: Iterable[str]) -> list[str]:
-    """The catalogue effects (or ``candidate_names``) not in the model, the noise terms aside.
-
-    Args:
-        model_effects: the model's effect names.
-        candidate_names: the candidates asked for, or None for the whole catalogue.
-        catalogue: the catalogue's names.
-
-    Returns:
-        Effect names.
-    """
+def _missing_names(model_effects: Iterable[str], candidate_names: Iterable[str] | None) -> list[str]:
+    """The catalogue effects (or ``candidate_names``) not in the model, the noise terms aside."""
     present = set(model_effects)
-    return [name for name in (candidate_names or catalogue) if name not in present and name not in NOISE_EFFECTS]
+    return [name for name in (candidate_names or CATALOGUE) if name not in present and name not in NOISE_EFFECTS]
 
 
 def candidate_entry(name: str, params: Mapping, sigma: Mapping, rms_after: Mapping, delta_bic: float, *,
@@ -405,7 +395,7 @@ def _checked_change(source: ComparisonSource, change: dict | None, models: Linea
     return {**change, 'delta_bic': float(final.bic - trial.bic)}
 
 
-def run_comparison(source: ComparisonSource, model_effects: Iterable[str], catalogue: Iterable[str], *,
+def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
                    candidate_names: Sequence[str] | None = None, started: float | None = None,
                    progress: Progress | None = None) -> Comparison:
     """Compare a source's model with its data: ledger, ranking, refits, competing sets, model terms, verdict.
@@ -413,8 +403,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], catal
     Args:
         source: the bag or measurement set (ComparisonSource).
         model_effects: the model's effect names (not candidates).
-        catalogue: the catalogue's names (candidates unless ``candidate_names`` is given).
-        candidate_names: the candidates to try, or None for the catalogue.
+        candidate_names: the candidates to try, or None for the catalogue (effects.CATALOGUE, plug-ins included).
         started: perf_counter at which the comparison began (the bag's reading counts), or None for now.
         progress: where the phases go (Progress), or None for nowhere.
 
@@ -434,7 +423,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], catal
     diagnostics_started = time.perf_counter()
     judgement = source.judge_fit(final)
     diagnostics_s = time.perf_counter() - diagnostics_started
-    names = source.candidate_names(missing_names(model_effects, candidate_names, catalogue), judgement)
+    names = source.candidate_names(_missing_names(model_effects, candidate_names), judgement)
     progress.phase(f'linearizing {len(names)} candidate effects')
     linear_started = time.perf_counter()
     linearized, unseen = source.linearize(final, names)

@@ -33,7 +33,7 @@ from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.compare.verdict import BAG_OBSERVABLE_KEYS, beyond_bag_floor, empirical_candidate_names
 from sofia_ros.config import EffectConfig
-from sofia_ros.effects import CATALOGUE, get_effect, resolve_params
+from sofia_ros.effects import get_effect, resolve_params
 from sofia_ros.progress import Progress
 from sofia_ros.sensors.gyro_noise import rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s
 from sofia_ros.units import ARCSEC_PER_RAD
@@ -320,7 +320,7 @@ def compare_observations(observations: Any, model: EffectConfig, *, anchor_spaci
         The CompareResult.
     """
     source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
-    outcome = run_comparison(source, model.effects, CATALOGUE, candidate_names=candidate_names, started=started,
+    outcome = run_comparison(source, model.effects, candidate_names=candidate_names, started=started,
                              progress=progress)
     return CompareResult(outcome.document, observations, outcome.final_fit, outcome.best_fit, outcome.best_name,
                          source.predictor, tuple(candidate.term for candidate in outcome.linearized))

@@ -502,7 +502,7 @@ def compare_measurement_set(measurement_set: MeasurementSet, model: EffectConfig
     """
     started = time.perf_counter()
     source = SetSource(measurement_set, model)
-    outcome = run_comparison(source, model.effects, CATALOGUE, candidate_names=candidate_names, started=started)
+    outcome = run_comparison(source, model.effects, candidate_names=candidate_names, started=started)
     return SetCompareResult(outcome.document, measurement_set, source.predict(outcome.final_fit),
                             source.predict(outcome.best_fit) if outcome.best_fit else None, outcome.best_name,
                             outcome.final_fit)

@@ -105,13 +105,10 @@ def bag_columns(observations: object, model: EffectConfig, members: Sequence[Seq
     derivative = problem.irf_derivative(effects, fit.anchors_rad, predicted)
     columns = problem.parameter_columns(effects, tuple(free), values, fit.anchors_rad, predicted, derivative)
     anchors = problem.anchor_columns(effects, derivative)
-    times = np.repeat(source.predictor.row_times_s(effects), 2)
-    prior_residual = fit.prior_residual
-    residual = fit.whitened
+    times = np.repeat(source.predictor.row_times_s(effects), 2)  # x and y of each centroid
     augmented = fit.augmented_residual
-    return BagColumns(tuple(parameter.label for parameter in free), _labels(shared), anchors,
-                      source.prior.gram, columns, residual, source.prior.matrix.T @ prior_residual,
-                      times, float(augmented @ augmented), len(augmented))
+    return BagColumns(_labels(free), _labels(shared), anchors, source.prior.gram, columns, fit.whitened,
+                      source.prior.matrix.T @ fit.prior_residual, times, float(augmented @ augmented), len(augmented))
 
 
 def _labels(free: Sequence[FreeParameter]) -> tuple:

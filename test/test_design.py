@@ -225,7 +225,7 @@ def test_an_already_separated_set_says_so_and_writes_no_plan(capsys, tmp_path, p
                 'observed_delta_bic': {'a': 50.0, 'b': 10.0}, 'before': {'a': 40.0, 'b': 35.0}, 'elements': [],
                 'status': 'already_separated', 'chosen': [], 'chosen_flight_s': 0.0, 'flight_share': 0.0,
                 'predicted': {'a': 40.0, 'b': 35.0}, 'sigma_before': {}, 'sigma_after': {}, 'skipped': []}
-    monkeypatch.setattr(design_cli, '_library_bag', lambda elements, progress: plan_only_bag)
+    monkeypatch.setattr(design_cli, '_library_bag', lambda elements, plan, progress: plan_only_bag)
     monkeypatch.setattr(observations, 'read_observations', lambda path: Stub())
     monkeypatch.setattr(design_run, 'design_plan', lambda *args, **kwargs: dict(document))
     code = main(['design', str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',

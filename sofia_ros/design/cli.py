@@ -29,9 +29,12 @@ from sofia_ros.progress import Progress
 __all__ = ['add_design_arguments', 'run_design']
 
 _MAX_JSON_BYTES = 64 << 20
-#: The library flight: the minimal alignment (least sim time), then the library's elements (seed 0, nominal truth).
-_LIBRARY_BASE = {'campaign': 'alignment', 'repetitions': 2, 'verification_repetitions': 1, 'frames_per_position': 1,
-                 'drift_track_s': 5.0, 'flexure_elevations_deg': [], 'max_iterations': 1}
+#: The library flight's own sequence at its least sim time (one iteration, the fewest maneuvers, no boresight series)...
+_LIBRARY_BASE = {'campaign': 'alignment', 'repetitions': 2, 'verification_repetitions': 1, 'flexure_elevations_deg': [],
+                 'max_iterations': 1}
+#: ...and the bag's own values of the fields that shape an element (frames averaged, drift track, move sizes), so that
+#: each element is flown as the designed plan will fly it.
+_ELEMENT_FIELDS = ('frames_per_position', 'drift_track_s', 'los_angle_deg', 'elxel_length_arcmin', 'timeout_s')
 _DEFAULT_TARGET = 20.0
 _DEFAULT_BUDGET_SHARE = 0.3
 #: An element adding less expected delta-BIC than this, in a direction, does not move it (printed as such).
@@ -135,14 +138,16 @@ def _library_elements(campaign: str) -> tuple:
     return ALIGNMENT_LIBRARY
 
 
-def _library_bag(elements: tuple, progress: Progress) -> Path:
-    """The library flight's bag in the user's cache, flown (direct mode, nominal truth, seed 0) if not there yet."""
-    from sofia_ros.campaigns.plan_files import plan_from_document, plans_directory
+def _library_bag(elements: tuple, old_plan: Any, progress: Progress) -> Path:
+    """The library flight's bag in the user's cache, flown (direct mode, nominal truth, seed 0) if not there yet; its
+    elements shaped by ``old_plan``'s fields as the designed plan will fly them."""
+    from sofia_ros.campaigns.plan_files import plan_document, plan_from_document, plans_directory
     from sofia_ros.campaigns.registry import campaign_named
     from sofia_ros.compare.cache import user_cache_home
     from sofia_ros.config import load_effect_config
 
-    document = {**_LIBRARY_BASE, 'elements': [dict(element.document) for element in elements]}
+    shaping = {name: value for name, value in plan_document(old_plan).items() if name in _ELEMENT_FIELDS}
+    document = {**_LIBRARY_BASE, **shaping, 'elements': [dict(element.document) for element in elements]}
     key = hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()[:16]
     bag = user_cache_home() / 'design' / f'alignment-library-{key}'
     if (bag / 'summary.json').is_file():
@@ -227,7 +232,7 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     model = load_effect_config(model_path)
     old_plan = read_plan(bag)
     elements = _library_elements(old_plan.campaign)
-    library = _library_bag(elements, progress)
+    library = _library_bag(elements, old_plan, progress)
     with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):
         progress.phase('reading the bags')
         observations, library_observations = read_observations(bag), read_observations(library)

@@ -257,3 +257,18 @@ def test_the_prediction_on_the_session_bag(campaign_bags):
     assert document['before']['gyro_axis_swap'] < 20.0
     assert [entry['name'] for entry in document['elements']] == ['first half', 'second half']
     json.dumps(document)  # JSON-ready as --json writes it
+
+
+def test_flown_elements_reads_the_windows_and_names_the_skipped():
+    from sofia_ros.design.run import flown_elements
+    from sofia_ros.errors import BagError
+
+    library = (Element('one', {}), Element('two', {}), Element('three', {}))
+    calibration = ('elements:\n- {index: 1, kind: maneuvers, start_s: 10.0, end_s: 50.0}\n'
+                   '- {index: 3, kind: hold, start_s: 50.0, end_s: 120.5}\n')
+    windows, skipped = flown_elements(calibration, library)
+    assert [(element.name, start, end) for element, start, end in windows] == [('one', 10.0, 50.0),
+                                                                               ('three', 50.0, 120.5)]
+    assert skipped == ['two']
+    with pytest.raises(BagError, match='no calibration result; delete it so that it is flown again'):
+        flown_elements(None, library)

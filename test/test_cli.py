@@ -1,4 +1,8 @@
-"""The `sofia` command as a user runs it: output, exit codes, one-line errors."""
+"""The `sofia` command as a user runs it: output, exit codes, one-line errors.
+
+Most cases call `sofia_ros.cli.main` in this process (each subprocess costs a second or more of
+imports); a few run the installed entry point as a subprocess, to show it behaves the same.
+"""
 
 import json
 import subprocess
@@ -6,11 +10,26 @@ import sys
 
 import pytest
 
+from sofia_ros.cli import main
+
 SOFIA = [sys.executable, '-m', 'sofia_ros.cli']
 
 
 def run_sofia(*args, timeout=120):
+    """The entry point in a subprocess, as a user runs it."""
     return subprocess.run([*SOFIA, *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def sofia(capfd):
+    """``sofia(*args)``: cli.main in this process, its exit code and output (file descriptors 1 and 2, so
+    that nothing written past sys.stderr escapes) in the shape of ``run_sofia``'s."""
+    def run(*args):
+        capfd.readouterr()
+        code = main(list(args))
+        captured = capfd.readouterr()
+        return subprocess.CompletedProcess(args, code, captured.out, captured.err)
+    return run
 
 
 def test_effects_lists_every_effect_with_units():
@@ -20,8 +39,8 @@ def test_effects_lists_every_effect_with_units():
     assert 'about_los_arcsec = 3590.0 arcsec' in result.stdout
 
 
-def test_effects_json_is_the_documented_contract():
-    result = run_sofia('effects', '--json')
+def test_effects_json_is_the_documented_contract(sofia):
+    result = sofia('effects', '--json')
     assert result.returncode == 0
     entries = json.loads(result.stdout)
     names = [entry['name'] for entry in entries]
@@ -56,12 +75,20 @@ BAD_TRUTHS = {
 
 
 @pytest.mark.parametrize('name', sorted(BAD_TRUTHS))
-def test_bad_truth_is_one_line_exit_2_and_no_bag(tmp_path, name):
+def test_bad_truth_is_one_line_exit_2_and_no_bag(tmp_path, sofia, name):
+    _assert_bad_truth_refused(tmp_path, name, sofia)
+
+
+def test_the_entry_point_refuses_a_bad_truth_as_main_does(tmp_path):
+    _assert_bad_truth_refused(tmp_path, 'broken.yaml', run_sofia)
+
+
+def _assert_bad_truth_refused(tmp_path, name, run):
     text, message = BAD_TRUTHS[name]
     truth = tmp_path / name
     truth.write_text(text)
     bag = tmp_path / 'bag'
-    result = run_sofia('run', 'alignment', '--truth', str(truth), '--bag', str(bag), '--direct')
+    result = run('run', 'alignment', '--truth', str(truth), '--bag', str(bag), '--direct')
     assert result.returncode == 2
     assert result.stderr.count('\n') == 1 and message in result.stderr and 'Traceback' not in result.stderr
     assert not bag.exists()
@@ -76,40 +103,40 @@ def test_fine_drive_maneuver_beyond_its_travel_is_refused_before_running(tmp_pat
         AlignmentPlan(los_angle_deg=6.0)
 
 
-def test_existing_bag_directory_is_refused(tmp_path):
+def test_existing_bag_directory_is_refused(tmp_path, sofia):
     bag = tmp_path / 'bag'
     bag.mkdir()
-    result = run_sofia('run', 'alignment', '--truth', 'config/truth/nominal.yaml', '--bag', str(bag), '--direct')
+    result = sofia('run', 'alignment', '--truth', 'config/truth/nominal.yaml', '--bag', str(bag), '--direct')
     assert result.returncode == 2 and 'already exists; choose another --bag' in result.stderr
 
 
-def test_missing_truth_file_is_refused(tmp_path):
-    result = run_sofia('run', 'alignment', '--truth', str(tmp_path / 'nope.yaml'), '--bag', str(tmp_path / 'b'))
+def test_missing_truth_file_is_refused(tmp_path, sofia):
+    result = sofia('run', 'alignment', '--truth', str(tmp_path / 'nope.yaml'), '--bag', str(tmp_path / 'b'))
     assert result.returncode == 2 and 'cannot read' in result.stderr and 'check the path' in result.stderr
 
 
-def test_replay_of_a_missing_bag_is_refused(tmp_path):
-    result = run_sofia('replay', str(tmp_path / 'none'))
+def test_replay_of_a_missing_bag_is_refused(tmp_path, sofia):
+    result = sofia('replay', str(tmp_path / 'none'))
     assert result.returncode == 2 and 'does not exist' in result.stderr
 
 
 @pytest.mark.parametrize('option, value, message', [
     ('--rate', '-1', 'argument --rate: must be a finite number in [0, 1e+06] x real time, got -1'),
     ('--wait-s', '-2', 'argument --wait-s: must be a finite number in [0, 3600] s, got -2')])
-def test_replay_refuses_negative_rate_and_wait(tmp_path, option, value, message):
-    result = run_sofia('replay', str(tmp_path / 'none'), option, value)
+def test_replay_refuses_negative_rate_and_wait(tmp_path, sofia, option, value, message):
+    result = sofia('replay', str(tmp_path / 'none'), option, value)
     assert result.returncode == 2 and message in result.stderr
 
 
 @pytest.mark.parametrize('mode', ['--processes', '--direct', '--all-dds'])
-def test_gyro_stability_refuses_a_graph_mode(tmp_path, mode):
-    result = run_sofia('run', 'gyro-stability', '--case', 'TC-1', '--truth', 'config/truth/nominal.yaml',
+def test_gyro_stability_refuses_a_graph_mode(tmp_path, sofia, mode):
+    result = sofia('run', 'gyro-stability', '--case', 'TC-1', '--truth', 'config/truth/nominal.yaml',
                        '--bag', str(tmp_path / 'b'), mode)
     assert result.returncode == 2 and 'without a node graph; drop --processes / --direct / --all-dds' in result.stderr
     assert not (tmp_path / 'b').exists()
 
 
-def test_a_flipped_byte_in_a_bag_is_one_line_naming_the_chunk(tmp_path):
+def test_a_flipped_byte_in_a_bag_is_one_line_naming_the_chunk(tmp_path, sofia):
     from mcap.reader import make_reader
     from sensor_msgs.msg import Imu
 
@@ -127,7 +154,7 @@ def test_a_flipped_byte_in_a_bag_is_one_line_naming_the_chunk(tmp_path):
     data = bytearray(mcap_file.read_bytes())
     data[chunks[5].chunk_start_offset + chunks[5].chunk_length - 50] ^= 0x40
     mcap_file.write_bytes(bytes(data))
-    result = run_sofia('noise', str(bag))
+    result = sofia('noise', str(bag))
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and 'Traceback' not in result.stderr
@@ -144,8 +171,8 @@ def test_the_run_flags_choose_the_mode(flags, mode):
     assert _mode(args) == mode
 
 
-def test_two_run_modes_at_once_are_refused(tmp_path):
-    result = run_sofia('run', 'alignment', '--truth', 'config/truth/nominal.yaml', '--bag', str(tmp_path / 'b'),
+def test_two_run_modes_at_once_are_refused(tmp_path, sofia):
+    result = sofia('run', 'alignment', '--truth', 'config/truth/nominal.yaml', '--bag', str(tmp_path / 'b'),
                        '--all-dds', '--direct')
     assert result.returncode == 2 and 'not allowed with argument' in result.stderr
     assert not (tmp_path / 'b').exists()

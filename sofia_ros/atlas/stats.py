@@ -80,6 +80,8 @@ class Calibration:
     #: mean and standard deviation of (fitted - true) / sigma: 0 and 1 for honest sigmas
     pull_mean: float
     pull_std: float
+    #: fitted values without a sigma (null, or inf: the data do not determine the parameter): in no pull
+    unconstrained: int = 0
 
 
 @dataclass(frozen=True)
@@ -243,6 +245,9 @@ def fit_calibration(rows: list[dict]) -> list[Calibration]:
         fitted = np.array([row['fitted_value'] for row in members])
         true_value = float(members[0]['true_value'])
         sigmas = np.array([row['fitted_sigma'] if row['fitted_sigma'] is not None else math.nan for row in members])
+        # compare's sigma is inf (null in its JSON) where the data do not determine the parameter: such a value has
+        # no pull, where (fitted - true) / inf would count as a perfect one (0).
+        sigmas[~np.isfinite(sigmas)] = math.nan
         pulls = (fitted - true_value) / sigmas
         pulls = pulls[np.isfinite(pulls)]
         found.append(Calibration(
@@ -250,7 +255,7 @@ def fit_calibration(rows: list[dict]) -> list[Calibration]:
             float(np.std(fitted, ddof=1)) if len(fitted) > 1 else math.nan,
             float(np.nanmedian(sigmas)) if np.any(np.isfinite(sigmas)) else math.nan,
             float(np.mean(pulls)) if len(pulls) else math.nan,
-            float(np.std(pulls, ddof=1)) if len(pulls) > 1 else math.nan))
+            float(np.std(pulls, ddof=1)) if len(pulls) > 1 else math.nan, int(np.sum(np.isnan(sigmas)))))
     return found
 
 

@@ -6,15 +6,13 @@ gyro_scale_factor, heading_error's column is a mix of gyro_bias's (absorbed by i
 independent shape the truth lacks, timestamp_offset is one the fake cannot see.
 """
 
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
 
-from sofia_ros.analysis.ranking import CandidateTerm, bic, linear_fit
+from sofia_ros.analysis.ranking import CandidateTerm, linear_fit
 from sofia_ros.compare.diagnostics import Diagnostics
 from sofia_ros.compare.fit import free_parameters
-from sofia_ros.compare.pipeline import Judgement, LinearizedCandidate, run_comparison, switched_on
+from sofia_ros.compare.pipeline import Judgement, LinearizedCandidate, WhitenedFit, run_comparison, switched_on
 from sofia_ros.config import parse_effect_config
 from sofia_ros.effects import resolve_params
 from sofia_ros.measurements.compare import compare_measurement_set
@@ -44,21 +42,6 @@ def _predicted(effects):
 
 
 MEASURED = _predicted(TRUTH) + RNG.normal(size=ROWS)
-
-
-@dataclass(frozen=True, eq=False)
-class _Fit:
-    effects: dict
-    free: tuple
-    values: np.ndarray
-    sigma: np.ndarray
-    correlation: np.ndarray
-    residual: np.ndarray
-    jacobian: np.ndarray
-
-    @property
-    def bic(self):
-        return bic(float(self.residual @ self.residual), ROWS, len(self.free))
 
 
 class FakeSource:
@@ -93,20 +76,20 @@ class FakeSource:
         fitted = {name: dict(params) for name, params in effects.items()}
         for parameter, value in zip(free, values + solved.step):
             fitted[parameter.effect][parameter.name] = float(value)
-        return _Fit(fitted, tuple(free), values + solved.step, solved.sigma, solved.correlation,
-                    residual - jacobian @ solved.step, jacobian)
+        return WhitenedFit(fitted, tuple(free), values + solved.step, solved.sigma, solved.correlation,
+                           residual - jacobian @ solved.step, jacobian)
 
     def ledger_row(self, term, fit):
         return {'term': term or 'fixed effects only', 'residual_rms_arcsec': self.residual_rms(fit), 'bic': fit.bic}
 
     def residual_rms(self, fit):
-        return {'total': float(np.sqrt(np.mean(fit.residual ** 2)))}
+        return {'total': float(np.sqrt(np.mean(fit.whitened ** 2)))}
 
     def rms_after(self, fit):
         return {'rms_after_arcsec': self.residual_rms(fit)['total']}
 
     def ranking_problem(self, fit):
-        return fit.residual, fit.jacobian, 0
+        return fit.whitened, fit.jacobian, 0
 
     def judge_fit(self, fit):
         rms = self.residual_rms(fit)['total']

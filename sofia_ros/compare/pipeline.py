@@ -26,7 +26,7 @@ from typing import Any, Protocol
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, RankedCandidate, competing_sets,
+from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, RankedCandidate, bic, competing_sets,
                                         degenerate_pairs, rank_candidates)
 from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
 from sofia_ros.compare.diagnostics import Diagnostics
@@ -39,7 +39,7 @@ from sofia_ros.errors import FitError
 from sofia_ros.progress import Progress
 
 __all__ = ['ABSORBED_FRACTION', 'Comparison', 'ComparisonSource', 'Judgement', 'LinearizedCandidate', 'SourceFit',
-           'candidate_entry', 'run_comparison', 'switched_on', 'term_table']
+           'WhitenedFit', 'candidate_entry', 'run_comparison', 'switched_on', 'term_table']
 
 #: A candidate whose columns one fitted effect reproduces to within this fraction of their norm is absorbed by it
 #: (the pair is named degenerate). Looser than analysis.ranking's IN_BASE_SPAN_FRACTION: the columns are finite
@@ -59,6 +59,25 @@ class SourceFit(Protocol):
     @property
     def bic(self) -> float:
         """BIC of the whole whitened problem at the fit (analysis.ranking.bic)."""
+
+
+@dataclass(frozen=True, eq=False)
+class WhitenedFit:
+    """A fit without nuisance parameters (a measurement set's): effects at the fitted values, the fitted
+    parameters with sigmas and correlation, the whitened residual and the parameters' columns at the fit."""
+
+    effects: dict
+    free: tuple
+    values: np.ndarray
+    sigma: np.ndarray
+    correlation: np.ndarray
+    whitened: np.ndarray
+    jacobian: np.ndarray
+
+    @property
+    def bic(self) -> float:
+        """BIC of the whitened residual with the fitted parameters (analysis.ranking.bic)."""
+        return bic(float(self.whitened @ self.whitened), len(self.whitened), len(self.free))
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,10 +21,10 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-from sofia_ros.analysis.ranking import CandidateTerm, bic, linear_fit
+from sofia_ros.analysis.ranking import CandidateTerm, linear_fit
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA, Diagnostics
-from sofia_ros.compare.pipeline import (ABSORBED_FRACTION, Comparison, Judgement, LinearizedCandidate,
+from sofia_ros.compare.pipeline import (ABSORBED_FRACTION, Comparison, Judgement, LinearizedCandidate, WhitenedFit,
                                         run_comparison, switched_on)
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import CATALOGUE
@@ -57,22 +57,6 @@ class SetCompareResult:
     predicted_best: dict | None
     best_name: str | None
     final_fit: Any = None
-
-
-@dataclass(frozen=True)
-class _Fit:
-    effects: dict
-    free: tuple
-    values: np.ndarray
-    sigma: np.ndarray
-    correlation: np.ndarray
-    whitened: np.ndarray
-    jacobian: np.ndarray
-    rss: float
-
-    @property
-    def bic(self) -> float:
-        return bic(self.rss, len(self.whitened), len(self.free))
 
 
 class _Problem:
@@ -140,7 +124,7 @@ def _fit(problem, effects, free):
         raise FitError('the fit left the model undefined for this set (non-finite residuals)')
     jacobian = problem.columns(effects, free, start, base) if free else np.zeros((len(base), 0))
     final = linear_fit(base, jacobian, [p.label for p in free])
-    return _Fit(current, tuple(free), start, final.sigma, final.correlation, base, jacobian, float(base @ base))
+    return WhitenedFit(current, tuple(free), start, final.sigma, final.correlation, base, jacobian)
 
 
 def _rms(problem, whitened, mask):

@@ -57,6 +57,7 @@ class DesignDocument(TypedDict):
     sigma_before: dict
     sigma_after: dict
     skipped: list
+    whole_library: dict
 
 
 def member_name(member: Sequence[str]) -> str:
@@ -173,13 +174,18 @@ def design_plan(observations: object, library_observations: object, windows: Seq
         observed_delta_bic={member_name(m): _observed_delta_bic(old, base, member_labels(m)) for m in members},
         before=before.separation, elements=entries, status='already_separated', chosen=[], chosen_flight_s=0.0,
         flight_share=0.0, predicted=before.separation, sigma_before=before.sigma, sigma_after=before.sigma,
-        skipped=list(skipped))
+        skipped=list(skipped), whole_library={})
     if before.weakest >= target:
         return document
     choice: Choice = choose_elements(base, [information for _, information, _ in elements],
                                      [seconds for _, _, seconds in elements], shared, first, second, variance,
                                      target=target, budget_s=budget_s)
+    whole = base
+    for _, information, _ in elements:
+        whole = whole + information
     document.update(status='designed' if choice.reached else 'not_reached',
+                    whole_library={'flight_s': round(sum(seconds for _, _, seconds in elements), 1),
+                                   'separation': predict(whole, shared, first, second, variance).separation},
                     chosen=[{'name': elements[index][0].name, 'element': dict(elements[index][0].document)}
                             for index in choice.indices],
                     chosen_flight_s=round(choice.flight_s, 1), flight_share=choice.flight_s / flight_s,

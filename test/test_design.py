@@ -193,6 +193,19 @@ def test_a_bad_comparison_json_is_refused(capsys, tmp_path, document, match):
     _refused(capsys, tmp_path, [str(source), '--plan-out', str(tmp_path / 'plan.yaml')], match)
 
 
+def test_a_second_competing_set_that_is_not_there_is_refused(capsys, tmp_path):
+    source = tmp_path / 'compare.json'
+    source.write_text(json.dumps({'bag': 'b', 'competing': [{'effects': ['gyro_axis_swap', 'gyro_scale_factor']}]}))
+    _refused(capsys, tmp_path, [str(source), '--set', '2'], 'states 1 competing set(s)')
+
+
+def test_a_check_against_a_json_that_is_no_design_is_refused(capsys, tmp_path):
+    prediction = tmp_path / 'design.json'
+    prediction.write_text(json.dumps({'bag': 'b', 'competing': []}))
+    _refused(capsys, tmp_path, ['--check', str(tmp_path), '--prediction', str(prediction)],
+             'is not the JSON of `sofia design`')
+
+
 @pytest.mark.parametrize('argv, match', [
     (['--check', 'new_bag'], 'needs --prediction'),
     (['--prediction', 'design.json'], '--prediction goes with --check'),

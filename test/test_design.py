@@ -174,6 +174,21 @@ def test_a_bad_competing_set_is_refused(capsys, tmp_path, plan_only_bag, between
                                 '--plan-out', str(tmp_path / 'plan.yaml')], match)
 
 
+def test_a_member_the_model_has_is_refused(capsys, tmp_path, plan_only_bag):
+    _refused(capsys, tmp_path, [str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',
+                                'gyro_axis_swap,gyro_bias', '--plan-out', str(tmp_path / 'plan.yaml')],
+             'gyro_bias is already in the model')
+
+
+def test_a_bag_without_its_plan_takes_one_given(capsys, tmp_path, plan_only_bag):
+    (plan_only_bag / 'plan.yaml').unlink()
+    shutil.copy(ROOT / 'config' / 'plans' / 'star-hop-reduced.yaml', tmp_path / 'given.yaml')
+    # The given plan is read (and, a star hop's, refused): not the bag's missing plan.yaml.
+    _refused(capsys, tmp_path, [str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',
+                                'gyro_axis_swap,gyro_scale_factor', '--plan', str(tmp_path / 'given.yaml')],
+             'plans alignment campaigns')
+
+
 def test_a_star_hop_bag_is_refused(capsys, tmp_path, plan_only_bag):
     shutil.copy(ROOT / 'config' / 'plans' / 'star-hop-reduced.yaml', plan_only_bag / 'plan.yaml')
     _refused(capsys, tmp_path, [str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',

@@ -57,6 +57,7 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--target', type=number(0.0, 1e9, 'delta-BIC', low_open=True), default=_DEFAULT_TARGET,
                         metavar='DBIC', help='expected delta-BIC to reach both ways (default 20: twice the 10 that '
                                              'decides, as a margin)')
+    parser.add_argument('--plan', metavar='PLAN.yaml', help="the plan the bag was flown with (default: its plan.yaml)")
     parser.add_argument('--plan-out', metavar='PLAN.yaml', help="write the bag's plan with the chosen elements added")
     parser.add_argument('--json', metavar='OUT', help='write the prediction as JSON (docs/design.md)')
     parser.add_argument('--check', metavar='NEW_BAG', help='the designed plan flown: refit the members on it and '
@@ -214,11 +215,12 @@ def _ways(separation: dict) -> str:
 
 
 def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
-    from sofia_ros.campaigns.plan_files import plan_document, plan_from_document, read_plan, write_plan_file
+    from sofia_ros.campaigns.plan_files import (plan_document, plan_from_document, read_plan, read_plan_file,
+                                               write_plan_file)
     from sofia_ros.compare.cache import ObservationCache
     from sofia_ros.compare.observations import observation_cache, read_observations
     from sofia_ros.config import load_effect_config
-    from sofia_ros.design.run import design_plan, flown_elements
+    from sofia_ros.design.run import check_members, design_plan, flown_elements
 
     bag, model_path, members = _source(args)
     for target in (args.plan_out, args.json):
@@ -227,7 +229,9 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     if not model_path:
         raise ConfigError('give the model with --model M.yaml (the JSON names none)')
     model = load_effect_config(model_path)
-    old_plan = read_plan(bag)
+    check_members(model, members)
+    # An imported bag has no plan.yaml: the plan it was flown with is then given.
+    old_plan = read_plan_file(args.plan) if args.plan else read_plan(bag)
     elements = _library_elements(old_plan.campaign)
     library = _library_bag(elements, old_plan, progress)
     with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):

@@ -22,7 +22,7 @@ from sofia_ros.design.geometry import BagColumns, bag_columns, element_windows, 
 from sofia_ros.design.separation import Information, fitted_values, rss_drop
 from sofia_ros.errors import BagError, ConfigError
 
-__all__ = ['DesignDocument', 'ElementEntry', 'design_plan', 'flown_elements', 'member_name']
+__all__ = ['DesignDocument', 'ElementEntry', 'check_members', 'design_plan', 'flown_elements', 'member_name']
 
 class ElementEntry(TypedDict):
     """One library element in the JSON: what it is, how long it flies, what it adds."""
@@ -118,6 +118,23 @@ def _sigma_ratio(before: Prediction, after: Prediction) -> dict:
                    for label, sigma in before.sigma[name].items()} for name in before.sigma}
 
 
+def check_members(model: EffectConfig, members: Sequence[Sequence[str]]) -> None:
+    """Refuse a member the model already has: a competing member is an effect the model lacks.
+
+    Args:
+        model: the model.
+        members: each member's effect names.
+
+    Raises:
+        ConfigError: naming the effect and the model.
+    """
+    for member in members:
+        for name in member:
+            if name in model.effects:
+                raise ConfigError(f'{name} is already in the model {model.source}; a competing member is an effect '
+                                  'the model lacks (remove it from the model, or name another)')
+
+
 def design_plan(observations: object, library_observations: object, windows: Sequence[tuple], skipped: Sequence[str],
                 model: EffectConfig, members: Sequence[Sequence[str]], *, flight_s: float, budget_s: float,
                 target: float, anchor_spacing_s: float = 30.0) -> DesignDocument:
@@ -143,11 +160,7 @@ def design_plan(observations: object, library_observations: object, windows: Seq
         InvalidArgumentError: a budget below the shortest element.
         FitError: the model's fit fails.
     """
-    for member in members:
-        for name in member:
-            if name in model.effects:
-                raise ConfigError(f'{name} is already in the model {model.source}; a competing member is an effect '
-                                  'the model lacks (remove it from the model, or name another)')
+    check_members(model, members)
     old = bag_columns(observations, model, members, anchor_spacing_s=anchor_spacing_s)
     library = bag_columns(library_observations, model, members, anchor_spacing_s=anchor_spacing_s)
     base = old.information()

@@ -201,6 +201,8 @@ def test_a_star_hop_bag_is_refused(capsys, tmp_path, plan_only_bag):
     ('{"bag": "b", "competing": []}', 'states no competing set'),
     ('{"model": "m.yaml"}', 'not the JSON of `sofia compare` on a bag'),
     ('{"bag": "b", "competing": [', 'is not JSON'),
+    ('{"bag": "b", "competing": [{"effects": [1, 2]}]}', 'does not list two effects'),
+    ('{"bag": "b", "competing": ["x"]}', 'does not list two effects'),
 ])
 def test_a_bad_comparison_json_is_refused(capsys, tmp_path, document, match):
     source = tmp_path / 'compare.json'

@@ -17,6 +17,7 @@ import hashlib
 import json
 import shutil
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -124,7 +125,11 @@ def _source(args: argparse.Namespace) -> tuple:
                           'apart; name one with --between A,B to design anyway')
     if args.set > len(sets):
         raise ConfigError(f'--set {args.set}: {args.source} states {len(sets)} competing set(s)')
-    effects = sets[args.set - 1].get('effects') or []
+    chosen = sets[args.set - 1]
+    effects = chosen.get('effects') if isinstance(chosen, dict) else None
+    if not isinstance(effects, list) or len(effects) < 2 or not all(isinstance(name, str) for name in effects):
+        raise ConfigError(f'{args.source}: competing set {args.set} does not list two effects; give --between A,B')
+    # A set of three or more: its first two, the strongest (--between names any other pair).
     return Path(document['bag']), model, _members(','.join(effects[:2]))
 
 
@@ -153,15 +158,17 @@ def _library_bag(elements: tuple, old_plan: Any, progress: Progress) -> Path:
         return bag
     truth = load_effect_config(plans_directory().parent / 'truth' / 'nominal.yaml')
     plan = plan_from_document(document, 'the design library', 'alignment')
-    flying = bag.with_name(bag.name + '.flying')
-    shutil.rmtree(flying, ignore_errors=True)
-    flying.parent.mkdir(parents=True, exist_ok=True)
+    bag.parent.mkdir(parents=True, exist_ok=True)
+    # Flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs that
+    # fly it at once the first to finish is kept.
+    folder = Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix='.flying', dir=bag.parent))
     progress.phase(f'flying the element library once ({len(elements)} elements; kept in {bag.parent})')
     try:
-        campaign_named('alignment').run(truth, seed=0, bag_path=flying, plan=plan, mode='direct')
-        flying.rename(bag)
+        campaign_named('alignment').run(truth, seed=0, bag_path=folder / 'bag', plan=plan, mode='direct')
+        if not bag.exists():
+            (folder / 'bag').rename(bag)
     finally:
-        shutil.rmtree(flying, ignore_errors=True)
+        shutil.rmtree(folder, ignore_errors=True)
     return bag
 
 

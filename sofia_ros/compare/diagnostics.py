@@ -37,13 +37,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
 from sofia_ros.analysis.ranking import normal_pseudo_inverse
 from sofia_ros.analysis.structure import category_test, field_test, period_test, sigma_of_probability, trend_test
-from sofia_ros.compare.fit import rows_scaled
 from sofia_ros.effects.empirical import DETECTOR_FIELD
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.units import ARCSEC_PER_RAD, DEG_PER_RAD, STANDARD_GRAVITY_M_PER_S2
@@ -191,13 +189,12 @@ def _camera_series(observations, fit, noise_arcsec, variables):
 def _prior_residual_covariance(fit):
     """The prior rows' residuals' covariance under the null, (I - H) over those rows with H the whole fit's hat
     matrix, in units of the prior's (3(K-1), 3(K-1))."""
-    data_rows = len(fit.whitened)
-    jacobian = scipy.sparse.csr_matrix(fit.jacobian)
-    root = np.concatenate([np.sqrt(fit.weights), np.ones(jacobian.shape[0] - data_rows)])
-    weighted = rows_scaled(jacobian, root)
-    inverse = normal_pseudo_inverse((weighted.T @ weighted).toarray())
-    prior = weighted[data_rows:].toarray()
-    return np.eye(len(prior)) - (prior @ inverse) @ prior.T
+    gram, _, _ = fit.normal_equations(fit.weights)
+    inverse = normal_pseudo_inverse(gram)
+    # The prior rows' Jacobian is the prior's matrix over the anchors and zero over the parameters.
+    prior = fit.anchor_prior.matrix
+    anchors = prior.shape[1]
+    return np.eye(prior.shape[0]) - np.asarray(prior @ (prior @ inverse[:anchors, :anchors]).T)
 
 
 def _gyro_series(observations, fit, prior):
@@ -407,21 +404,15 @@ def _split_masks(variables, centroids):
 
 def _split_step(fit, keep_rows):
     """One Gauss-Newton step on a subset of the rows (prior rows kept): parameter values and sigmas."""
-    mask = np.repeat(keep_rows, 2).astype(float)
-    weights = np.concatenate([fit.weights * mask, np.ones(len(fit.prior_residual))])
-    residual = fit.augmented_residual
-    jacobian = scipy.sparse.csr_matrix(fit.jacobian)
-    weighted = rows_scaled(jacobian, np.sqrt(weights))
-    gram = (weighted.T @ weighted).toarray()
+    gram, gradient, rss_after = fit.normal_equations(fit.weights * np.repeat(keep_rows, 2))
     # A parameter the subset does not touch (another camera's term) is decoupled and gets no comparison.
     determined = np.diag(gram) > 0
     gram[~determined, ~determined] = 1.0
     inverse = normal_pseudo_inverse(gram)
-    step = inverse @ (weighted.T @ (np.sqrt(weights) * residual))
-    after = np.sqrt(weights) * residual - weighted @ step
-    used = int(mask.sum()) + len(fit.prior_residual)
-    variance = float(after @ after) / max(used - gram.shape[0], 1)
-    parameters = slice(jacobian.shape[1] - len(fit.free), None)
+    step = inverse @ gradient
+    used = 2 * int(np.sum(keep_rows)) + len(fit.prior_residual)
+    variance = rss_after(step) / max(used - gram.shape[0], 1)
+    parameters = slice(fit.anchor_columns.shape[1], None)
     diagonal = np.diag(inverse)[parameters]
     sigma = np.sqrt(np.where(diagonal > 0, diagonal, np.nan) * variance)
     return fit.values + step[parameters], np.where(determined[parameters], sigma, np.nan)

@@ -18,6 +18,7 @@ moves (6.3).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.sparse
@@ -26,8 +27,8 @@ from sofia_ros.analysis.ranking import bic, normal_equations_fit
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
-__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'rows_scaled', 'vanishing_values',
-           'OUTLIER_SIGMA']
+__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'normal_equations',
+           'rows_scaled', 'vanishing_values', 'OUTLIER_SIGMA']
 
 HUBER_K = 3.0
 OUTLIER_SIGMA = 5.0
@@ -69,9 +70,39 @@ def free_parameters(effect_names):
     return tuple(parameters)
 
 
+def normal_equations(anchor_columns, parameter_columns, anchor_prior, whitened, weights, prior_residual):
+    """Gram matrix J^T W J and gradient J^T W r of the weighted problem (data rows weighted by ``weights``, then the
+    anchors' prior rows at weight 1) from its blocks, and a function giving the weighted RSS after a step.
+
+    The blocks: the sparse anchor columns (two knots per row), the dense parameter columns and the prior's constant
+    Gram matrix (compare.prior). Stacking them into one sparse Jacobian to multiply it by itself costs several
+    times more: the parameter columns are dense, and so nearly are the GLS prior's rows.
+    """
+    prior = anchor_prior.matrix
+    weighted_anchors = rows_scaled(anchor_columns, weights)
+    weighted_parameters = parameter_columns * weights[:, None]
+    cross = np.asarray(weighted_anchors.T @ parameter_columns)
+    gram = np.block([[(anchor_columns.T @ weighted_anchors).toarray() + anchor_prior.gram, cross],
+                     [cross.T, parameter_columns.T @ weighted_parameters]])
+    gradient = np.concatenate([weighted_anchors.T @ whitened + prior.T @ prior_residual,
+                               weighted_parameters.T @ whitened])
+    anchor_count = anchor_columns.shape[1]
+
+    def rss_after(step):
+        data = whitened - anchor_columns @ step[:anchor_count] - parameter_columns @ step[anchor_count:]
+        after_prior = prior_residual - prior @ step[:anchor_count]
+        return float(weights @ data**2 + after_prior @ after_prior)
+
+    return gram, gradient, rss_after
+
+
 @dataclass(frozen=True, eq=False)
 class ModelFit:
-    """A converged fit: effects with fitted values, sigmas, correlation, anchors, residuals, weights."""
+    """A converged fit: effects with fitted values, sigmas, correlation, anchors, residuals, weights.
+
+    Its Jacobian is kept in blocks (``anchor_columns``, ``parameter_columns``, the prior): ``normal_equations``
+    weights them without assembling it; ``jacobian`` assembles it (sparse) for what needs its columns.
+    """
 
     effects: dict
     free: tuple
@@ -82,7 +113,9 @@ class ModelFit:
     residual_arcsec: np.ndarray
     whitened: np.ndarray
     prior_residual: np.ndarray
-    jacobian: np.ndarray
+    anchor_columns: scipy.sparse.csr_matrix
+    parameter_columns: np.ndarray
+    anchor_prior: object
     weights: np.ndarray
     outlier: np.ndarray
     iterations: int
@@ -90,12 +123,25 @@ class ModelFit:
     @property
     def parameter_count(self):
         """Fitted numbers including the anchors."""
-        return self.jacobian.shape[1]
+        return self.anchor_columns.shape[1] + self.parameter_columns.shape[1]
 
     @property
     def augmented_residual(self):
         """Whitened data rows followed by the anchors' gyro-noise prior rows (what the Jacobian's rows are)."""
         return np.concatenate([self.whitened, self.prior_residual])
+
+    @cached_property
+    def jacobian(self):
+        """d augmented residual / d (anchors, parameters), whitened, sparse: data rows, then the prior's rows."""
+        prior = self.anchor_prior.matrix
+        data = scipy.sparse.hstack([self.anchor_columns, scipy.sparse.csr_matrix(self.parameter_columns)])
+        prior_rows = scipy.sparse.hstack([prior, scipy.sparse.csr_matrix((prior.shape[0], self.parameter_columns.shape[1]))])
+        return scipy.sparse.vstack([data, prior_rows], format='csr')
+
+    def normal_equations(self, data_weights):
+        """normal_equations of this fit's residuals with the data rows weighted by ``data_weights``."""
+        return normal_equations(self.anchor_columns, self.parameter_columns, self.anchor_prior, self.whitened,
+                                data_weights, self.prior_residual)
 
     @property
     def bic(self):
@@ -121,34 +167,6 @@ class WhitenedProblem:
         self.row_sigma = np.asarray(sigma_arcsec)[centroids.camera_index][:, None]
         self.anchor_prior = anchor_prior
         self.prior = anchor_prior.matrix
-
-    def normal_equations(self, anchor_columns, parameter_columns, whitened, weights, anchors):
-        """Gram matrix and gradient of the Huber-weighted problem (data rows, then the anchors' prior rows) from its
-        blocks: the sparse anchor columns, the dense parameter columns and the prior's constant Gram matrix. Also a
-        function giving the weighted RSS after a step. Assembling the whole sparse Jacobian to multiply it by itself
-        costs several times more (the parameter columns are dense, the GLS prior rows nearly so)."""
-        weighted_anchors = rows_scaled(anchor_columns, weights)
-        weighted_parameters = parameter_columns * weights[:, None]
-        cross = np.asarray(weighted_anchors.T @ parameter_columns)
-        gram = np.block([[(anchor_columns.T @ weighted_anchors).toarray() + self.anchor_prior.gram, cross],
-                         [cross.T, parameter_columns.T @ weighted_parameters]])
-        prior_residual = -(self.prior @ anchors.ravel())
-        gradient = np.concatenate([weighted_anchors.T @ whitened + self.prior.T @ prior_residual,
-                                   weighted_parameters.T @ whitened])
-        anchor_count = anchor_columns.shape[1]
-
-        def rss_after(step):
-            data = whitened - anchor_columns @ step[:anchor_count] - parameter_columns @ step[anchor_count:]
-            prior = prior_residual - self.prior @ step[:anchor_count]
-            return float(weights @ data**2 + prior @ prior)
-
-        return gram, gradient, rss_after
-
-    def augmented(self, jacobian, anchors):
-        """The prior's residual rows and the whole least-squares Jacobian (data rows, then prior rows), sparse."""
-        prior_jacobian = scipy.sparse.hstack([self.prior, scipy.sparse.csr_matrix(
-            (self.prior.shape[0], jacobian.shape[1] - self.prior.shape[1]))])
-        return -(self.prior @ anchors.ravel()), scipy.sparse.vstack([jacobian, prior_jacobian], format='csr')
 
     def whiten(self, predicted_px):
         """(measured - predicted) in units of each camera's noise, flattened (x, y per row)."""
@@ -263,8 +281,9 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
         derivative = problem.irf_derivative(current, anchors, predicted)
         columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
         anchor_columns = problem.anchor_columns(current, derivative)
-        step = normal_equations_fit(*problem.normal_equations(anchor_columns, columns, whitened,
-                                                              _huber_weights(whitened), anchors), names, rows)
+        step = normal_equations_fit(*normal_equations(anchor_columns, columns, anchor_prior, whitened,
+                                                      _huber_weights(whitened), -(problem.prior @ anchors.ravel())),
+                                    names, rows)
         anchor_step = step.step[:anchors.size].reshape(anchors.shape)
         parameter_step = step.step[anchors.size:]
         current_cost, scale = cost(whitened, anchors), 1.0
@@ -286,11 +305,12 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
     # Converged steps are below 1 % of a sigma: the last Jacobian serves for the covariance.
     current = _with_values(effects, free, values)
     weights = _huber_weights(whitened)
-    final = normal_equations_fit(*problem.normal_equations(anchor_columns, columns, whitened, weights, anchors),
-                                 names, rows)
-    prior_residual, system = problem.augmented(scipy.sparse.hstack([anchor_columns, columns], format='csr'), anchors)
+    prior_residual = -(problem.prior @ anchors.ravel())
+    final = normal_equations_fit(*normal_equations(anchor_columns, columns, anchor_prior, whitened, weights,
+                                                   prior_residual), names, rows)
     parameters = slice(anchors.size, None)
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)
     return ModelFit(current, free, values, final.sigma[parameters], final.correlation[parameters, parameters],
-                    anchors, residual_arcsec, whitened, prior_residual, system, weights, outlier, iteration)
+                    anchors, residual_arcsec, whitened, prior_residual, anchor_columns, columns, anchor_prior, weights,
+                    outlier, iteration)

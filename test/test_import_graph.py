@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / 'sofia_ros'
 #: on top and may import any layer
 ENTRY_POINTS = {'sofia_ros.cli', 'sofia_ros.nodes.executables', *(
     '.'.join(path.relative_to(PACKAGE.parent).with_suffix('').parts) for path in PACKAGE.glob('*/*cli.py'))}
-OFFLINE_TOOLS = ('analysis', 'bag', 'compare', 'measurements', 'noise', 'perturb')
+OFFLINE_TOOLS = ('analysis', 'bag', 'compare', 'design', 'measurements', 'noise', 'perturb')
 #: the layers above the science core, top first: a layer imports only the ones after it
 GRAPH_LAYERS = ('atlas', 'campaigns', 'nodes', 'sim')
 

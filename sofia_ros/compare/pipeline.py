@@ -31,20 +31,23 @@ from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, Ra
 from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
 from sofia_ros.compare.diagnostics import Diagnostics
 from sofia_ros.compare.fit import FreeParameter, free_parameters, vanishing_values
-from sofia_ros.compare.search import LinearizedModels, equivalent_models, model_terms, search_pool, structural_change
+from sofia_ros.compare.search import (LinearizedModels, equivalent_models, model_terms, rival_swaps, search_pool,
+                                     structural_changes)
 from sofia_ros.compare.verdict import after_member, judge
 from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, resolve_params
 from sofia_ros.effects.empirical import empirical_parts, is_empirical
 from sofia_ros.errors import FitError
 from sofia_ros.progress import Progress
 
-__all__ = ['ABSORBED_FRACTION', 'Comparison', 'ComparisonSource', 'Judgement', 'LinearizedCandidate', 'SourceFit',
-           'WhitenedFit', 'candidate_entry', 'run_comparison', 'switched_on', 'term_table']
+__all__ = ['ABSORBED_FRACTION', 'CHECKED_CHANGES', 'Comparison', 'ComparisonSource', 'Judgement', 'LinearizedCandidate',
+           'SourceFit', 'WhitenedFit', 'candidate_entry', 'run_comparison', 'switched_on', 'term_table']
 
 #: A candidate whose columns one fitted effect reproduces to within this fraction of their norm is absorbed by it
 #: (the pair is named degenerate). Looser than analysis.ranking's IN_BASE_SPAN_FRACTION: the columns are finite
 #: differences of whole predictions, and an effect that one term absorbs only to 1e-4 still cannot be told from it.
 ABSORBED_FRACTION = 1e-3
+#: Changes of the model's own terms refitted in full, at most, until one is confirmed (_confirmed_change).
+CHECKED_CHANGES = 3
 
 
 class SourceFit(Protocol):
@@ -391,12 +394,10 @@ def _refits(source: ComparisonSource, final: SourceFit, ranked: list[RankedCandi
     return refits
 
 
-def _checked_change(source: ComparisonSource, change: dict | None, models: LinearizedModels, final: SourceFit,
+def _checked_change(source: ComparisonSource, change: dict, models: LinearizedModels, final: SourceFit,
                     linearized: Mapping[str, LinearizedCandidate]) -> dict | None:
     """The proposed change refitted in full from its linearized values: its real delta-BIC against the model as it
     is, or None if the fit fails."""
-    if change is None or change['expected_delta_bic'] < SIGNIFICANT_DELTA_BIC:
-        return None  # a change the linearization already calls insignificant is not worth a full fit
     removed = set(change['term'].split(','))
     chosen = {p.effect for p in final.free} - removed | ({change['effect']} - {None})
     effects = {name: params for name, params in final.effects.items() if name not in removed}
@@ -412,6 +413,26 @@ def _checked_change(source: ComparisonSource, change: dict | None, models: Linea
     except FitError:
         return None
     return {**change, 'delta_bic': float(final.bic - trial.bic)}
+
+
+def _confirmed_change(source: ComparisonSource, changes: Sequence[dict], swaps: Sequence[dict],
+                      models: LinearizedModels, final: SourceFit,
+                      linearized: Mapping[str, LinearizedCandidate]) -> dict | None:
+    """The changes the linearization calls significant, then the rival swaps (search.rival_swaps), refitted in full
+    in that order until one lowers the BIC significantly: that one, else the best refitted (None if none was).
+    At most CHECKED_CHANGES refits. A linearized gain is a guess where terms interact or an effect is far from
+    where it was linearized: a one-for-one swap can lose what the two-for-one swap behind it wins."""
+    significant = [change for change in changes if change['expected_delta_bic'] >= SIGNIFICANT_DELTA_BIC]
+    tried = {(change['term'], change['effect']) for change in significant}
+    queue = significant + [swap for swap in swaps if (swap['term'], swap['effect']) not in tried]
+    best = None
+    for change in queue[:CHECKED_CHANGES]:
+        checked = _checked_change(source, change, models, final, linearized)
+        if checked is not None and (best is None or checked['delta_bic'] > best['delta_bic']):
+            best = checked
+        if best is not None and best['delta_bic'] >= SIGNIFICANT_DELTA_BIC:
+            break
+    return best
 
 
 def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
@@ -482,7 +503,9 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     fitted_now = frozenset(p.effect for p in final.free)
     models = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance,
                                      search_pool(terms, [entries[name] for name in scores]))
-    change = _checked_change(source, structural_change(models, fitted_now), models, final, by_name)
+    own_terms = model_terms(models, fitted_now)
+    change = _confirmed_change(source, structural_changes(models, fitted_now, CHECKED_CHANGES),
+                               rival_swaps(models, fitted_now, own_terms), models, final, by_name)
     alternatives_s = time.perf_counter() - alternatives_started
 
     progress.phase('diagnostics after the contenders')
@@ -507,7 +530,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
         'candidates': candidates,
         'degenerate': [list(pair) for pair in degenerate],
         'competing': competing_document(competing, members),
-        'model_terms': model_terms(models, fitted_now),
+        'model_terms': own_terms,
         'model_change': change,
         'equivalent_models': equivalent_models(models, fitted_now),
         'unobservable': [c['effect'] for c in candidates if not c['detectable']],

@@ -31,7 +31,8 @@ from sofia_ros.effects.empirical import is_empirical
 from sofia_ros.errors import ConfigError
 
 __all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'MAX_SEARCH_ROUNDS', 'LinearizedModels', 'SearchRound',
-           'equivalent_models', 'model_terms', 'search_pool', 'search_model', 'structural_change']
+           'equivalent_models', 'model_terms', 'rival_swaps', 'search_pool', 'search_model', 'structural_change',
+           'structural_changes']
 
 #: An empirical shape enters a model only where it beats the physics by this much BIC (a tie goes to physics).
 EMPIRICAL_PENALTY = 10.0
@@ -192,23 +193,50 @@ def model_terms(models, current):
     return entries
 
 
-def structural_change(models, current):
-    """The best change of the model's own terms by linearized BIC (physics preferred): remove one term, or put
-    one candidate in the place of one or two terms. None unless it lowers the BIC."""
+def structural_changes(models, current, count=1):
+    """The ``count`` best changes of the model's own terms by linearized BIC (physics preferred), best first: remove
+    one term, or put one candidate in the place of one or two terms. Only changes that lower the BIC."""
     current = frozenset(current)
     score = models.bic(current)
     terms = sorted(current)
     outside = [name for name in models.names if name not in current]
     options = [('remove', (term,), None, current - {term}) for term in terms]
-    for count in (1, 2):
-        for removed in itertools.combinations(terms, count):
+    for size in (1, 2):
+        for removed in itertools.combinations(terms, size):
             options += [('replace', removed, other, (current - set(removed)) | {other}) for other in outside]
-    best = None
+    changes = []
     for action, removed, effect, chosen in options:
         gain = score - models.bic(chosen)
-        if gain > 0.0 and (best is None or gain > best['expected_delta_bic']):
-            best = {'action': action, 'term': ','.join(removed), 'effect': effect, 'expected_delta_bic': float(gain)}
-    return best
+        if gain > 0.0:
+            changes.append({'action': action, 'term': ','.join(removed), 'effect': effect,
+                            'expected_delta_bic': float(gain)})
+    return sorted(changes, key=lambda change: -change['expected_delta_bic'])[:count]
+
+
+def rival_swaps(models, current, terms):
+    """The swaps a linearization may misjudge, for a full refit to settle: each effect that model_terms names a rival
+    of fitted terms (``terms``, its entries) put in the place of one or two of the terms it rivals, best linearized
+    gain first, whatever that gain. An effect linearized where it vanishes (a fiducial error of 16 px) can lose
+    to the terms standing in for it by the linearization and win by the refit."""
+    current = frozenset(current)
+    score = models.bic(current)
+    rivalled = {}
+    for entry in terms:
+        for rival in entry['rivals']:
+            rivalled.setdefault(rival['effect'], []).append(entry['term'])
+    swaps = []
+    for effect, replaced in rivalled.items():
+        for size in (1, 2):
+            for removed in itertools.combinations(sorted(replaced), size):
+                gain = score - models.bic((current - set(removed)) | {effect})
+                swaps.append({'action': 'replace', 'term': ','.join(removed), 'effect': effect,
+                              'expected_delta_bic': float(gain)})
+    return sorted(swaps, key=lambda change: -change['expected_delta_bic'])
+
+
+def structural_change(models, current):
+    """The best change of the model's own terms by linearized BIC (structural_changes), or None."""
+    return next(iter(structural_changes(models, current)), None)
 
 
 def equivalent_models(models, chosen):

@@ -28,8 +28,6 @@ from sofia_ros import errors
 COVERED_PACKAGES = ('sofia_ros.noise', 'sofia_ros.analysis', 'sofia_ros.effects', 'sofia_ros.measurements')
 EXCLUDED_MODULES = frozenset({
     'sofia_ros.analysis.ranking',
-    'sofia_ros.measurements.compare',
-    'sofia_ros.measurements.report',
 })
 
 #: The project's own exceptions: raising one directly calls for a ``Raises:`` section.

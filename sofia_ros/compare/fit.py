@@ -28,7 +28,7 @@ from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
 __all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'normal_equations',
-           'rows_scaled', 'vanishing_values', 'OUTLIER_SIGMA']
+           'rows_scaled', 'vanishing_values', 'with_values', 'OUTLIER_SIGMA']
 
 HUBER_K = 3.0
 OUTLIER_SIGMA = 5.0
@@ -150,7 +150,8 @@ class ModelFit:
         return bic(float(residual @ residual), len(residual), self.parameter_count)
 
 
-def _with_values(effects, free, values):
+def with_values(effects, free, values):
+    """A copy of ``effects`` with the free parameters set to ``values``."""
     updated = {name: dict(params) for name, params in effects.items()}
     for parameter, value in zip(free, values):
         updated[parameter.effect][parameter.name] = float(value)
@@ -210,7 +211,7 @@ class WhitenedProblem:
         for index, parameter in enumerate(free):
             stepped = values.copy()
             stepped[index] += parameter.step
-            stepped_effects.append(_with_values(effects, free, stepped))
+            stepped_effects.append(with_values(effects, free, stepped))
             reaches.append(predictor.parameter_reach(effects, parameter, stepped_effects[-1]))
         changes = iter(predictor.attitude_changes_irf(
             effects, [moved for moved, (_, attitude, _) in zip(stepped_effects, reaches) if attitude],
@@ -250,7 +251,7 @@ def _robust_cost(whitened):
 def _try_predicted(problem, effects, free, values, anchors):
     """Predicted pixels at a trial point, or None where the model sends a star off a detector."""
     try:
-        return problem.predictor.predict_px(_with_values(effects, free, values), anchors)
+        return problem.predictor.predict_px(with_values(effects, free, values), anchors)
     except InvalidArgumentError:
         return None
 
@@ -277,7 +278,7 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
     names = [''] * (anchors.size + len(free))
     rows = whitened.size + problem.prior.shape[0]
     for iteration in range(1, _MAX_ITERATIONS + 1):
-        current = _with_values(effects, free, values)
+        current = with_values(effects, free, values)
         derivative = problem.irf_derivative(current, anchors, predicted)
         columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
         anchor_columns = problem.anchor_columns(current, derivative)
@@ -303,7 +304,7 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
         if small and np.max(np.abs(anchor_step), initial=0.0) < 1e-8:
             break
     # Converged steps are below 1 % of a sigma: the last Jacobian serves for the covariance.
-    current = _with_values(effects, free, values)
+    current = with_values(effects, free, values)
     weights = _huber_weights(whitened)
     prior_residual = -(problem.prior @ anchors.ravel())
     final = normal_equations_fit(*normal_equations(anchor_columns, columns, anchor_prior, whitened, weights,

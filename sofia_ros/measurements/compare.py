@@ -24,6 +24,7 @@ from scipy.stats import chi2
 from sofia_ros.analysis.ranking import CandidateTerm, linear_fit
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA, Diagnostics
+from sofia_ros.compare.fit import with_values
 from sofia_ros.compare.pipeline import (ABSORBED_FRACTION, Comparison, Judgement, LinearizedCandidate, WhitenedFit,
                                         run_comparison, switched_on)
 from sofia_ros.config import EffectConfig
@@ -85,17 +86,10 @@ class _Problem:
         """d whitened prediction / d parameter (the ranking's convention: residual reduction per unit)."""
         columns = np.empty((len(base), len(free)))
         for index, parameter in enumerate(free):
-            shifted = _with_values(effects, free, values)
+            shifted = with_values(effects, free, values)
             shifted[parameter.effect] = {**shifted[parameter.effect], parameter.name: values[index] + parameter.step}
             columns[:, index] = (base - self.whitened(shifted)) / parameter.step
         return columns
-
-
-def _with_values(effects, free, values):
-    out = {name: dict(params) for name, params in effects.items()}
-    for parameter, value in zip(free, values):
-        out[parameter.effect][parameter.name] = float(value)
-    return out
 
 
 def _start_values(measurement_set, effects, fitted):
@@ -115,10 +109,10 @@ def _fit(problem, effects, free):
     start = np.array([effects[p.effect][p.name] for p in free], dtype=float)
     if free:
         steps = np.array([p.step for p in free])
-        solution = least_squares(lambda values: problem.whitened(_with_values(effects, free, values)), start,
+        solution = least_squares(lambda values: problem.whitened(with_values(effects, free, values)), start,
                                  x_scale=steps * 1e3, diff_step=None, method='trf', max_nfev=200 * len(free))
         start = solution.x
-    current = _with_values(effects, free, start)
+    current = with_values(effects, free, start)
     base = problem.whitened(current)
     if not np.all(np.isfinite(base)):
         raise FitError('the fit left the model undefined for this set (non-finite residuals)')

@@ -1,0 +1,170 @@
+"""Benchmark: `sofia compare` where the user works, the Waco 2004 loop of compare and `sofia model` rounds.
+
+The Waco 2004 truth (config/truth/waco-2004.yaml: five hidden effects) is flown once per campaign
+(the reduced alignment, seed 7, and the 17-observation star hop, seed 3904, both --direct), then
+the user's loop is followed as the README teaches it: `sofia compare BAG --model M --json J`,
+then the command the verdict names (`verdict.next.command`: `sofia model add|remove|replace`),
+up to --rounds rounds or until the verdict has nothing to do. Each compare runs in its own process
+as a user runs it; printed per round: its wall time, its peak memory (the child's maxrss from
+wait4), its status, RMS and next step, and whether it read the bag or the observation cache (the
+first compare of a bag decodes it, the later ones read the cache). Beside the loop, the same bag
+with the nominal model once more with --no-cache: the decode's share of a compare.
+
+With ``--baseline CHECKOUT`` (another checkout, e.g. ``git worktree add /tmp/base <commit>``) every
+round's compare also runs from that checkout on the same model (without the cache, which it may
+not know), and the two JSON outputs are checked: the same verdict and next step, every fitted term
+within AGREEMENT_SIGMA of its sigma; its wall time is printed beside this checkout's.
+
+The figures are written to bench/results/compare_loop.{json,txt} (date, commit, load, machine).
+
+Run: .venv/bin/python bench/bench_compare_loop.py [--campaigns alignment,star-hop] [--rounds 8] [--baseline DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+TRUTH = ROOT / 'config' / 'truth' / 'waco-2004.yaml'
+MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
+#: The loops of issues 25 and 27: campaign -> (seed, extra `sofia run` options).
+LOOPS = {'alignment': (7, ['--variant', 'reduced']), 'star-hop': (3904, [])}
+#: Issue 27's targets per compare round: wall seconds and peak memory.
+TARGET_S = {'alignment': 4.0, 'star-hop': 15.0}
+TARGET_MEMORY_MB = 600.0
+#: Fitted values of this checkout and the baseline may differ by this fraction of their sigma (issue 27).
+AGREEMENT_SIGMA = 0.01
+#: Every line printed, for bench/results/compare_loop.txt.
+PRINTED: list[str] = []
+
+
+def _say(line: str) -> None:
+    PRINTED.append(line)
+    print(line, flush=True)
+
+
+def _sofia(checkout: Path, *arguments: str) -> tuple[subprocess.CompletedProcess, float, float]:
+    """`python -m sofia_ros.cli ARGUMENTS` from a checkout: the completed process, its wall s and its own peak MB."""
+    environment = {**os.environ, 'PYTHONPATH': str(checkout)}
+    with tempfile.TemporaryFile('w+') as stdout, tempfile.TemporaryFile('w+') as stderr:
+        started = time.perf_counter()
+        process = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', *arguments], cwd=checkout,
+                                   env=environment, stdout=stdout, stderr=stderr, text=True)
+        # wait4 reaps this child alone and gives its own resource usage (maxrss in KiB on Linux).
+        _, status, usage = os.wait4(process.pid, 0)
+        wall_s = time.perf_counter() - started
+        process.returncode = os.waitstatus_to_exitcode(status)
+        stdout.seek(0)
+        stderr.seek(0)
+        completed = subprocess.CompletedProcess(process.args, process.returncode, stdout.read(), stderr.read())
+    return completed, wall_s, usage.ru_maxrss / 1024.0
+
+
+def _checked(process: subprocess.CompletedProcess, what: str) -> subprocess.CompletedProcess:
+    if process.returncode != 0:
+        raise SystemExit(f'{what} failed (exit {process.returncode}): {process.stderr.strip()[-400:]}')
+    return process
+
+
+def _agreement(document: dict, baseline: dict) -> tuple[bool, float]:
+    """The same verdict status and next step, and the largest |difference| / sigma of the fitted terms."""
+    same = (document['verdict']['status'] == baseline['verdict']['status']
+            and (document['verdict'].get('next') or {}).get('effect') == (baseline['verdict'].get('next') or {}).get('effect'))
+    worst = 0.0
+    for term, other in zip(document['terms'], baseline['terms']):
+        if (term['effect'], term['param']) != (other['effect'], other['param']):
+            return False, float('inf')
+        if term['sigma'] > 0:
+            worst = max(worst, abs(term['value'] - other['value']) / term['sigma'])
+    return same, worst
+
+
+def run_loop(campaign: str, rounds: int, work: Path, baseline: Path | None) -> dict:
+    """Fly the Waco 2004 truth on one campaign and follow the advice loop; the rows of every round."""
+    seed, options = LOOPS[campaign]
+    bag = work / f'waco-{campaign}'
+    _, run_s, _ = _sofia(ROOT, 'run', campaign, '--truth', str(TRUTH), '--seed', str(seed), '--bag', str(bag),
+                         '--direct', *options)
+    if not (bag / 'metadata.yaml').exists():
+        raise SystemExit(f'sofia run {campaign} wrote no bag in {bag}')
+    model = work / f'model-{campaign}.yaml'
+    shutil.copy(MODEL, model)
+    rows = []
+    for number in range(1, rounds + 1):
+        output = work / f'{campaign}-{number}.json'
+        process, wall_s, peak_mb = _sofia(ROOT, 'compare', str(bag), '--model', str(model), '--json', str(output))
+        _checked(process, f'compare round {number}')
+        document = json.loads(output.read_text())
+        next_step = document['verdict'].get('next') or {}
+        row = {'round': number, 'model': [entry['term'] for entry in document['ledger'][1:]], 'wall_s': round(wall_s, 2), 'peak_mb': round(peak_mb), 'cache': 'read' if number > 1 else 'written',
+               'status': document['verdict']['status'], 'rms_arcsec': document['residual_rms_arcsec']['total'],
+               'next': next_step.get('command') or next_step.get('action')}
+        if baseline is not None:
+            old_output = work / f'{campaign}-{number}-baseline.json'
+            old, old_wall_s, _ = _sofia(baseline, 'compare', str(bag), '--model', str(model), '--json', str(old_output))
+            _checked(old, f'baseline compare round {number}')
+            same, worst = _agreement(document, json.loads(old_output.read_text()))
+            row.update(baseline_wall_s=round(old_wall_s, 2), same_verdict=same, worst_sigma=worst)
+        rows.append(row)
+        _say(f'  {campaign} round {number}: {wall_s:6.1f} s {peak_mb:6.0f} MB ({row["cache"]} cache) '
+              f'{row["status"]:<15} RMS {row["rms_arcsec"]:.3f}"  next: {row["next"]}'
+              + (f'  | baseline {row["baseline_wall_s"]:.1f} s, same verdict {row["same_verdict"]}, '
+                 f'worst {row["worst_sigma"]:.2g} sigma' if baseline is not None else ''))
+        command = next_step.get('command') or ''
+        if next_step.get('action') not in ('add', 'remove', 'replace') or not command.startswith('sofia model '):
+            break
+        _checked(_sofia(ROOT, *command.split()[1:])[0], command)
+    process, cold_s, cold_mb = _sofia(ROOT, 'compare', str(bag), '--model', str(MODEL), '--no-cache', '--quiet')
+    _checked(process, 'compare --no-cache')
+    process, warm_s, _ = _sofia(ROOT, 'compare', str(bag), '--model', str(MODEL), '--quiet')
+    _checked(process, 'compare from the cache')
+    _say(f'  {campaign}: the nominal model again, without the cache {cold_s:.1f} s ({cold_mb:.0f} MB), '
+          f'from the cache {warm_s:.1f} s (ratio {warm_s / cold_s:.2f}); the run itself took {run_s:.0f} s')
+    return {'campaign': campaign, 'seed': seed, 'run_s': round(run_s, 1), 'rounds': rows,
+            'loop_compare_s': round(sum(row['wall_s'] for row in rows), 1),
+            'nominal_without_cache_s': round(cold_s, 2), 'nominal_from_cache_s': round(warm_s, 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--campaigns', default='alignment,star-hop')
+    parser.add_argument('--rounds', type=int, default=8)
+    parser.add_argument('--baseline', type=Path, help='another checkout to run every round beside this one')
+    args = parser.parse_args()
+    load_before = os.getloadavg()[0]
+    started = time.time()
+    loops = []
+    with tempfile.TemporaryDirectory(prefix='sofia-bench-loop-') as work:
+        for campaign in args.campaigns.split(','):
+            _say(f'{campaign}: Waco 2004 truth, seed {LOOPS[campaign][0]}; target per compare '
+                 f'<= {TARGET_S[campaign]:.0f} s, <= {TARGET_MEMORY_MB:.0f} MB')
+            loops.append(run_loop(campaign, args.rounds, Path(work), args.baseline))
+    for loop in loops:
+        _say(f'{loop["campaign"]}: {len(loop["rounds"])} rounds, {loop["loop_compare_s"]:.0f} s of compare, '
+              f'slowest round {max(row["wall_s"] for row in loop["rounds"]):.1f} s, '
+              f'peak {max(row["peak_mb"] for row in loop["rounds"])} MB; load {load_before:.1f} before')
+    commit = subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
+    results = ROOT / 'bench' / 'results'
+    results.mkdir(exist_ok=True)
+    document = {'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': commit,
+                'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'load_before': load_before,
+                'load_after': os.getloadavg()[0], 'wall_s': round(time.time() - started, 1),
+                'baseline': str(args.baseline) if args.baseline else None, 'loops': loops}
+    (results / 'compare_loop.json').write_text(json.dumps(document, indent=1) + '\n')
+    (results / 'compare_loop.txt').write_text(f'{document["date"]} commit {commit}, {document["machine"]}, load '
+                                              f'{load_before:.1f} before\n' + '\n'.join(PRINTED) + '\n')
+
+
+if __name__ == '__main__':
+    main()

@@ -12,6 +12,7 @@ from __future__ import annotations
 from typing import Iterable, Mapping, TypedDict
 
 from sofia_ros.analysis.ranking import CompetingSet, RankedCandidate
+from sofia_ros.compare.fit import free_parameters
 from sofia_ros.effects.empirical import is_empirical
 
 __all__ = ['AfterMember', 'CompetingEntry', 'REFINED_CANDIDATES', 'REFINED_PHYSICAL', 'SEPARATING_RATIO_GAP',
@@ -70,11 +71,28 @@ def contenders(refitted: Iterable[str], scores: Mapping[str, float], competing: 
     return [best] if rivals is None else [name for name in rivals.effects if name in refitted]
 
 
-def preferred_best(names: Iterable[str], scores: Mapping[str, float], after: Mapping[str, AfterMember]):
+def preferred_best(names: Iterable[str], scores: Mapping[str, float], after: Mapping[str, AfterMember],
+                   competing: Iterable[CompetingSet] = ()):
     """The contender the verdict takes: one that explains every observable before one that does not, physics
-    before an empirical shape, then the best delta-BIC. None when there is none."""
-    return min(names, key=lambda name: (after.get(name, {}).get('status') != 'explained', is_empirical(name),
-                                        -scores[name]), default=None)
+    before an empirical shape, then the best delta-BIC; but within its competing set, among members of the same
+    standing, the one with the fewest free parameters (then the best delta-BIC). None when there is none.
+
+    Members of a competing set differ by less than the competing margin, which is there because a model that
+    still lacks effects leaves a residual whose BIC differences are decided by what else is missing: the data do
+    not choose, and the explanation with fewer free numbers is the one a later round can least overfit (on the
+    Waco 2004 alignment the HIPO fiducial error, 3 numbers, against a boresight offset of 6).
+    """
+    names = list(names)
+
+    def standing(name):
+        return after.get(name, {}).get('status') != 'explained', is_empirical(name)
+
+    top = min(names, key=lambda name: (*standing(name), -scores[name]), default=None)
+    rivals = competing_set_of(top, competing) if top is not None else None
+    if rivals is None:
+        return top
+    peers = [name for name in names if name in rivals.effects and standing(name) == standing(top)]
+    return min(peers, key=lambda name: (len(free_parameters([name])), -scores[name]))
 
 
 def _separating_observables(after: Mapping[str, AfterMember]) -> list:

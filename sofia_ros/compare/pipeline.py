@@ -513,7 +513,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     after = {name: source.judge_fit(refits[name]) for name in contenders(refits, scores, competing)}
     diagnostics_s += time.perf_counter() - diagnostics_started
     members = {name: after_member(judged.diagnostics, judged.consistency) for name, judged in after.items()}
-    best_name = preferred_best(after, scores, members)
+    best_name = preferred_best(after, scores, members, competing)
     after_best = after.get(best_name)
     verdict = judge(judgement.diagnostics, judgement.consistency, candidates, degenerate, best_name,
                     None if after_best is None else (after_best.diagnostics, after_best.consistency),

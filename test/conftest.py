@@ -121,9 +121,11 @@ def campaign_bags(tmp_path_factory):
 # A module is one unit of work (its module fixtures run once) unless it is listed in SPREAD: those
 # modules' expensive bags come from the session's CampaignBags, so their tests go to whichever worker
 # is free. The DDS modules share one unit, so no two live graphs start at once. Units are handed out
-# in collection order, and the workers collect the units of FIRST first (the longest, as measured).
-# The units are this file's own scheduler's scopes (pytest_xdist_make_scheduler), not xdist_group
-# marks: loadgroup reads those from mutated node ids, which pytest 9.2 no longer allows
+# longest first (MEASURED_S), so that a long one never starts last and ends the run alone; the others
+# follow in collection order. A worker is given its next unit when one test of its current unit is left
+# (xdist waits for two: the next unit then also waited behind the second last test, minutes for the
+# atlas cluster's). The units are this file's own scheduler's scopes (pytest_xdist_make_scheduler), not
+# xdist_group marks: loadgroup reads those from mutated node ids, which pytest 9.2 no longer allows
 # (pytest-xdist issue 1386).
 
 #: modules whose tests are handed out one by one
@@ -131,13 +133,26 @@ SPREAD = frozenset({'test_compare', 'test_discovery', 'test_fuzz_inputs'})
 #: modules that share a unit of work with others (module -> unit)
 UNITS = {'test_live_graph': 'dds', 'test_run_signals': 'dds', 'test_star_hop_processes': 'dds', 'test_mode_bags': 'dds',
          'test_full_disk': 'dds'}
-#: units handed out first, in this order; every other unit follows in collection order
-FIRST = ('dds', 'test_star_hop')
+#: seconds of the longest units (a SPREAD module: all its tests), each run alone with -n 0 on the loaded
+#: 2-core machine (2026-11-27, other jobs running; the shared campaign bags recorded where first asked for)
+MEASURED_S = {
+    'dds': 900,  # test_run_signals 219, test_full_disk 150, test_live_graph, test_star_hop_processes, test_mode_bags
+    'test_atlas_cluster': 394, 'test_observation_cache': 292, 'test_perturb': 268, 'test_effect_plugins': 244,
+    'test_fuzz_inputs': 203, 'test_atlas_multi_effect': 162, 'test_plan_files': 149,
+    'test_plugin_perturb_refusals': 147, 'test_search_loop': 97, 'test_gyro_noise': 88, 'test_alignment_campaign': 86,
+    'test_cli': 89, 'test_gyro_stability_campaign': 71, 'test_input_validation': 49,
+}
+#: units handed out first, longest first; every other unit follows in collection order
+FIRST = tuple(sorted(MEASURED_S, key=MEASURED_S.get, reverse=True))
+
+
+def _module_of(nodeid):
+    return nodeid.split('::', 1)[0].rsplit('/', 1)[-1].removesuffix('.py')
 
 
 def _unit_of(nodeid):
     """The unit of work of a test: its module's, the one it shares (UNITS), or its own (SPREAD)."""
-    module = nodeid.split('::', 1)[0].rsplit('/', 1)[-1].removesuffix('.py')
+    module = _module_of(nodeid)
     if module in SPREAD:
         return nodeid
     return UNITS.get(module, module)
@@ -153,10 +168,21 @@ def pytest_xdist_make_scheduler(config, log):
         def _split_scope(self, nodeid):
             return _unit_of(nodeid)
 
+        def _reschedule(self, node):
+            # A worker runs a test once it has been sent the next one: with two left it needs no unit yet.
+            if self.workqueue and not node.shutting_down and self._pending_of(self.assigned_work[node]) > 1:
+                return
+            super()._reschedule(node)
+
     return UnitScheduling(config, log)
 
 
 def pytest_collection_modifyitems(config, items):
     if _xdist_worker():
         rank = {unit: index for index, unit in enumerate(FIRST)}
-        items.sort(key=lambda item: rank.get(_unit_of(item.nodeid), len(rank)))  # stable otherwise
+
+        def order(item):
+            # a SPREAD module's tests are units of their own, ranked by their module's entry
+            return rank.get(_unit_of(item.nodeid), rank.get(_module_of(item.nodeid), len(rank)))
+
+        items.sort(key=order)  # stable otherwise

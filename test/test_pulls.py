@@ -1,4 +1,5 @@
-"""Honest pulls (issue 25): the atlas' pull (fitted - true) / sigma is computed only where compare gave a sigma.
+"""Honest pulls (issue 25): the atlas' pull (fitted - true) / sigma is computed only where compare gave a sigma, and a
+clock offset's fit starts in the basin of its truth.
 
 bench/bench_pulls.py runs the pull table of every visible effect; these tests hold the root causes it found.
 """
@@ -12,6 +13,7 @@ import pytest
 
 from sofia_ros.atlas.stats import fit_calibration
 from sofia_ros.atlas.task import ROW_FIELDS
+from sofia_ros.compare.fit import FreeParameter, _profiled_values
 
 
 def _row(seed: int, fitted_value: float, fitted_sigma: float | None) -> dict:
@@ -40,3 +42,43 @@ def test_a_cell_without_any_sigma_has_no_pull_at_all():
     (cell,) = fit_calibration([_row(seed, 9.0, math.inf) for seed in range(1, 6)])
     assert cell.unconstrained == 5
     assert math.isnan(cell.pull_mean) and math.isnan(cell.pull_std) and math.isnan(cell.median_sigma)
+
+
+class _StaircaseClock:
+    """A fake whitened problem: a telescope that steps 10 arcsec every second and holds in between, seen by rows
+    stamped on a clock 1 s late at 0.1, 0.35, 0.6 and 0.85 s into each second: any offset in (0.85, 1.1] s fits them
+    exactly. Gauss-Newton from 0 s sees no slope (every row in a hold) and stays there."""
+
+    TRUE_OFFSET_S = 1.0
+
+    def __init__(self):
+        self.times_s = np.arange(0.1, 30.0, 0.25)
+        self.measured = self._trajectory(self.times_s - self.TRUE_OFFSET_S)
+        self.predictor = self
+
+    @staticmethod
+    def _trajectory(times_s):
+        return 10.0 * np.floor(times_s)
+
+    def predict_px(self, effects, anchors):
+        return self._trajectory(self.times_s - effects['timestamp_offset']['offset_s'])
+
+    def whiten(self, predicted):
+        return (self.measured - predicted) / 0.3
+
+
+@pytest.mark.parametrize('start_s', [0.0, 0.15, -2.0])
+def test_a_clock_offset_starts_its_fit_at_the_best_of_its_grid(start_s):
+    free = (FreeParameter('timestamp_offset', 'offset_s', 's', 1e-3), FreeParameter('gyro_bias', 'el_deg_per_h',
+                                                                                     'deg/h', 1e-3))
+    effects = {'timestamp_offset': {'offset_s': start_s}, 'gyro_bias': {'el_deg_per_h': 0.2}}
+    values = _profiled_values(_StaircaseClock(), effects, free, np.array([start_s, 0.2]), np.zeros((1, 3)))
+    assert 0.85 < values[0] <= 1.1 and values[1] == 0.2
+
+
+def test_a_clock_offset_already_at_its_best_keeps_its_value():
+    # a correct model's fit starts where it started: the start wins a tie with the grid
+    free = (FreeParameter('timestamp_offset', 'offset_s', 's', 1e-3),)
+    values = _profiled_values(_StaircaseClock(), {'timestamp_offset': {'offset_s': 0.9}}, free, np.array([0.9]),
+                              np.zeros((1, 3)))
+    assert values[0] == 0.9

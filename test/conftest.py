@@ -121,13 +121,13 @@ def campaign_bags(tmp_path_factory):
 # A module is one unit of work (its module fixtures run once) unless it is listed in SPREAD: those
 # modules' expensive bags come from the session's CampaignBags, so their tests go to whichever worker
 # is free; a long test that needs no module fixture may be a unit of its own (ALONE). The DDS modules
-# share one unit, so no two live graphs start at once. Units are handed out longest first
-# (MEASURED_S), so that a long one never starts last and ends the run alone; the others follow in
-# collection order. A worker is given its next unit when one test of its current unit is left (xdist
-# waits for two: the next unit then also waited behind the second last test, minutes for the atlas
-# cluster's). The units are this file's own scheduler's scopes (pytest_xdist_make_scheduler), not
-# xdist_group marks: loadgroup reads those from mutated node ids, which pytest 9.2 no longer allows
-# (pytest-xdist issue 1386).
+# share two units (one was a third of the run), so at most two live graphs start at once. Units are
+# handed out longest first (MEASURED_S), so that a long one never starts last and ends the run alone;
+# the others follow in collection order. A worker is given its next unit when one test of its current
+# unit is left (xdist waits for two: the next unit then also waited behind the second last test,
+# minutes for the atlas cluster's). The units are this file's own scheduler's scopes
+# (pytest_xdist_make_scheduler), not xdist_group marks: loadgroup reads those from mutated node ids,
+# which pytest 9.2 no longer allows (pytest-xdist issue 1386).
 
 #: modules whose tests are handed out one by one
 SPREAD = frozenset({'test_compare', 'test_discovery', 'test_fuzz_inputs'})
@@ -137,19 +137,21 @@ ALONE = frozenset({
     'test_star_hop::test_fpi_internal_flexure_is_named_and_measures_about_1_1_arcsec_over_23_to_60_deg',
 })
 #: modules that share a unit of work with others (module -> unit)
-UNITS = {'test_live_graph': 'dds', 'test_run_signals': 'dds', 'test_star_hop_processes': 'dds', 'test_mode_bags': 'dds',
-         'test_full_disk': 'dds'}
+UNITS = {'test_live_graph': 'dds', 'test_mode_bags': 'dds',
+         'test_run_signals': 'dds-runs', 'test_star_hop_processes': 'dds-runs', 'test_full_disk': 'dds-runs'}
 #: seconds of the longest units (a SPREAD module: all its tests), each run alone with -n 0 on the loaded
 #: 2-core machine (2026-11-27, other jobs running; the shared campaign bags recorded where first asked for)
 MEASURED_S = {
-    'dds': 720,  # run_signals 219, full_disk 150, star_hop_processes 102, live_graph and mode_bags (estimate)
+    'dds': 711,  # test_live_graph 704, test_mode_bags 7
+    'dds-runs': 471,  # test_run_signals 219, test_full_disk 150, test_star_hop_processes 102
     'test_star_hop': 397,  # 639 with its two ALONE tests
     'test_star_hop::test_tracker_drift_sinusoid_is_recovered_from_a_hold_of_one_period': 141,
     'test_star_hop::test_fpi_internal_flexure_is_named_and_measures_about_1_1_arcsec_over_23_to_60_deg': 101,
     'test_atlas_cluster': 394, 'test_observation_cache': 292, 'test_perturb': 268, 'test_effect_plugins': 244,
     'test_fuzz_inputs': 203, 'test_atlas_multi_effect': 162, 'test_plan_files': 149,
     'test_plugin_perturb_refusals': 147, 'test_search_loop': 97, 'test_gyro_noise': 88, 'test_alignment_campaign': 86,
-    'test_cli': 89, 'test_gyro_stability_campaign': 71, 'test_input_validation': 49,
+    'test_cli': 89, 'test_gyro_stability_campaign': 71, 'test_input_validation': 49, 'test_json_schemas': 160,
+    'test_spectra': 78, 'test_structure': 54,
 }
 #: units handed out first, longest first; every other unit follows in collection order
 FIRST = tuple(sorted(MEASURED_S, key=MEASURED_S.get, reverse=True))

@@ -82,3 +82,11 @@ def test_a_clock_offset_already_at_its_best_keeps_its_value():
     values = _profiled_values(_StaircaseClock(), {'timestamp_offset': {'offset_s': 0.9}}, free, np.array([0.9]),
                               np.zeros((1, 3)))
     assert values[0] == 0.9
+
+
+def test_a_clock_offset_a_previous_fit_converged_is_not_profiled_again():
+    # the refits of a comparison start from its final fit: a grid there would cost 121 predictions per fit
+    free = (FreeParameter('timestamp_offset', 'offset_s', 's', 1e-3),)
+    values = _profiled_values(_StaircaseClock(), {'timestamp_offset': {'offset_s': 0.0}}, free, np.array([0.0]),
+                              np.zeros((1, 3)), fitted=frozenset(free))
+    assert values[0] == 0.0

@@ -259,7 +259,7 @@ def _try_predicted(problem, effects, free, values, anchors):
         return None
 
 
-def _profiled_values(problem, effects, free, values, anchors):
+def _profiled_values(problem, effects, free, values, anchors, fitted=frozenset()):
     """``values`` with each time shift (family 'timing') at the least robust cost of a grid, anchors and the other
     values held, where that beats its start. A clock offset moves rows across the telescope's moves, so the cost in
     it has a local minimum every few tenths of a second: Gauss-Newton from where it vanishes stopped at 0.05 s for a
@@ -267,7 +267,7 @@ def _profiled_values(problem, effects, free, values, anchors):
     values = values.copy()
     for index, parameter in enumerate(free):
         spec = get_effect(parameter.effect)
-        if spec.family != 'timing':
+        if spec.family != 'timing' or parameter in fitted:
             continue
         scale = abs(spec.parameter(parameter.name).default) or 1.0
         grid = np.concatenate([[values[index]], scale * np.arange(-_PROFILE_REACH, _PROFILE_REACH + _PROFILE_STEP / 2,
@@ -282,10 +282,11 @@ def _profiled_values(problem, effects, free, values, anchors):
     return values
 
 
-def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_rad=None):
+def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_rad=None, fitted=()):
     """Robust Gauss-Newton over the anchors (under their gyro-noise prior, compare.prior) and the free parameters.
 
-    Starts from the effects' given values, a time shift from the best of a grid (_profiled_values). A step that
+    Starts from the effects' given values, a time shift from the best of a grid (_profiled_values) unless it is
+    one of ``fitted``, the parameters a previous fit already converged at these values. A step that
     raises the cost (or sends a star off its detector) is halved, up to eight times; a fit that cannot improve stops
     where it is.
     """
@@ -293,7 +294,7 @@ def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_r
     free = tuple(free)
     values = np.array([effects[p.effect][p.name] for p in free], dtype=float)
     anchors = np.zeros((predictor.anchor_count, 3)) if anchors_rad is None else np.array(anchors_rad)
-    values = _profiled_values(problem, effects, free, values, anchors)
+    values = _profiled_values(problem, effects, free, values, anchors, frozenset(fitted))
 
     def cost(whitened_rows, trial_anchors):
         prior = problem.prior @ trial_anchors.ravel()

@@ -116,7 +116,7 @@ class BagSource:
         return {**previous.effects, term: self.effects[term]}
 
     def fit(self, effects: dict, free: tuple, start: ModelFit | None) -> ModelFit:
-        """compare.fit.fit_model, its anchors starting from ``start``'s.
+        """compare.fit.fit_model, its anchors (and the parameters it fitted) starting from ``start``'s.
 
         Args:
             effects: {effect: params} at the starting values.
@@ -129,8 +129,10 @@ class BagSource:
         Raises:
             FitError: the starting values put stars off their detectors.
         """
+        # A time shift the start has already fitted is in its basin: its grid (fit._profiled_values) is not run again.
         return fit_model(self.predictor, effects, free, self.noise_arcsec, self.prior,
-                         anchors_rad=None if start is None else start.anchors_rad)
+                         anchors_rad=None if start is None else start.anchors_rad,
+                         fitted=() if start is None else start.free)
 
     def ledger_row(self, term: str | None, fit: ModelFit) -> dict:
         """A row of the ledger: the term, the residual RMS per camera, the BIC.

@@ -121,7 +121,7 @@ def campaign_bags(tmp_path_factory):
 # A module is one unit of work (its module fixtures run once) unless it is listed in SPREAD: those
 # modules' expensive bags come from the session's CampaignBags, so their tests go to whichever worker
 # is free; a long test that needs no module fixture may be a unit of its own (ALONE). The DDS modules
-# share two units (one was a third of the run), so at most two live graphs start at once. Units are
+# share two units (one, 1182 s, was a fifth of the work), so at most two live graphs start at once. Units are
 # handed out longest first (MEASURED_S), so that a long one never starts last and ends the run alone;
 # the others follow in collection order. A worker is given its next unit when one test of its current
 # unit is left (xdist waits for two: the next unit then also waited behind the second last test,
@@ -151,7 +151,7 @@ MEASURED_S = {
     'test_fuzz_inputs': 203, 'test_atlas_multi_effect': 162, 'test_plan_files': 149,
     'test_plugin_perturb_refusals': 147, 'test_search_loop': 97, 'test_gyro_noise': 88, 'test_alignment_campaign': 86,
     'test_cli': 89, 'test_gyro_stability_campaign': 71, 'test_input_validation': 49, 'test_json_schemas': 160,
-    'test_spectra': 78, 'test_structure': 54,
+    'test_spectra': 78, 'test_structure': 54, 'test_noise_report': 68,
 }
 #: units handed out first, longest first; every other unit follows in collection order
 FIRST = tuple(sorted(MEASURED_S, key=MEASURED_S.get, reverse=True))

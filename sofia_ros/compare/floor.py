@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sofia_ros.compare.observations import MOTION_STATES
+from sofia_ros.compare.observations import MOTION_STATES, Centroids, GyroSamples
 from sofia_ros.errors import BagError
 
 __all__ = ['centroid_noise_arcsec', 'angle_random_walk_rad_per_sqrt_s', 'anchor_walk_sigma_rad', 'MIN_NOISE_ARCSEC']
@@ -22,8 +22,18 @@ _LOCKED = MOTION_STATES.index('locked')
 _MAD_TO_SIGMA = 1.482602218505602
 
 
-def centroid_noise_arcsec(centroids):
-    """Per-camera centroid noise per axis ["], from second differences of locked frames (robust)."""
+def centroid_noise_arcsec(centroids: Centroids) -> np.ndarray:
+    """Per-camera centroid noise per axis ["], from second differences of locked frames (robust).
+
+    Args:
+        centroids: the bag's star centroids.
+
+    Returns:
+        One noise per camera (in ``centroids.cameras`` order) ["], at least ``MIN_NOISE_ARCSEC``.
+
+    Raises:
+        BagError: a camera has fewer than 10 locked consecutive frames of one star.
+    """
     locked = centroids.motion_code == _LOCKED
     scale = centroids.arcsec_per_px()
     noise = []
@@ -48,12 +58,21 @@ def centroid_noise_arcsec(centroids):
     return np.array(noise)
 
 
-def angle_random_walk_rad_per_sqrt_s(gyro):
+def angle_random_walk_rad_per_sqrt_s(gyro: GyroSamples) -> float:
     """Angle random walk N of the worst gyro axis from sample-to-sample rate differences within ticks (4.2.3).
 
     Within one tick the plant's rate is constant, so the differences are white noise only:
     var(diff) = 2 sigma_rate^2 and N = sigma_rate sqrt(dt). (The standard deviation, not a median:
     the rates are quantized in steps near sigma_rate, which a median would round.)
+
+    Args:
+        gyro: the bag's gyro samples.
+
+    Returns:
+        N of the noisiest axis (rad/sqrt(s)).
+
+    Raises:
+        BagError: fewer than 100 gyro samples fall within ticks.
     """
     same_tick = np.diff(np.searchsorted(gyro.tick_end_s, gyro.time_s, side='left')) == 0
     differences = np.diff(gyro.rates_gyrf_rad_per_s, axis=0)[same_tick]
@@ -63,6 +82,15 @@ def angle_random_walk_rad_per_sqrt_s(gyro):
     return float(np.max(sigma_rate) * np.sqrt(gyro.sample_period_s))
 
 
-def anchor_walk_sigma_rad(arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s, spacing_s):
-    """Attitude random walk between anchor knots: sqrt(N^2 dt + K^2 dt^3 / 3) (4.2.3, Table 4.1)."""
+def anchor_walk_sigma_rad(arw_rad_per_sqrt_s: float, rrw_rad_per_s_sqrt_s: float, spacing_s: float) -> float:
+    """Attitude random walk between anchor knots: sqrt(N^2 dt + K^2 dt^3 / 3) (4.2.3, Table 4.1).
+
+    Args:
+        arw_rad_per_sqrt_s: angle random walk N (rad/sqrt(s)).
+        rrw_rad_per_s_sqrt_s: rate random walk K (rad/s/sqrt(s)).
+        spacing_s: the knot spacing dt (s).
+
+    Returns:
+        The attitude's standard deviation over one spacing (rad).
+    """
     return float(np.sqrt(arw_rad_per_sqrt_s**2 * spacing_s + rrw_rad_per_s_sqrt_s**2 * spacing_s**3 / 3.0))

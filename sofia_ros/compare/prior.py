@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+import numpy.typing as npt
 import scipy.linalg
 import scipy.sparse
 
@@ -45,18 +46,32 @@ class AnchorPrior:
     knots_s: np.ndarray
 
     @cached_property
-    def gram(self):
+    def gram(self) -> np.ndarray:
         """matrix^T matrix, dense: the prior's constant block of every fit's normal equations (compare.fit)."""
         return (self.matrix.T @ self.matrix).toarray()
 
     @property
-    def middle_s(self):
+    def middle_s(self) -> np.ndarray:
         """Each anchor interval's middle (s)."""
         return (self.knots_s[:-1] + self.knots_s[1:]) / 2.0
 
 
-def anchor_prior(knots_s, tarf_from_irf, arw_rad_per_sqrt_s, rrw_rad_per_s_sqrt_s):
-    """The GLS prior of the anchors at ``knots_s`` under ARW and RRW, with the attitudes at the intervals' middles."""
+def anchor_prior(knots_s: npt.ArrayLike, tarf_from_irf: np.ndarray, arw_rad_per_sqrt_s: float,
+                 rrw_rad_per_s_sqrt_s: float) -> AnchorPrior:
+    """The GLS prior of the anchors at ``knots_s`` under ARW and RRW, with the attitudes at the intervals' middles.
+
+    Args:
+        knots_s: the anchor knots (s), ascending.
+        tarf_from_irf: (K-1, 3, 3) the TARF-from-IRF rotation at each interval's middle.
+        arw_rad_per_sqrt_s: the gyros' angle random walk N (rad/sqrt(s)).
+        rrw_rad_per_s_sqrt_s: the gyros' rate random walk K (rad/s/sqrt(s)).
+
+    Returns:
+        The whitened prior rows, their whitening, unit and knots.
+
+    Raises:
+        BagError: the gyro noise allows the anchors no movement (N and K both zero).
+    """
     knots = np.asarray(knots_s, dtype=float)
     intervals = len(knots) - 1
     if intervals < 1:

@@ -13,7 +13,10 @@ import html
 import json
 import shutil
 import tempfile
+from collections.abc import Iterable, Sequence
+from os import PathLike
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -27,6 +30,9 @@ from sofia_ros.effects.empirical import DETECTOR_FIELD  # noqa: E402
 from sofia_ros.compare.star_hop import hold_rows  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
 from sofia_ros.output_files import output_error  # noqa: E402
+
+if TYPE_CHECKING:
+    from sofia_ros.compare.run import CompareResult
 
 __all__ = ['html_table', 'write_report']
 
@@ -264,8 +270,16 @@ def _signature_plot(result, document, path):
     plt.close(figure)
 
 
-def html_table(headers, rows):
-    """An HTML table of ``rows`` under ``headers``, every cell escaped."""
+def html_table(headers: Sequence[object], rows: Iterable[Sequence[object]]) -> str:
+    """An HTML table of ``rows`` under ``headers``, every cell escaped.
+
+    Args:
+        headers: the column headings, each shown as ``str``.
+        rows: the rows, each a sequence of cells shown as ``str``.
+
+    Returns:
+        The ``<table>`` element.
+    """
     head = ''.join(f'<th>{html.escape(str(h))}</th>' for h in headers)
     body = ''.join('<tr>' + ''.join(f'<td>{html.escape(str(c))}</td>' for c in row) + '</tr>' for row in rows)
     return f'<table><tr>{head}</tr>{body}</table>'
@@ -337,9 +351,22 @@ Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {docume
 '''
 
 
-def write_report(result, document, directory):
+def write_report(result: CompareResult, document: dict[str, Any], directory: str | PathLike[str]) -> Path:
     """Write index.html and the PNGs into ``directory`` (created if needed), all files or none; OutputError in one
-    line (exit 3 for a full disk) naming ``directory`` when the disk refuses them."""
+    line (exit 3 for a full disk) naming ``directory`` when the disk refuses them.
+
+    Args:
+        result: the comparison (its fits and observations are plotted).
+        document: the comparison's JSON document (docs/compare.md), JSON-ready.
+        directory: the report directory; its ledger.json, if any, gains this run.
+
+    Returns:
+        The path of the written index.html.
+
+    Raises:
+        ConfigError: ``directory`` is a file, or its ledger.json is not a ledger.
+        OutputError: the disk refuses the files (exit 3 when it is full).
+    """
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise ConfigError(f'--report {directory} is a file; give a directory')

@@ -9,7 +9,7 @@ comparison says with each of them, and on which observables they differ.
 
 from __future__ import annotations
 
-from typing import Iterable, Mapping, TypedDict
+from typing import Any, Iterable, Mapping, TypedDict
 
 from sofia_ros.analysis.ranking import CompetingSet, RankedCandidate
 from sofia_ros.compare.fit import free_parameters
@@ -31,24 +31,31 @@ class AfterMember(TypedDict):
     """The comparison refitted with one member: its status and the observables still unexplained."""
 
     status: str
-    unexplained: list
-    ratios: dict
+    unexplained: list[str]
+    ratios: dict[str, float]
 
 
 class CompetingEntry(TypedDict):
     """One competing set of the JSON (docs/compare.md)."""
 
-    effects: list
-    delta_bic: dict
+    effects: list[str]
+    delta_bic: dict[str, float]
     shared_fraction: float
     margin_delta_bic: float
-    verdict_with_each: dict
-    separable_by: list
+    verdict_with_each: dict[str, str | None]
+    separable_by: list[str]
 
 
-def refit_order(ranked: Iterable[RankedCandidate]) -> list:
+def refit_order(ranked: Iterable[RankedCandidate]) -> list[RankedCandidate]:
     """The significant candidates refitted in full: the REFINED_CANDIDATES strongest, then REFINED_PHYSICAL more
-    physical ones (catalogue or plug-in effects, not empirical shapes)."""
+    physical ones (catalogue or plug-in effects, not empirical shapes).
+
+    Args:
+        ranked: the linearized ranking, strongest first.
+
+    Returns:
+        The candidates to refit, in ranking order.
+    """
     significant = [candidate for candidate in ranked if candidate.significant]
     chosen = significant[:REFINED_CANDIDATES]
     physical = [c for c in significant[REFINED_CANDIDATES:] if not is_empirical(c.name)]
@@ -56,13 +63,30 @@ def refit_order(ranked: Iterable[RankedCandidate]) -> list:
 
 
 def competing_set_of(name: str | None, competing: Iterable[CompetingSet]) -> CompetingSet | None:
-    """The competing set ``name`` belongs to, or None."""
+    """The competing set ``name`` belongs to, or None.
+
+    Args:
+        name: a candidate's name, or None.
+        competing: the competing sets of the ranking.
+
+    Returns:
+        The first set with ``name`` among its effects, or None.
+    """
     return next((entry for entry in competing if name in entry.effects), None)
 
 
-def contenders(refitted: Iterable[str], scores: Mapping[str, float], competing: Iterable[CompetingSet]) -> list:
+def contenders(refitted: Iterable[str], scores: Mapping[str, float], competing: Iterable[CompetingSet]) -> list[str]:
     """The refitted candidates the verdict chooses among: the best delta-BIC and the refitted members of its
-    competing set (the comparison is judged again with each of them). Empty when nothing was refitted."""
+    competing set (the comparison is judged again with each of them). Empty when nothing was refitted.
+
+    Args:
+        refitted: the names of the candidates refitted in full.
+        scores: each refitted candidate's delta-BIC.
+        competing: the competing sets of the ranking.
+
+    Returns:
+        The contenders' names.
+    """
     refitted = list(refitted)
     if not refitted:
         return []
@@ -72,7 +96,7 @@ def contenders(refitted: Iterable[str], scores: Mapping[str, float], competing: 
 
 
 def preferred_best(names: Iterable[str], scores: Mapping[str, float], after: Mapping[str, AfterMember],
-                   competing: Iterable[CompetingSet] = ()):
+                   competing: Iterable[CompetingSet] = ()) -> str | None:
     """The contender the verdict takes: one that explains every observable before one that does not, physics
     before an empirical shape, then the best delta-BIC; but within its competing set, among members of the same
     standing, the one with the fewest free parameters (then the best delta-BIC). None when there is none.
@@ -81,6 +105,15 @@ def preferred_best(names: Iterable[str], scores: Mapping[str, float], after: Map
     still lacks effects leaves a residual whose BIC differences are decided by what else is missing: the data do
     not choose, and the explanation with fewer free numbers is the one a later round can least overfit (on the
     Waco 2004 alignment the HIPO fiducial error, 3 numbers, against a boresight offset of 6).
+
+    Args:
+        names: the contenders' names.
+        scores: each contender's delta-BIC.
+        after: what the comparison says with each contender refitted (its status).
+        competing: the competing sets of the ranking.
+
+    Returns:
+        The preferred contender's name, or None when ``names`` is empty.
     """
     names = list(names)
 
@@ -109,8 +142,17 @@ def _separating_observables(after: Mapping[str, AfterMember]) -> list:
     return sorted(gaps, key=lambda observable: -gaps[observable])[:3]
 
 
-def competing_document(competing: Iterable[CompetingSet], after: Mapping[str, AfterMember]) -> list:
-    """The JSON's ``competing`` list: each set with what the comparison says with each member (None: not refitted)."""
+def competing_document(competing: Iterable[CompetingSet],
+                       after: Mapping[str, AfterMember]) -> list[CompetingEntry]:
+    """The JSON's ``competing`` list: each set with what the comparison says with each member (None: not refitted).
+
+    Args:
+        competing: the competing sets of the ranking.
+        after: what the comparison says with each refitted member.
+
+    Returns:
+        One entry per set.
+    """
     document = []
     for entry in competing:
         members = {name: after[name] for name in entry.effects if name in after}
@@ -122,9 +164,17 @@ def competing_document(competing: Iterable[CompetingSet], after: Mapping[str, Af
     return document
 
 
-def competing_lines(document: Mapping, source: str) -> list:
+def competing_lines(document: Mapping[str, Any], source: str) -> list[str]:
     """The printed block of competing explanations, degenerate pairs and the model's questioned terms (one
-    renderer for bags and measurement sets; ``source`` is 'campaign' or 'set')."""
+    renderer for bags and measurement sets; ``source`` is 'campaign' or 'set').
+
+    Args:
+        document: the comparison's JSON document (its degenerate, competing, model_terms and equivalent_models).
+        source: what was compared, 'campaign' or 'set', as the lines name it.
+
+    Returns:
+        The printed lines, indented, without newlines.
+    """
     lines = []
     for first, second in document['degenerate']:
         lines.append(f'  degenerate: {first} and {second} explain the same residual; this {source} cannot tell them '

@@ -29,18 +29,26 @@ linear and row linear plus a sinusoid where the BIC selects it (6.3, analysis.ce
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
+import numpy.typing as npt
 import yaml
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.analysis.centroid_drift import fit_centroid_drift
 from sofia_ros.calibration.boresights import boresight_shift_arcsec, flexure_fit
-from sofia_ros.compare.observations import MOTION_STATES
+from sofia_ros.compare.observations import MOTION_STATES, Centroids
+from sofia_ros.effects.base import EffectParams
 from sofia_ros.errors import BagError
 from sofia_ros.flexure import differential_imager_rotation_arcsec, gravity_load_tarf
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm, nominal_detector
 from sofia_ros.sky.distances import attitude_change_euler_arcsec, short_move_euler_arcsec, spherical_sum_arcsec
 from sofia_ros.units import ARCSEC_PER_RAD
+
+if TYPE_CHECKING:
+    from sofia_ros.compare.predict import Predictor
 
 __all__ = ['star_hop_analysis', 'hold_windows', 'hold_rows', 'hold_centroid_drift', 'drift_removed_attitude']
 
@@ -56,8 +64,18 @@ _SHORT_MOVE_KEYS = ('short_move_arcsec', 'short_move_catalogue_arcsec', 'short_m
                     'short_move_pixels_px')
 
 
-def hold_windows(result_text):
-    """The observations of a star-hop result document, or None for another campaign's result."""
+def hold_windows(result_text: str) -> list[dict[str, Any]] | None:
+    """The observations of a star-hop result document, or None for another campaign's result.
+
+    Args:
+        result_text: the bag's /calibration/result document (YAML).
+
+    Returns:
+        The hold windows (star, hip, hold_start_s, hold_end_s, ...), or None when the result is not star-hop's.
+
+    Raises:
+        BagError: the document is not YAML.
+    """
     try:
         result = yaml.safe_load(result_text)
     except yaml.YAMLError as err:
@@ -67,8 +85,18 @@ def hold_windows(result_text):
     return result.get('observations', [])
 
 
-def hold_rows(centroids, camera, hip, window):
-    """Rows of one camera's locked centroids of the held star inside a hold window, in time order."""
+def hold_rows(centroids: Centroids, camera: str, hip: int, window: Mapping[str, Any]) -> np.ndarray:
+    """Rows of one camera's locked centroids of the held star inside a hold window, in time order.
+
+    Args:
+        centroids: the bag's star centroids.
+        camera: the camera's name ('hipo', 'fpi', ...).
+        hip: the held star's Hipparcos number.
+        window: the hold window (its hold_start_s and hold_end_s).
+
+    Returns:
+        The row indices (int), empty when the camera is not in the bag.
+    """
     if camera not in centroids.cameras:
         return np.empty(0, dtype=int)
     rows = np.flatnonzero((centroids.camera_index == centroids.cameras.index(camera)) & (centroids.hip == hip)
@@ -108,8 +136,18 @@ def _drift_rate(first, second):
     return rate, np.linalg.pinv(design.T @ design)
 
 
-def drift_removed_attitude(attitude_dcm, drift_rate_irf_rad_per_s, elapsed_s):
-    """A R(w dt): an attitude with the drift w (IRF, s = w x d) of the holds removed over elapsed_s (6.3)."""
+def drift_removed_attitude(attitude_dcm: npt.ArrayLike, drift_rate_irf_rad_per_s: npt.ArrayLike,
+                           elapsed_s: float) -> np.ndarray:
+    """A R(w dt): an attitude with the drift w (IRF, s = w x d) of the holds removed over elapsed_s (6.3).
+
+    Args:
+        attitude_dcm: (3, 3) the attitude A.
+        drift_rate_irf_rad_per_s: (3,) the holds' drift rate w in IRF (rad/s).
+        elapsed_s: the time dt the drift acted over (s).
+
+    Returns:
+        (3, 3) A R(w dt).
+    """
     # The drifting attitude maps a fixed star to R(w dt) d; A R(w dt) maps it back onto d.
     turn = Rotation.from_rotvec(np.asarray(drift_rate_irf_rad_per_s) * elapsed_s).as_matrix()
     return np.asarray(attitude_dcm) @ turn
@@ -156,8 +194,21 @@ def _imager_flexure(observations, windows):
             'fem_change_23_to_60_deg_arcsec': {'fpi': [0.0, 0.0], 'ffi': fem.tolist()}}
 
 
-def star_hop_analysis(predictor, effects, windows, *, fpi_noise_arcsec, arw_rad_per_sqrt_s):
-    """Moves (drift-corrected and short) against catalogue distances, their lines, imager flexure, hold drift."""
+def star_hop_analysis(predictor: Predictor, effects: Mapping[str, EffectParams],
+                      windows: Sequence[Mapping[str, Any]], *, fpi_noise_arcsec: float,
+                      arw_rad_per_sqrt_s: float) -> dict[str, Any]:
+    """Moves (drift-corrected and short) against catalogue distances, their lines, imager flexure, hold drift.
+
+    Args:
+        predictor: the bag's predictor (its observations and gyro attitude).
+        effects: the fitted model's effects and parameters (the gyro biases are left out, as 6.3 does).
+        windows: the hold windows (hold_windows).
+        fpi_noise_arcsec: the FPI's centroid noise ["], for the short moves' sigmas.
+        arw_rad_per_sqrt_s: the gyros' angle random walk (rad/sqrt(s)), for the short moves' sigmas.
+
+    Returns:
+        The JSON's ``star_hop`` entry: moves, deviation_fit, short_move_fit, imager_flexure, centroid_drift.
+    """
     observations = predictor.observations
     # As 6.3 does: the gyro drift comes from the holds, not from biases fitted to the whole run
     # (a fit of biases would take up part of a missing scale error).
@@ -256,8 +307,17 @@ def _short_move(predictor, effects, rows, drift_rate_rad_per_s, normal_rate_sigm
             'short_move_pixels_px': [before_px.tolist(), after_px.tolist()]}
 
 
-def hold_centroid_drift(centroids, windows):
-    """The FPI centroid drift of each hold: column linear, row linear + sinusoid where BIC selects it (6.3)."""
+def hold_centroid_drift(centroids: Centroids, windows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The FPI centroid drift of each hold: column linear, row linear + sinusoid where BIC selects it (6.3).
+
+    Args:
+        centroids: the bag's star centroids.
+        windows: the hold windows (hold_windows).
+
+    Returns:
+        One entry per hold with enough FPI frames: the star, its window and the drift fit
+        (analysis.centroid_drift.CentroidDrift's keys).
+    """
     drifts = []
     for window in windows:
         rows = hold_rows(centroids, 'fpi', window['hip'], window)

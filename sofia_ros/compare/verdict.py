@@ -13,8 +13,12 @@
 
 from __future__ import annotations
 
-from sofia_ros.compare.competing import competing_set_of
-from sofia_ros.compare.diagnostics import DETECTION_SIGMA, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from typing import Any
+
+from sofia_ros.analysis.ranking import CompetingSet
+from sofia_ros.compare.competing import AfterMember, competing_set_of
+from sofia_ros.compare.diagnostics import DETECTION_SIGMA, Diagnostics, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_TERM_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
@@ -52,7 +56,8 @@ def _implicated_observables(consistency, cameras):
     return implicated
 
 
-def empirical_candidate_names(diagnostics, cameras, consistency=()):
+def empirical_candidate_names(diagnostics: Diagnostics, cameras: Collection[str],
+                              consistency: Sequence[Mapping[str, Any]] = ()) -> list[str]:
     """Empirical terms for the strongest shapes the diagnostics found: one per observable and kind of finding
     (a period, a trend of one variable, a field of the detector position).
 
@@ -60,6 +65,14 @@ def empirical_candidate_names(diagnostics, cameras, consistency=()):
     RMS is beyond its floor, or a fitted term of its axis changes between halves of the data) a
     listed finding (from REPORT_SIGMA) is the best hint of its shape, and is tried too: the
     ranking's delta-BIC then decides whether it explains anything.
+
+    Args:
+        diagnostics: the residual diagnostics of the model's fit.
+        cameras: the cameras of the bag.
+        consistency: the fitted terms that change between halves of the data (compare.diagnostics.split_consistency).
+
+    Returns:
+        The empirical terms' names, at most MAX_EMPIRICAL_CANDIDATES, the strongest findings first.
     """
     implicated = _implicated_observables(consistency, cameras)
     names, seen = [], set()
@@ -97,9 +110,16 @@ _NAMED = 3
 BAG_OBSERVABLE_KEYS = ('rms_arcsec', 'floor_arcsec', 'ratio', 'excess_sigma', 'explained', 'structure', 'kind')
 
 
-def beyond_bag_floor(entry):
+def beyond_bag_floor(entry: Mapping[str, Any]) -> bool:
     """A bag's rule for the RMS of an observable (compare.diagnostics): beyond RATIO_LIMIT of its floor with an
-    excess of DETECTION_SIGMA, family-wise."""
+    excess of DETECTION_SIGMA, family-wise.
+
+    Args:
+        entry: the observable's judgement (its ratio and excess_sigma).
+
+    Returns:
+        Whether its RMS alone fails.
+    """
     return entry['ratio'] > RATIO_LIMIT and entry['excess_sigma'] >= DETECTION_SIGMA
 
 
@@ -144,8 +164,16 @@ def _plugin_kind(candidate):
     return 'gyro' if candidate['observable'].startswith('gyro.') else 'camera'
 
 
-def after_member(diagnostics, consistency):
-    """What the comparison says with a candidate refitted in: explained or not, what is left, RMS / floor per observable."""
+def after_member(diagnostics: Diagnostics, consistency: Sequence[Mapping[str, Any]]) -> AfterMember:
+    """What the comparison says with a candidate refitted in: explained or not, what is left, RMS / floor per observable.
+
+    Args:
+        diagnostics: the residual diagnostics of the refit.
+        consistency: the refit's terms that change between halves of the data.
+
+    Returns:
+        Its status ('explained' or 'not explained'), the unexplained observables and each observable's RMS / floor.
+    """
     unexplained = sorted(set(diagnostics.unexplained())
                          | (_implicated_observables(consistency, {name.split('.')[0] for name in diagnostics.observables})
                             & diagnostics.observables.keys()))
@@ -169,8 +197,20 @@ def _rivals_clause(best_name, rivals, members, gain):
             f'taken first: {best_name} ({gain})')
 
 
-def model_command(action, model_source, *, effect=None, term=None, kind='camera'):
-    """The command of a next step (docs/compare.md, ``verdict.next``): add, remove or replace a term, a plug-in."""
+def model_command(action: str, model_source: str, *, effect: str | None = None, term: str | None = None,
+                  kind: str = 'camera') -> str | None:
+    """The command of a next step (docs/compare.md, ``verdict.next``): add, remove or replace a term, a plug-in.
+
+    Args:
+        action: 'add', 'remove', 'replace' or 'plugin'.
+        model_source: the model file, as the commands name it.
+        effect: the effect added or taking a term's place.
+        term: the model's term removed or replaced.
+        kind: the plug-in's kind, 'camera' or 'gyro'.
+
+    Returns:
+        The command line, or None for another action.
+    """
     commands = {'add': f'sofia model add {effect} --model {model_source}',
                 'remove': f'sofia model remove {term} --model {model_source}',
                 'replace': f'sofia model replace {term} {effect} --model {model_source}',
@@ -190,8 +230,17 @@ def _change_clause(change):
             f'replace {"them" if several else "it"}')
 
 
-def next_step(action, model_source, **names):
-    """The verdict's ``next``: the action, the effect and term it names, and the command that takes it."""
+def next_step(action: str, model_source: str, **names: str | None) -> dict[str, str | None]:
+    """The verdict's ``next``: the action, the effect and term it names, and the command that takes it.
+
+    Args:
+        action: 'add', 'remove', 'replace', 'plugin' or 'none'.
+        model_source: the model file, as the command names it.
+        **names: effect, term and kind, as model_command takes them.
+
+    Returns:
+        The action, effect, term and command (None where not named or for 'none').
+    """
     return {'action': action, **{key: names.get(key) for key in ('effect', 'term')},
             'command': model_command(action, model_source, **names) if action != 'none' else None}
 
@@ -200,9 +249,17 @@ def next_step(action, model_source, **names):
 HEADLINE_CHARACTERS = 100
 
 
-def headline(status, step):
+def headline(status: str, step: Mapping[str, str | None]) -> str:
     """'status: what to do: command' in at most HEADLINE_CHARACTERS, ending with the command or 'nothing to do'
-    (the model file by its name alone where the whole path would not fit; ``next.command`` has it whole)."""
+    (the model file by its name alone where the whole path would not fit; ``next.command`` has it whole).
+
+    Args:
+        status: the verdict's status.
+        step: the verdict's ``next`` (next_step).
+
+    Returns:
+        The headline, at most HEADLINE_CHARACTERS long.
+    """
     if step['action'] == 'none':
         return f'{status}: nothing to do'
     what = {'add': f'add {step["effect"]}', 'remove': f'remove {step["term"]}',
@@ -217,9 +274,13 @@ def headline(status, step):
     return line if len(line) <= HEADLINE_CHARACTERS else line[:HEADLINE_CHARACTERS - 3] + '...'
 
 
-def judge(diagnostics, consistency, candidates, degenerate, best_name, after_best, *, rms_arcsec,
-          significant_delta_bic, model_source, competing=(), members=None, change=None, rms_arcsec_per_s=None,
-          observable_keys=BAG_OBSERVABLE_KEYS, beyond_floor=beyond_bag_floor):
+def judge(diagnostics: Diagnostics, consistency: Sequence[Mapping[str, Any]],
+          candidates: Sequence[Mapping[str, Any]], degenerate: Iterable[Sequence[str]], best_name: str | None,
+          after_best: tuple[Diagnostics, Sequence[Mapping[str, Any]]] | None, *, rms_arcsec: float | None,
+          significant_delta_bic: float, model_source: str, competing: Iterable[CompetingSet] = (),
+          members: Mapping[str, AfterMember] | None = None, change: Mapping[str, Any] | None = None,
+          rms_arcsec_per_s: float | None = None, observable_keys: Iterable[str] = BAG_OBSERVABLE_KEYS,
+          beyond_floor: Callable[[Mapping[str, Any]], bool] = beyond_bag_floor) -> dict[str, Any]:
     """The verdict block: status, text, per-observable judgement, what is left after the best candidate, and the
     next step (``next``: add, remove or replace a term, write a plug-in, or none) and its ``headline``.
 
@@ -227,6 +288,27 @@ def judge(diagnostics, consistency, candidates, degenerate, best_name, after_bes
     observable's ``explained``), ``beyond_floor`` (its rule for the RMS alone, named in the text) and
     ``observable_keys`` (what the JSON keeps of each observable). ``rms_arcsec_per_s`` is the total
     of a set's rate observables, the gain named where the set has no angles.
+
+    Args:
+        diagnostics: the residual diagnostics of the model's fit.
+        consistency: the fitted terms that change between halves of the data.
+        candidates: the candidates' entries of the JSON (compare.pipeline.candidate_entry).
+        degenerate: the pairs of candidates the data cannot tell apart.
+        best_name: the contender the verdict takes (competing.preferred_best), or None.
+        after_best: the diagnostics and consistency of the refit with ``best_name``, or None.
+        rms_arcsec: the total residual RMS ["], or None where the source has no angles.
+        significant_delta_bic: the delta-BIC from which a candidate or a change counts.
+        model_source: the model file, as the commands name it.
+        competing: the competing sets of the ranking.
+        members: what the comparison says with each refitted member of a competing set.
+        change: the model's best structural change (a term to remove or replace), or None.
+        rms_arcsec_per_s: the total RMS of a set's rate observables ["/s], or None.
+        observable_keys: what the JSON keeps of each observable.
+        beyond_floor: the source's rule for an observable's RMS alone.
+
+    Returns:
+        The verdict block of the JSON (docs/compare.md): status, text, observables, inconsistent_terms,
+        after_best, next and headline.
     """
     verdict = _judged(diagnostics, consistency, candidates, degenerate, best_name, after_best,
                       rms=(rms_arcsec, rms_arcsec_per_s), significant_delta_bic=significant_delta_bic,

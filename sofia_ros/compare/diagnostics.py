@@ -34,17 +34,25 @@ absorbing something it does not describe.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
 from sofia_ros.analysis.ranking import normal_pseudo_inverse
-from sofia_ros.analysis.structure import category_test, field_test, period_test, sigma_of_probability, trend_test
+from sofia_ros.analysis.structure import PeriodTest, TrendTest, category_test, field_test, period_test, sigma_of_probability, trend_test
+from sofia_ros.compare.observations import Observations
+from sofia_ros.compare.prior import AnchorPrior
 from sofia_ros.effects.empirical import DETECTOR_FIELD
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.units import ARCSEC_PER_RAD, DEG_PER_RAD, STANDARD_GRAVITY_M_PER_S2
+
+if TYPE_CHECKING:
+    from sofia_ros.compare.fit import ModelFit
+    from sofia_ros.compare.predict import Predictor
 
 __all__ = ['DETECTION_SIGMA', 'REPORT_SIGMA', 'RATIO_LIMIT', 'FRAME_VARIABLES', 'ROW_VARIABLES', 'DETECTOR_FIELD',
            'GYRO_AXES', 'GYRO_TEST_VARIABLES', 'CameraSeries', 'GyroSeries', 'Diagnostics', 'NAMING_PREFERENCE',
@@ -82,17 +90,33 @@ class Diagnostics:
     periods: list
     tests_run: int
 
-    def structured(self, observable, sigma=DETECTION_SIGMA):
-        """Findings of one observable at or above ``sigma``."""
+    def structured(self, observable: str, sigma: float = DETECTION_SIGMA) -> list[dict[str, Any]]:
+        """Findings of one observable at or above ``sigma``.
+
+        Args:
+            observable: the observable's name ('hipo.x', 'gyro.el', ...).
+            sigma: the least family-wise significance kept.
+
+        Returns:
+            Its trends, then its periods.
+        """
         return [finding for finding in (*self.trends, *self.periods)
                 if finding['observable'] == observable and finding['significance_sigma'] >= sigma]
 
-    def unexplained(self):
-        """Observables that are not explained: RMS beyond RATIO_LIMIT of their floor, or structure."""
+    def unexplained(self) -> list[str]:
+        """Observables that are not explained: RMS beyond RATIO_LIMIT of their floor, or structure.
+
+        Returns:
+            Their names, in the order of ``observables``.
+        """
         return [name for name, entry in self.observables.items() if not entry['explained']]
 
-    def as_document(self):
-        """The `signature` block of the JSON (docs/compare.md)."""
+    def as_document(self) -> dict[str, Any]:
+        """The `signature` block of the JSON (docs/compare.md).
+
+        Returns:
+            trends, periods, tests_run and detection_sigma.
+        """
         return {'trends': self.trends, 'periods': self.periods, 'tests_run': self.tests_run,
                 'detection_sigma': DETECTION_SIGMA}
 
@@ -110,8 +134,17 @@ def _slew_angle_deg(observations, fit, predictor, times):
     return np.where(index >= 0, angle, 0.0)
 
 
-def row_variables(observations, fit, predictor):
-    """Per-row values of every tested variable (N,) each, for diagnostics and plots."""
+def row_variables(observations: Observations, fit: ModelFit, predictor: Predictor) -> dict[str, np.ndarray]:
+    """Per-row values of every tested variable (N,) each, for diagnostics and plots.
+
+    Args:
+        observations: the bag's observations.
+        fit: the fit whose effects time and place the rows.
+        predictor: the bag's predictor.
+
+    Returns:
+        Each variable's name and its values, one per centroid row.
+    """
     centroids = observations.centroids
     times = predictor.row_times_s(fit.effects)
     force_g = np.empty((len(times), 3))
@@ -165,7 +198,7 @@ class _Test:
     kind: str
     observable: str
     variable: str
-    result: object
+    result: TrendTest | PeriodTest | None
     frame_variables: dict | None
     tested: np.ndarray | None
 
@@ -271,8 +304,20 @@ def _equivalents(frame_variables, variable):
     return same
 
 
-def residual_diagnostics(observations, fit, predictor, noise_arcsec, prior):
-    """Judge every camera and gyro axis of a fit: RMS against floor, trends and periods (family-wise sigmas)."""
+def residual_diagnostics(observations: Observations, fit: ModelFit, predictor: Predictor, noise_arcsec: np.ndarray,
+                         prior: AnchorPrior) -> Diagnostics:
+    """Judge every camera and gyro axis of a fit: RMS against floor, trends and periods (family-wise sigmas).
+
+    Args:
+        observations: the bag's observations.
+        fit: the fit judged.
+        predictor: the bag's predictor.
+        noise_arcsec: each camera's centroid noise ["] (compare.floor.centroid_noise_arcsec).
+        prior: the anchors' prior (compare.prior).
+
+    Returns:
+        Every observable's judgement and the findings, strongest first.
+    """
     variables = row_variables(observations, fit, predictor)
     tests, observables = [], {}
     for series in _camera_series(observations, fit, noise_arcsec, variables):
@@ -362,11 +407,17 @@ def _preference(variable):
     return NAMING_PREFERENCE.index(variable) if variable in NAMING_PREFERENCE else len(NAMING_PREFERENCE)
 
 
-def distinct_findings(findings):
+def distinct_findings(findings: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     """Findings strongest first, one per group of equivalent variables (named by NAMING_PREFERENCE).
 
     The star comes last: a star sits at one elevation and detector position, so it stands in for
     them; it is named only when nothing else explains the residual.
+
+    Args:
+        findings: trends and periods (Diagnostics.trends, Diagnostics.periods).
+
+    Returns:
+        The distinct findings, strongest first, the star's last.
     """
     by_key = {(f['observable'], f.get('variable')): f for f in findings}
     named, kept = set(), []
@@ -418,8 +469,17 @@ def _split_step(fit, keep_rows):
     return fit.values + step[parameters], np.where(determined[parameters], sigma, np.nan)
 
 
-def split_consistency(observations, fit, predictor):
-    """Fitted terms that change between halves of the data: [{param, split, values, sigmas, significance_sigma}]."""
+def split_consistency(observations: Observations, fit: ModelFit, predictor: Predictor) -> list[dict[str, Any]]:
+    """Fitted terms that change between halves of the data: [{param, split, values, sigmas, significance_sigma}].
+
+    Args:
+        observations: the bag's observations.
+        fit: the fit whose free parameters are compared between halves.
+        predictor: the bag's predictor.
+
+    Returns:
+        The terms that differ at DETECTION_SIGMA (family-wise), the most significant first.
+    """
     if not fit.free:
         return []
     variables = row_variables(observations, fit, predictor)

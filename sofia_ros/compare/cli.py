@@ -6,9 +6,13 @@ import fcntl
 import io
 import json
 import os
+import argparse
 import sys
+from collections.abc import Iterable, Mapping
 from contextlib import contextmanager
+from os import PathLike
 from pathlib import Path
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -34,8 +38,12 @@ _MEMORY_SHARE = 0.5
 HIPO_CENTROIDS = '/hipo/centroids'
 
 
-def add_compare_arguments(parser):
-    """Arguments of `sofia compare`."""
+def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `sofia compare`.
+
+    Args:
+        parser: the `compare` subcommand's parser, which gains them.
+    """
     parser.add_argument('bag', help='bag directory of a campaign (sofia run alignment), or a measurement set '
                                     '(a .yaml/.yml file, docs/measurement-sets.md)')
     parser.add_argument('--model', required=True, help='model YAML (effects: ..., fit: true for fitted terms)')
@@ -57,8 +65,12 @@ def add_compare_arguments(parser):
                         help='no progress lines on stderr (warnings and errors are still written)')
 
 
-def add_model_arguments(parser):
-    """Arguments of `sofia model add|remove|replace`."""
+def add_model_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of `sofia model add|remove|replace`.
+
+    Args:
+        parser: the `model` subcommand's parser, which gains them.
+    """
     parser.add_argument('action', choices=('add', 'remove', 'replace'),
                         help='add: put an effect into a model as a fitted term; remove: take a term out; '
                              'replace: take a term out and put another in its place (`replace OLD NEW`)')
@@ -76,8 +88,13 @@ def _format_params(params, sigma, units):
     return ', '.join(one(name, value) for name, value in params.items())
 
 
-def print_comparison(document, out):
-    """The ten-second table: terms, correlations, ledger, candidates, degeneracies, where the model fails."""
+def print_comparison(document: Mapping[str, Any], out: TextIO) -> None:
+    """The ten-second table: terms, correlations, ledger, candidates, degeneracies, where the model fails.
+
+    Args:
+        document: the comparison's JSON document (docs/compare.md), JSON-ready.
+        out: where the table is printed.
+    """
     counts = ', '.join(f'{camera.upper()} {count}' for camera, count in document['observations'].items())
     print(f'sofia compare: {document["bag"]} against {document["model"]}', file=out)
     outliers = ', '.join(f'{camera.upper()} {count}' for camera, count in document['outliers_by_camera'].items()
@@ -172,13 +189,26 @@ def _print_centroid_drift(holds, out):
               f'{spread_text(sine["phase_sigma"], ".0f")} deg at {hold["reference_time_s"]:.0f} s', file=out)
 
 
-def spread_text(sigma, spec='.2g'):
-    """'+- sigma' in ``spec``, or 'unconstrained' for a parameter the data do not determine (sigma null)."""
+def spread_text(sigma: float | None, spec: str = '.2g') -> str:
+    """'+- sigma' in ``spec``, or 'unconstrained' for a parameter the data do not determine (sigma null).
+
+    Args:
+        sigma: the parameter's standard deviation, or None.
+        spec: the format specification of the number.
+
+    Returns:
+        The text.
+    """
     return 'unconstrained' if sigma is None else f'+- {sigma:{spec}}'
 
 
-def print_fitted_terms(terms, out):
-    """The fitted terms' table of a comparison, bag or measurement set."""
+def print_fitted_terms(terms: Iterable[Mapping[str, Any]], out: TextIO) -> None:
+    """The fitted terms' table of a comparison, bag or measurement set.
+
+    Args:
+        terms: the JSON's ``terms`` (effect, param, value, sigma, unit each).
+        out: where the table is printed.
+    """
     print('fitted terms:', file=out)
     for term in terms:
         print(f'  {term["effect"] + "." + term["param"]:<44} {term["value"]:>12.4f} '
@@ -221,8 +251,20 @@ def _print_verdict(document, out):
     print(f'  why: {verdict["text"]}', file=out)
 
 
-def run_compare(args, out):
-    """`sofia compare`: fit, rank, print; then write JSON and report whole."""
+def run_compare(args: argparse.Namespace, out: TextIO) -> int:
+    """`sofia compare`: fit, rank, print; then write JSON and report whole.
+
+    Args:
+        args: the parsed arguments of `sofia compare` (add_compare_arguments).
+        out: where the tables are printed.
+
+    Returns:
+        The exit code, 0.
+
+    Raises:
+        ConfigError: the options contradict each other or name a missing directory, a directory for --json or a
+            file for --report.
+    """
     from sofia_ros.compare.cache import ObservationCache
     from sofia_ros.compare.observations import observation_cache
     from sofia_ros.compare.run import compare_bag
@@ -315,8 +357,16 @@ def _print_search(search, out):
         print(f'  model written: {search["written"]}', file=out)
 
 
-def anchor_memory_bytes(duration_s, anchor_s):
-    """Memory the fit's dense matrices take for a record of ``duration_s`` with anchors every ``anchor_s``."""
+def anchor_memory_bytes(duration_s: float, anchor_s: float) -> float:
+    """Memory the fit's dense matrices take for a record of ``duration_s`` with anchors every ``anchor_s``.
+
+    Args:
+        duration_s: the record's length (s).
+        anchor_s: the spacing of the attitude anchors (s).
+
+    Returns:
+        The bytes, about.
+    """
     columns = 3 * (duration_s / anchor_s + 1.0) + _TERM_COLUMNS
     return _DENSE_COPIES * 8 * columns ** 2
 
@@ -369,8 +419,19 @@ def _round_trip_yaml():
     return editor
 
 
-def run_model_add(args, out):
-    """`sofia model add|remove|replace EFFECT [NEW] --model M.yaml`: one edit of a model file (edit_model_file)."""
+def run_model_add(args: argparse.Namespace, out: TextIO) -> int:
+    """`sofia model add|remove|replace EFFECT [NEW] --model M.yaml`: one edit of a model file (edit_model_file).
+
+    Args:
+        args: the parsed arguments of `sofia model` (add_model_arguments).
+        out: where the edit is reported.
+
+    Returns:
+        The exit code, 0.
+
+    Raises:
+        ConfigError: replace without its NEW effect, or add/remove with one.
+    """
     from sofia_ros.effects import get_effect
 
     path = Path(args.model)
@@ -396,12 +457,21 @@ def run_model_add(args, out):
     return 0
 
 
-def edit_model_file(path, *, add=(), remove=()):
+def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remove: Iterable[str] = ()) -> None:
     """Take the effects ``remove`` out of a model file and put ``add`` in as fitted terms, in one edit.
 
     The file is edited, not regenerated: comments, order and style stay (ruamel.yaml round
     trip); it is replaced atomically, a symlink is written through to its regular-file target
     with the target's mode, and concurrent edits wait for each other on a sidecar lock.
+
+    Args:
+        path: the model file.
+        add: the effects put in as fitted terms.
+        remove: the effects taken out.
+
+    Raises:
+        ConfigError: the file is missing or not valid YAML, an effect to remove is not in it, one to add is fitted
+            already, or the edited model is not valid.
     """
     from ruamel.yaml.comments import CommentedMap
     from ruamel.yaml.error import YAMLError

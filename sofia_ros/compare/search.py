@@ -14,12 +14,14 @@ of the end are the equivalence class the data allow.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence, Set
 from dataclasses import dataclass
-from typing import TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import itertools
 
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse
 
 from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin, normal_pseudo_inverse,
@@ -29,6 +31,12 @@ from sofia_ros.config import EffectConfig
 from sofia_ros.effects import resolve_params
 from sofia_ros.effects.empirical import is_empirical
 from sofia_ros.errors import ConfigError
+
+if TYPE_CHECKING:
+    from sofia_ros.analysis.ranking import CandidateTerm
+    from sofia_ros.compare.fit import FreeParameter
+    from sofia_ros.compare.observations import Observations
+    from sofia_ros.compare.run import CompareResult
 
 __all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'MAX_SEARCH_ROUNDS', 'LinearizedModels', 'SearchRound',
            'equivalent_models', 'model_terms', 'rival_swaps', 'search_pool', 'search_model', 'structural_change',
@@ -69,8 +77,22 @@ class LinearizedModels:
     starts: tuple = ()
 
     @classmethod
-    def at_fit(cls, residual, jacobian, free, values, nuisance_count, candidate_terms):
-        """From a fit's residual and Jacobian (nuisance columns first) and CandidateTerms (analysis.ranking)."""
+    def at_fit(cls, residual: npt.ArrayLike, jacobian: np.ndarray | scipy.sparse.spmatrix,
+               free: Sequence[FreeParameter], values: np.ndarray, nuisance_count: int,
+               candidate_terms: Iterable[CandidateTerm]) -> LinearizedModels:
+        """From a fit's residual and Jacobian (nuisance columns first) and CandidateTerms (analysis.ranking).
+
+        Args:
+            residual: (N,) the fit's whitened residual.
+            jacobian: (N, nuisance_count + len(free)) the fit's whitened Jacobian, the nuisance columns first.
+            free: the fit's free parameters.
+            values: (len(free),) their fitted values.
+            nuisance_count: the number of nuisance columns (the attitude anchors).
+            candidate_terms: the candidates linearized where they vanish.
+
+        Returns:
+            The linearized models: the fit's effects, then the candidates.
+        """
         groups = {}
         for index, parameter in enumerate(free):
             groups.setdefault(parameter.effect, []).append(index)
@@ -125,12 +147,26 @@ class LinearizedModels:
         step = normal_pseudo_inverse(self.gram[np.ix_(columns, columns)]) @ projection
         return columns, max(total - float(projection @ step), np.finfo(float).tiny), step
 
-    def rss(self, chosen):
-        """RSS of the linearized fit with exactly the blocks ``chosen`` (names) switched on."""
+    def rss(self, chosen: Collection[str]) -> float:
+        """RSS of the linearized fit with exactly the blocks ``chosen`` (names) switched on.
+
+        Args:
+            chosen: the names of the blocks switched on.
+
+        Returns:
+            The residual sum of squares (whitened), positive.
+        """
         return self._solve(chosen)[1]
 
-    def values(self, chosen):
-        """The linearized fit's parameter values of each chosen block: {name: {parameter: value}}."""
+    def values(self, chosen: Collection[str]) -> dict[str, dict[str, float]]:
+        """The linearized fit's parameter values of each chosen block: {name: {parameter: value}}.
+
+        Args:
+            chosen: the names of the blocks switched on.
+
+        Returns:
+            Each chosen block's parameters and their values.
+        """
         _, _, step = self._solve(chosen)
         out, position = {}, 0
         for name, parameters, start in zip(self.names, self.parameters, self.starts):
@@ -140,9 +176,17 @@ class LinearizedModels:
                 position += len(parameters)
         return out
 
-    def bic(self, chosen, *, prefer_physics=True):
+    def bic(self, chosen: Collection[str], *, prefer_physics: bool = True) -> float:
         """BIC of the linearized fit with ``chosen`` on, plus EMPIRICAL_PENALTY per empirical shape (a preference,
-        not evidence: ``prefer_physics=False`` leaves it out)."""
+        not evidence: ``prefer_physics=False`` leaves it out).
+
+        Args:
+            chosen: the names of the blocks switched on.
+            prefer_physics: whether empirical shapes pay EMPIRICAL_PENALTY each.
+
+        Returns:
+            The BIC.
+        """
         width = sum(w for name, w in zip(self.names, self.widths) if name in set(chosen))
         penalty = EMPIRICAL_PENALTY * sum(1 for name in chosen if is_empirical(name)) if prefer_physics else 0.0
         return (self.rows * np.log(self.rss(chosen) / self.rows) + (self.nuisance_count + width) * np.log(self.rows)
@@ -167,10 +211,18 @@ def _projected_gram(pieces, nuisance):
     return gram - crossed.T @ normal_pseudo_inverse(nuisance_gram) @ crossed
 
 
-def model_terms(models, current):
+def model_terms(models: LinearizedModels, current: Iterable[str]) -> list[dict[str, Any]]:
     """Each fitted term questioned again (competing.ModelTermEntry): its delta-BIC among the others, and the
     candidates that share its part (SHARED_FRACTION of the smaller drop) and score within the competing margin
-    of it, or above it."""
+    of it, or above it.
+
+    Args:
+        models: the models linearized at the fit.
+        current: the model's fitted terms.
+
+    Returns:
+        One entry per term: term, delta_bic, pays and its rivals (effect, delta_bic, shared_fraction), best first.
+    """
     current = frozenset(current)
     entries = []
     for term in [name for name in models.names if name in current]:
@@ -193,9 +245,18 @@ def model_terms(models, current):
     return entries
 
 
-def structural_changes(models, current, count=1):
+def structural_changes(models: LinearizedModels, current: Iterable[str], count: int = 1) -> list[dict[str, Any]]:
     """The ``count`` best changes of the model's own terms by linearized BIC (physics preferred), best first: remove
-    one term, or put one candidate in the place of one or two terms. Only changes that lower the BIC."""
+    one term, or put one candidate in the place of one or two terms. Only changes that lower the BIC.
+
+    Args:
+        models: the models linearized at the fit.
+        current: the model's fitted terms.
+        count: how many changes at most.
+
+    Returns:
+        The changes: action, term (comma-separated), effect and expected_delta_bic.
+    """
     current = frozenset(current)
     score = models.bic(current)
     terms = sorted(current)
@@ -213,11 +274,21 @@ def structural_changes(models, current, count=1):
     return sorted(changes, key=lambda change: -change['expected_delta_bic'])[:count]
 
 
-def rival_swaps(models, current, terms):
+def rival_swaps(models: LinearizedModels, current: Iterable[str],
+                terms: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """The swaps a linearization may misjudge, for a full refit to settle: each effect that model_terms names a rival
     of fitted terms (``terms``, its entries) put in the place of one or two of the terms it rivals, best linearized
     gain first, whatever that gain. An effect linearized where it vanishes (a fiducial error of 16 px) can lose
-    to the terms standing in for it by the linearization and win by the refit."""
+    to the terms standing in for it by the linearization and win by the refit.
+
+    Args:
+        models: the models linearized at the fit.
+        current: the model's fitted terms.
+        terms: model_terms' entries.
+
+    Returns:
+        The swaps, as structural_changes gives changes, best linearized gain first.
+    """
     current = frozenset(current)
     score = models.bic(current)
     rivalled = {}
@@ -234,14 +305,30 @@ def rival_swaps(models, current, terms):
     return sorted(swaps, key=lambda change: -change['expected_delta_bic'])
 
 
-def structural_change(models, current):
-    """The best change of the model's own terms by linearized BIC (structural_changes), or None."""
+def structural_change(models: LinearizedModels, current: Iterable[str]) -> dict[str, Any] | None:
+    """The best change of the model's own terms by linearized BIC (structural_changes), or None.
+
+    Args:
+        models: the models linearized at the fit.
+        current: the model's fitted terms.
+
+    Returns:
+        The change, or None when none lowers the BIC.
+    """
     return next(iter(structural_changes(models, current)), None)
 
 
-def equivalent_models(models, chosen):
+def equivalent_models(models: LinearizedModels, chosen: Set[str]) -> list[dict[str, Any]]:
     """Models one term away from ``chosen`` (without a term, or another in its place) whose BIC is within
-    EQUIVALENT_DELTA_BIC of it, the physics preference left out: the data cannot choose among them."""
+    EQUIVALENT_DELTA_BIC of it, the physics preference left out: the data cannot choose among them.
+
+    Args:
+        models: the models linearized at the fit.
+        chosen: the model's terms.
+
+    Returns:
+        Each equivalent model's label and delta_bic, lowest first.
+    """
     score = models.bic(chosen, prefer_physics=False)
     out = []
     for name in sorted(chosen):
@@ -259,15 +346,24 @@ class SearchRound(TypedDict):
     """One round of the search: the model compared, its status and BIC, and the moves the search made from it."""
 
     round: int
-    fitted: list
+    fitted: list[str]
     status: str
     rms_arcsec: float
     bic: float
-    moves: list
+    moves: list[str]
 
 
-def search_pool(candidate_terms, candidates):
-    """The candidates a model's terms are questioned against: the SEARCH_POOL strongest observable ones."""
+def search_pool(candidate_terms: Iterable[CandidateTerm],
+                candidates: Iterable[Mapping[str, Any]]) -> list[CandidateTerm]:
+    """The candidates a model's terms are questioned against: the SEARCH_POOL strongest observable ones.
+
+    Args:
+        candidate_terms: the candidates linearized where they vanish.
+        candidates: the candidates' entries of the JSON (detectable, delta_bic).
+
+    Returns:
+        The terms of the SEARCH_POOL strongest detectable candidates, in ``candidate_terms`` order.
+    """
     ranked = sorted((c for c in candidates if c['detectable']), key=lambda c: -c['delta_bic'])
     strongest = {c['effect'] for c in ranked[:SEARCH_POOL]}
     return [term for term in candidate_terms if term.name in strongest]
@@ -320,14 +416,31 @@ def _difference(other, best):
     return f'with {added}' if added else f'without {removed}'
 
 
-def search_model(observations, model, compare, *, rounds=MAX_SEARCH_ROUNDS, progress=lambda line: None):
+def search_model(observations: Observations, model: EffectConfig,
+                 compare: Callable[[Observations, EffectConfig], CompareResult], *, rounds: int = MAX_SEARCH_ROUNDS,
+                 progress: Callable[[str], None] = lambda line: None,
+                 ) -> tuple[CompareResult, EffectConfig, list[SearchRound], list[dict[str, Any]]]:
     """A best-first search over models: compare one, queue the steps it suggests (the verdict's next step and the
     other members of a competing set, each with the BIC it is expected to reach), compare the most promising
     model not yet compared, until nothing is queued or ``rounds`` comparisons are made. The answer is the
     explained model with the lowest BIC (else the lowest BIC); the others explained within EQUIVALENT_DELTA_BIC
     of it are its equivalents. ``compare(observations, model)`` is compare.run.compare_observations with its
     options. Returns the answer's CompareResult, its model (EffectConfig), the SearchRounds and the equivalents
-    (the answer's one-term alternatives by linearized BIC, and the other explained models compared)."""
+    (the answer's one-term alternatives by linearized BIC, and the other explained models compared).
+
+    Args:
+        observations: the bag's observations.
+        model: the model the search starts from.
+        compare: compares a model with the observations.
+        rounds: the most whole comparisons made (SEARCH_ROUNDS_RANGE).
+        progress: takes a line per round.
+
+    Returns:
+        The answer's CompareResult, its model, the rounds and the equivalents (model, delta_bic), lowest first.
+
+    Raises:
+        ConfigError: ``rounds`` is outside SEARCH_ROUNDS_RANGE.
+    """
     low, high = SEARCH_ROUNDS_RANGE
     if not low <= rounds <= high:
         raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')

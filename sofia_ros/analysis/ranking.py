@@ -15,9 +15,11 @@ whose explained signatures coincide are named degenerate instead of ranked as a 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 import scipy.linalg
 import scipy.sparse
 
@@ -69,8 +71,20 @@ COMPETING_FRACTION = 0.1
 COMPETITOR_POOL = 10
 
 
-def bic(rss, n, k):
-    """Bayesian information criterion of a Gaussian fit with unknown variance: n ln(RSS/n) + k ln n."""
+def bic(rss: float, n: int, k: int) -> float:
+    """Bayesian information criterion of a Gaussian fit with unknown variance: n ln(RSS/n) + k ln n.
+
+    Args:
+        rss: the residual sum of squares (a non-positive one counts as the smallest positive float).
+        n: the number of residuals.
+        k: the number of fitted parameters.
+
+    Returns:
+        The BIC.
+
+    Raises:
+        InvalidArgumentError: ``n`` is not positive.
+    """
     if n <= 0:
         raise InvalidArgumentError(f'bic needs n > 0 samples, got {n}')
     return float(n * np.log(max(rss, np.finfo(float).tiny) / n) + k * np.log(n))
@@ -80,7 +94,7 @@ def bic(rss, n, k):
 class LinearFit:
     """Least-squares step with a-posteriori sigmas and the correlation of the fitted terms."""
 
-    names: tuple
+    names: tuple[str, ...]
     step: np.ndarray
     sigma: np.ndarray
     correlation: np.ndarray
@@ -88,7 +102,7 @@ class LinearFit:
     n: int
 
     @property
-    def bic(self):
+    def bic(self) -> float:
         """BIC of this fit (n residuals, len(names) parameters)."""
         return bic(self.rss, self.n, len(self.names))
 
@@ -155,9 +169,16 @@ class _NormalInverse:
         return covariance
 
 
-def normal_pseudo_inverse(gram):
+def normal_pseudo_inverse(gram: np.ndarray) -> np.ndarray:
     """Pseudo-inverse of a normal (Gram) matrix J^T J: Cholesky where that is the inverse, else eigh, combinations
-    below KEPT_EIGENVALUE_FRACTION of the largest eigenvalue left without a step."""
+    below KEPT_EIGENVALUE_FRACTION of the largest eigenvalue left without a step.
+
+    Args:
+        gram: (k, k) the symmetric positive semi-definite matrix J^T J.
+
+    Returns:
+        (k, k) its pseudo-inverse.
+    """
     return _NormalInverse.of(gram).matrix
 
 
@@ -179,8 +200,21 @@ def _well_conditioned_inverse(scaled):
     return inverse if condition_bound * KEPT_EIGENVALUE_FRACTION < 1.0 else None
 
 
-def linear_fit(residual, jacobian, names):
-    """Step minimizing |r - J step|^2 with covariance s^2 (J^T J)^+, s^2 = RSS/(n-k); J dense or sparse."""
+def linear_fit(residual: npt.ArrayLike, jacobian: npt.ArrayLike | scipy.sparse.spmatrix,
+               names: Iterable[str]) -> LinearFit:
+    """Step minimizing |r - J step|^2 with covariance s^2 (J^T J)^+, s^2 = RSS/(n-k); J dense or sparse.
+
+    Args:
+        residual: (n,) the residual r.
+        jacobian: (n, k) the columns J, dense or sparse ((n,) for one column).
+        names: the k parameters' names.
+
+    Returns:
+        The step, its sigmas and correlation, the RSS after it and n.
+
+    Raises:
+        InvalidArgumentError: the shapes disagree, or a value is not finite.
+    """
     residual, jacobian = _checked(residual, jacobian)
     names = tuple(names)
     if len(names) != jacobian.shape[1]:
@@ -196,9 +230,21 @@ def linear_fit(residual, jacobian, names):
     return normal_equations_fit(_gram(jacobian), jacobian.T @ residual, rss_after, names, n)
 
 
-def normal_equations_fit(gram, gradient, rss_after, names, n):
+def normal_equations_fit(gram: np.ndarray, gradient: np.ndarray, rss_after: Callable[[np.ndarray], float],
+                         names: Iterable[str], n: int) -> LinearFit:
     """linear_fit from its normal equations G = J^T J, g = J^T r: step G^+ g, covariance s^2 G^+ with s^2 = RSS/(n-k),
-    where rss_after(step) is |r - J step|^2 (for problems whose Gram matrix is cheaper assembled from its blocks)."""
+    where rss_after(step) is |r - J step|^2 (for problems whose Gram matrix is cheaper assembled from its blocks).
+
+    Args:
+        gram: (k, k) G = J^T J.
+        gradient: (k,) g = J^T r.
+        rss_after: |r - J step|^2 of a step.
+        names: the k parameters' names.
+        n: the number of residuals.
+
+    Returns:
+        The step, its sigmas and correlation, the RSS after it and n.
+    """
     names = tuple(names)
     k = len(names)
     inverse = _NormalInverse.of(gram)
@@ -222,7 +268,7 @@ class CandidateTerm:
     """
 
     name: str
-    param_names: tuple
+    param_names: tuple[str, ...]
     start: np.ndarray
     jacobian: np.ndarray
     shift: np.ndarray | None = None
@@ -234,25 +280,26 @@ class RankedCandidate:
     """One candidate fitted jointly with the model (linearized): parameters, sigmas, RSS, delta-BIC."""
 
     name: str
-    params: dict
-    sigma: dict
+    params: dict[str, float]
+    sigma: dict[str, float]
     rss_after: float
     delta_bic: float
     observable: bool = True
-    degenerate_with: tuple = field(default_factory=tuple)
+    degenerate_with: tuple[str, ...] = field(default_factory=tuple)
     #: Of the strongest significant candidates: the share of this one's drop in RSS each other one also removes.
-    shared_with: dict = field(default_factory=dict)
+    shared_with: dict[str, float] = field(default_factory=dict)
     #: The chi-square drop the term would bring at its reference size, against the bound it must reach.
     detectable_chi2: float | None = None
     detection_bound_chi2: float | None = None
 
     @property
-    def significant(self):
+    def significant(self) -> bool:
         """Lowers the BIC by at least SIGNIFICANT_DELTA_BIC and can be told from the model's own terms."""
         return self.observable and self.delta_bic >= SIGNIFICANT_DELTA_BIC
 
 
-def rank_candidates(residual, base_jacobian, candidates):
+def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scipy.sparse.spmatrix,
+                    candidates: Iterable[CandidateTerm]) -> list[RankedCandidate]:
     """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (docs/compare.md, docs/noise.md).
 
     ``residual`` is measured minus predicted by the fitted base model, ``base_jacobian`` its
@@ -263,6 +310,17 @@ def rank_candidates(residual, base_jacobian, candidates):
     absorb completely is returned with ``observable=False`` and delta-BIC 0. Parameters the data
     do not determine get an infinite sigma while the others keep theirs (pseudo-inverse).
     Candidates whose explained signatures are collinear are listed in each other's ``degenerate_with``.
+
+    Args:
+        residual: (n,) measured minus predicted by the fitted base model, weighted.
+        base_jacobian: (n, k) the base model's columns, weighted, dense or sparse.
+        candidates: the terms not in the model.
+
+    Returns:
+        One RankedCandidate per term: the observable ones first, then by delta-BIC, largest first.
+
+    Raises:
+        InvalidArgumentError: the shapes disagree, or a value is not finite.
     """
     residual, base_jacobian = _checked(residual, base_jacobian)
     n, k_base = base_jacobian.shape
@@ -312,9 +370,18 @@ def rank_candidates(residual, base_jacobian, candidates):
     return sorted(ranked, key=lambda candidate: (not candidate.observable, -candidate.delta_bic))
 
 
-def shared_fraction(residual, first, second):
+def shared_fraction(residual: np.ndarray, first: np.ndarray, second: np.ndarray) -> float:
     """The share of the smaller of two explained signatures' RSS drops that the other also removes (0: independent,
-    1: either one explains all that both do): (d_a + d_b - d_ab) / min(d_a, d_b), d the drop of a fit to ``residual``."""
+    1: either one explains all that both do): (d_a + d_b - d_ab) / min(d_a, d_b), d the drop of a fit to ``residual``.
+
+    Args:
+        residual: (n,) the residual both signatures are fitted to.
+        first: (n,) the first explained signature.
+        second: (n,) the second explained signature.
+
+    Returns:
+        The shared fraction in [0, 1]; 0 where a signature is zero.
+    """
     gram = np.array([[first @ first, first @ second], [first @ second, second @ second]])
     if gram[0, 0] <= 0.0 or gram[1, 1] <= 0.0:
         return 0.0
@@ -324,8 +391,17 @@ def shared_fraction(residual, first, second):
     return shared_share(drop_first, drop_second, drop_both)
 
 
-def shared_share(drop_first, drop_second, drop_both):
-    """(d_a + d_b - d_ab) / min(d_a, d_b) of three RSS drops, clipped to [0, 1]; 0 where either drop is none."""
+def shared_share(drop_first: float, drop_second: float, drop_both: float) -> float:
+    """(d_a + d_b - d_ab) / min(d_a, d_b) of three RSS drops, clipped to [0, 1]; 0 where either drop is none.
+
+    Args:
+        drop_first: d_a, the RSS drop of the first term alone.
+        drop_second: d_b, the RSS drop of the second term alone.
+        drop_both: d_ab, the RSS drop of both together.
+
+    Returns:
+        The shared fraction in [0, 1].
+    """
     smaller = min(drop_first, drop_second)
     if smaller <= 0.0:
         return 0.0
@@ -353,28 +429,54 @@ class CompetingSet:
     pairwise share of one's RSS drop the other also removes.
     """
 
-    effects: tuple
-    delta_bic: dict
+    effects: tuple[str, ...]
+    delta_bic: dict[str, float]
     shared_fraction: float
     margin: float
 
 
-def competes(first_delta_bic, second_delta_bic, shared):
-    """Whether two candidates compete: shared >= SHARED_FRACTION, delta-BICs within competing_margin."""
+def competes(first_delta_bic: float, second_delta_bic: float, shared: float) -> bool:
+    """Whether two candidates compete: shared >= SHARED_FRACTION, delta-BICs within competing_margin.
+
+    Args:
+        first_delta_bic: the first candidate's delta-BIC.
+        second_delta_bic: the second candidate's delta-BIC.
+        shared: their shared fraction (shared_fraction).
+
+    Returns:
+        Whether they compete.
+    """
     return (shared >= SHARED_FRACTION
             and abs(first_delta_bic - second_delta_bic) < competing_margin(first_delta_bic, second_delta_bic))
 
 
-def competing_margin(first_delta_bic, second_delta_bic):
-    """The delta-BIC gap below which two overlapping candidates compete: COMPETING_DELTA_BIC or COMPETING_FRACTION."""
+def competing_margin(first_delta_bic: float, second_delta_bic: float) -> float:
+    """The delta-BIC gap below which two overlapping candidates compete: COMPETING_DELTA_BIC or COMPETING_FRACTION.
+
+    Args:
+        first_delta_bic: the first candidate's delta-BIC.
+        second_delta_bic: the second candidate's delta-BIC.
+
+    Returns:
+        The larger of COMPETING_DELTA_BIC and COMPETING_FRACTION of the larger delta-BIC.
+    """
     return max(COMPETING_DELTA_BIC, COMPETING_FRACTION * max(first_delta_bic, second_delta_bic))
 
 
-def competing_sets(ranked, delta_bic_by_name=None, preferred=lambda name: True):
+def competing_sets(ranked: Sequence[RankedCandidate], delta_bic_by_name: Mapping[str, float] | None = None,
+                   preferred: Callable[[str], bool] = lambda name: True) -> list[CompetingSet]:
     """CompetingSets of significant candidates (connected by `competes`), strongest set first (docs/compare.md).
 
     ``delta_bic_by_name`` overrides the linearized delta-BIC (e.g. after a full refit);
     ``preferred(name)`` orders a set's members (True first): physics before empirical shapes.
+
+    Args:
+        ranked: the ranked candidates (rank_candidates).
+        delta_bic_by_name: delta-BICs that replace the linearized ones, or None.
+        preferred: whether a member's kind comes first.
+
+    Returns:
+        The competing sets, strongest first.
     """
     scores = {candidate.name: candidate.delta_bic for candidate in ranked}
     scores.update(delta_bic_by_name or {})
@@ -423,10 +525,18 @@ def _with_degeneracies(ranked, signatures):
     return [dataclasses.replace(c, degenerate_with=tuple(pairs.get(c.name, ()))) for c in ranked]
 
 
-def degenerate_pairs(ranked, delta_bic_by_name=None):
+def degenerate_pairs(ranked: Iterable[RankedCandidate],
+                     delta_bic_by_name: Mapping[str, float] | None = None) -> list[tuple[str, ...]]:
     """Pairs of collinear candidates whose delta-BIC differ by less than SIGNIFICANT_DELTA_BIC: not separable.
 
     ``delta_bic_by_name`` overrides the linearized delta-BIC (e.g. after a full refit).
+
+    Args:
+        ranked: the ranked candidates (rank_candidates).
+        delta_bic_by_name: delta-BICs that replace the linearized ones, or None.
+
+    Returns:
+        The pairs, each sorted by name, in order.
     """
     scores = {candidate.name: candidate.delta_bic for candidate in ranked}
     scores.update(delta_bic_by_name or {})

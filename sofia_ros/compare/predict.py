@@ -20,8 +20,11 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from collections import OrderedDict
+from collections.abc import Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.frames import pixel_to_vector, vector_to_pixel
@@ -32,6 +35,7 @@ from sofia_ros.sensors.gyro_errors import (
     rate_offsets_rad_per_s,
     true_rates_tarf_rad_per_s,
 )
+from sofia_ros.effects.base import EffectParams
 from sofia_ros.effects.context import CameraContext
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import (
@@ -44,6 +48,10 @@ from sofia_ros.sensors.imager_model import (
 )
 from sofia_ros.sky.catalogue import star_by_hip
 from sofia_ros.units import RAD_PER_DEG
+
+if TYPE_CHECKING:
+    from sofia_ros.compare.fit import FreeParameter
+    from sofia_ros.compare.observations import Observations
 
 __all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means']
 
@@ -62,13 +70,20 @@ def _dcms_from_rotvecs(rotvecs):
     return np.swapaxes(Rotation.from_rotvec(np.reshape(rotvecs, (-1, 3))).as_matrix(), -1, -2)
 
 
-def propagate_tick_attitudes(increments_rad, initial_dcm):
+def propagate_tick_attitudes(increments_rad: npt.ArrayLike, initial_dcm: npt.ArrayLike) -> np.ndarray:
     """A_TARF,IRF at every tick end from per-tick body rotation vectors, A_k = R(phi_k)^T A_k-1 (3.20, B.23).
 
     The running product in blocks of about sqrt(N) ticks: the products within every block advance
     together (one batched 3x3 product per tick of a block), then each block is carried by the
     product of the blocks before it - about 3N products in 3 sqrt(N) numpy calls, where a scan
     takes N log2(N) and a loop N calls; the same products, grouped differently (rounding ~1e-15).
+
+    Args:
+        increments_rad: (N, 3) each tick's body rotation vector phi_k (rad).
+        initial_dcm: (3, 3) the attitude A_0 before the first tick.
+
+    Returns:
+        (N + 1, 3, 3) A_0 and the attitude at every tick end.
     """
     initial_dcm = np.asarray(initial_dcm, dtype=float)
     steps = _dcms_from_rotvecs(increments_rad)
@@ -94,15 +109,33 @@ def _tick_fractions(times_s, tick_end_s):
     return index, (times_s - start_s) / (end_s - start_s)
 
 
-def attitudes_at(times_s, tick_end_s, tick_attitudes, increments_rad):
-    """Attitudes at times inside the ticks: the tick's constant rate applied for the elapsed fraction."""
+def attitudes_at(times_s: np.ndarray, tick_end_s: np.ndarray, tick_attitudes: np.ndarray,
+                 increments_rad: np.ndarray) -> np.ndarray:
+    """Attitudes at times inside the ticks: the tick's constant rate applied for the elapsed fraction.
+
+    Args:
+        times_s: (M,) the times (s).
+        tick_end_s: (N + 1,) the tick ends (s), ascending.
+        tick_attitudes: (N + 1, 3, 3) the attitudes at the tick ends (propagate_tick_attitudes).
+        increments_rad: (N, 3) each tick's body rotation vector (rad).
+
+    Returns:
+        (M, 3, 3) the attitudes at the times.
+    """
     index, fraction = _tick_fractions(times_s, tick_end_s)
     partial = _dcms_from_rotvecs(increments_rad[index - 1] * fraction[:, None])
     return partial @ tick_attitudes[index - 1]
 
 
-def right_jacobians(rotvecs):
-    """J_r(phi) (N, 3, 3) of rows of rotation vectors: R(phi + v) = R(phi) R(J_r(phi) v) to first order (SO(3))."""
+def right_jacobians(rotvecs: np.ndarray) -> np.ndarray:
+    """J_r(phi) (N, 3, 3) of rows of rotation vectors: R(phi + v) = R(phi) R(J_r(phi) v) to first order (SO(3)).
+
+    Args:
+        rotvecs: (N, 3) the rotation vectors phi (rad).
+
+    Returns:
+        (N, 3, 3) the right Jacobians.
+    """
     angle = np.linalg.norm(rotvecs, axis=1)[:, None, None]
     small = angle < 1e-4
     safe = np.where(small, 1.0, angle)
@@ -125,7 +158,7 @@ def _contiguous(indices):
 class Predictor:
     """Predicted centroids (px) of one bag's frames for any effect set, with caches per effect family."""
 
-    def __init__(self, observations, *, anchor_spacing_s=30.0):
+    def __init__(self, observations: Observations, *, anchor_spacing_s: float = 30.0) -> None:
         self.observations = observations
         centroids = observations.centroids
         self.scene = Scene(observations.scenario.site, observations.scenario.start_utc)
@@ -142,19 +175,34 @@ class Predictor:
         self.initial_dcm = observations.initial_tarf_from_irf
 
     @property
-    def anchor_count(self):
+    def anchor_count(self) -> int:
         """Number of anchor knots (three rotation parameters each)."""
         return len(self.anchor_knots_s)
 
-    def anchor_weights(self, times_s):
-        """Knot index k and fraction f of each time: the anchor there is (1 - f) a_k + f a_k+1."""
+    def anchor_weights(self, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Knot index k and fraction f of each time: the anchor there is (1 - f) a_k + f a_k+1.
+
+        Args:
+            times_s: (N,) the times (s).
+
+        Returns:
+            (N,) the knot indices k and (N,) the fractions f in [0, 1].
+        """
         knots = self.anchor_knots_s
         index = np.clip(np.searchsorted(knots, times_s, side='right') - 1, 0, len(knots) - 2)
         fraction = np.clip((times_s - knots[index]) / (knots[index + 1] - knots[index]), 0.0, 1.0)
         return index, fraction
 
-    def anchor_rotations_rad(self, anchors_rad, times_s):
-        """The piecewise-linear anchor rotation (N, 3) at times."""
+    def anchor_rotations_rad(self, anchors_rad: npt.ArrayLike, times_s: np.ndarray) -> np.ndarray:
+        """The piecewise-linear anchor rotation (N, 3) at times.
+
+        Args:
+            anchors_rad: (knots, 3) the anchors' small IRF rotations (rad), or the same flat.
+            times_s: (N,) the times (s).
+
+        Returns:
+            (N, 3) the interpolated rotation vectors (rad).
+        """
         anchors = np.asarray(anchors_rad).reshape(-1, 3)
         index, fraction = self.anchor_weights(times_s)
         return (1.0 - fraction)[:, None] * anchors[index] + fraction[:, None] * anchors[index + 1]
@@ -214,8 +262,16 @@ class Predictor:
         gyro_effects = self._gyro_effects(effects)
         return self._cached(('gyro', repr(gyro_effects)), lambda: self._tick_track(gyro_effects))
 
-    def attitudes(self, effects, times_s):
-        """A_TARF,IRF the model believes at times (gyro propagation only, no anchors)."""
+    def attitudes(self, effects: Mapping[str, EffectParams], times_s: np.ndarray) -> np.ndarray:
+        """A_TARF,IRF the model believes at times (gyro propagation only, no anchors).
+
+        Args:
+            effects: the model's effects and parameters (its gyro errors count).
+            times_s: (N,) the times (s).
+
+        Returns:
+            (N, 3, 3) the attitudes, read-only (cached).
+        """
         tick_attitudes, increments = self._gyro_track(effects)
         return self._cached(self._times_key('attitudes', effects, times_s),
                             lambda: _read_only(attitudes_at(times_s, self._tick_end_s, tick_attitudes, increments)),
@@ -241,7 +297,8 @@ class Predictor:
 
         return self._cached(self._times_key('change maps', effects, times_s), compute, kind='rows')
 
-    def attitude_changes_irf(self, effects, changed, times_s):
+    def attitude_changes_irf(self, effects: Mapping[str, EffectParams], changed: Sequence[Mapping[str, EffectParams]],
+                             times_s: np.ndarray) -> np.ndarray:
         """The small IRF rotations c (P, N, 3), A_changed(t) = A(t) R(c)^T, that each of the P effect sets ``changed``
         makes of the attitudes at times through its gyro errors.
 
@@ -249,6 +306,14 @@ class Predictor:
         c(t) = sum over ticks of A_k^T J_r(phi_k) d phi_k (J_r the right Jacobian of SO(3)), the tick
         of t counted for its elapsed fraction: a column per gyro parameter without propagating the
         gyro track again.
+
+        Args:
+            effects: the model's effects and parameters, the attitudes' reference.
+            changed: the P changed effect sets.
+            times_s: (N,) the times (s).
+
+        Returns:
+            (P, N, 3) the small IRF rotations (rad).
         """
         _, increments = self._gyro_track(effects)
         # A body rotation b after tick k is the IRF rotation A_k+1^T b from then on (_change_maps).
@@ -261,18 +326,35 @@ class Predictor:
             changes[number] = cumulative[index - 1] + np.einsum('nij,nj->ni', per_row_map, delta[index - 1])
         return changes
 
-    def projection_key(self, effects):
-        """What a prediction depends on besides the gyro attitude: row times, star places, camera models."""
+    def projection_key(self, effects: Mapping[str, EffectParams]) -> tuple[Any, ...]:
+        """What a prediction depends on besides the gyro attitude: row times, star places, camera models.
+
+        Args:
+            effects: the model's effects and parameters.
+
+        Returns:
+            The key: the HIPO clock offset, the star places' key and each camera's model key.
+        """
         return (repr(effects.get('timestamp_offset')), self._star_key(effects),
                 tuple(self._camera_key(effects, index)[0] for index in range(len(self.observations.centroids.cameras))))
 
-    def parameter_reach(self, effects, parameter, stepped_effects):
+    def parameter_reach(self, effects: Mapping[str, EffectParams], parameter: FreeParameter,
+                        stepped_effects: Mapping[str, EffectParams]) -> tuple[bool, bool, tuple[int, ...]]:
         """What a step of one parameter moves: whether the row times or star places (projection_key's first two
         parts), whether only the gyro attitude, and the indices of the cameras whose model it changes.
 
         Found by comparing the keys of ``effects`` and ``stepped_effects`` (the parameter stepped) once per effect set
         and parameter: which parts a parameter moves is a property of the effects present, not of their values, and
         the keys cost a camera model per camera.
+
+        Args:
+            effects: the model's effects and parameters.
+            parameter: the parameter stepped.
+            stepped_effects: ``effects`` with the parameter stepped.
+
+        Returns:
+            Whether the step moves the row times or star places, whether only the gyro attitude, and the
+            indices of the cameras whose model it changes.
         """
         def compute():
             projection, stepped = self.projection_key(effects), self.projection_key(stepped_effects)
@@ -283,16 +365,32 @@ class Predictor:
 
         return self._cached((tuple(effects), parameter.effect, parameter.name), compute, kind='reach')
 
-    def gyro_key(self, effects):
-        """What the gyro attitude depends on: the model's gyro error terms."""
+    def gyro_key(self, effects: Mapping[str, EffectParams]) -> str:
+        """What the gyro attitude depends on: the model's gyro error terms.
+
+        Args:
+            effects: the model's effects and parameters.
+
+        Returns:
+            The key: the gyro error terms' repr.
+        """
         return repr(self._gyro_effects(effects))
 
     def _star_directions(self, effects, times_s):
         """Model IRF directions of each row's star at times: refraction and Earth rate as the model has them."""
         return self._directions_of(effects, self._hip_row, times_s)
 
-    def star_direction_irf(self, effects, row, time_s):
-        """The model's IRF direction of the star of one row at one time."""
+    def star_direction_irf(self, effects: Mapping[str, EffectParams], row: int, time_s: float) -> np.ndarray:
+        """The model's IRF direction of the star of one row at one time.
+
+        Args:
+            effects: the model's effects and parameters (refraction, Earth rate).
+            row: the centroid row whose star is meant.
+            time_s: the time (s).
+
+        Returns:
+            (3,) the unit vector in IRF.
+        """
         return self._directions_of(effects, self._hip_row[[row]], np.array([float(time_s)]))[0]
 
     def _directions_of(self, effects, hip_rows, times_s):
@@ -314,8 +412,16 @@ class Predictor:
         model_hrf_from_irf = hrf_from_irf_dcm(self.scene.earth_latitude_deg, times_s, model_rate)
         return np.einsum('nji,nj->ni', model_hrf_from_irf, directions_hrf)
 
-    def measured_directions_tarf(self, effects, rows=None):
-        """Measured star directions in TARF of the rows (all by default) through the model's detectors and mountings."""
+    def measured_directions_tarf(self, effects: Mapping[str, EffectParams], rows: npt.ArrayLike | None = None) -> np.ndarray:
+        """Measured star directions in TARF of the rows (all by default) through the model's detectors and mountings.
+
+        Args:
+            effects: the model's effects and parameters (detectors, mountings, flexure).
+            rows: the centroid rows (indices or a mask), or None for all.
+
+        Returns:
+            (rows, 3) the unit vectors in TARF.
+        """
         centroids = self.observations.centroids
         selected = np.zeros(len(centroids), dtype=bool)
         selected[np.arange(len(centroids)) if rows is None else rows] = True
@@ -331,8 +437,12 @@ class Predictor:
             measured[chosen] = np.einsum('nji,nj->ni', mounting[chosen[camera_rows]], in_camera)
         return measured[selected] if rows is not None else measured
 
-    def align_initial_attitude(self, effects):
-        """Set the start attitude that best maps the model's stars onto all measured ones (Wahba's problem)."""
+    def align_initial_attitude(self, effects: Mapping[str, EffectParams]) -> None:
+        """Set the start attitude that best maps the model's stars onto all measured ones (Wahba's problem).
+
+        Args:
+            effects: the model's effects and parameters.
+        """
         self.initial_dcm = np.eye(3)
         self._clear_caches()
         times = self.row_times_s(effects)
@@ -342,8 +452,15 @@ class Predictor:
         self.initial_dcm = rotation.as_matrix()
         self._clear_caches()
 
-    def row_times_s(self, effects):
-        """Each row's exposure-midpoint time on the TA clock: the stamp less the model's HIPO clock offset (6.2)."""
+    def row_times_s(self, effects: Mapping[str, EffectParams]) -> np.ndarray:
+        """Each row's exposure-midpoint time on the TA clock: the stamp less the model's HIPO clock offset (6.2).
+
+        Args:
+            effects: the model's effects and parameters (its timestamp_offset).
+
+        Returns:
+            (N,) the times (s), a new array.
+        """
         centroids = self.observations.centroids
         times = centroids.stamp_s.copy()
         if 'timestamp_offset' in effects and 'hipo' in centroids.cameras:
@@ -351,8 +468,17 @@ class Predictor:
             times[hipo] -= effects['timestamp_offset']['offset_s']
         return times
 
-    def camera_context(self, effects, camera_index, times_s):
-        """The CameraContext of one camera's rows: what plug-in hooks see on the model side (effects.context)."""
+    def camera_context(self, effects: Mapping[str, EffectParams], camera_index: int, times_s: np.ndarray) -> CameraContext:
+        """The CameraContext of one camera's rows: what plug-in hooks see on the model side (effects.context).
+
+        Args:
+            effects: the model's effects and parameters (the gyro misalignment turns the forces into TARF).
+            camera_index: the camera's index in the centroids' cameras.
+            times_s: (N,) every row's time (s) (row_times_s).
+
+        Returns:
+            The camera's rows' context.
+        """
         centroids = self.observations.centroids
         rows = centroids.camera_index == camera_index
         gyro = self.observations.gyro
@@ -420,8 +546,16 @@ class Predictor:
             predicted[rows] = self._project_camera_px(effects, index, in_tarf, times)
         return predicted
 
-    def tarf_directions(self, effects, anchors_rad=None):
-        """The rows' model star directions in TARF (N, 3), what the cameras see: star places, anchors, gyro attitude."""
+    def tarf_directions(self, effects: Mapping[str, EffectParams], anchors_rad: npt.ArrayLike | None = None) -> np.ndarray:
+        """The rows' model star directions in TARF (N, 3), what the cameras see: star places, anchors, gyro attitude.
+
+        Args:
+            effects: the model's effects and parameters.
+            anchors_rad: (knots, 3) the attitude anchors (rad), or None for none.
+
+        Returns:
+            (N, 3) the unit vectors in TARF.
+        """
         times = self.row_times_s(effects)
         correction = self._anchor_correction(anchors_rad, times)
         directions = self._directions(effects, times)
@@ -429,22 +563,52 @@ class Predictor:
             directions = np.einsum('nij,nj->ni', _dcms_from_rotvecs(correction), directions)
         return np.einsum('nij,nj->ni', self.attitudes(effects, times), directions)
 
-    def predict_px(self, effects, anchors_rad=None):
-        """Predicted centroids (N, 2) px; anchors (knots, 3) rad."""
+    def predict_px(self, effects: Mapping[str, EffectParams], anchors_rad: npt.ArrayLike | None = None) -> np.ndarray:
+        """Predicted centroids (N, 2) px; anchors (knots, 3) rad.
+
+        Args:
+            effects: the model's effects and parameters.
+            anchors_rad: (knots, 3) the attitude anchors (rad), or None for none.
+
+        Returns:
+            (N, 2) the predicted centroids (px).
+        """
         return self._project_px(effects, self.tarf_directions(effects, anchors_rad), self.row_times_s(effects))
 
-    def reprojected_px(self, effects, cameras, in_tarf, predicted_px):
+    def reprojected_px(self, effects: Mapping[str, EffectParams], cameras: Iterable[int], in_tarf: np.ndarray,
+                       predicted_px: npt.ArrayLike) -> np.ndarray:
         """predict_px under ``effects``, which change only the models of the cameras (indices) against the effect set
-        of ``in_tarf`` (its tarf_directions) and ``predicted_px``: the other cameras' rows are kept as they were."""
+        of ``in_tarf`` (its tarf_directions) and ``predicted_px``: the other cameras' rows are kept as they were.
+
+        Args:
+            effects: the changed effects and parameters.
+            cameras: the indices of the cameras whose model they change.
+            in_tarf: (N, 3) the rows' TARF directions under the earlier effect set.
+            predicted_px: (N, 2) the centroids predicted under the earlier effect set (px).
+
+        Returns:
+            (N, 2) the centroids (px), a new array.
+        """
         times = self.row_times_s(effects)
         pixels = np.array(predicted_px, dtype=float)
         for index in cameras:
             pixels[self._camera_rows[index]] = self._project_camera_px(effects, index, in_tarf, times)
         return pixels
 
-    def irf_derivative_px(self, effects, anchors_rad, predicted_px, step_rad):
+    def irf_derivative_px(self, effects: Mapping[str, EffectParams], anchors_rad: npt.ArrayLike | None, predicted_px: np.ndarray,
+                          step_rad: float) -> np.ndarray:
         """Forward differences d predicted px / d IRF rotation (N, 2, 3), as predict_px with a further IRF rotation
-        of step_rad about each axis would give, sharing the attitudes, star places and camera models."""
+        of step_rad about each axis would give, sharing the attitudes, star places and camera models.
+
+        Args:
+            effects: the model's effects and parameters.
+            anchors_rad: (knots, 3) the attitude anchors (rad), or None for none.
+            predicted_px: (N, 2) predict_px under the same effects and anchors (px).
+            step_rad: the rotation step about each IRF axis (rad).
+
+        Returns:
+            (N, 2, 3) the derivatives (px/rad).
+        """
         times = self.row_times_s(effects)
         correction = self._anchor_correction(anchors_rad, times)
         attitude = self.attitudes(effects, times)
@@ -459,8 +623,16 @@ class Predictor:
         return derivative
 
 
-def tick_means(per_sample, tick_start_index):
-    """Mean of per-sample rows over each tick (zero for a tick without samples)."""
+def tick_means(per_sample: np.ndarray, tick_start_index: np.ndarray) -> np.ndarray:
+    """Mean of per-sample rows over each tick (zero for a tick without samples).
+
+    Args:
+        per_sample: (S, C) one row per sample.
+        tick_start_index: (K,) the index of each tick's first sample, ascending.
+
+    Returns:
+        (K, C) each tick's mean row.
+    """
     counts = np.diff(np.append(tick_start_index, len(per_sample)))
     sums = np.add.reduceat(per_sample, np.minimum(tick_start_index, len(per_sample) - 1), axis=0)
     sums[counts == 0] = 0.0

@@ -23,11 +23,11 @@ import pytest
 
 from sofia_ros import errors
 
-#: The packages held to the contract; the lead adds compare/ once its rewrite lands. Modules of another
-#: owner still under way are excluded by name.
-COVERED_PACKAGES = ('sofia_ros.noise', 'sofia_ros.analysis', 'sofia_ros.effects', 'sofia_ros.measurements')
+#: The packages held to the contract. Modules of another owner still under way are excluded by name.
+COVERED_PACKAGES = ('sofia_ros.noise', 'sofia_ros.analysis', 'sofia_ros.effects', 'sofia_ros.measurements',
+                    'sofia_ros.compare')
 EXCLUDED_MODULES = frozenset({
-    'sofia_ros.analysis.ranking',
+    'sofia_ros.compare.fit',  # typed later: its owner is rewriting it
 })
 
 #: The project's own exceptions: raising one directly calls for a ``Raises:`` section.

@@ -51,7 +51,6 @@ from sofia_ros.units import RAD_PER_DEG
 
 if TYPE_CHECKING:
     from sofia_ros.compare.fit import FreeParameter
-    from sofia_ros.compare.observations import Observations
 
 __all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means']
 
@@ -158,7 +157,7 @@ def _contiguous(indices):
 class Predictor:
     """Predicted centroids (px) of one bag's frames for any effect set, with caches per effect family."""
 
-    def __init__(self, observations: Observations, *, anchor_spacing_s: float = 30.0) -> None:
+    def __init__(self, observations, *, anchor_spacing_s=30.0):
         self.observations = observations
         centroids = observations.centroids
         self.scene = Scene(observations.scenario.site, observations.scenario.start_utc)

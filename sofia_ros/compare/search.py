@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence, Set
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, TypedDict
+from typing import TYPE_CHECKING, Any, Protocol, TypedDict, TypeVar
 
 import itertools
 
@@ -26,7 +26,7 @@ import scipy.sparse
 
 from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin, normal_pseudo_inverse,
                                         shared_share)
-from sofia_ros.compare.fit import vanishing_values
+from sofia_ros.compare.fit import ModelFit, vanishing_values
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import resolve_params
 from sofia_ros.effects.empirical import is_empirical
@@ -36,7 +36,6 @@ if TYPE_CHECKING:
     from sofia_ros.analysis.ranking import CandidateTerm
     from sofia_ros.compare.fit import FreeParameter
     from sofia_ros.compare.observations import Observations
-    from sofia_ros.compare.run import CompareResult
 
 __all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'MAX_SEARCH_ROUNDS', 'LinearizedModels', 'SearchRound',
            'equivalent_models', 'model_terms', 'rival_swaps', 'search_pool', 'search_model', 'structural_change',
@@ -416,10 +415,20 @@ def _difference(other, best):
     return f'with {added}' if added else f'without {removed}'
 
 
+class _Comparison(Protocol):
+    """What the search reads of a comparison (compare.run.CompareResult, which imports this module's importer)."""
+
+    document: dict[str, Any]
+    final_fit: ModelFit
+
+
+_ComparisonT = TypeVar('_ComparisonT', bound=_Comparison)
+
+
 def search_model(observations: Observations, model: EffectConfig,
-                 compare: Callable[[Observations, EffectConfig], CompareResult], *, rounds: int = MAX_SEARCH_ROUNDS,
+                 compare: Callable[[Observations, EffectConfig], _ComparisonT], *, rounds: int = MAX_SEARCH_ROUNDS,
                  progress: Callable[[str], None] = lambda line: None,
-                 ) -> tuple[CompareResult, EffectConfig, list[SearchRound], list[dict[str, Any]]]:
+                 ) -> tuple[_ComparisonT, EffectConfig, list[SearchRound], list[dict[str, Any]]]:
     """A best-first search over models: compare one, queue the steps it suggests (the verdict's next step and the
     other members of a competing set, each with the BIC it is expected to reach), compare the most promising
     model not yet compared, until nothing is queued or ``rounds`` comparisons are made. The answer is the

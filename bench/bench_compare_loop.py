@@ -84,7 +84,7 @@ def _agreement(document: dict, baseline: dict) -> tuple[bool, float]:
     for term, other in zip(document['terms'], baseline['terms']):
         if (term['effect'], term['param']) != (other['effect'], other['param']):
             return False, float('inf')
-        if term['sigma'] > 0:
+        if term['sigma'] is not None and term['sigma'] > 0:  # null: a parameter the data leave unconstrained
             worst = max(worst, abs(term['value'] - other['value']) / term['sigma'])
     return same, worst
 

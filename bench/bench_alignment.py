@@ -26,7 +26,12 @@ from pathlib import Path
 from sofia_ros.bag.digest import topic_digests
 from sofia_ros.topics import STOP_DOCUMENT
 
+from results_file import Transcript, current_load, write_results
+
 ROOT = Path(__file__).resolve().parents[1]
+#: Every line printed, for bench/results/alignment.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
 
 _CHILD = r'''
 import json, os, resource, sys, time
@@ -71,16 +76,18 @@ def main():
     parser.add_argument('--seed', type=int, default=1)
     parser.add_argument('--no-cold', action='store_true', help="skip the cold (the checkout's bytecode removed) executor run")
     args = parser.parse_args()
+    load_before = current_load()
     # Direct mode first: every later line is a ratio to it; the cold run before the warm ones.
     runs = [(mode, False) for mode in sorted(args.modes, key=lambda mode: mode != 'direct')]
     if not args.no_cold and 'executor' in args.modes:
         runs.insert(runs.index(('executor', False)), ('executor', True))
-    print(f'alignment campaign, nominal truth, seed {args.seed}, {args.repetitions} repetitions, bag recorded; '
-          f'{os.cpu_count()} CPUs')
-    print(f'{"run":<16} {"sim s":>7} {"wall s":>7} {"CPU s":>7} {"load":>5} {"x real":>7} {"x real CPU":>10} '
-          f'{"wall/direct":>11} {"CPU/direct":>10} {"peak MB":>8} {"accepted":>8}')
+    say(f'alignment campaign, nominal truth, seed {args.seed}, {args.repetitions} repetitions, bag recorded; '
+        f'{os.cpu_count()} CPUs')
+    say(f'{"run":<16} {"sim s":>7} {"wall s":>7} {"CPU s":>7} {"load":>5} {"x real":>7} {"x real CPU":>10} '
+        f'{"wall/direct":>11} {"CPU/direct":>10} {"peak MB":>8} {"accepted":>8}')
     direct = None
     bags = {}
+    rows = []
     with tempfile.TemporaryDirectory(prefix='bench_alignment_') as folder:
         for mode, cold in runs:
             name = f'{mode} (cold)' if cold else mode
@@ -88,19 +95,24 @@ def main():
             direct = figures if mode == 'direct' else direct
             ratios = (f'{figures["wall_s"] / direct["wall_s"]:>11.2f} {figures["cpu_s"] / direct["cpu_s"]:>10.2f}'
                       if direct else f'{"-":>11} {"-":>10}')
-            print(f'{name:<16} {figures["sim_s"]:>7.1f} {figures["wall_s"]:>7.1f} {figures["cpu_s"]:>7.1f} '
-                  f'{figures["load"]:>5.1f} {figures["sim_s"] / figures["wall_s"]:>7.1f} '
-                  f'{figures["sim_s"] / figures["cpu_s"]:>10.1f} {ratios} {figures["peak_mb"]:>8.0f} '
-                  f'{str(figures["accepted"]):>8}', flush=True)
+            say(f'{name:<16} {figures["sim_s"]:>7.1f} {figures["wall_s"]:>7.1f} {figures["cpu_s"]:>7.1f} '
+                f'{figures["load"]:>5.1f} {figures["sim_s"] / figures["wall_s"]:>7.1f} '
+                f'{figures["sim_s"] / figures["cpu_s"]:>10.1f} {ratios} {figures["peak_mb"]:>8.0f} '
+                f'{str(figures["accepted"]):>8}')
+            rows.append({'run': name, **figures,
+                         'wall_over_direct': figures['wall_s'] / direct['wall_s'] if direct else None,
+                         'cpu_over_direct': figures['cpu_s'] / direct['cpu_s'] if direct else None})
             bags[name] = topic_digests(Path(folder) / name.replace(' (cold)', '_cold'))
         # The modes' bags, topic by topic (type, QoS, count, log times, bytes); /result/stop is the live runs' own.
         differing = sorted({topic for digest in bags.values() for topic in digest if topic != STOP_DOCUMENT.name
                             and len({digest.get(topic) for digest in bags.values()}) > 1})
-        print(f'bags of {", ".join(bags)}: ' + (f'differ in {", ".join(differing)}' if differing
-                                                 else 'identical on every topic'))
-    print('wall/direct, CPU/direct: ratio to direct mode in this run (issue 14: executor <= 1.25; executor-dds: the '
-          'same graph with every message over DDS, the old path); '
-          'load: 1-min load average during the run; x real CPU: sim s per CPU s')
+        say(f'bags of {", ".join(bags)}: ' + (f'differ in {", ".join(differing)}' if differing
+                                               else 'identical on every topic'))
+    say('wall/direct, CPU/direct: ratio to direct mode in this run (issue 14: executor <= 1.25; executor-dds: the '
+        'same graph with every message over DDS, the old path); '
+        'load: 1-min load average during the run; x real CPU: sim s per CPU s')
+    write_results('alignment', {'arguments': vars(args), 'runs': rows, 'bags_differ_in': differing},
+                  TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

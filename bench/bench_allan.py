@@ -41,12 +41,17 @@ import numpy as np
 from sofia_ros.analysis.allan import log_spaced_cluster_sizes, overlapping_allan_deviation
 from sofia_ros.sensors.gyro_noise import GYRO_001_1999, gyro_rate_arcsec_per_s
 
+from results_file import Transcript, current_load, write_results
+
 SAMPLE_RATE_HZ = 400.0
 N_SAMPLES = 5_760_000  # 4 h at 400 Hz
 N_TAUS = 100
 REPEATS = 3
 EARTH_RATE_ARCSEC_PER_S = [10.4747, -10.5610, 0.2581]  # Table 5.7, average of all test cases
 AXES = ('el', 'xel', 'los')
+#: Every line printed, for bench/results/allan.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
 
 
 def exact_adev(rate, sizes):
@@ -78,9 +83,10 @@ def busy_fraction(interval_s=1.0):
 
 
 def main():
+    load_before = current_load()
     busy = busy_fraction()
-    print(f'CPU busy before start: {100 * busy:.0f} % of {os.cpu_count()} cores; the targets assume an idle machine'
-          + ('' if busy < 0.1 else ' - timings below are inflated by other processes'))
+    say(f'CPU busy before start: {100 * busy:.0f} % of {os.cpu_count()} cores; the targets assume an idle machine'
+        + ('' if busy < 0.1 else ' - timings below are inflated by other processes'))
     rate, generation_s = timed(gyro_rate_arcsec_per_s, GYRO_001_1999, N_SAMPLES, SAMPLE_RATE_HZ, rng=2009,
                                true_rate_arcsec_per_s=EARTH_RATE_ARCSEC_PER_S)
     sizes = log_spaced_cluster_sizes(N_SAMPLES, N_TAUS)
@@ -89,18 +95,19 @@ def main():
     repeat_s = [timed(overlapping_allan_deviation, rate, SAMPLE_RATE_HZ, sizes)[1] for _ in range(REPEATS)]
     ours_s = statistics.median(repeat_s)
 
-    print(f'record: {N_SAMPLES:,} samples x {len(AXES)} axes at {SAMPLE_RATE_HZ:g} Hz (4 h), Table 5.1 gyro 001 '
-          f'(1999) + Earth rate; generated in {generation_s:.2f} s')
-    print(f'taus: {sizes.size} log-spaced, {taus_s[0]:g} s to {taus_s[-1]:g} s (m = 1 to {sizes[-1]:,})')
-    print(f'ours, all 3 axes: first call {first_s:.3f} s, median of {REPEATS} repeats {ours_s:.3f} s '
-          f'(target <= 1 s)')
-    print()
+    say(f'record: {N_SAMPLES:,} samples x {len(AXES)} axes at {SAMPLE_RATE_HZ:g} Hz (4 h), Table 5.1 gyro 001 '
+        f'(1999) + Earth rate; generated in {generation_s:.2f} s')
+    say(f'taus: {sizes.size} log-spaced, {taus_s[0]:g} s to {taus_s[-1]:g} s (m = 1 to {sizes[-1]:,})')
+    say(f'ours, all 3 axes: first call {first_s:.3f} s, median of {REPEATS} repeats {ours_s:.3f} s '
+        f'(target <= 1 s)')
+    say()
     header = f"{'axis':<5} {'allantools s':>12} {'ours s':>8} {'speed-up':>9} {'max dev vs exact':>17} " \
              f"{'max dev vs allantools':>22} {'adev(1 s)':>10} {'adev(T/3)':>10}"
-    print(header)
-    print('-' * len(header))
+    say(header)
+    say('-' * len(header))
     total_allantools_s = 0.0
     worst = 0.0
+    per_axis = {}
     for axis, curve in zip(range(len(AXES)), curves):
         (_, reference, _, _), allantools_s = timed(allantools.oadev, rate[:, axis], rate=SAMPLE_RATE_HZ,
                                                    data_type='freq', taus=taus_s)
@@ -110,15 +117,24 @@ def main():
         versus_allantools = np.max(np.abs(curve.adev / reference - 1.0))
         worst = max(worst, deviation)
         at_1_s = curve.adev[np.argmin(np.abs(curve.tau_s - 1.0))]
-        print(f'{AXES[axis]:<5} {allantools_s:>12.2f} {ours_s / 3:>8.3f} {allantools_s / (ours_s / 3):>8.0f}x '
-              f'{deviation:>17.1e} {versus_allantools:>22.1e} {at_1_s:>10.5f} {curve.adev[-1]:>10.6f}')
-    print('-' * len(header))
-    print(f"{'all':<5} {total_allantools_s:>12.2f} {ours_s:>8.3f} {total_allantools_s / ours_s:>8.0f}x "
-          f'{worst:>17.1e}')
-    print()
-    print('ours per axis = median 3-axis time / 3; adev in arcsec/s; deviations are relative, at the worst tau')
+        per_axis[AXES[axis]] = {'allantools_s': allantools_s, 'max_dev_vs_exact': deviation,
+                                'max_dev_vs_allantools': versus_allantools, 'adev_1_s': at_1_s,
+                                'adev_longest_tau': curve.adev[-1]}
+        say(f'{AXES[axis]:<5} {allantools_s:>12.2f} {ours_s / 3:>8.3f} {allantools_s / (ours_s / 3):>8.0f}x '
+            f'{deviation:>17.1e} {versus_allantools:>22.1e} {at_1_s:>10.5f} {curve.adev[-1]:>10.6f}')
+    say('-' * len(header))
+    say(f"{'all':<5} {total_allantools_s:>12.2f} {ours_s:>8.3f} {total_allantools_s / ours_s:>8.0f}x "
+        f'{worst:>17.1e}')
+    say()
+    say('ours per axis = median 3-axis time / 3; adev in arcsec/s; deviations are relative, at the worst tau')
     verdict = 'met' if ours_s <= 1.0 and worst <= 5e-3 else 'NOT met'
-    print(f'targets (<= 1 s, <= 0.5 %): {verdict}')
+    say(f'targets (<= 1 s, <= 0.5 %): {verdict}')
+    write_results('allan', {
+        'cpu_busy_before': busy, 'samples_per_axis': N_SAMPLES, 'taus': sizes.size, 'generation_s': generation_s,
+        'ours_first_s': first_s, 'ours_repeats_s': repeat_s, 'ours_median_s': ours_s,
+        'allantools_total_s': total_allantools_s, 'speed_up': total_allantools_s / ours_s,
+        'max_dev_vs_exact': worst, 'targets_met': verdict == 'met', 'axes': per_axis,
+    }, TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

@@ -49,12 +49,19 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
 from sofia_ros.bag import TYPESTORE, BagReader, BagWriter, wire_cdr
 from sofia_ros.bag.writer import ROSBAG2_VERSION
 
+from results_file import Transcript, current_load, write_results
+
 TOPIC = '/gyro_box/imu'
 PERIOD_NS = 2_500_000  # 400 Hz
 # Distinct message objects built up front; the object benchmark cycles through them.
 OBJECT_POOL_SIZE = 20_000
 #: 2004-09-03T04:32:51Z, the default alignment campaign's start: BagWriter adds it to every stamp.
 WACO_2004_EPOCH_NS = 1_094_185_971 * 1_000_000_000
+#: Every line printed, for bench/results/bag.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
+#: Every measurement of the run: what, messages per second and (for a write) bag size, for bench/results/bag.json.
+MEASUREMENTS: list[dict] = []
 
 
 def imu_messages(count: int, seed: int) -> list[Imu]:
@@ -77,8 +84,9 @@ def imu_messages(count: int, seed: int) -> list[Imu]:
 
 
 def report(what: str, count: int, seconds: float, extra: str = '') -> None:
-    """Print one result line in messages per second."""
-    print(f'{what:42s} {count / seconds:>10,.0f} msg/s  {extra}'.rstrip())
+    """Print one result line in messages per second and keep its figures."""
+    MEASUREMENTS.append({'what': what, 'messages': count, 'seconds': seconds, 'msg_per_s': count / seconds})
+    say(f'{what:42s} {count / seconds:>10,.0f} msg/s  {extra}'.rstrip())
 
 
 def best_seconds(run, repeats: int) -> float:
@@ -129,6 +137,7 @@ def bench_writes(root: Path, payloads: list[bytes], compress: bool, repeats: int
         size_bytes = sum(item.stat().st_size for item in paths[name].iterdir())
         size = f'bag {size_bytes / 1e6:.1f} MB, {size_bytes / len(payloads):.1f} B/msg'
         report(f'write raw CDR ({name}, {kind})', len(payloads), seconds[name], size)
+        MEASUREMENTS[-1].update(bag_mb=size_bytes / 1e6, bytes_per_message=size_bytes / len(payloads))
     return paths
 
 
@@ -164,17 +173,20 @@ def main() -> None:
     parser.add_argument('--repeats', type=int, default=3, help='runs of each measurement; the fastest is kept')
     args = parser.parse_args()
     count, repeats = args.count, args.repeats
+    load_before = current_load()
     pool = imu_messages(OBJECT_POOL_SIZE, seed=1)
     payloads = [bytes(wire_cdr(pool[i % OBJECT_POOL_SIZE])) for i in range(count)]
     minutes = count * PERIOD_NS / 60e9
-    print(f'sensor_msgs/Imu: {count:,} messages ({minutes:.1f} min at 400 Hz), {len(payloads[0])} B CDR; '
-          f'best of {repeats}, before and after alternating')
+    say(f'sensor_msgs/Imu: {count:,} messages ({minutes:.1f} min at 400 Hz), {len(payloads[0])} B CDR; '
+        f'best of {repeats}, before and after alternating')
     with tempfile.TemporaryDirectory() as tmp:
         written = {kind: bench_writes(Path(tmp), payloads, compress, repeats)
                    for kind, compress in (('zstd', True), ('uncompressed', False))}
         bench_object_writes(Path(tmp), pool, min(count, 50_000), repeats)
         for kind, paths in written.items():
             bench_reads(paths, kind, repeats)
+    write_results('bag', {'messages': count, 'repeats': repeats, 'cdr_bytes': len(payloads[0]),
+                          'measurements': MEASUREMENTS}, TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

@@ -38,6 +38,12 @@ from sofia_ros.campaigns.alignment import run_alignment  # noqa: E402
 from sofia_ros.compare.observations import read_observations  # noqa: E402
 from sofia_ros.config import load_effect_config  # noqa: E402
 
+from results_file import Transcript, current_load, write_results  # noqa: E402
+
+#: Every line printed, for bench/results/compare.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
+
 MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
 #: Issue 14's targets: wall seconds per campaign on the 2-core machine, and peak memory.
 TARGET_S = {'alignment': 5.0, 'star-hop': 20.0}
@@ -93,6 +99,7 @@ def disagreements(before, after):
 
 
 def bench_reading(bag):
+    """Print and return the wall time of reading the observables through the indexes and record by record."""
     with BagReader(bag) as reader:
         topics = ('/gyro_box/imu', *(info.name for info in reader.topics
                                      if info.name.endswith('/centroids') or info.name in (
@@ -107,11 +114,14 @@ def bench_reading(bag):
         started = time.perf_counter()
         read_record_by_record(bag, topics)
         rosbags_s = min(rosbags_s, time.perf_counter() - started)
-    print(f'  reading the bag alone: {read_s:.2f} s through the message indexes; the same topics record by record '
-          f'through rosbags: {rosbags_s:.2f} s ({rosbags_s / read_s:.1f}x; {_load()})')
+    say(f'  reading the bag alone: {read_s:.2f} s through the message indexes; the same topics record by record '
+        f'through rosbags: {rosbags_s:.2f} s ({rosbags_s / read_s:.1f}x; {_load()})')
+    return {'indexed_s': read_s, 'record_by_record_s': rosbags_s, 'speed_up': rosbags_s / read_s,
+            'load': current_load()}
 
 
 def bench_compare(campaign, bag, folder, baseline=None, rounds=1):
+    """Print and return the figures of `sofia compare` on ``bag`` (and of ``baseline``'s, alternating)."""
     json_path = Path(folder) / f'{campaign}.json'
     runs = {}  # checkout -> the fastest (wall s, CPU s, peak MB, load) of its rounds
     for _ in range(rounds):
@@ -120,25 +130,37 @@ def bench_compare(campaign, bag, folder, baseline=None, rounds=1):
             figures = compare_in_a_process(bag, path, checkout)
             runs[checkout] = min(runs.get(checkout, figures), figures)
     document = json.loads(json_path.read_text())
-    print(f'{campaign}: {sum(document["observations"].values())} centroids, {len(document["candidates"])} candidates')
+    say(f'{campaign}: {sum(document["observations"].values())} centroids, {len(document["candidates"])} candidates')
     wall_s, cpu_s, peak_mb, load = runs[ROOT]
-    print(f'  sofia compare: {wall_s:.2f} s wall, {cpu_s:.2f} s CPU (target <= {TARGET_S[campaign]:g} s wall; '
-          f'{load} before, {_load()} after); peak memory {peak_mb:.0f} MB (target <= {TARGET_MEMORY_MB:.0f} MB)')
+    figures = {'campaign': campaign, 'centroids': sum(document['observations'].values()),
+               'candidates': len(document['candidates']), 'wall_s': wall_s, 'cpu_s': cpu_s, 'peak_mb': peak_mb,
+               'load_before': load, 'load_after': _load(), 'target_wall_s': TARGET_S[campaign],
+               'target_memory_mb': TARGET_MEMORY_MB}
+    say(f'  sofia compare: {wall_s:.2f} s wall, {cpu_s:.2f} s CPU (target <= {TARGET_S[campaign]:g} s wall; '
+        f'{load} before, {_load()} after); peak memory {peak_mb:.0f} MB (target <= {TARGET_MEMORY_MB:.0f} MB)')
     if baseline:
         old_wall_s, old_cpu_s, old_peak_mb, old_load = runs[baseline]
-        print(f'  baseline {baseline}: {old_wall_s:.2f} s wall, {old_cpu_s:.2f} s CPU, {old_peak_mb:.0f} MB '
-              f'({old_load} before); this checkout is {old_wall_s / wall_s:.2f}x faster in wall time, '
-              f'{old_cpu_s / cpu_s:.2f}x in CPU time, {old_peak_mb / peak_mb:.2f}x in memory (best of {rounds})')
+        say(f'  baseline {baseline}: {old_wall_s:.2f} s wall, {old_cpu_s:.2f} s CPU, {old_peak_mb:.0f} MB '
+            f'({old_load} before); this checkout is {old_wall_s / wall_s:.2f}x faster in wall time, '
+            f'{old_cpu_s / cpu_s:.2f}x in CPU time, {old_peak_mb / peak_mb:.2f}x in memory (best of {rounds})')
         lines = disagreements(json.loads(json_path.with_suffix('.baseline.json').read_text()), document)
-        print('  results: ' + ('; '.join(lines) if lines else f'the same verdict and candidates, every fitted term '
-                                                               f'within {AGREEMENT_SIGMA:g} sigma of the baseline'))
+        figures['baseline'] = {'checkout': str(baseline), 'wall_s': old_wall_s, 'cpu_s': old_cpu_s,
+                               'peak_mb': old_peak_mb, 'load_before': old_load, 'rounds': rounds,
+                               'disagreements': lines}
+        say('  results: ' + ('; '.join(lines) if lines else f'the same verdict and candidates, every fitted term '
+                                                             f'within {AGREEMENT_SIGMA:g} sigma of the baseline'))
     seconds = document['seconds']
-    print(f'  inside it (wall): comparison {seconds["total"]:.2f} s, of which diagnostics {seconds["diagnostics"]:.2f} s, '
-          f'{seconds["per_candidate"] * 1000:.0f} ms per linearized candidate')
+    say(f'  inside it (wall): comparison {seconds["total"]:.2f} s, of which diagnostics {seconds["diagnostics"]:.2f} s, '
+        f'{seconds["per_candidate"] * 1000:.0f} ms per linearized candidate')
     for candidate in document['candidates']:
         if candidate['refined']:
-            print(f'  refit {candidate["effect"]:<28} {candidate["seconds"]:6.3f} s  dBIC {candidate["delta_bic"]:9.1f}')
-    bench_reading(bag)
+            say(f'  refit {candidate["effect"]:<28} {candidate["seconds"]:6.3f} s  dBIC {candidate["delta_bic"]:9.1f}')
+    figures['seconds'] = seconds
+    figures['refits'] = [{'effect': candidate['effect'], 'seconds': candidate['seconds'],
+                          'delta_bic': candidate['delta_bic']} for candidate in document['candidates']
+                         if candidate['refined']]
+    figures['reading'] = bench_reading(bag)
+    return figures
 
 
 def main():
@@ -147,6 +169,8 @@ def main():
     parser.add_argument('--baseline', type=Path, help='another checkout of the repository to compare against')
     parser.add_argument('--rounds', type=int, default=1, help='runs of each checkout, alternating; the fastest kept')
     args = parser.parse_args()
+    load_before = current_load()
+    results = {'bags': [str(bag) for bag in args.bags]}
     with tempfile.TemporaryDirectory(prefix='bench_compare_') as folder:
         if args.bags:
             bags = dict(zip(('alignment', 'star-hop'), args.bags))
@@ -155,9 +179,11 @@ def main():
             started = time.perf_counter()
             run_alignment(load_effect_config(ROOT / 'config/truth/nominal.yaml'), seed=1, bag_path=bags['alignment'],
                           mode='direct')
-            print(f'campaign (direct mode) recorded in {time.perf_counter() - started:.1f} s: {bags["alignment"]}')
-        for campaign, bag in bags.items():
-            bench_compare(campaign, bag, folder, args.baseline and args.baseline.resolve(), args.rounds)
+            results['record_s'] = time.perf_counter() - started
+            say(f'campaign (direct mode) recorded in {results["record_s"]:.1f} s: {bags["alignment"]}')
+        results['campaigns'] = [bench_compare(campaign, bag, folder, args.baseline and args.baseline.resolve(),
+                                              args.rounds) for campaign, bag in bags.items()]
+    write_results('compare', results, TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

@@ -39,7 +39,12 @@ from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, done_topic
 from sofia_ros.sim.graph import build_cores, graph_topics
 from sofia_ros.topics import CLOCK, DEFAULT_TICK_NS, SAMPLE_BLOCKS
 
+from results_file import Transcript, current_load, write_results
+
 ROOT = Path(__file__).resolve().parents[1]
+#: Every line printed, for bench/results/dds_floor.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
 #: A done report as the nodes send it (nodes.shell.LockstepNode.publish_done), for its size.
 DONE_REPORT = '1234;0;;/tascu/attitude=1234,/tascu/command_status=61,/tascu/fd_command=1234,/tascu/motion_status=1234'
 
@@ -158,6 +163,7 @@ def main():
     parser.add_argument('--sim-s', type=float, default=800.0, help='sim time of the direct-mode baseline run')
     parser.add_argument('--ticks', type=int, default=4000, help='ticks of each traffic replay')
     args = parser.parse_args()
+    load_before = current_load()
     with tempfile.TemporaryDirectory(prefix='bench_dds_floor_') as folder:
         direct_s, direct_ticks, data = direct_baseline(args.sim_s, Path(folder))
     cores = build_cores(graph_config(load_effect_config(ROOT / 'config/truth/nominal.yaml'), seed=1))
@@ -174,10 +180,11 @@ def main():
     done_fan_out = handshake_fan_out(cores)
     msgtypes.update((topic, 'std_msgs/msg/String') for topic in done_fan_out)
     handshake = {topic: (1.0, serialize_message(String(data=DONE_REPORT))) for topic in done_fan_out}
-    print(f'alignment graph, nominal truth; {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}')
-    print(f'direct mode: {direct_ticks} ticks in {direct_s * direct_ticks:.1f} s wall = {direct_s * 1e3:.2f} ms per '
-          f'tick (start-up included)')
-    print(f'{"traffic":<10} {"publishes":>9} {"deliveries":>10} {"ms/tick":>8} {"x direct tick":>13}')
+    say(f'alignment graph, nominal truth; {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}')
+    say(f'direct mode: {direct_ticks} ticks in {direct_s * direct_ticks:.1f} s wall = {direct_s * 1e3:.2f} ms per '
+        f'tick (start-up included)')
+    rows = []
+    say(f'{"traffic":<10} {"publishes":>9} {"deliveries":>10} {"ms/tick":>8} {"x direct tick":>13}')
     with claimed_ros_domain():
         rclpy.init()
         try:
@@ -189,12 +196,17 @@ def main():
                 graph.destroy()
                 publishes = sum(per_tick for per_tick, _ in traffic.values())
                 deliveries = sum(per_tick * len(fan_out[topic][1]) for topic, (per_tick, _) in traffic.items())
-                print(f'{label:<10} {publishes:>9.1f} {deliveries:>10.1f} {per_tick_s * 1e3:>8.3f} '
-                      f'{per_tick_s / direct_s:>13.2f}', flush=True)
+                say(f'{label:<10} {publishes:>9.1f} {deliveries:>10.1f} {per_tick_s * 1e3:>8.3f} '
+                    f'{per_tick_s / direct_s:>13.2f}')
+                rows.append({'traffic': label, 'publishes_per_tick': publishes, 'deliveries_per_tick': deliveries,
+                             'ms_per_tick': per_tick_s * 1e3, 'share_of_direct_tick': per_tick_s / direct_s})
         finally:
             rclpy.try_shutdown()
-    print('x direct tick: the messages alone as a share of direct mode\'s whole tick; executor/direct can be no '
-          'lower than 1 + the "both" figure while every message and report travels over DDS')
+    say('x direct tick: the messages alone as a share of direct mode\'s whole tick; executor/direct can be no '
+        'lower than 1 + the "both" figure while every message and report travels over DDS')
+    write_results('dds_floor', {'arguments': vars(args), 'direct_ticks': direct_ticks,
+                                'direct_wall_s': direct_s * direct_ticks, 'direct_ms_per_tick': direct_s * 1e3,
+                                'replays': rows}, TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

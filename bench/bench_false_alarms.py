@@ -29,8 +29,16 @@ from sofia_ros.campaigns.registry import CAMPAIGNS  # noqa: E402
 from sofia_ros.compare.run import compare_bag  # noqa: E402
 from sofia_ros.config import load_effect_config  # noqa: E402
 
+from results_file import Transcript, current_load, write_results  # noqa: E402
+
+#: Every line printed, for bench/results/false_alarms.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
+
 TRUTH = ROOT / 'config' / 'truth' / 'nominal.yaml'
 MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
+#: The campaigns recorded in this run, with their recording times, for bench/results/false_alarms.json.
+RECORDED: list[dict] = []
 
 
 def _load():
@@ -42,12 +50,14 @@ def record(campaign, seed, folder):
     bag = Path(folder) / f'{campaign}-seed{seed}'
     started = time.perf_counter()
     CAMPAIGNS[campaign].run(load_effect_config(TRUTH), seed=seed, bag_path=bag, mode='direct')
-    print(f'{campaign} seed {seed} recorded in {time.perf_counter() - started:.0f} s ({_load()})')
+    record_s = time.perf_counter() - started
+    say(f'{campaign} seed {seed} recorded in {record_s:.0f} s ({_load()})')
+    RECORDED.append({'campaign': campaign, 'seed': seed, 'record_s': record_s, 'load': current_load()})
     return bag
 
 
 def judge(bag):
-    """Compare the bag with the nominal model and print what a false alarm would show."""
+    """Compare the bag with the nominal model and print what a false alarm would show; its figures as a dict."""
     started = time.perf_counter()
     document = compare_bag(bag, load_effect_config(MODEL)).document
     wall_s = time.perf_counter() - started
@@ -60,12 +70,17 @@ def judge(bag):
               f'{strongest["significance_sigma"]:.1f} sigma')
     biases = ', '.join(f'{term["param"]} {term["value"]:+.4f} +- {term["sigma"]:.4f}'
                        for term in document['terms'] if term['effect'] == 'gyro_bias')
-    print(f'{bag.name}: {verdict["status"]}; largest RMS/floor {worst["ratio"]:.2f} ({worst_name}); strongest finding '
-          f'{listed}; {len(document["consistency"])} inconsistent terms')
-    print(f'  {biases} deg/h; compare {wall_s:.1f} s wall ({_load()})')
+    say(f'{bag.name}: {verdict["status"]}; largest RMS/floor {worst["ratio"]:.2f} ({worst_name}); strongest finding '
+        f'{listed}; {len(document["consistency"])} inconsistent terms')
+    say(f'  {biases} deg/h; compare {wall_s:.1f} s wall ({_load()})')
     if verdict['status'] != 'explained':
-        print(f'  FALSE ALARM: {verdict["text"]}')
-    return verdict['status'] == 'explained'
+        say(f'  FALSE ALARM: {verdict["text"]}')
+    return {'bag': bag.name, 'status': verdict['status'], 'explained': verdict['status'] == 'explained',
+            'largest_rms_over_floor': worst['ratio'], 'largest_rms_observable': worst_name,
+            'strongest_finding': listed, 'inconsistent_terms': len(document['consistency']),
+            'gyro_biases_deg_per_h': [{'param': term['param'], 'value': term['value'], 'sigma': term['sigma']}
+                                      for term in document['terms'] if term['effect'] == 'gyro_bias'],
+            'compare_wall_s': wall_s, 'load': current_load()}
 
 
 def main():
@@ -74,11 +89,15 @@ def main():
     parser.add_argument('--seeds', nargs='+', type=int, default=[1, 2])
     parser.add_argument('--campaigns', nargs='+', default=['alignment', 'star-hop'], choices=['alignment', 'star-hop'])
     arguments = parser.parse_args()
+    load_before = current_load()
     with tempfile.TemporaryDirectory(prefix='bench_false_alarms_') as folder:
         bags = arguments.bags or [record(campaign, seed, folder)
                                   for campaign in arguments.campaigns for seed in arguments.seeds]
-        explained = [judge(bag) for bag in bags]
-    print(f'{sum(explained)} of {len(explained)} untouched bags explained')
+        judged = [judge(bag) for bag in bags]
+    explained = [row['explained'] for row in judged]
+    say(f'{sum(explained)} of {len(explained)} untouched bags explained')
+    write_results('false_alarms', {'recorded': RECORDED, 'bags': judged, 'explained': sum(explained)},
+                  TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

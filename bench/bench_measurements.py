@@ -27,6 +27,12 @@ from sofia_ros.config import load_effect_config  # noqa: E402
 from sofia_ros.measurements.compare import compare_measurement_set  # noqa: E402
 from sofia_ros.measurements.validate import load_measurement_set  # noqa: E402
 
+from results_file import Transcript, current_load, write_results  # noqa: E402
+
+#: Every line printed, for bench/results/measurements.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
+
 SHIFTS = 20
 STEP_S = 360.0
 
@@ -52,6 +58,7 @@ def large_set(path):
 
 
 def main_bench():
+    load_before = current_load()
     with tempfile.TemporaryDirectory() as directory:
         path = Path(directory) / 'large-set.yaml'
         rows = large_set(path)
@@ -69,10 +76,15 @@ def main_bench():
         result = compare_measurement_set(measurement_set, load_effect_config(ROOT / 'config' / 'model' / 'nominal.yaml'))
     verdict = result.document['verdict']['status']
     best = next(c for c in result.document['candidates'] if c['observable'])
-    print(f'sofia compare of a measurement set: {rows} star_distance rows, exit {code}')
-    print(f'  wall {wall:.2f} s for the whole command (target <= 2 s); parse and validate {load_s:.2f} s; '
-          f'places, fits, candidates and refits {result.document["seconds"]["total"]:.2f} s')
-    print(f'  verdict {verdict}; best candidate {best["effect"]} ({best["params"]})')
+    say(f'sofia compare of a measurement set: {rows} star_distance rows, exit {code}')
+    say(f'  wall {wall:.2f} s for the whole command (target <= 2 s); parse and validate {load_s:.2f} s; '
+        f'places, fits, candidates and refits {result.document["seconds"]["total"]:.2f} s')
+    say(f'  verdict {verdict}; best candidate {best["effect"]} ({best["params"]})')
+    write_results('measurements', {
+        'rows': rows, 'exit_code': code, 'wall_s': wall, 'parse_and_validate_s': load_s,
+        'compare_s': result.document['seconds']['total'], 'verdict': verdict,
+        'best_candidate': {'effect': best['effect'], 'params': best['params']},
+    }, TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

@@ -38,20 +38,26 @@ from sofia_ros.config import load_effect_config, parse_effect_config
 from sofia_ros.noise.report import write_report
 from sofia_ros.noise.run import analyze_record, load_noise_record
 
+from results_file import Transcript, current_load, write_results
+
 REPOSITORY = Path(__file__).resolve().parents[1]
 MODEL = 'effects:\n  gyro_noise: {}\n  gyro_misalignment: {}\n'
 SAMPLE_RATE_HZ = 400.0
 N_TAUS = 60  # as noise_report
+#: Every line printed, for bench/results/noise.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
 
 
-def _bag(folder, given):
+def _bag(folder, given, document):
     if given is not None and Path(given).exists():
         return Path(given)
     path = folder / 'tc1'
     truth = load_effect_config(REPOSITORY / 'config/truth/nominal.yaml')
     start = time.perf_counter()
     run_gyro_stability(truth, case='TC-1', hours=4.0, seed=1, bag_path=path)
-    print(f'recorded a 4 h TC-1 bag in {time.perf_counter() - start:.1f} s')
+    document['record_s'] = time.perf_counter() - start
+    say(f'recorded a 4 h TC-1 bag in {document["record_s"]:.1f} s')
     return path
 
 
@@ -59,9 +65,11 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--bag', help='an existing 4 h gyro-stability bag (default: record one)')
     args = parser.parse_args()
+    load_before = current_load()
+    document = {'bag': args.bag}
     folder = Path(tempfile.mkdtemp(prefix='bench_noise_'))
     try:
-        bag = _bag(folder, args.bag)
+        bag = _bag(folder, args.bag, document)
         model_path = folder / 'noise.yaml'
         model_path.write_text(MODEL)
 
@@ -69,7 +77,7 @@ def main():
         status = sofia(['noise', str(bag), '--model', str(model_path), '--report', str(folder / 'report'),
                         '--json', str(folder / 'noise.json')])
         command_s = time.perf_counter() - start
-        print(f'\nsofia noise --model --report --json: exit {status}, {command_s:.1f} s wall (target <= 60 s)')
+        say(f'\nsofia noise --model --report --json: exit {status}, {command_s:.1f} s wall (target <= 60 s)')
 
         start = time.perf_counter()
         record = load_noise_record(bag)
@@ -78,8 +86,8 @@ def main():
         analyze_s = time.perf_counter() - start - read_s
         write_report(analysis, folder / 'report_again')
         report_s = time.perf_counter() - start - read_s - analyze_s
-        print(f'  split: read bag {read_s:.1f} s, analysis {analyze_s:.1f} s '
-              f'({len(analysis.document["candidates"])} candidates ranked), report {report_s:.1f} s')
+        say(f'  split: read bag {read_s:.1f} s, analysis {analyze_s:.1f} s '
+            f'({len(analysis.document["candidates"])} candidates ranked), report {report_s:.1f} s')
 
         noise = analysis.noise_arcsec_per_s
         sizes = log_spaced_cluster_sizes(len(noise), N_TAUS)
@@ -91,12 +99,19 @@ def main():
                                    taus=sizes / SAMPLE_RATE_HZ)[1] for axis in range(3)]
         theirs_s = time.perf_counter() - start
         deviation = max(float(np.max(np.abs(curve.adev / reference - 1.0))) for curve, reference in zip(ours, theirs))
-        print(f'  Allan part, {len(noise):,} samples x 3 axes, {sizes.size} taus: ours {ours_s:.2f} s, '
-              f'allantools.oadev {theirs_s:.2f} s, {theirs_s / ours_s:.0f}x; largest relative difference {deviation:.1e}')
+        say(f'  Allan part, {len(noise):,} samples x 3 axes, {sizes.size} taus: ours {ours_s:.2f} s, '
+            f'allantools.oadev {theirs_s:.2f} s, {theirs_s / ours_s:.0f}x; largest relative difference {deviation:.1e}')
         top = analysis.document['candidates'][:3]
-        print('  top candidates: ' + '; '.join(f'{c["label"]} (delta BIC {c["delta_bic"]:.0f})' for c in top))
+        say('  top candidates: ' + '; '.join(f'{c["label"]} (delta BIC {c["delta_bic"]:.0f})' for c in top))
+        document.update(
+            exit_code=status, command_s=command_s, read_s=read_s, analysis_s=analyze_s, report_s=report_s,
+            candidates=len(analysis.document['candidates']), samples_per_axis=len(noise), taus=sizes.size,
+            allan_ours_s=ours_s, allan_allantools_s=theirs_s, allan_speed_up=theirs_s / ours_s,
+            allan_largest_relative_difference=deviation,
+            top_candidates=[{'label': c['label'], 'delta_bic': c['delta_bic']} for c in top])
     finally:
         shutil.rmtree(folder)
+    write_results('noise', document, TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

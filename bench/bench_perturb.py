@@ -26,10 +26,18 @@ from sofia_ros.campaigns.alignment import run_alignment  # noqa: E402
 from sofia_ros.config import load_effect_config  # noqa: E402
 from sofia_ros.perturb import perturb_bag  # noqa: E402
 
+from results_file import Transcript, current_load, write_results  # noqa: E402
+
+#: Every line printed, for bench/results/perturb.txt.
+TRANSCRIPT = Transcript()
+say = TRANSCRIPT.say
+
 CASES = (('fpi.x', '2.0*(time_s > 600)'), ('gyro.los', '0.5*specific_force_z_m_per_s2/9.81'))
 
 
 def main():
+    load_before = current_load()
+    document = {'bag': sys.argv[1] if len(sys.argv) > 1 else None, 'cases': []}
     with tempfile.TemporaryDirectory(prefix='bench_perturb_') as folder:
         if len(sys.argv) > 1:
             bag = Path(sys.argv[1])
@@ -37,11 +45,13 @@ def main():
             bag = Path(folder) / 'alignment'
             started = time.perf_counter()
             run_alignment(load_effect_config(ROOT / 'config/truth/nominal.yaml'), seed=1, bag_path=bag, mode='direct')
-            print(f'campaign (direct mode) recorded in {time.perf_counter() - started:.1f} s: {bag}')
+            document['record_s'] = time.perf_counter() - started
+            say(f'campaign (direct mode) recorded in {document["record_s"]:.1f} s: {bag}')
         with BagReader(bag) as reader:
             counts = {info.name: info.count for info in reader.topics}
         size_mb = sum(path.stat().st_size for path in bag.glob('*.mcap')) / 1e6
-        print(f'bag: {size_mb:.1f} MB, {sum(counts.values())} messages, {counts["/gyro_box/imu"]} Imu samples')
+        document.update(bag_mb=size_mb, messages=sum(counts.values()), imu_samples=counts['/gyro_box/imu'])
+        say(f'bag: {size_mb:.1f} MB, {sum(counts.values())} messages, {counts["/gyro_box/imu"]} Imu samples')
         for observable, shape in CASES:
             best_s = float('inf')
             for attempt in range(2):
@@ -50,8 +60,11 @@ def main():
                 result = perturb_bag(bag, out, observable, shape)
                 best_s = min(best_s, time.perf_counter() - started)
                 shutil.rmtree(out)
-            print(f'{observable:<9} {shape!r:<40} {best_s:6.2f} s wall, {result.rows_changed} rows changed, '
-                  f'RMS {result.rms:.4g} {result.unit}')
+            say(f'{observable:<9} {shape!r:<40} {best_s:6.2f} s wall, {result.rows_changed} rows changed, '
+                f'RMS {result.rms:.4g} {result.unit}')
+            document['cases'].append({'observable': observable, 'shape': shape, 'best_wall_s': best_s,
+                                      'rows_changed': result.rows_changed, 'rms': result.rms, 'unit': result.unit})
+    write_results('perturb', document, TRANSCRIPT.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

@@ -15,7 +15,7 @@ round's compare also runs from that checkout on the same model (without the cach
 not know), and the two JSON outputs are checked: the same verdict and next step, every fitted term
 within AGREEMENT_SIGMA of its sigma; its wall time is printed beside this checkout's.
 
-The figures are written to bench/results/compare_loop.{json,txt} (date, commit, load, machine).
+The figures are written to bench/results/compare_loop_<campaigns>.{json,txt} (date, commit, load, machine).
 
 Run: .venv/bin/python bench/bench_compare_loop.py [--campaigns alignment,star-hop] [--rounds 8] [--baseline DIR]
 """
@@ -44,7 +44,7 @@ TARGET_S = {'alignment': 4.0, 'star-hop': 15.0}
 TARGET_MEMORY_MB = 600.0
 #: Fitted values of this checkout and the baseline may differ by this fraction of their sigma (issue 27).
 AGREEMENT_SIGMA = 0.01
-#: Every line printed, for bench/results/compare_loop.txt.
+#: Every line printed, for bench/results/compare_loop_<campaigns>.txt.
 PRINTED: list[str] = []
 
 
@@ -161,8 +161,9 @@ def main() -> None:
                 'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'load_before': load_before,
                 'load_after': os.getloadavg()[0], 'wall_s': round(time.time() - started, 1),
                 'baseline': str(args.baseline) if args.baseline else None, 'loops': loops}
-    (results / 'compare_loop.json').write_text(json.dumps(document, indent=1) + '\n')
-    (results / 'compare_loop.txt').write_text(f'{document["date"]} commit {commit}, {document["machine"]}, load '
+    name = 'compare_loop_' + '_'.join(campaign.replace('-', '_') for campaign in args.campaigns.split(','))
+    (results / f'{name}.json').write_text(json.dumps(document, indent=1) + '\n')
+    (results / f'{name}.txt').write_text(f'{document["date"]} commit {commit}, {document["machine"]}, load '
                                               f'{load_before:.1f} before\n' + '\n'.join(PRINTED) + '\n')
 
 

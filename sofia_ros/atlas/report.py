@@ -117,7 +117,7 @@ def text_table(summary: AtlasSummary) -> str:
         for c in worst[:_SCREEN_LINES]:
             lines.append(f'  {c.effect}.{c.param} {c.campaign} x{c.size:g}: bias {c.bias:+.3g}, scatter '
                          f'{c.scatter:.3g}, sigma {c.median_sigma:.3g}, pull {c.pull_mean:+.2f}+-{c.pull_std:.2f} '
-                         f'n={c.count}')
+                         f'n={c.count}' + (f' ({c.unconstrained} without sigma)' if c.unconstrained else ''))
     if summary.table_6_5:
         lines.append(f'Table 6.5 slice ({summary.table_6_5_rows}): alignment against /truth, RMS over runs ["]')
         lines.append('  variant        n  runs  tilt RMS  predicted  thesis sigma_R   LOS RMS  predicted  thesis sigma_beta')

@@ -130,7 +130,9 @@ def _compare_fields(task: AtlasTask, document: dict) -> dict:
         fields['effect_delta_bic'] = hidden['delta_bic']
         if param is not None:
             fields['fitted_value'] = hidden['params'].get(param)
-            fields['fitted_sigma'] = hidden['sigma'].get(param)
+            sigma = hidden['sigma'].get(param)
+            # compare keeps an undetermined sigma as inf in memory and null in its JSON: rows say null too.
+            fields['fitted_sigma'] = sigma if sigma is not None and math.isfinite(sigma) else None
     return fields
 
 

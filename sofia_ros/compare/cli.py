@@ -286,9 +286,7 @@ def run_compare(args: argparse.Namespace, out: TextIO) -> int:
         from sofia_ros.measurements.report import run_set_compare
 
         if args.search:
-            raise ConfigError('--search takes a bag; a measurement set is compared as it is (its competing sets '
-                              'and model_terms say what to change)')
-
+            return _search_set(args, model, out)
         return run_set_compare(args, out, model)
     progress = Progress.silent() if args.quiet else Progress(sys.stderr, prefix='sofia compare')
     with observation_cache(None if args.no_cache else ObservationCache(warn=_warn, progress=progress)):
@@ -318,19 +316,50 @@ def _warn(line):
 
 
 def _search(args, model, progress):
-    """--search: the rounds of compare.search on observations read once; the model written where asked."""
+    """--search on a bag: the rounds of compare.search on observations read once."""
     from sofia_ros.compare.observations import read_observations
     from sofia_ros.compare.run import compare_observations
-    from sofia_ros.compare.search import search_model
 
     if args.write_model:
         output_target(args.write_model)
     progress.phase('reading the bag')
     observations = read_observations(args.bag)
-    result, found, rounds, equivalent = search_model(
-        observations, model,
-        lambda obs, trial: compare_observations(obs, trial, anchor_spacing_s=args.anchor_s, progress=progress),
-        rounds=args.search_rounds, progress=progress.phase)
+    return _searched(args, model, progress, observations,
+                     lambda obs, trial: compare_observations(obs, trial, anchor_spacing_s=args.anchor_s,
+                                                             progress=progress))
+
+
+def _search_set(args, model, out):
+    """--search on a measurement set: the same search over compare_measurement_set, printed and written as a set's
+    comparison is (measurements.report)."""
+    from sofia_ros.measurements.compare import compare_measurement_set
+    from sofia_ros.measurements.report import print_set_comparison, write_set_report
+    from sofia_ros.measurements.validate import load_measurement_set
+
+    if args.write_model:
+        output_target(args.write_model)
+    progress = Progress.silent() if args.quiet else Progress(sys.stderr, prefix='sofia compare')
+    result, found = _searched(args, model, progress, load_measurement_set(args.bag), compare_measurement_set)
+    document = json_ready({**result.document, 'search': found})
+    print_set_comparison(document, out)
+    _print_search(document['search'], out)
+    if args.report:
+        print(f'report: {write_set_report(result, document, args.report)}', file=out)
+    if args.json:
+        write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
+    return 0
+
+
+def _searched(args, model, progress, data, compare):
+    """The search (compare.search.search_model) of ``data`` with ``compare``; the model written where asked.
+
+    Returns:
+        The last round's comparison and the document's ``search`` block.
+    """
+    from sofia_ros.compare.search import search_model
+
+    result, found, rounds, equivalent = search_model(data, model, compare, rounds=args.search_rounds,
+                                                     progress=progress.phase)
     given = set(model.fitted)
     added, removed = sorted(found.fitted - given), sorted(given - found.fitted)
     written = None

@@ -347,7 +347,7 @@ class SearchRound(TypedDict):
     round: int
     fitted: list[str]
     status: str
-    rms_arcsec: float
+    rms_arcsec: float | None
     bic: float
     moves: list[str]
 
@@ -465,7 +465,7 @@ def search_model(observations: Observations, model: EffectConfig,
         compared[model.fitted] = (result, model)
         steps = _steps(result)
         history.append(SearchRound(round=len(compared), fitted=sorted(model.fitted), status=verdict['status'],
-                                   rms_arcsec=result.document['residual_rms_arcsec']['total'],
+                                   rms_arcsec=result.document['residual_rms_arcsec'].get('total'),
                                    bic=float(result.final_fit.bic),
                                    moves=[' '.join(filter(None, (step['action'], step['term'], step['effect'])))
                                           for _, step in steps]))

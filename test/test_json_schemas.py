@@ -116,6 +116,7 @@ COMPARE_BREAKS = {
                                                              'command': 'sofia model remove'}),
                                   "None is not of type 'string'"),
     'a headline over 100 characters': (_set(('verdict', 'headline'), 'x' * 101), 'is too long'),
+    'a headline that ends without a command': (_set(('verdict', 'headline'), 'missing_effect: add it'), 'does not match'),
     'a headline of another status': (_set(('verdict', 'headline'), 'explained: nothing to do'),
                                      "does not match '\\^missing_effect: '"),
     'verdict.next missing': (_delete(('verdict', 'next')), "'next' is a required property"),

@@ -13,10 +13,13 @@ Needs the `jsonschema` package (requirements-test.txt).
 
 import json
 import math
+import typing
 from functools import cache
 from pathlib import Path
 
 from jsonschema import Draft202012Validator
+
+from sofia_ros.compare.records import CandidateEntry, ConsistencyFinding, LedgerRow, Verdict
 
 SCHEMAS = Path(__file__).resolve().parents[1] / 'docs' / 'schemas'
 
@@ -52,10 +55,44 @@ def _validate(name, document):
                                 + '\n'.join(sorted(problems)))
 
 
+#: The typed records of a compare document (sofia_ros.compare.records) by key.
+COMPARE_RECORDS = {'candidates': list[CandidateEntry], 'ledger': list[LedgerRow], 'verdict': Verdict,
+                   'consistency': list[ConsistencyFinding]}
+
+
 def validate_compare(document):
-    """`sofia compare --json` of a bag or a measurement set (docs/schemas/compare.schema.json); the document."""
+    """`sofia compare --json` of a bag or a measurement set (docs/schemas/compare.schema.json), its records also
+    against their TypedDicts (compare.records); the document."""
     _validate('compare', document)
+    gaps = [gap for key, hint in COMPARE_RECORDS.items() if key in document
+            for gap in shape_gaps(document[key], hint, key)]
+    if gaps:
+        raise ContractViolation(f'{len(gaps)} key(s) outside sofia_ros.compare.records:\n' + '\n'.join(gaps))
     return document
+
+
+def shape_gaps(value: object, hint: object, where: str) -> list[str]:
+    """Where a value's dict keys differ from the TypedDicts its hint names (recursively through lists, dicts, |)."""
+    if typing.is_typeddict(hint):
+        if not isinstance(value, dict):
+            return [f'{where}: {type(value).__name__}, not a {hint.__name__}']
+        gaps = [f'{where}: key {key!r} missing' for key in sorted(hint.__required_keys__ - set(value))]
+        gaps += [f'{where}: key {key!r} not in {hint.__name__}'
+                 for key in sorted(set(value) - hint.__required_keys__ - hint.__optional_keys__)]
+        hints = typing.get_type_hints(hint)
+        for key in set(value) & set(hints):
+            gaps += shape_gaps(value[key], hints[key], f'{where}.{key}')
+        return gaps
+    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
+    if origin is list and isinstance(value, list):
+        return [gap for index, item in enumerate(value) for gap in shape_gaps(item, arguments[0], f'{where}[{index}]')]
+    if origin is dict and isinstance(value, dict):
+        return [gap for key, item in value.items() for gap in shape_gaps(item, arguments[1], f'{where}[{key!r}]')]
+    if arguments and origin not in (list, dict, tuple):  # a union: the TypedDict member, unless the value is None
+        members = [member for member in arguments if typing.is_typeddict(member)]
+        if members and value is not None:
+            return shape_gaps(value, members[0], where)
+    return []
 
 
 def validate_noise(document):

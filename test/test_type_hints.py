@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from sofia_ros import errors
+from json_contract import shape_gaps
 
 #: The packages held to the contract. Modules of another owner still under way are excluded by name.
 COVERED_PACKAGES = ('sofia_ros.noise', 'sofia_ros.analysis', 'sofia_ros.effects', 'sofia_ros.measurements',
@@ -196,30 +197,6 @@ def test_checker_accepts_a_complete_function_and_names_each_gap():
                     'undocumented: raises ConfigError without a Raises: section']
 
 
-def _shape_gaps(value: object, hint: object, where: str) -> list[str]:
-    """Where a value's dict keys differ from the TypedDicts its hint names (recursively through lists, dicts, |)."""
-    if typing.is_typeddict(hint):
-        if not isinstance(value, dict):
-            return [f'{where}: {type(value).__name__}, not a {hint.__name__}']
-        gaps = [f'{where}: key {key!r} missing' for key in sorted(hint.__required_keys__ - set(value))]
-        gaps += [f'{where}: key {key!r} not in {hint.__name__}'
-                 for key in sorted(set(value) - hint.__required_keys__ - hint.__optional_keys__)]
-        hints = typing.get_type_hints(hint)
-        for key in set(value) & set(hints):
-            gaps += _shape_gaps(value[key], hints[key], f'{where}.{key}')
-        return gaps
-    origin, arguments = typing.get_origin(hint), typing.get_args(hint)
-    if origin is list and isinstance(value, list):
-        return [gap for index, item in enumerate(value) for gap in _shape_gaps(item, arguments[0], f'{where}[{index}]')]
-    if origin is dict and isinstance(value, dict):
-        return [gap for key, item in value.items() for gap in _shape_gaps(item, arguments[1], f'{where}[{key!r}]')]
-    if arguments and origin not in (list, dict, tuple):  # a union: the TypedDict member, unless the value is None
-        members = [member for member in arguments if typing.is_typeddict(member)]
-        if members and value is not None:
-            return _shape_gaps(value, members[0], where)
-    return []
-
-
 def test_the_noise_document_has_the_keys_of_its_typed_dicts():
     # A short decimated record with a line the model lacks: the optional keys (a decimated ARW, a
     # candidate's source) appear too. About a second.
@@ -236,7 +213,7 @@ def test_the_noise_document_has_the_keys_of_its_typed_dicts():
                               decimate=2).document
     assert any('source' in candidate for candidate in document['candidates'])
     assert 'arw_sampled_arcsec_per_sqrt_s' in document['axes']['el']
-    assert _shape_gaps(document, NoiseDocument, 'document') == []
+    assert shape_gaps(document, NoiseDocument, 'document') == []
 
 
 def test_the_centroid_drift_and_catalogue_have_the_keys_of_their_typed_dicts():
@@ -246,12 +223,12 @@ def test_the_centroid_drift_and_catalogue_have_the_keys_of_their_typed_dicts():
     time_s = np.arange(60.0) * 10.0
     drift = fit_centroid_drift(time_s, 0.01 * time_s, 0.02 * time_s + 2.0 * np.sin(2.0 * np.pi * time_s / 300.0))
     assert drift['row']['sinusoid'] is not None
-    assert _shape_gaps(drift, CentroidDrift, 'drift') == []
-    assert _shape_gaps(catalogue_as_json(), list[CatalogueEntry], 'catalogue') == []
+    assert shape_gaps(drift, CentroidDrift, 'drift') == []
+    assert shape_gaps(catalogue_as_json(), list[CatalogueEntry], 'catalogue') == []
 
 
 def test_the_shape_check_names_a_missing_and_an_unknown_key():
     from sofia_ros.noise.earth_rate import AbsoluteRates
 
-    assert _shape_gaps({'measured': 1.0, 'extra': 2.0}, AbsoluteRates, 'rates') == [
+    assert shape_gaps({'measured': 1.0, 'extra': 2.0}, AbsoluteRates, 'rates') == [
         "rates: key 'theoretical' missing", "rates: key 'extra' not in AbsoluteRates"]

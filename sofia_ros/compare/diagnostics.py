@@ -46,6 +46,7 @@ from sofia_ros.analysis.ranking import normal_pseudo_inverse
 from sofia_ros.analysis.structure import PeriodTest, TrendTest, category_test, field_test, period_test, sigma_of_probability, trend_test
 from sofia_ros.compare.observations import Observations
 from sofia_ros.compare.prior import AnchorPrior
+from sofia_ros.compare.records import ConsistencyFinding
 from sofia_ros.effects.empirical import DETECTOR_FIELD
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.units import ARCSEC_PER_RAD, DEG_PER_RAD, STANDARD_GRAVITY_M_PER_S2
@@ -469,7 +470,7 @@ def _split_step(fit, keep_rows):
     return fit.values + step[parameters], np.where(determined[parameters], sigma, np.nan)
 
 
-def split_consistency(observations: Observations, fit: ModelFit, predictor: Predictor) -> list[dict[str, Any]]:
+def split_consistency(observations: Observations, fit: ModelFit, predictor: Predictor) -> list[ConsistencyFinding]:
     """Fitted terms that change between halves of the data: [{param, split, values, sigmas, significance_sigma}].
 
     Args:

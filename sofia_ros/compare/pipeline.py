@@ -33,6 +33,7 @@ from sofia_ros.compare.diagnostics import Diagnostics
 from sofia_ros.compare.fit import FreeParameter, free_parameters, vanishing_values
 from sofia_ros.compare.search import (LinearizedModels, equivalent_models, model_terms, rival_swaps, search_pool,
                                      structural_changes)
+from sofia_ros.compare.records import CandidateEntry, LedgerRow
 from sofia_ros.compare.verdict import after_member, judge
 from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, resolve_params
 from sofia_ros.effects.empirical import empirical_parts, is_empirical
@@ -149,7 +150,7 @@ class ComparisonSource(Protocol):
             FitError: the fit cannot proceed (a prediction is undefined at the start).
         """
 
-    def ledger_row(self, term: str | None, fit: SourceFit) -> dict:
+    def ledger_row(self, term: str | None, fit: SourceFit) -> LedgerRow:
         """One row of the ledger.
 
         Args:
@@ -281,7 +282,7 @@ def _missing_names(model_effects: Iterable[str], candidate_names: Iterable[str] 
 
 def candidate_entry(name: str, params: Mapping, sigma: Mapping, rms_after: Mapping, delta_bic: float, *,
                     detectable: bool = True, refined: bool = False, seconds: float = 0.0,
-                    reason: str | None = None) -> dict:
+                    reason: str | None = None) -> CandidateEntry:
     """One candidate of the JSON (docs/compare.md); an empirical one names its observable, variable and period.
 
     Args:

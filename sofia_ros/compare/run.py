@@ -31,6 +31,7 @@ from sofia_ros.compare.pipeline import Comparison, Judgement, LinearizedCandidat
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
+from sofia_ros.compare.records import LedgerRow
 from sofia_ros.compare.verdict import BAG_OBSERVABLE_KEYS, beyond_bag_floor, empirical_candidate_names
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import get_effect, resolve_params
@@ -134,7 +135,7 @@ class BagSource:
                          anchors_rad=None if start is None else start.anchors_rad,
                          fitted=() if start is None else start.free)
 
-    def ledger_row(self, term: str | None, fit: ModelFit) -> dict:
+    def ledger_row(self, term: str | None, fit: ModelFit) -> LedgerRow:
         """A row of the ledger: the term, the residual RMS per camera, the BIC.
 
         Args:

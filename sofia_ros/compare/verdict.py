@@ -19,6 +19,7 @@ from typing import Any
 from sofia_ros.analysis.ranking import CompetingSet
 from sofia_ros.compare.competing import AfterMember, competing_set_of
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, Diagnostics, GYRO_AXES, NAMING_PREFERENCE, RATIO_LIMIT, distinct_findings
+from sofia_ros.compare.records import NextStep, Verdict
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_TERM_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
@@ -230,7 +231,7 @@ def _change_clause(change):
             f'replace {"them" if several else "it"}')
 
 
-def next_step(action: str, model_source: str, **names: str | None) -> dict[str, str | None]:
+def next_step(action: str, model_source: str, **names: str | None) -> NextStep:
     """The verdict's ``next``: the action, the effect and term it names, and the command that takes it.
 
     Args:
@@ -280,7 +281,7 @@ def judge(diagnostics: Diagnostics, consistency: Sequence[Mapping[str, Any]],
           significant_delta_bic: float, model_source: str, competing: Iterable[CompetingSet] = (),
           members: Mapping[str, AfterMember] | None = None, change: Mapping[str, Any] | None = None,
           rms_arcsec_per_s: float | None = None, observable_keys: Iterable[str] = BAG_OBSERVABLE_KEYS,
-          beyond_floor: Callable[[Mapping[str, Any]], bool] = beyond_bag_floor) -> dict[str, Any]:
+          beyond_floor: Callable[[Mapping[str, Any]], bool] = beyond_bag_floor) -> Verdict:
     """The verdict block: status, text, per-observable judgement, what is left after the best candidate, and the
     next step (``next``: add, remove or replace a term, write a plug-in, or none) and its ``headline``.
 

@@ -25,6 +25,7 @@ from sofia_ros.analysis.ranking import CandidateTerm, linear_fit
 from sofia_ros.analysis.structure import sigma_of_probability, trend_test
 from sofia_ros.compare.diagnostics import DETECTION_SIGMA, REPORT_SIGMA, Diagnostics
 from sofia_ros.compare.fit import with_values
+from sofia_ros.compare.records import LedgerRow
 from sofia_ros.compare.pipeline import (ABSORBED_FRACTION, Comparison, Judgement, LinearizedCandidate, WhitenedFit,
                                         run_comparison, switched_on)
 from sofia_ros.config import EffectConfig
@@ -289,7 +290,7 @@ class SetSource:
         """
         return _fit(self.problem, effects, free)
 
-    def ledger_row(self, term: str | None, fit: Any) -> dict:
+    def ledger_row(self, term: str | None, fit: Any) -> LedgerRow:
         """A row of the ledger: the term, the residual RMS of the angle and the rate kinds, the BIC.
 
         Args:

@@ -17,8 +17,10 @@ moves (6.3).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse
@@ -26,6 +28,10 @@ import scipy.sparse
 from sofia_ros.analysis.ranking import bic, normal_equations_fit
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
+
+if TYPE_CHECKING:
+    from sofia_ros.compare.predict import Predictor
+    from sofia_ros.compare.prior import AnchorPrior
 
 __all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'normal_equations',
            'rows_scaled', 'vanishing_values', 'with_values', 'OUTLIER_SIGMA']
@@ -49,13 +55,20 @@ class FreeParameter:
     step: float
 
     @property
-    def label(self):
+    def label(self) -> str:
         """effect.parameter, as tables print it."""
         return f'{self.effect}.{self.name}'
 
 
-def vanishing_values(free):
-    """Where each free parameter switches its effect off: 0 for a scaling parameter, the default for a shaping one."""
+def vanishing_values(free: Sequence[FreeParameter]) -> np.ndarray:
+    """Where each free parameter switches its effect off: 0 for a scaling parameter, the default for a shaping one.
+
+    Args:
+        free: the parameters.
+
+    Returns:
+        One value per parameter, in its unit.
+    """
     values = []
     for parameter in free:
         spec = get_effect(parameter.effect).parameter(parameter.name)
@@ -63,8 +76,15 @@ def vanishing_values(free):
     return np.array(values, dtype=float)
 
 
-def free_parameters(effect_names):
-    """The numeric parameters of effects, in catalogue order, with steps 1e-3 of their scale."""
+def free_parameters(effect_names: Iterable[str]) -> tuple[FreeParameter, ...]:
+    """The numeric parameters of effects, in catalogue order, with steps 1e-3 of their scale.
+
+    Args:
+        effect_names: catalogue, plug-in or empirical effect names.
+
+    Returns:
+        Their FreeParameters, effect by effect.
+    """
     parameters = []
     for name in effect_names:
         for param in get_effect(name).params:
@@ -73,13 +93,26 @@ def free_parameters(effect_names):
     return tuple(parameters)
 
 
-def normal_equations(anchor_columns, parameter_columns, anchor_prior, whitened, weights, prior_residual):
+def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns: np.ndarray, anchor_prior: AnchorPrior,
+                     whitened: np.ndarray, weights: np.ndarray,
+                     prior_residual: np.ndarray) -> tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], float]]:
     """Gram matrix J^T W J and gradient J^T W r of the weighted problem (data rows weighted by ``weights``, then the
     anchors' prior rows at weight 1) from its blocks, and a function giving the weighted RSS after a step.
 
     The blocks: the sparse anchor columns (two knots per row), the dense parameter columns and the prior's constant
     Gram matrix (compare.prior). Stacking them into one sparse Jacobian to multiply it by itself costs several
     times more: the parameter columns are dense, and so nearly are the GLS prior's rows.
+
+    Args:
+        anchor_columns: whitened d data rows / d anchors (2N, 3K), sparse.
+        parameter_columns: whitened d data rows / d free parameters (2N, P).
+        anchor_prior: the anchors' prior (its matrix and Gram matrix).
+        whitened: the data rows' whitened residuals (2N).
+        weights: each data row's weight (2N), e.g. the Huber weights.
+        prior_residual: the prior rows' residuals (3(K-1)).
+
+    Returns:
+        The Gram matrix (3K + P square), the gradient (3K + P) and rss_after(step), the weighted RSS after a step.
     """
     prior = anchor_prior.matrix
     weighted_anchors = rows_scaled(anchor_columns, weights)
@@ -118,43 +151,61 @@ class ModelFit:
     prior_residual: np.ndarray
     anchor_columns: scipy.sparse.csr_matrix
     parameter_columns: np.ndarray
-    anchor_prior: object
+    anchor_prior: AnchorPrior
     weights: np.ndarray
     outlier: np.ndarray
     iterations: int
 
     @property
-    def parameter_count(self):
+    def parameter_count(self) -> int:
         """Fitted numbers including the anchors."""
         return self.anchor_columns.shape[1] + self.parameter_columns.shape[1]
 
     @property
-    def augmented_residual(self):
+    def augmented_residual(self) -> np.ndarray:
         """Whitened data rows followed by the anchors' gyro-noise prior rows (what the Jacobian's rows are)."""
         return np.concatenate([self.whitened, self.prior_residual])
 
     @cached_property
-    def jacobian(self):
+    def jacobian(self) -> scipy.sparse.csr_matrix:
         """d augmented residual / d (anchors, parameters), whitened, sparse: data rows, then the prior's rows."""
         prior = self.anchor_prior.matrix
         data = scipy.sparse.hstack([self.anchor_columns, scipy.sparse.csr_matrix(self.parameter_columns)])
         prior_rows = scipy.sparse.hstack([prior, scipy.sparse.csr_matrix((prior.shape[0], self.parameter_columns.shape[1]))])
         return scipy.sparse.vstack([data, prior_rows], format='csr')
 
-    def normal_equations(self, data_weights):
-        """normal_equations of this fit's residuals with the data rows weighted by ``data_weights``."""
+    def normal_equations(self, data_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                    Callable[[np.ndarray], float]]:
+        """normal_equations of this fit's residuals with the data rows weighted by ``data_weights``.
+
+        Args:
+            data_weights: each data row's weight (2N).
+
+        Returns:
+            The Gram matrix, the gradient and rss_after(step) (normal_equations).
+        """
         return normal_equations(self.anchor_columns, self.parameter_columns, self.anchor_prior, self.whitened,
                                 data_weights, self.prior_residual)
 
     @property
-    def bic(self):
+    def bic(self) -> float:
         """BIC of the whitened residual and the anchor prior, every row at full weight (analysis.ranking)."""
         residual = self.augmented_residual
         return bic(float(residual @ residual), len(residual), self.parameter_count)
 
 
-def with_values(effects, free, values):
-    """A copy of ``effects`` with the free parameters set to ``values``."""
+def with_values(effects: Mapping[str, Mapping[str, Any]], free: Sequence[FreeParameter],
+                values: Sequence[float]) -> dict[str, dict[str, Any]]:
+    """A copy of ``effects`` with the free parameters set to ``values``.
+
+    Args:
+        effects: effect name -> parameters.
+        free: the parameters to set.
+        values: their values, one per parameter.
+
+    Returns:
+        The new effects (the input is not changed).
+    """
     updated = {name: dict(params) for name, params in effects.items()}
     for parameter, value in zip(free, values):
         updated[parameter.effect][parameter.name] = float(value)
@@ -172,23 +223,54 @@ class WhitenedProblem:
         self.anchor_prior = anchor_prior
         self.prior = anchor_prior.matrix
 
-    def whiten(self, predicted_px):
-        """(measured - predicted) in units of each camera's noise, flattened (x, y per row)."""
+    def whiten(self, predicted_px: np.ndarray) -> np.ndarray:
+        """(measured - predicted) in units of each camera's noise, flattened (x, y per row).
+
+        Args:
+            predicted_px: predicted centroids (N, 2) [px].
+
+        Returns:
+            The whitened residuals (2N).
+        """
         measured = self.predictor.observations.centroids.measured_px
         return ((measured - predicted_px) * self.arcsec_per_px / self.row_sigma).ravel()
 
-    def scaled(self, delta_px):
-        """A change of predicted pixels in units of each camera's noise, flattened like the residuals."""
+    def scaled(self, delta_px: np.ndarray) -> np.ndarray:
+        """A change of predicted pixels in units of each camera's noise, flattened like the residuals.
+
+        Args:
+            delta_px: a change of the predicted centroids (N, 2) [px].
+
+        Returns:
+            The change in units of noise (2N).
+        """
         return (delta_px * self.arcsec_per_px / self.row_sigma).ravel()
 
-    def irf_derivative(self, effects, anchors, predicted):
-        """Whitened d prediction / d IRF rotation (N, 2, 3), forward differences (units of noise per rad)."""
+    def irf_derivative(self, effects: Mapping[str, Any], anchors: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        """Whitened d prediction / d IRF rotation (N, 2, 3), forward differences (units of noise per rad).
+
+        Args:
+            effects: the model at the current values.
+            anchors: the anchor rotations (K, 3) [rad].
+            predicted: the prediction there (N, 2) [px].
+
+        Returns:
+            The derivative (N, 2, 3).
+        """
         derivative = self.predictor.irf_derivative_px(effects, anchors, predicted, _IRF_STEP_RAD)
         return derivative * (self.arcsec_per_px / self.row_sigma)[:, :, None]
 
-    def anchor_columns(self, effects, derivative):
+    def anchor_columns(self, effects: Mapping[str, Any], derivative: np.ndarray) -> scipy.sparse.csr_matrix:
         """Sparse d prediction / d anchor knot rotations: the derivative against an IRF rotation (irf_derivative),
-        times the hat-function weights of the two knots around each row (six non-zeros per residual)."""
+        times the hat-function weights of the two knots around each row (six non-zeros per residual).
+
+        Args:
+            effects: the model (its row times).
+            derivative: irf_derivative (N, 2, 3).
+
+        Returns:
+            The columns (2N, 3K), CSR.
+        """
         times = self.predictor.row_times_s(effects)
         index, fraction = self.predictor.anchor_weights(times)
         weights = np.stack([1.0 - fraction, fraction], axis=1)  # (N, 2 knots)
@@ -198,7 +280,8 @@ class WhitenedProblem:
         return scipy.sparse.csr_matrix((data.ravel(), columns.ravel(), np.arange(0, data.size + 1, 6)),
                                        shape=(2 * len(times), 3 * self.predictor.anchor_count))
 
-    def parameter_columns(self, effects, free, values, anchors, predicted, derivative):
+    def parameter_columns(self, effects: Mapping[str, Any], free: Sequence[FreeParameter], values: np.ndarray,
+                          anchors: np.ndarray, predicted: np.ndarray, derivative: np.ndarray) -> np.ndarray:
         """Forward-difference columns d prediction / d free parameter at values, whitened (units of noise per unit).
 
         A step that keeps the row times and star places is split, to first order, into what it does
@@ -207,6 +290,17 @@ class WhitenedProblem:
         through ``derivative`` (irf_derivative): the gyro track is not propagated again for each
         step. The camera part projects the rows of the cameras whose model the step changes again,
         from the TARF directions of ``effects`` (Predictor.reprojected_px). Other steps predict anew.
+
+        Args:
+            effects: the model at ``values``.
+            free: the free parameters.
+            values: their values.
+            anchors: the anchor rotations (K, 3) [rad].
+            predicted: the prediction at ``values`` (N, 2) [px].
+            derivative: irf_derivative there (N, 2, 3).
+
+        Returns:
+            The columns (2N, P), in units of noise per parameter unit.
         """
         columns = np.empty((predicted.size, len(free)))
         predictor = self.predictor
@@ -233,8 +327,16 @@ class WhitenedProblem:
         return columns
 
 
-def rows_scaled(matrix, scale):
-    """A CSR matrix with row i multiplied by scale[i]: its data scaled in place of a product with a diagonal matrix."""
+def rows_scaled(matrix: scipy.sparse.spmatrix, scale: np.ndarray) -> scipy.sparse.csr_matrix:
+    """A CSR matrix with row i multiplied by scale[i]: its data scaled in place of a product with a diagonal matrix.
+
+    Args:
+        matrix: any sparse matrix.
+        scale: one factor per row.
+
+    Returns:
+        A scaled copy.
+    """
     scaled = scipy.sparse.csr_matrix(matrix, copy=True)
     scaled.data *= np.repeat(scale, np.diff(scaled.indptr))
     return scaled
@@ -282,13 +384,30 @@ def _profiled_values(problem, effects, free, values, anchors, fitted=frozenset()
     return values
 
 
-def fit_model(predictor, effects, free, sigma_arcsec, anchor_prior, *, anchors_rad=None, fitted=()):
+def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], free: Sequence[FreeParameter],
+              sigma_arcsec: Sequence[float], anchor_prior: AnchorPrior, *, anchors_rad: np.ndarray | None = None,
+              fitted: Collection[FreeParameter] = ()) -> ModelFit:
     """Robust Gauss-Newton over the anchors (under their gyro-noise prior, compare.prior) and the free parameters.
 
     Starts from the effects' given values, a time shift from the best of a grid (_profiled_values) unless it is
     one of ``fitted``, the parameters a previous fit already converged at these values. A step that
     raises the cost (or sends a star off its detector) is halved, up to eight times; a fit that cannot improve stops
     where it is.
+
+    Args:
+        predictor: the bag's Predictor.
+        effects: the model at its starting values.
+        free: the parameters to fit.
+        sigma_arcsec: each camera's centroid noise ["].
+        anchor_prior: the anchors' gyro-noise prior.
+        anchors_rad: starting anchors (K, 3) [rad]; None: zero.
+        fitted: parameters a previous fit already converged at these values.
+
+    Returns:
+        The ModelFit.
+
+    Raises:
+        FitError: the starting values put stars off their detectors.
     """
     problem = WhitenedProblem(predictor, sigma_arcsec, anchor_prior)
     free = tuple(free)

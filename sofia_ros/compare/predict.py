@@ -21,7 +21,7 @@ import dataclasses
 import hashlib
 from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -49,10 +49,15 @@ from sofia_ros.sensors.imager_model import (
 from sofia_ros.sky.catalogue import star_by_hip
 from sofia_ros.units import RAD_PER_DEG
 
-if TYPE_CHECKING:
-    from sofia_ros.compare.fit import FreeParameter
+__all__ = ['NamedParameter', 'Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means']
 
-__all__ = ['Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means']
+
+class NamedParameter(Protocol):
+    """A parameter by its effect and name (compare.fit.FreeParameter; not imported: fit builds on this module)."""
+
+    effect: str
+    name: str
+
 
 #: Star places are evaluated on this grid and interpolated; unrefracted places move < 0.003" per minute in IRF.
 _PLACE_EPOCH_S = 300.0
@@ -337,7 +342,7 @@ class Predictor:
         return (repr(effects.get('timestamp_offset')), self._star_key(effects),
                 tuple(self._camera_key(effects, index)[0] for index in range(len(self.observations.centroids.cameras))))
 
-    def parameter_reach(self, effects: Mapping[str, EffectParams], parameter: FreeParameter,
+    def parameter_reach(self, effects: Mapping[str, EffectParams], parameter: NamedParameter,
                         stepped_effects: Mapping[str, EffectParams]) -> tuple[bool, bool, tuple[int, ...]]:
         """What a step of one parameter moves: whether the row times or star places (projection_key's first two
         parts), whether only the gyro attitude, and the indices of the cameras whose model it changes.

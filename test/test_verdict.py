@@ -53,3 +53,18 @@ def test_a_detector_field_is_tried_beside_the_strongest_trend_of_one_variable():
         _finding('wfi.x', 'detector_y', 37.1, amplitude_arcsec=7.1, ranges={'detector_y': [0.0, 1023.0]})], [], 125)
     assert empirical_candidate_names(diagnostics, CAMERAS) == ['empirical:wfi.x:detector_field:poly3',
                                                                'empirical:wfi.x:detector_x:poly3@0..1023']
+
+
+def test_the_verdict_names_at_most_three_problems_the_worst_first_and_counts_the_rest():
+    # Four cameras beyond their floor and two terms that change between halves: the three worst observables are
+    # named with their ratios, the three other problems only counted (issue 26: at most three problems).
+    ratios = {'hipo.x': 40.0, 'fpi.x': 3.0, 'ffi.x': 9.0, 'wfi.x': 1.6}
+    observables = {name: {**_observable(explained=False), 'ratio': ratio, 'rms_arcsec': 0.3 * ratio,
+                          'excess_sigma': 10.0 * ratio} for name, ratio in ratios.items()}
+    verdict = judge(Diagnostics(observables, [], [], 125), [_inconsistent('gyro_bias.el_deg_per_h'),
+                                                             _inconsistent('gyro_misalignment.about_el_arcsec')],
+                    [], [], None, None, rms_arcsec=3.0, significant_delta_bic=6.0, model_source='model.yaml')
+    text = verdict['text']
+    assert text.index('hipo.x') < text.index('ffi.x') < text.index('fpi.x')
+    assert 'wfi.x' not in text and 'changes with' not in text
+    assert '3 more problems' in text

@@ -148,16 +148,18 @@ def _strength(diagnostics, name):
 
 
 def _problems(diagnostics, consistency, beyond_floor):
-    """One clause per unexplained observable (the strongest few) and per inconsistent term."""
+    """At most _NAMED problems in plain words, the worst first: the unexplained observables by strength, then the
+    terms that change between halves; the rest counted (the JSON and the report list them all)."""
     failing = sorted(diagnostics.unexplained(), key=lambda name: _strength(diagnostics, name), reverse=True)
     clauses = [_observable_problem(name, diagnostics.observables[name], beyond_floor) for name in failing[:_NAMED]]
-    if len(failing) > _NAMED:
-        clauses.append(f'{len(failing) - _NAMED} more observables')
-    for entry in consistency[:2]:
+    for entry in consistency[:_NAMED - len(clauses)]:
         split = entry['split']
         clauses.append(f'{entry["param"]} changes with {split} ({entry["halves"][0]} {entry["values"][0]:.4g} +- '
                        f'{entry["sigmas"][0]:.2g}, {entry["halves"][1]} {entry["values"][1]:.4g} +- '
                        f'{entry["sigmas"][1]:.2g}; {entry["significance_sigma"]:.0f} sigma)')
+    left = len(failing) + len(consistency) - len(clauses)
+    if left:
+        clauses.append(f'{left} more problem{"s" if left > 1 else ""}')
     return clauses
 
 

@@ -17,7 +17,7 @@ within AGREEMENT_SIGMA of its sigma; its wall time is printed beside this checko
 
 The figures are written to bench/results/compare_loop_<campaigns>.{json,txt} (date, commit, load, machine).
 
-Run: .venv/bin/python bench/bench_compare_loop.py [--campaigns alignment,star-hop] [--rounds 8] [--baseline DIR]
+Run: .venv/bin/python bench/bench_compare_loop.py [--campaigns alignment,star-hop] [--rounds 8] [--seed N] [--baseline DIR]
 """
 
 from __future__ import annotations
@@ -89,9 +89,9 @@ def _agreement(document: dict, baseline: dict) -> tuple[bool, float]:
     return same, worst
 
 
-def run_loop(campaign: str, rounds: int, work: Path, baseline: Path | None) -> dict:
+def run_loop(campaign: str, seed: int, rounds: int, work: Path, baseline: Path | None) -> dict:
     """Fly the Waco 2004 truth on one campaign and follow the advice loop; the rows of every round."""
-    seed, options = LOOPS[campaign]
+    options = LOOPS[campaign][1]
     bag = work / f'waco-{campaign}'
     _, run_s, _ = _sofia(ROOT, 'run', campaign, '--truth', str(TRUTH), '--seed', str(seed), '--bag', str(bag),
                          '--direct', *options)
@@ -140,15 +140,17 @@ def main() -> None:
     parser.add_argument('--campaigns', default='alignment,star-hop')
     parser.add_argument('--rounds', type=int, default=8)
     parser.add_argument('--baseline', type=Path, help='another checkout to run every round beside this one')
+    parser.add_argument('--seed', type=int, help="the campaigns' seed (default: each loop's own, LOOPS)")
     args = parser.parse_args()
     load_before = os.getloadavg()[0]
     started = time.time()
     loops = []
     with tempfile.TemporaryDirectory(prefix='sofia-bench-loop-') as work:
         for campaign in args.campaigns.split(','):
-            _say(f'{campaign}: Waco 2004 truth, seed {LOOPS[campaign][0]}; target per compare '
+            seed = LOOPS[campaign][0] if args.seed is None else args.seed
+            _say(f'{campaign}: Waco 2004 truth, seed {seed}; target per compare '
                  f'<= {TARGET_S[campaign]:.0f} s, <= {TARGET_MEMORY_MB:.0f} MB')
-            loops.append(run_loop(campaign, args.rounds, Path(work), args.baseline))
+            loops.append(run_loop(campaign, seed, args.rounds, Path(work), args.baseline))
     for loop in loops:
         _say(f'{loop["campaign"]}: {len(loop["rounds"])} rounds, {loop["loop_compare_s"]:.0f} s of compare, '
               f'slowest round {max(row["wall_s"] for row in loop["rounds"]):.1f} s, '
@@ -162,6 +164,7 @@ def main() -> None:
                 'load_after': os.getloadavg()[0], 'wall_s': round(time.time() - started, 1),
                 'baseline': str(args.baseline) if args.baseline else None, 'loops': loops}
     name = 'compare_loop_' + '_'.join(campaign.replace('-', '_') for campaign in args.campaigns.split(','))
+    name += '' if args.seed is None else f'_seed{args.seed}'
     (results / f'{name}.json').write_text(json.dumps(document, indent=1) + '\n')
     (results / f'{name}.txt').write_text(f'{document["date"]} commit {commit}, {document["machine"]}, load '
                                               f'{load_before:.1f} before\n' + '\n'.join(PRINTED) + '\n')

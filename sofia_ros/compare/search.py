@@ -38,8 +38,7 @@ if TYPE_CHECKING:
     from sofia_ros.compare.observations import Observations
 
 __all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'MAX_SEARCH_ROUNDS', 'LinearizedModels', 'SearchRound',
-           'equivalent_models', 'model_terms', 'rival_swaps', 'search_pool', 'search_model', 'structural_change',
-           'structural_changes']
+           'equivalent_models', 'model_terms', 'rival_swaps', 'search_pool', 'search_model', 'structural_changes']
 
 #: An empirical shape enters a model only where it beats the physics by this much BIC (a tie goes to physics).
 EMPIRICAL_PENALTY = 10.0
@@ -302,19 +301,6 @@ def rival_swaps(models: LinearizedModels, current: Iterable[str],
                 swaps.append({'action': 'replace', 'term': ','.join(removed), 'effect': effect,
                               'expected_delta_bic': float(gain)})
     return sorted(swaps, key=lambda change: -change['expected_delta_bic'])
-
-
-def structural_change(models: LinearizedModels, current: Iterable[str]) -> dict[str, Any] | None:
-    """The best change of the model's own terms by linearized BIC (structural_changes), or None.
-
-    Args:
-        models: the models linearized at the fit.
-        current: the model's fitted terms.
-
-    Returns:
-        The change, or None when none lowers the BIC.
-    """
-    return next(iter(structural_changes(models, current)), None)
 
 
 def equivalent_models(models: LinearizedModels, chosen: Set[str]) -> list[dict[str, Any]]:

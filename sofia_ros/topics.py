@@ -20,7 +20,7 @@ __all__ = [
     'GYRO_IMU', 'GYRO_TEMPERATURE',
     'TASCU_ATTITUDE', 'MOTION_STATUS', 'DRIFT_ESTIMATE', 'COMMAND_STATUS', 'FD_COMMAND', 'CD_COMMAND',
     'MOVE_RELATIVE', 'MTBS_CENTROID', 'MTBS_INERTIAL', 'TRACK',
-    'CALIBRATION_PROGRESS', 'CALIBRATION_RESULT', 'CALIBRATION_MANEUVERS',
+    'CALIBRATION_PROGRESS', 'CALIBRATION_RESULT', 'CALIBRATION_MANEUVERS', 'THERMAL_COMMAND',
     'CENTROIDS', 'centroid_topic',
     'TRUTH_DOCUMENT', 'MODEL_DOCUMENT', 'SCENARIO_DOCUMENT', 'PLAN_DOCUMENT', 'CASE_DOCUMENT',
     'STOP_DOCUMENT', 'SUBSYSTEM_STATUS', 'PARAMETER_EVENTS',
@@ -100,6 +100,11 @@ CALIBRATION_RESULT = TopicSpec('/calibration/result', 'std_msgs/msg/String',
 CALIBRATION_MANEUVERS = TopicSpec(
     '/calibration/maneuvers', 'std_msgs/msg/String',
     'each fit: the maneuvers it used (axis, angle, centroids, active matrix, block), YAML', 'calibration')
+#: A plan's temperature element (docs/plans.md): the setpoint of the truth's thermal control, which the plant and
+#: the cameras follow from the command's stamp on (scenario.ThermalHistory).
+THERMAL_COMMAND = TopicSpec(
+    '/thermal_control/command', 'geometry_msgs/msg/Vector3Stamped',
+    'command: slew the thermal setpoint to x deg C at y deg C/s from the stamp on, then hold it', 'calibration')
 
 
 def centroid_topic(camera: str) -> TopicSpec:
@@ -133,7 +138,7 @@ GRAPH_TOPICS: tuple[TopicSpec, ...] = (
     *CENTROIDS.values(),
     TASCU_ATTITUDE, MOTION_STATUS, DRIFT_ESTIMATE, COMMAND_STATUS, FD_COMMAND, CD_COMMAND,
     MOVE_RELATIVE, MTBS_CENTROID, MTBS_INERTIAL, TRACK,
-    CALIBRATION_PROGRESS, CALIBRATION_RESULT, CALIBRATION_MANEUVERS,
+    CALIBRATION_PROGRESS, CALIBRATION_RESULT, CALIBRATION_MANEUVERS, THERMAL_COMMAND,
 )
 #: sample topic -> the topic its samples travel on inside the live graph, one message per tick
 SAMPLE_BLOCKS: Mapping[str, TopicSpec] = MappingProxyType({GYRO_IMU.name: GYRO_IMU_BLOCK})

@@ -13,6 +13,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.bag import BagReader
+from sofia_ros.campaigns.plan_files import check_plan_with_truth
 from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
 from sofia_ros.frames import AXES
 from sofia_ros.mount import check_coarse_drive_elevation
@@ -60,7 +61,8 @@ def graph_config(truth, seed, plan=None):
     """The alignment campaign's GraphConfig: the truth's scenario over the Waco default.
 
     A truth that moves the site or the time without giving heading and elevation gets
-    the pointing recomputed for the target star there and then.
+    the pointing recomputed for the target star there and then. A temperature element the
+    truth cannot fly is refused here, before the run.
     """
     overrides = dict(truth.scenario or {})
     scenario = scenario_from_mapping(default_scenario(), overrides)
@@ -68,7 +70,9 @@ def graph_config(truth, seed, plan=None):
         heading_deg, elevation_deg = pointing_at_target(scenario.site, scenario.start_utc)
         scenario = dataclasses.replace(scenario, heading_deg=heading_deg, start_elevation_deg=elevation_deg)
     check_coarse_drive_elevation(scenario.start_elevation_deg)
-    return GraphConfig(truth, scenario, seed, plan or AlignmentPlan())
+    plan = plan or AlignmentPlan()
+    check_plan_with_truth(plan, scenario, truth.source)
+    return GraphConfig(truth, scenario, seed, plan)
 
 
 def true_alignment_at(truth_effects, elevation_deg):

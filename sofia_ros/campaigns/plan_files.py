@@ -4,7 +4,9 @@ A plan file names its campaign, gives any of the plan dataclass' fields (the oth
 defaults) and lists the plan elements flown after the campaign's sequence. Everything is checked
 before a run starts: an unknown key or maneuver, a value of the wrong type, an elevation outside
 20-60 deg, a LOS angle beyond the fine drive's travel, a hold of 0 s, an unknown star, a plan of
-the other campaign: one ConfigError line each. A run records its plan beside the bag as
+the other campaign: one ConfigError line each. A temperature element is checked against the truth
+too (:func:`check_plan_with_truth`, by the campaigns' config builders): its target and rate within
+the truth's thermal control, which it must have. A run records its plan beside the bag as
 ``plan.yaml`` (and in the bag as /config/plan); :func:`read_plan` reads it back.
 """
 
@@ -23,20 +25,24 @@ from sofia_ros.config import safe_load_limited
 from sofia_ros.errors import ConfigError, InvalidArgumentError, UnknownStarError
 from sofia_ros.input_files import read_text_capped
 from sofia_ros.output_files import write_text_atomically
+from sofia_ros.scenario import Scenario
 from sofia_ros.sim.calibration import AlignmentPlan
 from sofia_ros.sim.sequence import PLAN_FILE_NAME, plan_document, plan_text
 from sofia_ros.sim.star_hop import StarHopPlan
 
-__all__ = ['PLAN_FILE_NAME', 'PLAN_TYPES', 'plan_document', 'plan_from_document', 'plan_text', 'plans_directory',
-           'read_plan', 'read_plan_file', 'variant_plan_path', 'write_plan_file']
+__all__ = ['PLAN_FILE_NAME', 'PLAN_TYPES', 'check_plan_with_truth', 'plan_document', 'plan_from_document', 'plan_text',
+           'plans_directory', 'read_plan', 'read_plan_file', 'variant_plan_path', 'write_plan_file']
 
 #: the plan dataclass of each campaign that has one (the registry's plan_type; below it, since it reads these)
 PLAN_TYPES = {plan_type.campaign: plan_type for plan_type in (AlignmentPlan, StarHopPlan)}
 _MAX_PLAN_BYTES = 1 << 20
-#: what a plan might ask of the temperature, which the simulator cannot command (docs/plans.md)
+#: other names a plan might give a temperature plateau or ramp, which are the temperature element (docs/plans.md)
 _THERMAL_NAMES = frozenset({'temperature', 'temperature_plateau', 'temperature_ramp', 'thermal_step'})
-_THERMAL_HINT = ("the simulated temperature follows the truth's scenario (start_temperature_c, "
-                 "temperature_slope_c_per_h) and no plan can command it; set those in the truth file (docs/plans.md)")
+_THERMAL_HINT = ("the simulated temperature follows the truth's scenario and, where the truth has a "
+                 'scenario.thermal_control, the elements of the form - temperature: {target_c: T, duration_s: S} '
+                 '(a plateau; add rate_c_per_h: R for a ramp) (docs/plans.md)')
+#: a truth whose thermal environment a plan can command (docs/plans.md)
+THERMAL_TRUTH = 'config/truth/nominal-thermal.yaml'
 
 
 def _plan_type(campaign: str, source: str) -> type:
@@ -83,9 +89,27 @@ def _elements_text(elements: Any, source: str) -> str:
         raise ConfigError(f'{source}: elements must be a list of {{maneuver: {{field: value}}}} (docs/plans.md)')
     for element in elements:
         kind = next(iter(element), None) if isinstance(element, dict) else None
-        if kind in _THERMAL_NAMES:
+        if kind in _THERMAL_NAMES - {'temperature'}:
             raise ConfigError(f'{source}: element {kind}: {_THERMAL_HINT}')
     return yaml.safe_dump(elements, default_flow_style=True, sort_keys=False, width=1 << 16)
+
+
+def check_plan_with_truth(plan: Any, scenario: Scenario, truth_source: str) -> None:
+    """ConfigError in one line for a temperature element the truth cannot fly: no thermal control, or a target or
+    rate beyond it (the rest of a plan is checked without the truth, as it is read)."""
+    control = scenario.thermal_control
+    for index, element in enumerate(plan.elements, 1):
+        if element.kind != 'temperature':
+            continue
+        where = f'element {index} (temperature)'
+        if control is None:
+            raise ConfigError(f'{where}: the truth {truth_source} has no scenario.thermal_control, so nothing can '
+                              f'command its temperature; fly it on a truth that has one, e.g. {THERMAL_TRUTH} '
+                              '(docs/plans.md)')
+        rate_c_per_h = control.max_rate_c_per_h if element.rate_c_per_h is None else element.rate_c_per_h
+        reason = control.refusal(element.target_c, rate_c_per_h)
+        if reason is not None:
+            raise ConfigError(f'{where}: {reason} (scenario.thermal_control of {truth_source})')
 
 
 def _checked(name: str, value: Any, example: Any) -> Any:

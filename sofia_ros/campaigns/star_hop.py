@@ -13,6 +13,7 @@ import time
 import yaml
 
 from sofia_ros.campaigns.alignment import result_from_bag
+from sofia_ros.campaigns.plan_files import check_plan_with_truth
 from sofia_ros.campaigns.recording import finish_run, new_bag_path, record_campaign
 from sofia_ros.mount import check_coarse_drive_elevation
 from sofia_ros.scenario import Scenario, scenario_from_mapping
@@ -40,10 +41,12 @@ def default_scenario(first_star=TABLE_D3_OBSERVATIONS[0][0], offset_s=0.0):
 
 
 def star_hop_config(truth, seed, plan=None):
-    """The star hop's GraphConfig: the truth's scenario over the Waco default."""
+    """The star hop's GraphConfig: the truth's scenario over the Waco default; a temperature element the truth
+    cannot fly is refused here, before the run."""
     plan = plan or StarHopPlan()
     scenario = scenario_from_mapping(default_scenario(*plan.observations[0]), truth.scenario)
     check_coarse_drive_elevation(scenario.start_elevation_deg)
+    check_plan_with_truth(plan, scenario, truth.source)
     return GraphConfig(truth, scenario, seed, plan)
 
 

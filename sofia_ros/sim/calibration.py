@@ -38,12 +38,15 @@ from sofia_ros.sim.sequence import (
     fine_drive_los,
     hold_duration,
     observing_elevation,
+    thermal_rate,
+    thermal_target,
 )
 from sofia_ros.sky import TELESCOPE_MIN_ELEVATION_DEG, WACO_2004_WEATHER, visible_stars
 from sofia_ros.topics import CD_JOINT, FD_JOINTS
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_DEG
 
-__all__ = ['AlignmentPlan', 'CalibrationCore', 'ALIGNMENT_ELEMENTS', 'ManeuversAt', 'LosRotations', 'AlignmentHold']
+__all__ = ['AlignmentPlan', 'CalibrationCore', 'ALIGNMENT_ELEMENTS', 'ManeuversAt', 'LosRotations', 'AlignmentHold',
+           'TemperatureHold']
 
 _FD_MARGIN_DEG = 2.9
 #: Stars for the elevation series: bright enough for every camera, within the fine drive's XEL reach.
@@ -113,8 +116,31 @@ class AlignmentHold:
         object.__setattr__(self, 'elevation_deg', _optional_elevation(self.elevation_deg))
 
 
+@dataclass(frozen=True)
+class TemperatureHold:
+    """A hold while the truth's thermal control drives the temperature toward a setpoint (a plateau or a ramp)."""
+
+    kind: ClassVar[str] = 'temperature'
+    #: the setpoint, deg C: within the truth's scenario.thermal_control range (checked with the truth)
+    target_c: float
+    duration_s: float
+    #: how fast the setpoint moves from the temperature to target_c, deg C/h (None: the truth's largest, a plateau)
+    rate_c_per_h: float | None = None
+    #: fine-drive LOS angle during the hold, deg
+    los_deg: float = 0.0
+    #: on a star near this elevation (None: where the telescope is)
+    elevation_deg: float | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, 'target_c', thermal_target('target_c', self.target_c))
+        object.__setattr__(self, 'duration_s', hold_duration('duration_s', self.duration_s))
+        object.__setattr__(self, 'rate_c_per_h', thermal_rate('rate_c_per_h', self.rate_c_per_h))
+        object.__setattr__(self, 'los_deg', fine_drive_los('los_deg', self.los_deg))
+        object.__setattr__(self, 'elevation_deg', _optional_elevation(self.elevation_deg))
+
+
 #: the alignment's plan elements by the name a plan file gives them
-ALIGNMENT_ELEMENTS = {element.kind: element for element in (ManeuversAt, LosRotations, AlignmentHold)}
+ALIGNMENT_ELEMENTS = {element.kind: element for element in (ManeuversAt, LosRotations, AlignmentHold, TemperatureHold)}
 
 
 @dataclass(frozen=True)
@@ -429,6 +455,17 @@ class CalibrationCore(SequenceCore):
         los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
         hold_start_s, hold_end_s = yield from self._hold_for(element.duration_s)
         return {**place, 'los_deg': los_deg, 'hold_start_s': hold_start_s, 'hold_end_s': hold_end_s}
+
+    def _fly_temperature(self, element):
+        """A hold whose start commands the thermal setpoint: the temperature follows it while every camera records."""
+        place = yield from self._near_elevation(element.elevation_deg)
+        if 'skipped' in place:
+            return place
+        yield from self._turn_los_to(element.los_deg)
+        los_deg = self.joints.get(FD_JOINTS[2], 0.0) / RAD_PER_DEG
+        command = self._command_temperature(element.target_c, element.rate_c_per_h)
+        hold_start_s, hold_end_s = yield from self._hold_for(element.duration_s)
+        return {**place, 'los_deg': los_deg, **command, 'hold_start_s': hold_start_s, 'hold_end_s': hold_end_s}
 
     def result(self):
         """The accepted alignment and its predicted accuracy (3.32, 3.34, 3.37) as a plain mapping."""

@@ -2,7 +2,8 @@
 
 Each exposure is rendered at its midpoint with the telescope attitude interpolated
 between the plant's tick attitudes; the centroids of every star on the chip are
-published as one PoseArray (x = column, y = row in px, z = HIP number).
+published as one PoseArray (x = column, y = row in px, z = HIP number). The temperature at the
+midpoint is the plant's (scenario.ThermalHistory, fed the same thermal commands).
 """
 
 from __future__ import annotations
@@ -11,8 +12,10 @@ from sofia_ros import messages as m
 from sofia_ros.errors import ConfigError
 from sofia_ros.frames import dcm_from_quaternion
 from sofia_ros.rotation_kernels import slerp_quaternion
+from sofia_ros.scenario import ThermalHistory
 from sofia_ros.sensors.imager_model import CAMERAS, ImagerTruth, Scene
 from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS
+from sofia_ros.sim.plant import thermal_command_of
 from sofia_ros.sim.protocol import NodeCore
 from sofia_ros.topics import CD_JOINT, FD_JOINTS, centroid_topic
 from sofia_ros.units import DEG_PER_RAD
@@ -26,7 +29,8 @@ DEFAULT_TIMING_S = {'hipo': (1.0, 0.5), 'fpi': (2.0, 2.0), 'ffi': (2.0, 2.0), 'w
 class CameraCore(NodeCore):
     """Truth to centroids for one camera."""
 
-    upstream = (('plant', 0),)
+    #: the plant's tick first; the calibration node's thermal commands of a tick before the next one
+    upstream = (('plant', 0), ('calibration', 1))
 
     def __init__(self, camera, scenario, truth_effects, *, seed=0, frame_period_s=None, exposure_s=None):
         super().__init__()
@@ -39,17 +43,20 @@ class CameraCore(NodeCore):
         self.truth = ImagerTruth(camera, truth_effects, Scene(scenario.site, scenario.start_utc),
                                  exposure_s=self.exposure_ns / m.NS_PER_S, seed=seed)
         self.topic = centroid_topic(camera)
-        self.scenario = scenario
+        self.thermal = ThermalHistory(scenario)
         self.previous = None  # (stamp_ns, attitude quaternion xyzw, elevation_deg, specific force, LOS deg)
         self.pending = {}
 
     def inputs(self):
-        return (PLANT_TOPICS['truth_imu'], PLANT_TOPICS['truth_joints'])
+        return (PLANT_TOPICS['truth_imu'], PLANT_TOPICS['truth_joints'], PLANT_TOPICS['thermal_command'])
 
     def outputs(self):
         return (self.topic,)
 
     def receive(self, topic, message):
+        if topic == PLANT_TOPICS['thermal_command'].name:
+            self.thermal.command(*thermal_command_of(message))
+            return
         self.pending[topic] = message
 
     def tick(self, stamp_ns):
@@ -70,7 +77,7 @@ class CameraCore(NodeCore):
             elevation_deg, force, los_deg = (previous[i] + fraction * (current[i] - previous[i]) for i in (2, 3, 4))
             opening_s = (midpoint_ns - self.exposure_ns // 2) / m.NS_PER_S
             centroids = self.truth.centroids(opening_s, dcm_from_quaternion(quaternion), elevation_deg,
-                                             temperature_c=self.scenario.temperature_c_at(midpoint_ns / m.NS_PER_S),
+                                             temperature_c=self.thermal.temperature_c_at(midpoint_ns / m.NS_PER_S),
                                              specific_force_tarf_m_per_s2=force, los_angle_deg=los_deg)
             stamp = centroids[0].stamp_s if centroids else midpoint_ns / m.NS_PER_S
             outputs.append((self.topic.name, m.centroid_array(m.seconds_to_ns(stamp), self.name, centroids)))

@@ -4,7 +4,9 @@ The fine drive is torque controlled on the gyro loop: over each tick the telesco
 inertial body rate is the TASCU's fine-drive command of the previous tick, until a
 fine-drive angle reaches its +-3 deg end stop. With the FD braked (gyro stability
 tests, 5.2) the telescope is fixed to the Earth and senses eqs. 4.1-4.3. The coarse
-drive slews the elevation axis at a fixed rate towards its commanded elevation.
+drive slews the elevation axis at a fixed rate towards its commanded elevation. The temperature
+is the scenario's drift, or where the truth has a thermal control, the lag behind the setpoint a
+plan's temperature element commands (scenario.ThermalHistory).
 """
 
 from __future__ import annotations
@@ -15,30 +17,40 @@ from sofia_ros import messages as m
 from sofia_ros import mount, topics
 from sofia_ros.control.attitude import mean_rate_rad_per_s, propagate_dcm
 from sofia_ros.frames import quaternion_from_dcm
+from sofia_ros.scenario import ThermalHistory
 from sofia_ros.sim.protocol import NodeCore
 from sofia_ros.topics import CD_JOINT, DEFAULT_TICK_NS, FD_JOINTS
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
-__all__ = ['PlantCore', 'TOPICS']
+__all__ = ['PlantCore', 'TOPICS', 'thermal_command_of']
 
 #: the topics this core reads and writes, by the short names its methods use (defined in sofia_ros.topics)
 TOPICS = {
     'clock': topics.CLOCK, 'fd_command': topics.FD_COMMAND, 'cd_command': topics.CD_COMMAND,
     'truth_imu': topics.TRUTH_IMU, 'truth_joints': topics.TRUTH_JOINTS,
     'truth_temperature': topics.TRUTH_TEMPERATURE, 'joint_states': topics.JOINT_STATES,
+    'thermal_command': topics.THERMAL_COMMAND,
 }
+
+
+def thermal_command_of(message):
+    """(start s, target deg C, rate deg C/h) of a topics.THERMAL_COMMAND message."""
+    return (m.stamp_ns_of(message.header.stamp) / m.NS_PER_S, float(message.vector.x),
+            float(message.vector.y) * 3600.0)
 
 
 class PlantCore(NodeCore):
     """The true telescope on the ground."""
 
     name = 'plant'
-    upstream = (('clock', 0), ('tascu', 1))
+    #: the calibration node's thermal commands of a tick arrive before the next one (ThermalHistory)
+    upstream = (('clock', 0), ('tascu', 1), ('calibration', 1))
 
     def __init__(self, scenario, truth_effects, *, fd_braked=False, tick_ns=DEFAULT_TICK_NS,
                  cd_slew_rate_deg_per_s=0.5):
         super().__init__()
         self.scenario = scenario
+        self.thermal = ThermalHistory(scenario)
         heading_error = truth_effects.get('heading_error', {}).get('heading_error_deg', 0.0)
         self.heading_deg = scenario.heading_deg + heading_error
         earth = truth_effects.get('earth_rotation')
@@ -54,7 +66,7 @@ class PlantCore(NodeCore):
         self.tarf_from_irf = mount.tarf_from_hrf_dcm(self.heading_deg, self.elevation_deg)
 
     def inputs(self):
-        return (TOPICS['clock'], TOPICS['fd_command'], TOPICS['cd_command'])
+        return (TOPICS['clock'], TOPICS['fd_command'], TOPICS['cd_command'], TOPICS['thermal_command'])
 
     def outputs(self):
         return tuple(TOPICS[key] for key in ('truth_imu', 'truth_joints', 'truth_temperature', 'joint_states'))
@@ -65,6 +77,8 @@ class PlantCore(NodeCore):
         elif topic == TOPICS['cd_command'].name:
             target_rad = m.joint_positions_of(message)[CD_JOINT]
             self.cd_target_deg = target_rad / RAD_PER_DEG
+        elif topic == TOPICS['thermal_command'].name:
+            self.thermal.command(*thermal_command_of(message))
 
     def _hrf_from_irf(self, elapsed_s):
         return mount.hrf_from_irf_dcm(self.scenario.latitude_deg, elapsed_s, self.earth_rate_rad_per_s)
@@ -118,7 +132,7 @@ class PlantCore(NodeCore):
         w.x, w.y, w.z = (float(v) for v in rate_rad_per_s)
         a.x, a.y, a.z = (float(v) for v in self.specific_force_tarf_m_per_s2(elapsed_s))
         positions = {CD_JOINT: self.elevation_deg * RAD_PER_DEG, **dict(zip(FD_JOINTS, self.fine_drive_rad))}
-        temperature_c = self.scenario.temperature_c_at(elapsed_s)
+        temperature_c = self.thermal.temperature_c_at(elapsed_s)
         return [
             (TOPICS['truth_imu'].name, imu),
             (TOPICS['truth_joints'].name, m.joint_state(stamp_ns, positions)),

@@ -34,6 +34,7 @@ from sofia_ros.topics import (
     CALIBRATION_RESULT,
     FD_JOINTS,
     JOINT_STATES,
+    THERMAL_COMMAND,
     centroid_topic,
 )
 from sofia_ros.units import RAD_PER_DEG
@@ -41,10 +42,12 @@ from sofia_ros.validate import finite_array, finite_scalar
 
 __all__ = ['SequenceCore', 'TOPICS', 'OBSERVING_ELEVATIONS_DEG', 'PLAN_FILE_NAME', 'plan_document', 'plan_text',
            'elements_from_yaml', 'elements_to_yaml',
-           'elements_budget_s', 'observing_elevation', 'fine_drive_los', 'hold_duration', 'detector_offset']
+           'elements_budget_s', 'observing_elevation', 'fine_drive_los', 'hold_duration', 'detector_offset',
+           'thermal_target', 'thermal_rate']
 
 #: the topics the calibration node publishes besides the TASCU's commands, by the short names its methods use
-TOPICS = {'progress': CALIBRATION_PROGRESS, 'result': CALIBRATION_RESULT, 'maneuvers': CALIBRATION_MANEUVERS}
+TOPICS = {'progress': CALIBRATION_PROGRESS, 'result': CALIBRATION_RESULT, 'maneuvers': CALIBRATION_MANEUVERS,
+          'thermal': THERMAL_COMMAND}
 #: the plan beside a recorded bag, like truth.yaml
 PLAN_FILE_NAME = 'plan.yaml'
 _KEPT_FRAMES = 200
@@ -90,6 +93,22 @@ def hold_duration(name: str, value: Any) -> float:
     if duration_s <= 0.0:
         raise InvalidArgumentError(f'{name} must be > 0 s, got {duration_s:g}')
     return duration_s
+
+
+def thermal_target(name: str, value: Any) -> float:
+    """``value`` as a temperature setpoint in deg C (a number; the truth's control says which it reaches)."""
+    return _number(name, value)
+
+
+def thermal_rate(name: str, value: Any) -> float | None:
+    """``value`` as a setpoint rate in deg C/h, > 0 (None: the truth's largest); InvalidArgumentError otherwise."""
+    if value is None:
+        return None
+    rate_c_per_h = _number(name, value)
+    if rate_c_per_h <= 0.0:
+        raise InvalidArgumentError(f'{name} must be > 0 C/h (the setpoint moves toward target_c at it), '
+                                   f'got {rate_c_per_h:g}')
+    return rate_c_per_h
 
 
 def detector_offset(camera: Any, offset_arcsec: Any) -> tuple[float, float]:
@@ -229,7 +248,7 @@ class SequenceCore(NodeCore):
 
     def outputs(self):
         return (TASCU_TOPICS['move_relative'], TASCU_TOPICS['mtbs_centroid'], TASCU_TOPICS['mtbs_inertial'],
-                TASCU_TOPICS['track'], TOPICS['progress'], TOPICS['result'], TOPICS['maneuvers'])
+                TASCU_TOPICS['track'], TOPICS['progress'], TOPICS['result'], TOPICS['maneuvers'], TOPICS['thermal'])
 
     def receive(self, topic, message):
         if topic == TASCU_TOPICS['motion_status'].name:
@@ -362,6 +381,17 @@ class SequenceCore(NodeCore):
         start_s = self.stamp_ns / m.NS_PER_S
         yield from self._until(start_s + duration_s)
         return start_s, self.stamp_ns / m.NS_PER_S
+
+    def _command_temperature(self, target_c, rate_c_per_h):
+        """Set the truth's thermal control to slew to ``target_c`` at ``rate_c_per_h`` (None: its largest) from now on;
+        the record of it: command time, target and rate."""
+        control = self.scenario.thermal_control if self.scenario is not None else None
+        if control is None:  # the campaign's config builder refuses such a plan before the run
+            raise CalibrationAbort("a temperature element needs a truth with scenario.thermal_control")
+        rate_c_per_h = control.max_rate_c_per_h if rate_c_per_h is None else rate_c_per_h
+        self.outbox.append((TOPICS['thermal'].name,
+                            m.vector3_stamped(self.stamp_ns, 'tarf', (target_c, rate_c_per_h / 3600.0, 0.0))))
+        return {'target_c': target_c, 'rate_c_per_h': rate_c_per_h, 'command_s': self.stamp_ns / m.NS_PER_S}
 
     def _place_on_detector(self, camera, offset_arcsec):
         """Move the tracked star to ``offset_arcsec`` (x, y) from ``camera``'s centre; its pixel there.

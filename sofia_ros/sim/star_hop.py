@@ -33,13 +33,16 @@ from sofia_ros.sim.sequence import (
     elements_from_yaml,
     elements_to_yaml,
     hold_duration,
+    thermal_rate,
+    thermal_target,
 )
 from sofia_ros.sky.catalogue import star_by_name
 from sofia_ros.topics import CD_JOINT, FD_JOINTS
 from sofia_ros.units import RAD_PER_DEG
 from sofia_ros.validate import finite_array, orthonormal_dcm
 
-__all__ = ['StarHopPlan', 'StarHopCore', 'StarHold', 'STAR_HOP_ELEMENTS', 'TABLE_D3_OBSERVATIONS', 'CDT']
+__all__ = ['StarHopPlan', 'StarHopCore', 'StarHold', 'StarTemperatureHold', 'STAR_HOP_ELEMENTS',
+           'TABLE_D3_OBSERVATIONS', 'CDT']
 
 CDT = dt.timezone(dt.timedelta(hours=-5), 'CDT')
 #: Table D.3: the star observed at each time (CDT), 2004-09-02/03.
@@ -81,8 +84,27 @@ class StarHold:
             object.__setattr__(self, 'detector_offset_arcsec', detector_offset(self.camera, self.detector_offset_arcsec))
 
 
+@dataclass(frozen=True)
+class StarTemperatureHold:
+    """A catalogue star held at HIPO's centre while the truth's thermal control drives the temperature to a setpoint."""
+
+    kind: ClassVar[str] = 'temperature'
+    star: str
+    #: the setpoint, deg C: within the truth's scenario.thermal_control range (checked with the truth)
+    target_c: float
+    duration_s: float
+    #: how fast the setpoint moves from the temperature to target_c, deg C/h (None: the truth's largest, a plateau)
+    rate_c_per_h: float | None = None
+
+    def __post_init__(self):
+        star_by_name(self.star)
+        object.__setattr__(self, 'target_c', thermal_target('target_c', self.target_c))
+        object.__setattr__(self, 'duration_s', hold_duration('duration_s', self.duration_s))
+        object.__setattr__(self, 'rate_c_per_h', thermal_rate('rate_c_per_h', self.rate_c_per_h))
+
+
 #: the star hop's plan elements by the name a plan file gives them
-STAR_HOP_ELEMENTS = {StarHold.kind: StarHold}
+STAR_HOP_ELEMENTS = {element.kind: element for element in (StarHold, StarTemperatureHold)}
 
 
 @dataclass(frozen=True)
@@ -158,23 +180,36 @@ class StarHopCore(SequenceCore):
             yield from self._park()
         for index, element in enumerate(self.plan.elements, 1):
             self._progress('element', {'index': index, 'kind': element.kind, 'star': element.star})
-            self.record.setdefault('elements', []).append({'index': index, **(yield from self._fly_hold(element))})
+            flown = yield from getattr(self, f'_fly_{element.kind}')(element)
+            self.record.setdefault('elements', []).append({'index': index, **flown})
             yield from self._park()
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(
             {'accepted': True, 'campaign': 'star-hop', **self.record}, sort_keys=False))))
 
-    def _fly_hold(self, element):
-        """A hold element: the star centred in HIPO, placed on the detector position if one is asked, held."""
+    def _centre_element_star(self, element):
+        """The element's star centred in HIPO (from an imager that shows it, else pointed at); its record."""
         entry = star_by_name(element.star)
         yield from self._recentre_los(_RECENTRE_LOS_DEG)
         if not (yield from self._centre_from_imager(entry.hip)):
             yield from self._point_at(entry.hip)
             yield from self._acquire(entry.hip)
-        record = {'kind': element.kind, 'star': element.star, 'hip': int(entry.hip)}
+        return {'kind': element.kind, 'star': element.star, 'hip': int(entry.hip)}
+
+    def _fly_hold(self, element):
+        """A hold element: the star centred in HIPO, placed on the detector position if one is asked, held."""
+        record = yield from self._centre_element_star(element)
         if element.camera is not None:
             pixel = yield from self._place_on_detector(element.camera, element.detector_offset_arcsec)
             record.update(camera=element.camera, pixel=[float(pixel[0]), float(pixel[1])])
+        hold_start_s, hold_end_s = yield from self._hold_for(element.duration_s)
+        return {**record, 'hold_start_s': hold_start_s, 'hold_end_s': hold_end_s,
+                'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG}
+
+    def _fly_temperature(self, element):
+        """A temperature element: the star centred in HIPO and held from the thermal command on."""
+        record = yield from self._centre_element_star(element)
+        record.update(self._command_temperature(element.target_c, element.rate_c_per_h))
         hold_start_s, hold_end_s = yield from self._hold_for(element.duration_s)
         return {**record, 'hold_start_s': hold_start_s, 'hold_end_s': hold_end_s,
                 'elevation_deg': self.joints[CD_JOINT] / RAD_PER_DEG}

@@ -79,7 +79,8 @@ def test_a_controller_saturates_and_a_truth_without_one_follows_nothing():
     assert len(history.commands) == 1
     uncontrolled = ThermalHistory(default_scenario())
     uncontrolled.command(0.0, 30.0, 10.0)
-    assert uncontrolled.commands == [] and uncontrolled.temperature_c_at(600.0) == default_scenario().temperature_c_at(600.0)
+    assert uncontrolled.commands == []
+    assert uncontrolled.temperature_c_at(600.0) == default_scenario().temperature_c_at(600.0)
 
 
 def test_the_plant_and_the_cameras_follow_the_same_commands():
@@ -228,15 +229,16 @@ def test_a_flown_plateau_moves_the_recorded_temperature_to_it_within_the_time_co
     gyro = read_observations(plateau_flown).gyro  # the temperature compare reads: /gyro_box/temperature
     assert np.array_equal(gyro.tick_temperature_c, [expected.temperature_c_at(t) for t in gyro.tick_end_s])
     before = gyro.tick_end_s <= element['command_s']
-    assert np.array_equal(gyro.tick_temperature_c[before], [scenario.temperature_c_at(t) for t in gyro.tick_end_s[before]])
+    drift_c = [scenario.temperature_c_at(t) for t in gyro.tick_end_s[before]]
+    assert np.array_equal(gyro.tick_temperature_c[before], drift_c)
     step_c = 24.0 - scenario.temperature_c_at(element['command_s'])
     slew_s = step_c / 100.0 * 3600.0
     # Past the slew, within one time constant the lag covers 63 % of what remains, within three 95 %.
     tau_s = FAST_CONTROL['time_constant_s']
     for lag_taus, share in ((1.0, 0.63), (3.0, 0.95)):
         after = gyro.tick_end_s >= element['command_s'] + slew_s + lag_taus * tau_s
-        assert np.count_nonzero(after) >= 50 and np.all(gyro.tick_temperature_c[after] - scenario.temperature_c_at(element['command_s'])
-                      >= share * step_c)
+        rise_c = gyro.tick_temperature_c[after] - scenario.temperature_c_at(element['command_s'])
+        assert np.count_nonzero(after) >= 50 and np.all(rise_c >= share * step_c)
     assert gyro.tick_temperature_c[-1] == pytest.approx(24.0, abs=0.01 * step_c)  # five time constants after the slew
     with BagReader(plateau_flown) as bag:
         assert bag.topic(THERMAL_COMMAND.name).count == 1

@@ -3,6 +3,7 @@ the command's refusals, and the prediction on the session's gyro_axis_swap bag."
 
 from __future__ import annotations
 
+import datetime
 import json
 import shutil
 from pathlib import Path
@@ -182,18 +183,11 @@ def test_a_member_the_model_has_is_refused(capsys, tmp_path, plan_only_bag):
 
 def test_a_bag_without_its_plan_takes_one_given(capsys, tmp_path, plan_only_bag):
     (plan_only_bag / 'plan.yaml').unlink()
-    shutil.copy(ROOT / 'config' / 'plans' / 'star-hop-reduced.yaml', tmp_path / 'given.yaml')
-    # The given plan is read (and, a star hop's, refused): not the bag's missing plan.yaml.
+    (tmp_path / 'given.yaml').write_text('campaign: alignment\nspin: 3\n')
+    # The given plan is read (and, a bad one, refused): not the bag's missing plan.yaml.
     _refused(capsys, tmp_path, [str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',
                                 'gyro_axis_swap,gyro_scale_factor', '--plan', str(tmp_path / 'given.yaml')],
-             'plans alignment campaigns')
-
-
-def test_a_star_hop_bag_is_refused(capsys, tmp_path, plan_only_bag):
-    shutil.copy(ROOT / 'config' / 'plans' / 'star-hop-reduced.yaml', plan_only_bag / 'plan.yaml')
-    _refused(capsys, tmp_path, [str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',
-                                'gyro_axis_swap,gyro_scale_factor', '--plan-out', str(tmp_path / 'plan.yaml')],
-             'plans alignment campaigns')
+             "given.yaml: unknown key 'spin'")
 
 
 @pytest.mark.parametrize('document, match', [
@@ -237,8 +231,8 @@ def test_a_plan_out_that_is_a_directory_is_refused(capsys, tmp_path, plan_only_b
                                 'gyro_axis_swap,gyro_scale_factor', '--plan-out', str(tmp_path)], 'is a directory')
 
 
-def test_an_already_separated_set_says_so_and_writes_no_plan(capsys, tmp_path, plan_only_bag, monkeypatch):
-    """Exit 0 and no plan: the prediction (stubbed here; its machinery is tested below) finds nothing to add."""
+def _stubbed_design(monkeypatch, plan_only_bag, status, reproduced=()):
+    """The command with the prediction stubbed (its machinery is tested below): a design document of ``status``."""
     import sofia_ros.compare.observations as observations
     import sofia_ros.design.cli as design_cli
     import sofia_ros.design.run as design_run
@@ -252,16 +246,31 @@ def test_an_already_separated_set_says_so_and_writes_no_plan(capsys, tmp_path, p
 
     document = {'bag': str(plan_only_bag), 'model': str(NOMINAL_MODEL), 'members': ['a', 'b'], 'shared': [],
                 'flight_s': 800.0, 'budget_s': 240.0, 'target_delta_bic': 20.0, 'sizes': {'a': {}, 'b': {}},
-                'observed_delta_bic': {'a': 50.0, 'b': 10.0}, 'before': {'a': 40.0, 'b': 35.0}, 'elements': [],
-                'status': 'already_separated', 'chosen': [], 'chosen_flight_s': 0.0, 'flight_share': 0.0,
-                'predicted': {'a': 40.0, 'b': 35.0}, 'sigma_before': {}, 'sigma_after': {}, 'skipped': []}
-    monkeypatch.setattr(design_cli, '_library_bag', lambda elements, plan, progress: plan_only_bag)
+                'observed_delta_bic': {'a': 50.0, 'b': 10.0}, 'before': {'a': -21.0, 'b': 35.0}, 'elements': [],
+                'status': status, 'chosen': [], 'chosen_flight_s': 0.0, 'flight_share': 0.0,
+                'predicted': {'a': -21.0, 'b': 35.0}, 'sigma_before': {'a': {}, 'b': {}}, 'sigma_after': {},
+                'skipped': [], 'reproduced': list(reproduced),
+                'whole_library': {'flight_s': 900.0, 'separation': {'a': -21.0, 'b': 36.0},
+                                  'signature_left': {'a': 0.01, 'b': 14.0}}}
+    monkeypatch.setattr(design_cli, '_library_bag', lambda *args: plan_only_bag)
     monkeypatch.setattr(observations, 'read_observations', lambda path: Stub())
     monkeypatch.setattr(design_run, 'design_plan', lambda *args, **kwargs: dict(document))
+
+
+@pytest.mark.parametrize('status, reproduced, says', [
+    ('already_separated', (), 'no plan is needed'),
+    # The rival reproduces one member whatever is flown, and the other direction is separated already.
+    ('inseparable', ('a',), 'no plan: no element separates them further'),
+])
+def test_a_set_no_plan_helps_says_so_and_writes_no_plan(capsys, tmp_path, plan_only_bag, monkeypatch, status,
+                                                         reproduced, says):
+    """Exit 0 and no plan where the bag already tells the members apart, or where no element can."""
+    _stubbed_design(monkeypatch, plan_only_bag, status, reproduced)
     code = main(['design', str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',
                  'gyro_axis_swap,gyro_scale_factor', '--plan-out', str(tmp_path / 'plan.yaml'), '--quiet'])
     out = capsys.readouterr().out
-    assert code == 0 and 'already separated' in out and 'no plan is needed' in out
+    assert code == 0 and says in out, out
+    assert ('if a is true, b reproduces it' in out) == bool(reproduced)
     assert not (tmp_path / 'plan.yaml').exists()
 
 
@@ -302,3 +311,147 @@ def test_flown_elements_reads_the_windows_and_names_the_skipped():
     assert skipped == ['two']
     with pytest.raises(BagError, match='no calibration result; delete it so that it is flown again'):
         flown_elements(None, library)
+
+
+def test_a_library_element_of_several_plan_elements_spans_them():
+    from sofia_ros.design.run import flown_elements
+
+    step = Element('warm, then slews', {'temperature': {'target_c': 35.0, 'duration_s': 120.0}},
+                   ({'hold': {'duration_s': 20.0, 'elevation_deg': 25.0}},))
+    library = (step, Element('one', {}), Element('half flown', {'x': {}}, ({'y': {}},)))
+    calibration = ('elements:\n- {index: 1, kind: temperature, start_s: 10.0, end_s: 130.0}\n'
+                   '- {index: 2, kind: hold, start_s: 130.0, end_s: 190.0}\n'
+                   '- {index: 3, kind: maneuvers, start_s: 190.0, end_s: 300.0}\n'
+                   '- {index: 5, kind: hold, start_s: 300.0, end_s: 360.0}\n')
+    windows, skipped = flown_elements(calibration, library)
+    assert [(element.name, start, end) for element, start, end in windows] == [('warm, then slews', 10.0, 190.0),
+                                                                               ('one', 190.0, 300.0)]
+    # Its first plan element (index 4) was not flown: the element is not, whole.
+    assert skipped == ['half flown']
+
+
+def test_a_star_hop_hold_is_flown_from_where_the_hold_before_it_ended():
+    """A star hop's element records only its hold window; its slew, acquisition and placement are its flight too."""
+    from sofia_ros.design.geometry import element_windows
+
+    calibration = {'observations': [{'hold_start_s': 10.0, 'hold_end_s': 70.0},
+                                    {'hold_start_s': 400.0, 'hold_end_s': 460.0}],
+                   'elements': [{'index': 1, 'kind': 'hold', 'hold_start_s': 490.0, 'hold_end_s': 550.0},
+                                {'index': 2, 'kind': 'hold', 'hold_start_s': 580.0, 'hold_end_s': 640.0}]}
+    assert element_windows(calibration) == [(1, 'hold', 460.0, 550.0), (2, 'hold', 550.0, 640.0)]
+
+
+def _libraries():
+    from sofia_ros.design.elements import ALIGNMENT_LIBRARY, star_hop_library, thermal_library
+
+    return {'alignment': (*ALIGNMENT_LIBRARY, *thermal_library(10.0, 35.0, 120.0)),
+            'star-hop': star_hop_library(['Polaris', 'Alpha Cep', 'Beta Cep', 'Alpha Cep'])}
+
+
+def _plan(campaign, steps):
+    return {'campaign': campaign, 'elements': steps}
+
+
+@pytest.mark.parametrize('campaign', ['alignment', 'star-hop'])
+def test_every_library_element_is_a_plan_sofia_run_flies(campaign):
+    """The elements --plan-out appends pass the checks of `sofia run --plan`, the thermal ones with the thermal truth."""
+    from sofia_ros.campaigns.plan_files import check_plan_with_truth, plan_from_document
+    from sofia_ros.config import load_effect_config
+    from sofia_ros.scenario import Scenario, scenario_from_mapping
+    from sofia_ros.sky import WACO_2004_SITE
+
+    library = _libraries()[campaign]
+    plan = plan_from_document(_plan(campaign, [step for element in library for step in element.plan_elements]),
+                              'library', campaign)
+    assert len(plan.elements) == sum(len(element.plan_elements) for element in library)
+    truth = load_effect_config(ROOT / 'config' / 'truth' / 'nominal-thermal.yaml')
+    start = datetime.datetime(2004, 9, 3, 4, 22, tzinfo=datetime.timezone.utc)
+    scenario = scenario_from_mapping(Scenario(WACO_2004_SITE, start, 0.0, 40.0), truth.scenario)
+    check_plan_with_truth(plan, scenario, 'nominal-thermal.yaml')
+    assert len({element.name for element in library}) == len(library)
+
+
+@pytest.mark.parametrize('campaign, name, change, match', [
+    ('alignment', 'maneuvers at 55 deg', {'elevation_deg': 65.0}, 'elevation'),
+    ('alignment', 'hold 60 s at LOS +2.5 deg', {'los_deg': 3.5}, 'LOS'),
+    ('alignment', 'warm to 35 C, held 300 s', {'duration_s': 0.0}, 'duration_s'),
+    ('star-hop', 'Alpha Cep 60 s at FPI (+170", +170")', {'detector_offset_arcsec': [400.0, 0.0]},
+     'leaves the FPI field'),
+    ('star-hop', 'hold 60 s on Polaris', {'star': 'Nostar'}, 'Nostar'),
+])
+def test_a_library_element_pushed_out_of_range_is_refused(campaign, name, change, match):
+    """The plan checks still hold for the library's own kinds of element: one line naming the fault."""
+    from sofia_ros.campaigns.plan_files import plan_from_document
+    from sofia_ros.errors import ConfigError
+
+    (kind, fields), = next(element for element in _libraries()[campaign] if element.name == name).document.items()
+    with pytest.raises(ConfigError, match=match) as refused:
+        plan_from_document(_plan(campaign, [{kind: {**fields, **change}}]), 'designed.yaml', campaign)
+    assert '\n' not in str(refused.value)
+
+
+def test_an_unknown_maneuver_in_a_designed_plan_is_refused():
+    from sofia_ros.campaigns.plan_files import plan_from_document
+    from sofia_ros.errors import ConfigError
+
+    with pytest.raises(ConfigError, match='spin'):
+        plan_from_document(_plan('alignment', [{'spin': {'duration_s': 10.0}}]), 'designed.yaml', 'alignment')
+
+
+def test_the_library_flight_returns_to_the_nights_temperature_after_each_step():
+    from sofia_ros.design.elements import is_thermal, thermal_library, with_thermal_resets
+
+    reset = Element('back', {'temperature': {'target_c': 22.8, 'duration_s': 720.0}})
+    plain = Element('hold', {'hold': {'duration_s': 60.0}})
+    steps = thermal_library(10.0, 35.0, 120.0)
+    flight = with_thermal_resets((plain, *steps), reset)
+    # After each step that another element follows, and after no other element.
+    assert flight == (plain, steps[0], reset, steps[1], reset, steps[2])
+    assert all(is_thermal(step) for step in steps) and not is_thermal(plain)
+
+
+def test_the_library_flight_is_shaped_by_the_bags_plan():
+    """The star hop's library flies the bag's last two observations back to back, then the elements on its last star;
+    the alignment's ends its short sequence where the bag's boresight series ended."""
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.cli import _library_document, _library_elements
+
+    hop = read_plan_file(ROOT / 'config' / 'plans' / 'star-hop-reduced.yaml')
+    elements = _library_elements(hop, None)
+    document = _library_document(elements, hop)
+    assert document['observations'] == [['Beta Cep', 2519.0], ['Alpha Cep', 2767.0]]
+    assert document['follow_times'] is False and document['frames_per_position'] == hop.frames_per_position
+    assert {step['hold']['star'] for step in document['elements']} == {'Alpha Cep', 'Polaris', 'Beta Cep'}
+    alignment = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    assert _library_document((), alignment)['flexure_elevations_deg'] == [59.0]
+    # Temperature steps only on a telescope whose truth has a thermal control.
+    control = {'min_c': 10.0, 'max_c': 35.0, 'max_rate_c_per_h': 60.0, 'time_constant_s': 120.0}
+    assert not any('temperature' in step for element in _library_elements(alignment, None)
+                   for step in element.plan_elements)
+    assert sum('temperature' in element.document for element in _library_elements(alignment, control)) == 3
+
+
+def test_the_thermal_control_is_read_from_the_bags_truth(tmp_path):
+    from sofia_ros.design.cli import _thermal_control
+
+    assert _thermal_control(tmp_path) is None  # an imported bag: no truth.yaml
+    shutil.copy(ROOT / 'config' / 'truth' / 'nominal-thermal.yaml', tmp_path / 'truth.yaml')
+    assert _thermal_control(tmp_path)['max_c'] == 35.0
+    shutil.copy(NOMINAL_MODEL, tmp_path / 'truth.yaml')
+    assert _thermal_control(tmp_path) is None
+
+
+def test_a_direction_the_rival_reproduces_is_left_out_of_the_choice():
+    """Nested members (the rival's columns span the true member's): nothing is left of the signature, and the choice
+    is made for the direction elements can separate."""
+    base, elements, flight_s = _element_blocks()
+    nested = Information(LABELS, base.gram.copy(), base.gradient, base.rows)
+    nested.gram[:, 2] = nested.gram[:, 1]
+    nested.gram[2, :] = nested.gram[1, :]
+    first, second = Hypothesis('a', ('a.0',), np.array([0.5])), Hypothesis('b', ('b.0',), np.array([0.5]))
+    assert predict(nested, ['m.0'], first, second, 1.0).signature_left['a'] == pytest.approx(0.0, abs=1e-9)
+    # With 'a' left out, the target counts in 'b' alone: one element reaches it though 'a' stays below.
+    weak = Hypothesis('a', ('a.0',), np.array([0.01]))
+    choice = choose_elements(base, elements, flight_s, ['m.0'], weak, second, 1.0, target=20.0, budget_s=250.0,
+                             directions=['b'])
+    assert choice.reached and choice.prediction.separation['a'] < 20.0 <= choice.prediction.separation['b']

@@ -21,7 +21,6 @@ import tempfile
 from pathlib import Path
 from typing import Any, TextIO
 
-
 from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import ConfigError
 from sofia_ros.output_files import json_ready, output_target, write_text_atomically
@@ -30,12 +29,21 @@ from sofia_ros.progress import Progress
 __all__ = ['add_design_arguments', 'run_design']
 
 _MAX_JSON_BYTES = 64 << 20
-#: The library flight's own sequence at its least sim time (one iteration, the fewest maneuvers, no boresight series)...
-_LIBRARY_BASE = {'campaign': 'alignment', 'repetitions': 2, 'verification_repetitions': 1, 'flexure_elevations_deg': [],
-                 'max_iterations': 1}
-#: ...and the bag's own values of the fields that shape an element (frames averaged, drift track, move sizes), so that
-#: each element is flown as the designed plan will fly it.
-_ELEMENT_FIELDS = ('frames_per_position', 'drift_track_s', 'los_angle_deg', 'elxel_length_arcmin', 'timeout_s')
+#: The library flight's own sequence at its least sim time (the alignment: one iteration, the fewest maneuvers, of the
+#: boresight series its last position; the star hop: observations back to back)...
+_LIBRARY_BASE = {
+    'alignment': {'campaign': 'alignment', 'repetitions': 2, 'verification_repetitions': 1, 'max_iterations': 1},
+    'star-hop': {'campaign': 'star-hop', 'follow_times': False},
+}
+#: ...and the bag's own values of the fields that shape an element (frames averaged, drift track, move sizes, the
+#: TASCU's alignment), so that each element is flown as the designed plan will fly it.
+_ELEMENT_FIELDS = {
+    'alignment': ('frames_per_position', 'drift_track_s', 'los_angle_deg', 'elxel_length_arcmin', 'timeout_s'),
+    'star-hop': ('frames_per_position', 'timeout_s', 'tarf_from_gyrf'),
+}
+#: The star hop's library flight observes the bag's last two observations (back to back) before its elements: the
+#: stars and elevations the designed plan's elements follow.
+_STAR_HOP_LEAD_OBSERVATIONS = 2
 _DEFAULT_TARGET = 20.0
 _DEFAULT_BUDGET_SHARE = 0.3
 
@@ -133,38 +141,105 @@ def _source(args: argparse.Namespace) -> tuple:
     return Path(document['bag']), model, _members(','.join(effects[:2]))
 
 
-def _library_elements(campaign: str) -> tuple:
-    from sofia_ros.design.elements import ALIGNMENT_LIBRARY
-
-    if campaign != 'alignment':
-        raise ConfigError(f'sofia design plans alignment campaigns; a {campaign} bag has no element library yet '
-                          '(docs/design.md)')
-    return ALIGNMENT_LIBRARY
-
-
-def _library_bag(elements: tuple, old_plan: Any, progress: Progress) -> Path:
-    """The library flight's bag in the user's cache, flown (direct mode, nominal truth, seed 0) if not there yet; its
-    elements shaped by ``old_plan``'s fields as the designed plan will fly them."""
-    from sofia_ros.campaigns.plan_files import plan_document, plan_from_document, plans_directory
-    from sofia_ros.campaigns.registry import campaign_named
-    from sofia_ros.compare.cache import user_cache_home
+def _thermal_control(bag: Path) -> dict | None:
+    """The thermal control of the telescope the bag was flown on (its truth.yaml's scenario.thermal_control), or None:
+    what a plan can command there, a property of the facility rather than of the errors being told apart."""
     from sofia_ros.config import load_effect_config
 
-    shaping = {name: value for name, value in plan_document(old_plan).items() if name in _ELEMENT_FIELDS}
-    document = {**_LIBRARY_BASE, **shaping, 'elements': [dict(element.document) for element in elements]}
-    key = hashlib.sha256(json.dumps(document, sort_keys=True).encode()).hexdigest()[:16]
-    bag = user_cache_home() / 'design' / f'alignment-library-{key}'
+    truth = bag / 'truth.yaml'
+    if not truth.is_file():  # an imported bag: no temperature element is offered
+        return None
+    return (load_effect_config(truth).scenario or {}).get('thermal_control')
+
+
+def _library_elements(plan: Any, thermal_control: dict | None) -> tuple:
+    """The element library for a bag flown with ``plan``: the alignment's (with its temperature steps where the
+    telescope has ``thermal_control``), or the star hop's on its stars."""
+    from sofia_ros.design.elements import ALIGNMENT_LIBRARY, star_hop_library, thermal_library
+
+    # Only these two campaigns have plans (campaigns.plan_files.PLAN_TYPES).
+    if plan.campaign == 'star-hop':
+        return star_hop_library([star for star, _ in plan.observations])
+    if thermal_control is None:
+        return ALIGNMENT_LIBRARY
+    return (*ALIGNMENT_LIBRARY, *thermal_library(thermal_control['min_c'], thermal_control['max_c'],
+                                                 thermal_control['time_constant_s']))
+
+
+def _library_document(elements: tuple, old_plan: Any) -> dict:
+    """The library flight's plan: the campaign's shortest sequence, ``old_plan``'s element-shaping fields, the
+    elements."""
+    from sofia_ros.campaigns.plan_files import plan_document
+
+    campaign = old_plan.campaign
+    old = plan_document(old_plan)
+    document = {**_LIBRARY_BASE[campaign], **{name: value for name, value in old.items()
+                                               if name in _ELEMENT_FIELDS[campaign]}}
+    if campaign == 'star-hop':
+        document['observations'] = old['observations'][-_STAR_HOP_LEAD_OBSERVATIONS:]
+    else:
+        # The old plan's last boresight position only: the first element slews from where the designed plan's will.
+        document['flexure_elevations_deg'] = list(old.get('flexure_elevations_deg', []))[-1:]
+    return {**document, 'elements': [step for element in elements for step in element.plan_elements]}
+
+
+#: How long the library flight's reset after a temperature step holds, in time constants of the thermal control: the
+#: temperature back within 1 % of the night's before the next element.
+_RESET_TIME_CONSTANTS = 6.0
+
+
+def _library_truth(thermal_control: dict | None) -> Any:
+    """The library flight's truth: the nominal one, with the bag's thermal control if it has one."""
+    import yaml
+
+    from sofia_ros.campaigns.plan_files import plans_directory
+    from sofia_ros.config import load_effect_config, parse_effect_config, safe_load_limited
+    from sofia_ros.input_files import read_text_capped
+
+    path = plans_directory().parent / 'truth' / 'nominal.yaml'
+    if thermal_control is None:
+        return load_effect_config(path)
+    document = safe_load_limited(read_text_capped(path, _MAX_JSON_BYTES, 'truth file'), str(path))
+    document['scenario'] = {**(document.get('scenario') or {}), 'thermal_control': thermal_control}
+    return parse_effect_config(yaml.safe_dump(document), f'{path} with the thermal control of the bag')
+
+
+def _flight_elements(elements: tuple, truth: Any, thermal_control: dict | None) -> tuple:
+    """What the library flight flies: the library, each temperature step followed by a return to the night's
+    temperature (the library truth's start) so that the next element starts from it."""
+    from sofia_ros.design.elements import Element, with_thermal_resets
+    from sofia_ros.scenario import Scenario
+
+    if thermal_control is None:
+        return elements
+    default_c = Scenario.__dataclass_fields__['start_temperature_c'].default
+    night_c = (truth.scenario or {}).get('start_temperature_c', default_c)
+    held_s = _RESET_TIME_CONSTANTS * thermal_control['time_constant_s']
+    return with_thermal_resets(elements, Element(f"back to the night's {night_c:g} C",
+                                                 {'temperature': {'target_c': night_c, 'duration_s': held_s}}))
+
+
+def _library_bag(flight: tuple, old_plan: Any, truth: Any, progress: Progress) -> Path:
+    """The library flight's bag in the user's cache, flown (direct mode, ``truth``, seed 0) if not there yet; its
+    elements (``flight``) shaped by ``old_plan``'s fields as the designed plan will fly them."""
+    from sofia_ros.campaigns.plan_files import plan_from_document
+    from sofia_ros.campaigns.registry import campaign_named
+    from sofia_ros.compare.cache import user_cache_home
+
+    campaign = old_plan.campaign
+    document = _library_document(flight, old_plan)
+    key = hashlib.sha256(json.dumps({**document, 'truth': truth.text}, sort_keys=True).encode()).hexdigest()[:16]
+    bag = user_cache_home() / 'design' / f'{campaign}-library-{key}'
     if (bag / 'summary.json').is_file():
         return bag
-    truth = load_effect_config(plans_directory().parent / 'truth' / 'nominal.yaml')
-    plan = plan_from_document(document, 'the design library', 'alignment')
+    plan = plan_from_document(document, 'the design library', campaign)
     bag.parent.mkdir(parents=True, exist_ok=True)
     # Flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs that
     # fly it at once the first to finish is kept.
     folder = Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix='.flying', dir=bag.parent))
-    progress.phase(f'flying the element library once ({len(elements)} elements; kept in {bag.parent})')
+    progress.phase(f'flying the element library once ({len(flight)} elements; kept in {bag.parent})')
     try:
-        campaign_named('alignment').run(truth, seed=0, bag_path=folder / 'bag', plan=plan, mode='direct')
+        campaign_named(campaign).run(truth, seed=0, bag_path=folder / 'bag', plan=plan, mode='direct')
         if not bag.exists():
             (folder / 'bag').rename(bag)
     finally:
@@ -182,24 +257,31 @@ def _print_design(document: dict, out: TextIO) -> None:
           f'budget {document["budget_s"]:.0f} s)', file=out)
     print(f'  model {document["model"]}; shared fitted terms: {len(document["shared"])}', file=out)
     for name, sizes in document['sizes'].items():
-        text = ', '.join(f'{label.split(".", 1)[1]} {value:.4g}' for label, value in sizes.items())
+        sigma = document['sigma_before'][name]
+        text = ', '.join(f'{label.split(".", 1)[1]} {value:.4g} +- {sigma[label]:.2g}' for label, value in sizes.items())
         print(f'  {name}: fitted size {text}; delta-BIC on the bag {document["observed_delta_bic"][name]:.0f}',
               file=out)
     before = document['before']
     print(f'  expected separation now: {_ways(before)}', file=out)
     print('elements (expected delta-BIC with the element added; per minute of flight)', file=out)
     heads = [f'if {name} true'[:24] for name in (first, second)]
-    print(f'  {"element":42} {"flight":>7}  {heads[0]:>24}  {heads[1]:>24}', file=out)
+    print(f'  {"element":52} {"flight":>7}  {heads[0]:>24}  {heads[1]:>24}', file=out)
     for entry in document['elements']:
         cells = [f'{entry["separation"][name]:9.1f} ({entry["separation_per_minute"][name]:+7.1f}/min)'
                  for name in document['members']]
-        print(f'  {entry["name"]:42} {entry["flight_s"]:6.0f}s  {cells[0]:>24}  {cells[1]:>24}', file=out)
+        print(f'  {entry["name"]:52} {entry["flight_s"]:6.0f}s  {cells[0]:>24}  {cells[1]:>24}', file=out)
     for name in document['skipped']:
-        print(f'  {name:42} skipped: no star in reach in the library flight', file=out)
+        print(f'  {name:52} skipped: not flown in the library flight (no star in reach; its summary.json says)',
+              file=out)
     status = document['status']
     if status == 'already_separated':
         print(f'already separated: the bag tells them apart by delta-BIC >= {document["target_delta_bic"]:.0f} '
               'whichever is true; no plan is needed', file=out)
+        return
+    _print_reproduced(document, out)
+    if status == 'inseparable':
+        print('no plan: no element separates them further (the other direction, if any, is separated already)',
+              file=out)
         return
     chosen = ', '.join(entry['name'] for entry in document['chosen'])
     print(f'{"designed" if status == "designed" else "best within the budget (target not reached)"}: {chosen} '
@@ -215,6 +297,18 @@ def _print_design(document: dict, out: TextIO) -> None:
         shrink = [f'{label.split(".", 1)[1]} {before_sigma:.3g}->{document["sigma_after"][name][label]:.3g}'
                   for label, before_sigma in document['sigma_before'][name].items() if label.split('.')[0] in name]
         print(f'  sigma with {name}: {", ".join(shrink)}', file=out)
+
+
+def _print_reproduced(document: dict, out: TextIO) -> None:
+    """The directions no element can separate: the rival reproduces the true member in the bag and every element."""
+    whole = document['whole_library']
+    for name in document['reproduced']:
+        rival = next(member for member in document['members'] if member != name)
+        print(f'if {name} is true, {rival} reproduces it in the bag and in every element (it leaves '
+              f'{whole["signature_left"][name]:.2f} noise units of it with the whole library, '
+              f'{whole["flight_s"]:.0f} s): no plan of these elements separates them that way; the delta-BIC stays '
+              f'the parameter penalty, {document["before"][name]:.1f} (the member with fewer parameters wins)',
+              file=out)
 
 
 def _ways(separation: dict) -> str:
@@ -239,21 +333,28 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     check_members(model, members)
     # An imported bag has no plan.yaml: the plan it was flown with is then given.
     old_plan = read_plan_file(args.plan) if args.plan else read_plan(bag)
-    elements = _library_elements(old_plan.campaign)
-    library = _library_bag(elements, old_plan, progress)
+    thermal_control = _thermal_control(bag)
+    elements = _library_elements(old_plan, thermal_control)
+    truth = _library_truth(thermal_control)
+    flight = _flight_elements(elements, truth, thermal_control)
+    library = _library_bag(flight, old_plan, truth, progress)
     with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):
         progress.phase('reading the bags')
         observations, library_observations = read_observations(bag), read_observations(library)
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
     progress.phase('linearizing the members on the bag and on the library flight')
-    windows, skipped = flown_elements(library_observations.calibration_result, elements)
+    windows, skipped = flown_elements(library_observations.calibration_result, flight)
+    # The resets between temperature steps are the flight's, not the library's.
+    windows = [window for window in windows if window[0] in elements]
+    skipped = [name for name in skipped if name in {element.name for element in elements}]
     document = design_plan(observations, library_observations, windows, skipped, model, members, flight_s=flight_s,
                            budget_s=budget_s, target=args.target, anchor_spacing_s=args.anchor_s)
     _print_design(document, out)
-    if document['status'] != 'already_separated' and args.plan_out:
+    if document['status'] in {'designed', 'not_reached'} and args.plan_out:
         planned = plan_document(old_plan)
-        planned['elements'] = [*planned.get('elements', []), *(entry['element'] for entry in document['chosen'])]
+        planned['elements'] = [*planned.get('elements', []), *(step for entry in document['chosen']
+                                                               for step in entry['element'])]
         write_plan_file(plan_from_document(planned, str(args.plan_out), old_plan.campaign), args.plan_out)
         document['plan'] = str(args.plan_out)
         print(f'plan: {args.plan_out} (fly it: sofia run {old_plan.campaign} --plan {args.plan_out} ...)', file=out)

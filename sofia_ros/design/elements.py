@@ -1,10 +1,12 @@
-"""The library of plan elements `sofia design` chooses from, and the choice (docs/design.md).
+"""The libraries of plan elements `sofia design` chooses from, and the choice (docs/design.md).
 
 Each element is one plan element of docs/plans.md (the only maneuvers the calibration node can
-fly): Table 3.4's moves at another elevation, LOS rotations, holds at a LOS angle, a longer
-hold. Temperature is not among them: no plan can command it (docs/plans.md). The library is
-flown once, on the nominal truth after the minimal alignment, to learn each element's geometry
-and flight time; an element is then summarized by its profiled information.
+fly), or a temperature step and the slews flown after it. The alignment's: Table 3.4's moves at
+another elevation, LOS rotations, holds at a LOS angle, a longer hold, and where the truth's
+thermal control allows, temperature steps. The star hop's: holds on the plan's stars, a longer
+hold, and holds with the star placed across a camera's field. A library is flown once, on the
+nominal truth after a short campaign, to learn each element's geometry and flight time; an
+element is then summarized by its profiled information.
 """
 
 from __future__ import annotations
@@ -18,16 +20,24 @@ import numpy as np
 from sofia_ros.design.separation import Information, expected_delta_bic, noncentrality, sigma_of
 from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['ALIGNMENT_LIBRARY', 'Choice', 'Element', 'Hypothesis', 'Prediction', 'choose_elements', 'predict',
-           'smallest_flight_s']
+__all__ = ['ALIGNMENT_LIBRARY', 'STAR_HOP_HOLD_S', 'STAR_HOP_PLACEMENTS', 'THERMAL_SLEW_ELEVATIONS_DEG',
+           'THERMAL_SLEW_HOLD_S', 'Choice', 'Element', 'Hypothesis', 'Prediction', 'choose_elements', 'is_thermal',
+           'predict', 'smallest_flight_s', 'star_hop_library', 'thermal_library', 'with_thermal_resets']
 
 
 @dataclass(frozen=True)
 class Element:
-    """One plan element of the library: a short name and its plan-file mapping."""
+    """One element of the library: a short name, its plan-file mapping, and any plan elements flown right after it as
+    part of it (a temperature step, then the moves that see the new temperature)."""
 
     name: str
     document: Mapping
+    then: tuple = ()
+
+    @property
+    def plan_elements(self) -> list:
+        """The plan-file mappings it flies, in order."""
+        return [dict(self.document), *(dict(step) for step in self.then)]
 
 
 #: Elevations and LOS angles inside the door drive's 20-60 deg and the fine drive's +-3 deg (docs/plans.md).
@@ -42,6 +52,103 @@ ALIGNMENT_LIBRARY = (
     Element('hold 180 s at LOS 0 deg', {'hold': {'duration_s': 180.0, 'los_deg': 0.0, 'elevation_deg': 40.0}}),
 )
 
+#: Where the star hop's placed holds put the star: two opposite corners of HIPO and of the FPI, arcsec from the
+#: detector's centre along its pixel axes, two thirds of each half field (plans.md refuses the outer 10 %). A rotation
+#: of field moves opposite corners in opposite directions, a boresight offset moves them alike, and HIPO's own centre
+#: is no longer where the star sits: what tells imager terms from HIPO's fiducial and from each other. The FFI's
+#: corners are left out: out there the placement asks the fine drive for more than its +-3 deg once the Earth has
+#: walked it along XEL (a flight of the library ended so at 600" from the FFI's centre).
+STAR_HOP_PLACEMENTS = (
+    ('hipo', (110.0, 100.0)), ('hipo', (-110.0, -100.0)),
+    ('fpi', (170.0, 170.0)), ('fpi', (-170.0, -170.0)),
+)
+#: The star hop's short and long holds (s): its own observations' length, and about one 5.2 min period of the tracker
+#: drift (6.3) in a single hold.
+STAR_HOP_HOLD_S = (60.0, 320.0)
+
+
+def star_hop_library(stars: Sequence[str]) -> tuple:
+    """The star hop's elements for a plan observing ``stars``: each placement of STAR_HOP_PLACEMENTS on its last star
+    (no slew), a hold on each of its stars (more stars, other elevations), and a longer hold on the last.
+
+    Args:
+        stars: the plan's observed stars in order (catalogue names).
+
+    Returns:
+        The Elements.
+    """
+    home = stars[-1]
+    short_s, long_s = STAR_HOP_HOLD_S
+    # The long hold last: the Earth walks the fine drive along XEL while a star is held, and the placements need room.
+    elements = [Element(f'{home} {short_s:.0f} s at {camera.upper()} ({x:+.0f}", {y:+.0f}")',
+                        {'hold': {'star': home, 'duration_s': short_s, 'camera': camera,
+                                  'detector_offset_arcsec': [x, y]}})
+                for camera, (x, y) in STAR_HOP_PLACEMENTS]
+    elements += [Element(f'hold {short_s:.0f} s on {star}', {'hold': {'star': star, 'duration_s': short_s}})
+                 for star in (home, *(star for star in dict.fromkeys(stars) if star != home))]
+    elements.append(Element(f'hold {long_s:.0f} s on {home}', {'hold': {'star': home, 'duration_s': long_s}}))
+    return tuple(elements)
+
+
+#: The elevations a temperature step's slews visit (25 and 55 deg from wherever the telescope is): a scale factor
+#: shows only while the telescope turns, and a slew of tens of degrees turns it far more than Table 3.4's moves.
+THERMAL_SLEW_ELEVATIONS_DEG = (25.0, 55.0)
+#: How long the telescope waits at each of them, s: enough for the frames of the position.
+THERMAL_SLEW_HOLD_S = 20.0
+
+
+def thermal_library(min_c: float, max_c: float, time_constant_s: float) -> tuple:
+    """The alignment's thermal elements for a truth whose thermal control reaches ``min_c``..``max_c``.
+
+    A step to each end held one time constant, then slews to 25 and 55 deg (short holds there) while the temperature
+    still follows it: a temperature-dependent scale factor against a constant one. And a step to the warm end held
+    two and a half time constants, alone: a temperature-driven shift against one that follows time.
+
+    Args:
+        min_c: the control's lowest setpoint (deg C).
+        max_c: its highest.
+        time_constant_s: how slowly the temperature follows the setpoint (s).
+
+    Returns:
+        The Elements.
+    """
+    elements = []
+    for verb, target, elevations in (('warm', max_c, THERMAL_SLEW_ELEVATIONS_DEG),
+                                     ('cool', min_c, THERMAL_SLEW_ELEVATIONS_DEG[::-1])):
+        slews = tuple({'hold': {'duration_s': THERMAL_SLEW_HOLD_S, 'elevation_deg': elevation}}
+                      for elevation in elevations)
+        elements.append(Element(f'{verb} to {target:.0f} C for {time_constant_s:.0f} s, then slews to '
+                                f'{elevations[0]:.0f} and {elevations[1]:.0f} deg',
+                                {'temperature': {'target_c': target, 'duration_s': time_constant_s}}, slews))
+    held_s = 2.5 * time_constant_s
+    elements.append(Element(f'warm to {max_c:.0f} C, held {held_s:.0f} s',
+                            {'temperature': {'target_c': max_c, 'duration_s': held_s}}))
+    return tuple(elements)
+
+
+def is_thermal(element: Element) -> bool:
+    """Whether ``element`` commands the temperature."""
+    return any('temperature' in step for step in element.plan_elements)
+
+
+def with_thermal_resets(elements: Sequence[Element], reset: Element) -> tuple:
+    """``elements`` in the library flight's order, with ``reset`` after each temperature step that another element
+    follows: each is then flown from the night's own temperature, as in a designed plan, not from the last step's.
+
+    Args:
+        elements: the library.
+        reset: a temperature element back to the night's temperature, held long enough to get there.
+
+    Returns:
+        The flight's elements (the library's and the resets).
+    """
+    flight = []
+    for index, element in enumerate(elements):
+        flight.append(element)
+        if is_thermal(element) and index < len(elements) - 1:
+            flight.append(reset)
+    return tuple(flight)
+
 
 @dataclass(frozen=True)
 class Hypothesis:
@@ -54,9 +161,11 @@ class Hypothesis:
 
 @dataclass(frozen=True)
 class Prediction:
-    """Expected delta-BIC for each direction ('A true' -> 'B' loses by), and the members' sigmas."""
+    """Expected delta-BIC for each direction ('A true' -> 'B' loses by), what of the true member's signature the rival
+    leaves (lambda / s^2, the non-centrality in noise units), and the members' sigmas."""
 
     separation: dict
+    signature_left: dict
     sigma: dict
     rows: int
 
@@ -64,6 +173,10 @@ class Prediction:
     def weakest(self) -> float:
         """The smaller of the two directions: the separation whichever member is true."""
         return min(self.separation.values())
+
+    def weakest_of(self, directions: Sequence[str]) -> float:
+        """The smallest separation among ``directions`` (the true members' names)."""
+        return min(self.separation[name] for name in directions)
 
 
 def predict(information: Information, shared: Sequence[str], first: Hypothesis, second: Hypothesis,
@@ -80,14 +193,15 @@ def predict(information: Information, shared: Sequence[str], first: Hypothesis, 
     Returns:
         The Prediction; separation keys are the true member's name.
     """
-    separation, sigma = {}, {}
+    separation, left, sigma = {}, {}, {}
     for true, rival in ((first, second), (second, first)):
         value = noncentrality(information, true.labels, true.values, rival.labels, shared)
         separation[true.name] = expected_delta_bic(value, len(true.labels), len(rival.labels), information.rows,
                                                    variance)
+        left[true.name] = value / variance
         fitted = [*shared, *true.labels]
         sigma[true.name] = dict(zip(fitted, sigma_of(information, fitted, variance).tolist()))
-    return Prediction(separation, sigma, information.rows)
+    return Prediction(separation, left, sigma, information.rows)
 
 
 @dataclass(frozen=True)
@@ -107,8 +221,8 @@ def smallest_flight_s(flight_s: Sequence[float]) -> float:
 
 def choose_elements(base: Information, elements: Sequence[Information], flight_s: Sequence[float],
                     shared: Sequence[str], first: Hypothesis, second: Hypothesis, variance: float, *,
-                    target: float, budget_s: float) -> Choice:
-    """The fewest elements (then the shortest flight) whose expected delta-BIC reaches ``target`` both ways.
+                    target: float, budget_s: float, directions: Sequence[str] | None = None) -> Choice:
+    """The fewest elements (then the shortest flight) whose expected delta-BIC reaches ``target`` in ``directions``.
 
     Every subset within the budget is tried (a library of a few elements: at most 2^n small
     matrix sums). When none reaches the target, the subset within the budget with the largest
@@ -122,8 +236,10 @@ def choose_elements(base: Information, elements: Sequence[Information], flight_s
         first: member A.
         second: member B.
         variance: s^2 of the whitened residuals.
-        target: the delta-BIC to reach in both directions.
+        target: the delta-BIC to reach in each of ``directions``.
         budget_s: the largest flight time allowed.
+        directions: the true members' names whose separation counts (default both; a direction the rival reproduces
+            whatever is flown is left out by the caller).
 
     Returns:
         The Choice.
@@ -134,6 +250,7 @@ def choose_elements(base: Information, elements: Sequence[Information], flight_s
     if budget_s < smallest_flight_s(flight_s):
         raise InvalidArgumentError(f'a budget of {budget_s:.0f} s is below the shortest element '
                                    f'({smallest_flight_s(flight_s):.0f} s); raise --budget-s')
+    directions = (first.name, second.name) if directions is None else tuple(directions)
     best = None
     for size in range(1, len(elements) + 1):
         subsets = sorted(itertools.combinations(range(len(elements)), size),
@@ -146,9 +263,10 @@ def choose_elements(base: Information, elements: Sequence[Information], flight_s
             for index in subset:
                 information = information + elements[index]
             prediction = predict(information, shared, first, second, variance)
-            choice = Choice(subset, seconds, prediction, prediction.weakest >= target)
+            weakest = prediction.weakest_of(directions)
+            choice = Choice(subset, seconds, prediction, weakest >= target)
             if choice.reached:
                 return choice
-            if best is None or prediction.weakest > best.prediction.weakest:
+            if best is None or weakest > best.prediction.weakest_of(directions):
                 best = choice
     return best

@@ -116,6 +116,20 @@ def _labels(free: Sequence[FreeParameter]) -> tuple:
 
 
 def element_windows(calibration: Mapping) -> list:
-    """(index, kind, start_s, end_s) of each flown plan element in a calibration result (docs/plans.md)."""
-    return [(int(entry['index']), str(entry['kind']), float(entry['start_s']), float(entry['end_s']))
-            for entry in calibration.get('elements') or []]
+    """(index, kind, start_s, end_s) of each flown plan element in a calibration result (docs/plans.md).
+
+    An alignment element records its window (start_s, end_s); a star hop's hold records only its hold window, and
+    its flight starts where the hold before it ended (the star hop flies its elements back to back after the last
+    observation): the slew, acquisition and placement are part of what it costs and of what it measures.
+    """
+    previous_end = max((float(entry['hold_end_s']) for entry in calibration.get('observations') or []), default=None)
+    windows = []
+    for entry in calibration.get('elements') or []:
+        end = float(entry['end_s'] if 'end_s' in entry else entry['hold_end_s'])
+        if 'start_s' in entry:
+            start = float(entry['start_s'])
+        else:  # a star hop's hold; the first of a record without observations starts with its hold
+            start = previous_end if previous_end is not None else float(entry['hold_start_s'])
+        windows.append((int(entry['index']), str(entry['kind']), start, end))
+        previous_end = end
+    return windows

@@ -6,7 +6,9 @@
 2. The library flight: the same columns over each element's window of a bag that flew the
    library on the nominal truth; each element's profiled information and flight time.
 3. Each element's expected separation per minute, each set's prediction, the choice
-   (design.elements.choose_elements).
+   (design.elements.choose_elements). A direction in which the rival reproduces the true member
+   even with every element flown (REPRODUCED_BELOW) is one no plan can separate: it is named,
+   and the choice is made for the other.
 """
 
 from __future__ import annotations
@@ -22,13 +24,18 @@ from sofia_ros.design.geometry import BagColumns, bag_columns, element_windows, 
 from sofia_ros.design.separation import Information, fitted_values, rss_drop
 from sofia_ros.errors import BagError, ConfigError
 
-__all__ = ['DesignDocument', 'ElementEntry', 'check_members', 'design_plan', 'flown_elements', 'member_name']
+__all__ = ['REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'check_members', 'design_plan', 'flown_elements',
+           'member_name']
+
+#: A true member's signature that the rival leaves less of than this (lambda / s^2, in units of the noise variance)
+#: is one it reproduces: the BIC cannot see it, only the members' parameter counts.
+REPRODUCED_BELOW = 1.0
 
 class ElementEntry(TypedDict):
-    """One library element in the JSON: what it is, how long it flies, what it adds."""
+    """One library element in the JSON: what it is (its plan elements), how long it flies, what it adds."""
 
     name: str
-    element: dict
+    element: list
     flight_s: float
     separation: dict
     separation_per_minute: dict
@@ -58,6 +65,7 @@ class DesignDocument(TypedDict):
     sigma_after: dict
     skipped: list
     whole_library: dict
+    reproduced: list
 
 
 def member_name(member: Sequence[str]) -> str:
@@ -87,10 +95,12 @@ def flown_elements(calibration_text: str | None, library_elements: Sequence[Elem
 
     Args:
         calibration_text: the flight's calibration result (calibration.yaml's text).
-        library_elements: the elements its plan listed, in order.
+        library_elements: the elements its plan listed, in order (an element of several plan elements takes as many
+            consecutive indices).
 
     Returns:
-        ([(Element, start_s, end_s)], [skipped names]).
+        ([(Element, start_s, end_s)], [skipped names]): an element's window runs from its first plan element's start to
+        its last one's end; an element any of whose plan elements was not flown is skipped.
 
     Raises:
         BagError: the flight has no calibration result.
@@ -98,8 +108,14 @@ def flown_elements(calibration_text: str | None, library_elements: Sequence[Elem
     if not calibration_text:
         raise BagError('the library flight has no calibration result; delete it so that it is flown again')
     flown = {index: (start, end) for index, _, start, end in element_windows(yaml.safe_load(calibration_text))}
-    windows = [(element, *flown[index]) for index, element in enumerate(library_elements, start=1) if index in flown]
-    skipped = [element.name for index, element in enumerate(library_elements, start=1) if index not in flown]
+    windows, skipped, first = [], [], 1
+    for element in library_elements:
+        indices = range(first, first + len(element.plan_elements))
+        first = indices.stop
+        if all(index in flown for index in indices):
+            windows.append((element, flown[indices[0]][0], flown[indices[-1]][1]))
+        else:
+            skipped.append(element.name)
     return windows, skipped
 
 
@@ -149,11 +165,13 @@ def design_plan(observations: object, library_observations: object, windows: Seq
         members: the two members, each a list of effect names.
         flight_s: the old bag's flight time (s).
         budget_s: the largest addition (s).
-        target: the expected delta-BIC to reach in both directions.
+        target: the expected delta-BIC to reach in both directions (in the one left, where the rival reproduces the
+            other member whatever is flown).
         anchor_spacing_s: seconds between attitude anchors.
 
     Returns:
-        The DesignDocument (``status``: already_separated, designed or not_reached).
+        The DesignDocument (``status``: already_separated; inseparable, where a direction no element can separate is
+        left and the others are separated already; designed or not_reached).
 
     Raises:
         ConfigError: a member already in the model.
@@ -177,9 +195,17 @@ def design_plan(observations: object, library_observations: object, windows: Seq
         alone = predict(base + information, shared, first, second, variance)
         per_minute = {name: 60.0 * (alone.separation[name] - before.separation[name]) / seconds
                       for name in alone.separation}
-        entries.append(ElementEntry(name=element.name, element=dict(element.document), flight_s=round(seconds, 1),
+        entries.append(ElementEntry(name=element.name, element=element.plan_elements, flight_s=round(seconds, 1),
                                     separation=alone.separation, separation_per_minute=per_minute,
                                     sigma_ratio=_sigma_ratio(before, alone)))
+    whole = base
+    for _, information, _ in elements:
+        whole = whole + information
+    with_all = predict(whole, shared, first, second, variance)
+    # A direction the rival reproduces even with every element flown is one no plan of these elements can separate:
+    # the choice is made for the others.
+    reproduced = [name for name, left in with_all.signature_left.items() if left < REPRODUCED_BELOW]
+    separable = [name for name in before.separation if name not in reproduced]
     document = DesignDocument(
         bag=str(observations.bag_path), model=model.source, members=[member_name(m) for m in members],
         shared=shared, flight_s=round(flight_s, 1), budget_s=round(budget_s, 1), target_delta_bic=target,
@@ -187,19 +213,17 @@ def design_plan(observations: object, library_observations: object, windows: Seq
         observed_delta_bic={member_name(m): _observed_delta_bic(old, base, member_labels(m)) for m in members},
         before=before.separation, elements=entries, status='already_separated', chosen=[], chosen_flight_s=0.0,
         flight_share=0.0, predicted=before.separation, sigma_before=before.sigma, sigma_after=before.sigma,
-        skipped=list(skipped), whole_library={})
-    if before.weakest >= target:
+        skipped=list(skipped), reproduced=reproduced,
+        whole_library={'flight_s': round(sum(seconds for _, _, seconds in elements), 1),
+                       'separation': with_all.separation, 'signature_left': with_all.signature_left})
+    if not separable or before.weakest_of(separable) >= target:
+        document['status'] = 'inseparable' if reproduced else 'already_separated'
         return document
     choice: Choice = choose_elements(base, [information for _, information, _ in elements],
                                      [seconds for _, _, seconds in elements], shared, first, second, variance,
-                                     target=target, budget_s=budget_s)
-    whole = base
-    for _, information, _ in elements:
-        whole = whole + information
+                                     target=target, budget_s=budget_s, directions=separable)
     document.update(status='designed' if choice.reached else 'not_reached',
-                    whole_library={'flight_s': round(sum(seconds for _, _, seconds in elements), 1),
-                                   'separation': predict(whole, shared, first, second, variance).separation},
-                    chosen=[{'name': elements[index][0].name, 'element': dict(elements[index][0].document)}
+                    chosen=[{'name': elements[index][0].name, 'element': elements[index][0].plan_elements}
                             for index in choice.indices],
                     chosen_flight_s=round(choice.flight_s, 1), flight_share=choice.flight_s / flight_s,
                     predicted=choice.prediction.separation, sigma_after=choice.prediction.sigma)

@@ -29,10 +29,11 @@ from sofia_ros.progress import Progress
 __all__ = ['add_design_arguments', 'run_design']
 
 _MAX_JSON_BYTES = 64 << 20
-#: The library flight's own sequence at its least sim time (the alignment: one iteration, the fewest maneuvers, of the
-#: boresight series its last position; the star hop: observations back to back)...
+#: The library flight's own sequence at its least sim time (the alignment: one iteration, the fewest maneuvers, no
+#: boresight series; the star hop: observations back to back)...
 _LIBRARY_BASE = {
-    'alignment': {'campaign': 'alignment', 'repetitions': 2, 'verification_repetitions': 1, 'max_iterations': 1},
+    'alignment': {'campaign': 'alignment', 'repetitions': 2, 'verification_repetitions': 1,
+                  'flexure_elevations_deg': [], 'max_iterations': 1},
     'star-hop': {'campaign': 'star-hop', 'follow_times': False},
 }
 #: ...and the bag's own values of the fields that shape an element (frames averaged, drift track, move sizes, the
@@ -177,9 +178,6 @@ def _library_document(elements: tuple, old_plan: Any) -> dict:
                                                if name in _ELEMENT_FIELDS[campaign]}}
     if campaign == 'star-hop':
         document['observations'] = old['observations'][-_STAR_HOP_LEAD_OBSERVATIONS:]
-    else:
-        # The old plan's last boresight position only: the first element slews from where the designed plan's will.
-        document['flexure_elevations_deg'] = list(old.get('flexure_elevations_deg', []))[-1:]
     return {**document, 'elements': [step for element in elements for step in element.plan_elements]}
 
 

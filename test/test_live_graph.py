@@ -37,17 +37,19 @@ from sofia_ros.sim.graph import DEFAULT_MAX_SIM_S
 from sofia_ros.topics import DEFAULT_TICK_NS, GYRO_IMU, STOP_DOCUMENT
 
 ROOT = Path(__file__).resolve().parents[1]
-NOMINAL = load_effect_config(ROOT / 'config/truth/nominal.yaml')
-# The whole sequence in 443 s of sim time (691 s with three frames per position and four elevations):
-# one frame, and a boresight series of two elevations, which still publishes on every topic of the
-# full plan (the coarse drive's commands and MTBS_INERTIAL only in the series).
-SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=10.0, frames_per_position=1,
-                      flexure_elevations_deg=(23.0, 59.0))
+#: The nominal truth with a thermal control, so that a plan's temperature element commands it (docs/plans.md).
+TRUTH = load_effect_config(ROOT / 'config/truth/nominal-thermal.yaml')
+# The whole sequence in 301 s of sim time: one frame per position, 2 deg LOS moves, a boresight series of one
+# elevation and a 5 s temperature hold, which still publishes on every topic of the graph (the coarse drive's
+# commands and MTBS_INERTIAL only in the series, /thermal_control/command only for a temperature element).
+SHORT = AlignmentPlan(repetitions=2, verification_repetitions=1, drift_track_s=5.0, frames_per_position=1,
+                      los_angle_deg=2.0, flexure_elevations_deg=(23.0,),
+                      elements_yaml='- temperature: {target_c: 23.0, duration_s: 5.0}\n')
 
 
 @pytest.fixture(scope='module')
 def direct_run(tmp_path_factory):
-    return run_alignment(NOMINAL, seed=21, bag_path=tmp_path_factory.mktemp('direct') / 'bag', plan=SHORT,
+    return run_alignment(TRUTH, seed=21, bag_path=tmp_path_factory.mktemp('direct') / 'bag', plan=SHORT,
                          mode='direct')
 
 
@@ -100,7 +102,7 @@ def test_live_graph_writes_the_lock_step_runs_bag(direct_run, tmp_path, mode):
     # topic with the same type, QoS, count, log times and bytes (sofia_ros.bag.digest). /result/stop
     # (why a live run stopped) exists over DDS only (docs/bag.md).
     with _parameter_visitor(tmp_path):
-        live = run_alignment(NOMINAL, seed=21, bag_path=tmp_path / mode, plan=SHORT, mode=mode, timeout_s=500)
+        live = run_alignment(TRUTH, seed=21, bag_path=tmp_path / mode, plan=SHORT, mode=mode, timeout_s=500)
     assert live.summary['accepted'] == direct_run.summary['accepted'] is True
     np.testing.assert_array_equal(yaml.safe_load(live.result_yaml)['tarf_from_gyrf'],
                                   yaml.safe_load(direct_run.result_yaml)['tarf_from_gyrf'])
@@ -110,7 +112,7 @@ def test_live_graph_writes_the_lock_step_runs_bag(direct_run, tmp_path, mode):
         assert digests[topic] == digest, f'{topic}: {mode} differs from direct'
     counts = _topic_counts(live.bag_path)
     assert all(counts.values()), counts  # every topic of the graph carried messages (SHORT above)
-    assert direct[GYRO_IMU.name][2] == 400 * round(live.summary['sim_seconds'])  # every 400 Hz sample
+    assert direct[GYRO_IMU.name][2] == round(400 * live.summary['sim_seconds'])  # every 400 Hz sample
 
 
 def _wait_until_running(graph, sim_s=5.0, timeout_s=180.0):
@@ -137,7 +139,7 @@ def _wait_until_running(graph, sim_s=5.0, timeout_s=180.0):
 
 def _truth_file(tmp_path):
     path = tmp_path / 'truth.yaml'
-    path.write_text(NOMINAL.text)
+    path.write_text(TRUTH.text)
     return path
 
 

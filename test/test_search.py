@@ -108,3 +108,49 @@ def test_a_model_that_holds_the_truth_is_left_as_it_is():
     models = LinearizedModels.at_fit(residual, jacobian, free, values, ANCHORS, candidates)
     assert _best_change(models, {'gyro_bias'}) is None
     assert equivalent_models(models, {'gyro_bias'}) == []
+
+
+class _FakeFit:
+    """What search_model reads of a fit: its BIC and its effects."""
+
+    def __init__(self, bic, effects):
+        self.bic = bic
+        self.effects = effects
+
+
+class _FakeComparison:
+    """A comparison whose verdict and candidates are given: search_model's loop without fitting."""
+
+    def __init__(self, model, bic, status, step, candidates=(), competing=()):
+        self.final_fit = _FakeFit(bic, {name: dict(params) for name, params in model.effects.items()})
+        self.document = {'verdict': {'status': status, 'next': step}, 'residual_rms_arcsec': {'total': 0.3},
+                         'candidates': [{'effect': name, 'delta_bic': gain, 'refined': True, 'params': {}}
+                                        for name, gain in candidates],
+                         'competing': [{'effects': list(members)} for members in competing],
+                         'equivalent_models': [], 'model_change': {'delta_bic': 0.0}}
+
+
+def test_the_search_stops_once_every_queued_step_ends_beyond_the_equivalence_margin_of_an_explained_model():
+    from sofia_ros.compare.search import search_model
+    from sofia_ros.config import parse_effect_config
+
+    start = parse_effect_config('effects:\n  gyro_bias: {fit: true}\n', 'the model given')
+    # From the start, the verdict adds the fiducial error (expected BIC 100) and its competitor the boresight
+    # offset is queued beside it (expected 1000 - 820 = 180, more than 10 above the fiducial error's end).
+    bic_of = {frozenset({'gyro_bias'}): 1000.0, frozenset({'gyro_bias', 'hipo_fiducial_error'}): 100.0}
+    compared = []
+
+    def compare(observations, model):
+        compared.append(set(model.fitted))
+        if model.fitted == {'gyro_bias'}:
+            return _FakeComparison(model, bic_of[model.fitted], 'missing_effect',
+                                   {'action': 'add', 'effect': 'hipo_fiducial_error', 'term': None},
+                                   candidates=[('hipo_fiducial_error', 900.0), ('imager_boresight_offset', 820.0)],
+                                   competing=[('hipo_fiducial_error', 'imager_boresight_offset')])
+        return _FakeComparison(model, bic_of.get(model.fitted, 200.0), 'explained',
+                               {'action': 'none', 'effect': None, 'term': None})
+
+    _, found, rounds, _ = search_model(None, start, compare, rounds=12)
+    assert found.fitted == {'gyro_bias', 'hipo_fiducial_error'}
+    assert compared == [{'gyro_bias'}, {'gyro_bias', 'hipo_fiducial_error'}]
+    assert len(rounds) == 2

@@ -260,3 +260,10 @@ def test_a_control_and_a_two_effect_truth_searched_on_the_local_cluster(tmp_path
                                            filter(None, row['final_removed'].split(',')), row['verdict'], stated,
                                            filter(None, row['absorbed'].split(',')))
     assert 'truths: right = exact' in captured.out and (out / 'report' / 'index.html').exists()
+
+
+def test_the_truths_of_several_campaigns_take_turns_so_that_a_partial_atlas_has_both():
+    grid = grid_from_lists(**{**BASE, 'campaigns': ['alignment:reduced', 'star-hop:reduced']},
+                           draws=truth_draws(3, [2], 7), controls=1, search_rounds=3)
+    order = [(task.campaign, task.truth_index) for task in grid.tasks()]
+    assert order == [(campaign, number) for number in range(4) for campaign in ('alignment', 'star-hop')]

@@ -129,18 +129,23 @@ class AtlasGrid:
 
     def iter_tasks(self) -> Iterator[AtlasTask]:
         """Every cell, campaigns outermost and seeds innermost (a partial atlas covers every effect early), then
-        each campaign's truths.
+        the truths, truth i of every campaign before truth i + 1 (a partial atlas covers every campaign).
 
         One at a time, so a grid of a million tasks is never a list of them.
         """
-        for index, (campaign, variant) in enumerate(self.campaigns):
+        for campaign, variant in self.campaigns:
             for seed in self.seeds:
                 for size in self.sizes:
                     for effect in self.effects:
                         yield AtlasTask(effect, size, campaign, variant, seed)
-                for number, effects in enumerate(self.truths[index] if self.truths else ()):
-                    yield AtlasTask(truth_label(effects), 1.0 if effects else 0.0, campaign, variant, seed + number,
-                                    number, self.search_rounds)
+        truths = self.truths or ((),) * len(self.campaigns)
+        for seed in self.seeds:
+            for number in range(max(map(len, truths), default=0)):
+                for (campaign, variant), campaign_truths in zip(self.campaigns, truths):
+                    if number < len(campaign_truths):
+                        effects = campaign_truths[number]
+                        yield AtlasTask(truth_label(effects), 1.0 if effects else 0.0, campaign, variant,
+                                        seed + number, number, self.search_rounds)
 
     def tasks(self) -> list[AtlasTask]:
         """Every cell as a list (iter_tasks' order)."""

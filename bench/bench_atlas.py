@@ -8,7 +8,7 @@ round trip against the task's own wall time inside the worker (what Dask adds ar
 pickling, scheduling, the result's way back). Throughput: all N tasks through run_distributed on a
 LocalCluster of one worker, then of two: tasks per minute and the 2/1 scaling ratio. Wall times on a
 shared machine move with its load, so CPU seconds (this process's, the workers' through psutil) and
-the load average are printed beside them. Target: overhead <= 5 %.
+the load average are printed beside them. Target: overhead <= 5 %. Written: bench/results/atlas.{json,txt}.
 
 Run: .venv/bin/python bench/bench_atlas.py [--tasks N]
 """
@@ -29,6 +29,7 @@ from sofia_ros.atlas.engine import dask_client, run_distributed  # noqa: E402
 from sofia_ros.atlas.grid import grid_from_lists  # noqa: E402
 from sofia_ros.atlas.store import ResultStore  # noqa: E402
 from sofia_ros.atlas.task import TaskSetup, run_task  # noqa: E402
+from results_file import Transcript, current_load, write_results  # noqa: E402
 
 EFFECT = 'imager_rotation_of_field'
 
@@ -61,16 +62,19 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--tasks', type=int, default=6, help='tasks per way (default 6)')
     args = parser.parse_args()
+    transcript = Transcript()
+    load_before = current_load()
     grid = grid_from_lists(effects=[EFFECT], sizes=[1.0], campaigns=['alignment:minimal'],
                            seeds=list(range(1, args.tasks + 1)), candidates=[EFFECT, 'timestamp_offset'])
     tasks = grid.tasks()
     setup = TaskSetup(grid.truth, grid.model, grid.candidates, None, 'bench')
-    print(f'{len(tasks)} tasks: {EFFECT} x1 in alignment:minimal, seeds 1..{len(tasks)}; {os.cpu_count()} cores')
+    transcript.say(f'{len(tasks)} tasks: {EFFECT} x1 in alignment:minimal, seeds 1..{len(tasks)}; '
+                   f'{os.cpu_count()} cores')
 
     import sofia_ros.campaigns.alignment  # noqa: F401  (the loop's imports, as _warm does for the workers)
     import sofia_ros.compare.run  # noqa: F401
 
-    print(f'load before: {_load()}')
+    transcript.say(f'load before: {_load()}')
     loop_s, dask_s, inside_s, loop_cpu_s = [], [], [], 0.0
     with dask_client(None, workers=1) as client:
         _warm(client)
@@ -85,14 +89,15 @@ def main():
             dask_s.append(time.perf_counter() - started)
             inside_s.append(row['wall_s'])
             assert row['error'] is None, row['error']
-            print(f'  seed {task.seed}: loop {loop_s[-1]:6.1f} s, dask round trip {dask_s[-1]:6.1f} s '
-                  f'({row["wall_s"]:.1f} s inside the worker); load {_load()}')
-    print(f'overhead, paired: dask round trips {sum(dask_s):.1f} s against the loop\'s {sum(loop_s):.1f} s '
-          f'({100 * (sum(dask_s) - sum(loop_s)) / sum(loop_s):+.1f} %, load-dependent); what Dask adds around a task: '
-          f'{sum(dask_s) - sum(inside_s):.2f} s in {len(tasks)} tasks, '
-          f'{100 * (sum(dask_s) - sum(inside_s)) / sum(inside_s):.2f} % of their time (target <= 5 %); '
-          f'loop CPU {loop_cpu_s / len(tasks):.2f} s/task')
-    print(f'plain loop: {60 * len(tasks) / sum(loop_s):5.2f} tasks/min')
+            transcript.say(f'  seed {task.seed}: loop {loop_s[-1]:6.1f} s, dask round trip {dask_s[-1]:6.1f} s '
+                           f'({row["wall_s"]:.1f} s inside the worker); load {_load()}')
+    transcript.say(f'overhead, paired: dask round trips {sum(dask_s):.1f} s against the loop\'s {sum(loop_s):.1f} s '
+                   f'({100 * (sum(dask_s) - sum(loop_s)) / sum(loop_s):+.1f} %, load-dependent); '
+                   f'what Dask adds around a task: '
+                   f'{sum(dask_s) - sum(inside_s):.2f} s in {len(tasks)} tasks, '
+                   f'{100 * (sum(dask_s) - sum(inside_s)) / sum(inside_s):.2f} % of their time (target <= 5 %); '
+                   f'loop CPU {loop_cpu_s / len(tasks):.2f} s/task')
+    transcript.say(f'plain loop: {60 * len(tasks) / sum(loop_s):5.2f} tasks/min')
 
     results = {}
     folder = tempfile.TemporaryDirectory(prefix='bench_atlas_')
@@ -110,12 +115,17 @@ def main():
         rows = store.read().to_pylist()
         assert len(rows) == len(tasks) and all(row['error'] is None for row in rows)
         results[workers] = wall_s
-        print(f'dask {workers} worker{"s" if workers > 1 else " "}: {wall_s:7.1f} s wall, {cpu_s:6.1f} s CPU in the '
-              f'workers ({cpu_s / len(tasks):.2f} s/task), {60 * len(tasks) / wall_s:5.2f} tasks/min; cluster start-up '
-              f'{startup_s:.1f} s apart; load {_load()}')
+        transcript.say(f'dask {workers} worker{"s" if workers > 1 else " "}: {wall_s:7.1f} s wall, {cpu_s:6.1f} s CPU '
+                       f'in the workers ({cpu_s / len(tasks):.2f} s/task), {60 * len(tasks) / wall_s:5.2f} tasks/min; '
+                       f'cluster start-up {startup_s:.1f} s apart; load {_load()}')
     folder.cleanup()
-    print(f'scaling 2 workers / 1 worker: {results[1] / results[2]:.2f}x (2 cores shared with other jobs: '
-          f'load {_load()})')
+    transcript.say(f'scaling 2 workers / 1 worker: {results[1] / results[2]:.2f}x (2 cores shared with other jobs: '
+                   f'load {_load()})')
+    write_results('atlas', {'tasks': len(tasks), 'loop_s': loop_s, 'dask_round_trip_s': dask_s,
+                            'inside_worker_s': inside_s, 'loop_cpu_s_per_task': loop_cpu_s / len(tasks),
+                            'dask_overhead_fraction': (sum(dask_s) - sum(inside_s)) / sum(inside_s),
+                            'wall_s_by_workers': results, 'scaling_2_over_1': results[1] / results[2]},
+                  transcript.lines, load_before=load_before)
 
 
 if __name__ == '__main__':

@@ -305,8 +305,7 @@ def _print_reproduced(document: dict, out: TextIO) -> None:
         print(f'if {name} is true, {rival} reproduces it in the bag and in every element (it leaves '
               f'{whole["signature_left"][name]:.2f} noise units of it with the whole library, '
               f'{whole["flight_s"]:.0f} s): no plan of these elements separates them that way; the delta-BIC stays '
-              f'the parameter penalty, {document["before"][name]:.1f} (the member with fewer parameters wins)',
-              file=out)
+              f'what their parameter counts make it, {document["before"][name]:.1f}', file=out)
 
 
 def _ways(separation: dict) -> str:

@@ -354,7 +354,8 @@ def _plan(campaign, steps):
 
 @pytest.mark.parametrize('campaign', ['alignment', 'star-hop'])
 def test_every_library_element_is_a_plan_sofia_run_flies(campaign):
-    """The elements --plan-out appends pass the checks of `sofia run --plan`, the thermal ones with the thermal truth."""
+    """The elements --plan-out appends pass the checks of `sofia run --plan` (the thermal ones: with the thermal
+    truth)."""
     from sofia_ros.campaigns.plan_files import check_plan_with_truth, plan_from_document
     from sofia_ros.config import load_effect_config
     from sofia_ros.scenario import Scenario, scenario_from_mapping
@@ -455,3 +456,15 @@ def test_a_direction_the_rival_reproduces_is_left_out_of_the_choice():
     choice = choose_elements(base, elements, flight_s, ['m.0'], weak, second, 1.0, target=20.0, budget_s=250.0,
                              directions=['b'])
     assert choice.reached and choice.prediction.separation['a'] < 20.0 <= choice.prediction.separation['b']
+
+
+def test_the_star_hop_library_holds_at_most_three_other_stars_the_last_observed():
+    from sofia_ros.design.elements import STAR_HOP_OTHER_STARS, star_hop_library
+    from sofia_ros.sim.star_hop import table_d3_offsets_s
+
+    stars = [star for star, _ in table_d3_offsets_s()]
+    held = [element.document['hold']['star'] for element in star_hop_library(stars)
+            if 'camera' not in element.document['hold']]
+    others = [star for star in dict.fromkeys(stars) if star != stars[-1]]
+    assert len(others) > STAR_HOP_OTHER_STARS
+    assert held == [stars[-1], *others[-STAR_HOP_OTHER_STARS:], stars[-1]]

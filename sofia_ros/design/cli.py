@@ -256,7 +256,8 @@ def _print_design(document: dict, out: TextIO) -> None:
     print(f'  model {document["model"]}; shared fitted terms: {len(document["shared"])}', file=out)
     for name, sizes in document['sizes'].items():
         sigma = document['sigma_before'][name]
-        text = ', '.join(f'{label.split(".", 1)[1]} {value:.4g} +- {sigma[label]:.2g}' for label, value in sizes.items())
+        text = ', '.join(f'{label.split(".", 1)[1]} {value:.4g} +- {sigma[label]:.2g}'
+                         for label, value in sizes.items())
         print(f'  {name}: fitted size {text}; delta-BIC on the bag {document["observed_delta_bic"][name]:.0f}',
               file=out)
     before = document['before']

@@ -20,9 +20,10 @@ import numpy as np
 from sofia_ros.design.separation import Information, expected_delta_bic, noncentrality, sigma_of
 from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['ALIGNMENT_LIBRARY', 'STAR_HOP_HOLD_S', 'STAR_HOP_PLACEMENTS', 'THERMAL_SLEW_ELEVATIONS_DEG',
-           'THERMAL_SLEW_HOLD_S', 'Choice', 'Element', 'Hypothesis', 'Prediction', 'choose_elements', 'is_thermal',
-           'predict', 'smallest_flight_s', 'star_hop_library', 'thermal_library', 'with_thermal_resets']
+__all__ = ['ALIGNMENT_LIBRARY', 'STAR_HOP_HOLD_S', 'STAR_HOP_OTHER_STARS', 'STAR_HOP_PLACEMENTS',
+           'THERMAL_SLEW_ELEVATIONS_DEG', 'THERMAL_SLEW_HOLD_S', 'Choice', 'Element', 'Hypothesis', 'Prediction',
+           'choose_elements', 'is_thermal', 'predict', 'smallest_flight_s', 'star_hop_library', 'thermal_library',
+           'with_thermal_resets']
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,9 @@ STAR_HOP_PLACEMENTS = (
     ('hipo', (110.0, 100.0)), ('hipo', (-110.0, -100.0)),
     ('fpi', (170.0, 170.0)), ('fpi', (-170.0, -170.0)),
 )
+#: How many of a plan's other stars the star hop's library holds (a 17-observation plan has six stars; each costs a
+#: slew and an acquisition in the library flight, and doubles the subsets the choice tries).
+STAR_HOP_OTHER_STARS = 3
 #: The star hop's short and long holds (s): its own observations' length, and about one 5.2 min period of the tracker
 #: drift (6.3) in a single hold.
 STAR_HOP_HOLD_S = (60.0, 320.0)
@@ -69,7 +73,8 @@ STAR_HOP_HOLD_S = (60.0, 320.0)
 
 def star_hop_library(stars: Sequence[str]) -> tuple:
     """The star hop's elements for a plan observing ``stars``: each placement of STAR_HOP_PLACEMENTS on its last star
-    (no slew), a hold on each of its stars (more stars, other elevations), and a longer hold on the last.
+    (no slew), a hold on it and on the other stars first observed last (more stars, other elevations), and a longer
+    hold on the last.
 
     Args:
         stars: the plan's observed stars in order (catalogue names).
@@ -84,8 +89,10 @@ def star_hop_library(stars: Sequence[str]) -> tuple:
                         {'hold': {'star': home, 'duration_s': short_s, 'camera': camera,
                                   'detector_offset_arcsec': [x, y]}})
                 for camera, (x, y) in STAR_HOP_PLACEMENTS]
+    # Of the other stars, those first observed last (the likeliest still in reach), in the plan's order.
+    others = [star for star in dict.fromkeys(stars) if star != home][-STAR_HOP_OTHER_STARS:]
     elements += [Element(f'hold {short_s:.0f} s on {star}', {'hold': {'star': star, 'duration_s': short_s}})
-                 for star in (home, *(star for star in dict.fromkeys(stars) if star != home))]
+                 for star in (home, *others)]
     elements.append(Element(f'hold {long_s:.0f} s on {home}', {'hold': {'star': home, 'duration_s': long_s}}))
     return tuple(elements)
 

@@ -468,3 +468,19 @@ def test_the_star_hop_library_holds_at_most_three_other_stars_the_last_observed(
     others = [star for star in dict.fromkeys(stars) if star != stars[-1]]
     assert len(others) > STAR_HOP_OTHER_STARS
     assert held == [stars[-1], *others[-STAR_HOP_OTHER_STARS:], stars[-1]]
+
+
+def test_the_thermal_library_flight_is_flown_on_the_nominal_truth_with_the_bags_control():
+    from sofia_ros.design.cli import _flight_elements, _library_truth
+    from sofia_ros.design.elements import thermal_library
+
+    control = {'min_c': 10.0, 'max_c': 35.0, 'max_rate_c_per_h': 60.0, 'time_constant_s': 120.0}
+    truth = _library_truth(control)
+    assert truth.scenario['thermal_control'] == control
+    assert set(truth.effects) == set(_library_truth(None).effects)
+    steps = thermal_library(10.0, 35.0, 120.0)
+    flight = _flight_elements(steps, truth, control)
+    # Back to the night's start temperature (the scenario's 22.8 C), held six time constants, between the steps.
+    assert [element.name for element in flight[1::2]] == ["back to the night's 22.8 C"] * 2
+    assert flight[1].document == {'temperature': {'target_c': 22.8, 'duration_s': 720.0}}
+    assert _flight_elements(steps, truth, None) == steps

@@ -31,6 +31,7 @@ __all__ = ['REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'check_members'
 #: is one it reproduces: the BIC cannot see it, only the members' parameter counts.
 REPRODUCED_BELOW = 1.0
 
+
 class ElementEntry(TypedDict):
     """One library element in the JSON: what it is (its plan elements), how long it flies, what it adds."""
 

@@ -417,8 +417,7 @@ def search_model(observations: Observations, model: EffectConfig,
                  ) -> tuple[_ComparisonT, EffectConfig, list[SearchRound], list[dict[str, Any]]]:
     """A best-first search over models: compare one, queue the steps it suggests (the verdict's next step and the
     other members of a competing set, each with the BIC it is expected to reach), compare the most promising
-    model not yet compared, until nothing is queued, ``rounds`` comparisons are made, or every step queued is
-    expected to end EQUIVALENT_DELTA_BIC or more above an explained model already compared. The answer is the
+    model not yet compared, until nothing is queued or ``rounds`` comparisons are made. The answer is the
     explained model with the lowest BIC (else the lowest BIC); the others explained within EQUIVALENT_DELTA_BIC
     of it are its equivalents. ``compare(observations, model)`` is compare.run.compare_observations with its
     options. Returns the answer's CompareResult, its model (EffectConfig), the SearchRounds and the equivalents
@@ -441,22 +440,15 @@ def search_model(observations: Observations, model: EffectConfig,
     if not low <= rounds <= high:
         raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')
     history, compared, queue, order = [], {}, [(0.0, 0, model, 'the model given')], 0
-    best_explained_bic = np.inf
     while queue and len(compared) < rounds:
         queue.sort(key=lambda item: (item[0], item[1]))
-        expected_bic, _, model, how = queue.pop(0)
+        _, _, model, how = queue.pop(0)
         if model.fitted in compared:
             continue
-        # Once a model explains every observable, a step expected to end further than the equivalence margin above
-        # it can neither be the answer nor one of its equivalents; the best-first order makes every later one so.
-        if expected_bic >= best_explained_bic + EQUIVALENT_DELTA_BIC:
-            break
         progress(f'search: round {len(compared) + 1}/{rounds}, {how}')
         result = compare(observations, model)
         verdict = result.document['verdict']
         compared[model.fitted] = (result, model)
-        if verdict['status'] == 'explained':
-            best_explained_bic = min(best_explained_bic, float(result.final_fit.bic))
         steps = _steps(result)
         history.append(SearchRound(round=len(compared), fitted=sorted(model.fitted), status=verdict['status'],
                                    rms_arcsec=result.document['residual_rms_arcsec'].get('total'),

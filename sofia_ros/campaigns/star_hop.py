@@ -67,9 +67,12 @@ def run_star_hop(truth, *, seed, bag_path, plan=None, mode='executor', model_tex
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)
     result = yaml.safe_load(result_yaml)
+    elements = result.get('elements', [])
+    skipped = [f'element {element["index"]} ({element["kind"]}): {element["skipped"]}'
+               for element in elements if 'skipped' in element]
     summary = {'sim_seconds': round(sim_seconds, 3), 'wall_seconds': round(wall_seconds, 3),
                'finished': bool(result.get('accepted')), 'observations': len(result.get('observations', [])),
-               'elements': len(result.get('elements', []))}
+               'elements': len(elements) - len(skipped), 'elements_skipped': skipped}
     if not summary['finished']:
         summary['reason'] = result.get('reason', 'not finished')
     finish_run(bag_path, summary, fault,

@@ -21,10 +21,11 @@ from typing import ClassVar
 
 import numpy as np
 import yaml
+from diagnostic_msgs.msg import DiagnosticStatus
 
 from sofia_ros import messages as m
 from sofia_ros.calibration.published import EQ_6_1
-from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.errors import CalibrationAbort, InvalidArgumentError
 from sofia_ros.graph_nodes import IMAGERS
 from sofia_ros.sim.sequence import (
     TOPICS,
@@ -180,12 +181,39 @@ class StarHopCore(SequenceCore):
             yield from self._park()
         for index, element in enumerate(self.plan.elements, 1):
             self._progress('element', {'index': index, 'kind': element.kind, 'star': element.star})
-            flown = yield from getattr(self, f'_fly_{element.kind}')(element)
-            self.record.setdefault('elements', []).append({'index': index, **flown})
+            start_s = self.stamp_ns / m.NS_PER_S
+            flown = yield from self._fly_within_reach(index, element)
+            # The park that ends the element is part of its flight: the windows run back to back.
             yield from self._park()
+            self.record.setdefault('elements', []).append(
+                {'index': index, **flown, 'start_s': start_s, 'end_s': self.stamp_ns / m.NS_PER_S})
         self._progress('finished')
         self.outbox.append((TOPICS['result'].name, m.string_msg(yaml.safe_dump(
             {'accepted': True, 'campaign': 'star-hop', **self.record}, sort_keys=False))))
+
+    def _fly_within_reach(self, index, element):
+        """The element flown; skipped, with the TASCU's reason, where it refuses one of its commands.
+
+        The Earth's turn walks the fine drive while a star is held (the aircraft has no azimuth drive), so whether a
+        star or a placement on a detector is within the drives' travel is known only when it is commanded: the TASCU
+        refuses such a command (the move is never flown), and the rest of the plan goes on.
+        """
+        try:
+            return (yield from getattr(self, f'_fly_{element.kind}')(element))
+        except CalibrationAbort:
+            refusal = self._latest_refusal()
+            if refusal is None:  # a timeout: the graph itself is at fault, not the element
+                raise
+        self._progress('element_skipped', {'index': index, 'kind': element.kind, 'star': element.star,
+                                            'reason': refusal}, DiagnosticStatus.WARN)
+        return {'kind': element.kind, 'star': element.star, 'skipped': f"out of the telescope's reach: {refusal}"}
+
+    def _latest_refusal(self):
+        """The TASCU's reason for refusing the latest command it answered; None if it did not refuse it."""
+        if not self.command_status:
+            return None
+        answer = self.command_status[max(self.command_status)]
+        return answer[len('refused: '):] if answer.startswith('refused: ') else None
 
     def _centre_element_star(self, element):
         """The element's star centred in HIPO (from an imager that shows it, else pointed at); its record."""

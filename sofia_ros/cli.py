@@ -192,6 +192,8 @@ def _run_star_hop(spec, args):
         progress.close()
     print(f'bag: {args.bag}  ({summary["sim_seconds"]:.1f} s sim in {summary["wall_seconds"]:.1f} s wall; '
           f'{summary["observations"]} observations)')
+    for line in summary.get('elements_skipped', []):
+        print(f'sofia run: warning: {line}', file=sys.stderr)
     if not summary['finished']:
         print(f'star hop NOT finished: {summary["reason"]}')
     print(f'analyze it: sofia compare {args.bag} --model config/model/nominal.yaml')

@@ -341,6 +341,17 @@ def test_a_star_hop_hold_is_flown_from_where_the_hold_before_it_ended():
     assert element_windows(calibration) == [(1, 'hold', 460.0, 550.0), (2, 'hold', 550.0, 640.0)]
 
 
+def test_an_element_the_telescope_could_not_reach_has_no_window():
+    """A skipped element (its star or placement refused) was not flown: it measures nothing and costs no flight."""
+    from sofia_ros.design.geometry import element_windows
+
+    calibration = {'elements': [
+        {'index': 1, 'kind': 'hold', 'start_s': 460.0, 'end_s': 470.0,
+         'skipped': "out of the telescope's reach: fine drive XEL +3.06 deg beyond +-3"},
+        {'index': 2, 'kind': 'hold', 'start_s': 470.0, 'end_s': 560.0, 'hold_start_s': 500.0, 'hold_end_s': 560.0}]}
+    assert element_windows(calibration) == [(2, 'hold', 470.0, 560.0)]
+
+
 def _libraries():
     from sofia_ros.design.elements import ALIGNMENT_LIBRARY, star_hop_library, thermal_library
 

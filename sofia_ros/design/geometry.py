@@ -125,6 +125,8 @@ def element_windows(calibration: Mapping) -> list:
     previous_end = max((float(entry['hold_end_s']) for entry in calibration.get('observations') or []), default=None)
     windows = []
     for entry in calibration.get('elements') or []:
+        if 'skipped' in entry:  # not flown: no star in reach, or the TASCU refused its star or placement
+            continue
         end = float(entry['end_s'] if 'end_s' in entry else entry['hold_end_s'])
         if 'start_s' in entry:
             start = float(entry['start_s'])

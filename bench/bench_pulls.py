@@ -1,10 +1,12 @@
 """Benchmark: the atlas' pull table for every visible catalogue effect, judged (issue 25, "Honest fitted values").
 
-Each grid file (default: bench/pulls*.yaml: the visible effects of sofia_ros.atlas.grid.VISIBLE_EFFECTS at
-0.5x and 1x their defaults, 5 seeds) is run with `sofia atlas --grid G --out OUT/<grid> --workers W` (a
-resumable table: run it again to finish an interrupted grid), then its rows are read and the atlas' own
-"Fit bias and scatter against the reported sigma" table (sofia_ros.atlas.stats.fit_calibration) is printed
-with a verdict per cell (effect, campaign variant, size, reference parameter):
+Each grid file (default: DEFAULT_GRIDS, the alignment's: the visible effects of
+sofia_ros.atlas.grid.VISIBLE_EFFECTS at 0.5x and 1x their defaults, 5 seeds, and the borderline cells at 10 seeds;
+bench/pulls_star_hop_reduced.yaml, 90 star hops, only when given with --grid) is run with
+`sofia atlas --grid G --out OUT/<grid> --workers W` (a resumable table: run it again to finish an interrupted grid),
+then its rows are read and the atlas' own "Fit bias and scatter against the reported sigma" table
+(sofia_ros.atlas.stats.fit_calibration) is printed with a verdict per cell (effect, campaign variant, size,
+reference parameter):
 
 - PASS: |mean pull| <= 1 and pull scatter <= 2 (issue 25's must-show);
 - FAIL: either bound broken;
@@ -45,6 +47,8 @@ from sofia_ros.atlas.stats import Calibration, fit_calibration  # noqa: E402
 #: Issue 25's bounds on an honest pull: its mean within 1, its scatter within 2.
 MAX_ABS_PULL_MEAN = 1.0
 MAX_PULL_SCATTER = 2.0
+#: The grids run without --grid: the alignment's (a star hop's grid takes hours: give it with --grid).
+DEFAULT_GRIDS = ('pulls_alignment_minimal.yaml', 'pulls_ten_seeds.yaml', 'pulls_gyro_ten_seeds.yaml')
 UNCONSTRAINED_SOURCE = ('compare gives no sigma for any fitted value of the cell (null in its JSON, inf in memory; '
                         'docs/compare.md candidates[].sigma: "null for a parameter the data do not determine")')
 
@@ -102,7 +106,7 @@ def table_lines(cells: list[dict]) -> list[str]:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--grid', type=Path, action='append',
-                        help='grid file (repeatable; default bench/pulls*.yaml)')
+                        help=f'grid file (repeatable; default {", ".join(DEFAULT_GRIDS)} in bench/)')
     parser.add_argument('--out', type=Path, default=Path('/tmp/bench_pulls'),
                         help='where the atlas tables go, one folder per grid (default /tmp/bench_pulls)')
     parser.add_argument('--workers', type=int, default=1, help='Dask workers (default 1: a shared machine)')
@@ -110,7 +114,7 @@ def main():
     parser.add_argument('--note', action='append', default=[], metavar='GRID=TEXT',
                         help='what code ran a grid (e.g. a patch not in the commit), by its file stem; repeatable')
     args = parser.parse_args()
-    grids = args.grid or sorted((ROOT / 'bench').glob('pulls*.yaml'))
+    grids = args.grid or [ROOT / 'bench' / name for name in DEFAULT_GRIDS]
     notes = dict(note.split('=', 1) for note in args.note)
     load_before, started = _load(), dt.datetime.now(dt.timezone.utc)
     report, lines = {'date': started.isoformat(timespec='seconds'), 'commit': _commit(), 'workers': args.workers,

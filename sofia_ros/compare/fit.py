@@ -366,7 +366,7 @@ def _huber_curvature(whitened):
     return (np.abs(whitened) <= HUBER_K).astype(float)
 
 
-def _newton_applies(whitened, parameter_columns):
+def _newton_applies(whitened, huber_weights, parameter_columns):
     """Whether Newton's step can be trusted: few rows beyond k, and each parameter keeps a share of its re-weighted
     curvature inside k. A parameter measured only by rows beyond k has no Newton curvature (a HIPO clock offset,
     seen only while the telescope moves, on a model that lacks an effect): Newton's step leaves it where it is."""
@@ -375,7 +375,7 @@ def _newton_applies(whitened, parameter_columns):
         return False
     squares = parameter_columns**2
     inside = (~beyond).astype(float) @ squares
-    reweighted = _huber_weights(whitened) @ squares
+    reweighted = huber_weights @ squares
     return bool(np.all(inside >= _NEWTON_CURVATURE_SHARE * reweighted))
 
 
@@ -465,20 +465,22 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
         columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
         anchor_columns = problem.anchor_columns(current, derivative)
         current_cost = cost(whitened, anchors)
+        huber = _huber_weights(whitened)
 
         def solved(curvature_weights):
             return normal_equations_fit(*normal_equations(
                 anchor_columns, columns, anchor_prior, whitened, curvature_weights, -(problem.prior @ anchors.ravel()),
-                gradient_weights=_huber_weights(whitened)), names, rows)
+                gradient_weights=huber), names, rows)
 
         def accepted(step, halvings):
             """The step's largest fraction (1, 1/2, ...) that does not raise the cost, and its prediction."""
+            anchor_step, parameter_step = step.step[:anchors.size].reshape(anchors.shape), step.step[anchors.size:]
             scale = 1.0
             for _ in range(halvings + 1):
-                trial = _try_predicted(problem, effects, free, values + scale * step.step[anchors.size:],
-                                       anchors + scale * step.step[:anchors.size].reshape(anchors.shape))
-                if trial is not None and cost(problem.whiten(trial), anchors + scale * step.step[
-                        :anchors.size].reshape(anchors.shape)) <= current_cost * (1.0 + 1e-12):
+                trial = _try_predicted(problem, effects, free, values + scale * parameter_step,
+                                       anchors + scale * anchor_step)
+                if trial is not None and cost(problem.whiten(trial), anchors + scale * anchor_step) <= current_cost * (
+                        1.0 + 1e-12):
                     return scale, trial
                 scale /= 2.0
             return None, None
@@ -488,11 +490,11 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
         # missing effect, 12 iterations stopping 2 % of a sigma short. Where it does not apply, or raises the cost,
         # the re-weighted step is taken.
         scale = None
-        if _newton_applies(whitened, columns):
+        if _newton_applies(whitened, huber, columns):
             step = solved(_huber_curvature(whitened))
             scale, trial = accepted(step, 0)
         if scale is None:
-            step = solved(_huber_weights(whitened))
+            step = solved(huber)
             scale, trial = accepted(step, 7)
         if scale is None:
             break

@@ -1,6 +1,6 @@
 """Issue 25, "Honest fitted values": a HIPO parameter's sigma must not follow another camera's noise floor.
 
-compare whitens each camera's rows by its own floor (compare.floor.centroid_noise_arcsec), then scales the
+compare whitens each camera's rows by its own floor (compare.floor.centroid_noise_arcsec). It used to scale the
 whole covariance by one s^2 = RSS / (n - k). On the minimal alignment (seed 2, 0.3" seeing)
 the imagers' floors come out too large and HIPO's right: the mean square whitened residual is 0.56-0.67 for FPI,
 FFI and WFI against 1.18 for HIPO. The one s^2, set by the WFI's 2850 rows, then shrinks HIPO's sigmas by 1.3:
@@ -8,10 +8,9 @@ that seed's pull of hipo_fiducial_error.center_x_px is -3.0 with the reported si
 variance.
 
 The test doubles the WFI's floor on the session's reduced alignment (seed 3), which changes what HIPO's centre
-can be known to by little, and asks that its reported sigma stay within 10 %. Today it falls by 31 % (0.0354 px
+can be known to by little, and asks that its reported sigma stay within 10 %. With one s^2 it fell by 31 % (0.0354 px
 to 0.0243 px; on the seed-2 minimal alignment by 22 %); with each camera's rows at their own residual variance
-(a sandwich covariance: the change proposed for compare/fit.py) it moves by 2 % (0.0356 px to 0.0364 px). Strict
-xfail until that change lands: it then passes, and the marker must go.
+(compare.fit.camera_sandwich_covariance) it moves by 2 % (0.0356 px to 0.0364 px).
 """
 
 from __future__ import annotations
@@ -40,8 +39,6 @@ def _hipo_centre_sigma(source: BagSource, noise_arcsec: np.ndarray) -> float:
     return float(fit.sigma[[parameter.name for parameter in fit.free].index('center_x_px')])
 
 
-@pytest.mark.xfail(strict=True, reason='compare/fit.py scales every camera by one s^2 (issue 25: the sandwich '
-                                       'covariance per camera is proposed, not yet in)')
 def test_hipo_sigma_does_not_follow_the_wfi_floor(campaign_bags):
     text = (ROOT / 'config' / 'model' / 'nominal.yaml').read_text() + '  hipo_fiducial_error: {fit: true}\n'
     model = parse_effect_config(text, 'nominal + hipo_fiducial_error')

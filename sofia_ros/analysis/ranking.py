@@ -138,7 +138,7 @@ def _gram(matrix):
 
 
 @dataclass(frozen=True)
-class _NormalInverse:
+class NormalInverse:
     """Pseudo-inverse of a Gram matrix, column-scaled, and its null space: Cholesky where that is the inverse, else eigh."""
 
     matrix: np.ndarray
@@ -179,7 +179,7 @@ def normal_pseudo_inverse(gram: np.ndarray) -> np.ndarray:
     Returns:
         (k, k) its pseudo-inverse.
     """
-    return _NormalInverse.of(gram).matrix
+    return NormalInverse.of(gram).matrix
 
 
 def _well_conditioned_inverse(scaled):
@@ -247,7 +247,7 @@ def normal_equations_fit(gram: np.ndarray, gradient: np.ndarray, rss_after: Call
     """
     names = tuple(names)
     k = len(names)
-    inverse = _NormalInverse.of(gram)
+    inverse = NormalInverse.of(gram)
     step = inverse.matrix @ gradient
     rss = rss_after(step)
     covariance = inverse.covariance(rss / max(n - k, 1))
@@ -325,7 +325,7 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
     residual, base_jacobian = _checked(residual, base_jacobian)
     n, k_base = base_jacobian.shape
     # Frisch-Waugh-Lovell through the base's normal equations: P x = J (J^T J)^+ J^T x.
-    base_inverse = _NormalInverse.of(_gram(base_jacobian)).matrix
+    base_inverse = NormalInverse.of(_gram(base_jacobian)).matrix
 
     def project_out(matrix):
         return matrix - base_jacobian @ (base_inverse @ (base_jacobian.T @ matrix))

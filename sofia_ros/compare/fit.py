@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import bic, normal_equations_fit
+from sofia_ros.analysis.ranking import NormalInverse, bic, normal_equations_fit
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
@@ -144,6 +144,66 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
         return float(weights @ data**2 + after_prior @ after_prior)
 
     return gram, gradient, rss_after
+
+
+def camera_variance_ratios(whitened: np.ndarray, weights: np.ndarray, row_camera: np.ndarray,
+                           camera_count: int) -> np.ndarray:
+    """Each camera's weighted mean square whitened residual: the square of its real noise over its floor.
+
+    Args:
+        whitened: the data rows' whitened residuals (2N).
+        weights: their Huber weights (2N).
+        row_camera: each data row's camera index (2N).
+        camera_count: the number of cameras.
+
+    Returns:
+        (camera_count,) the ratios (1 where a camera's floor is its noise).
+    """
+    squares = np.bincount(row_camera, weights * whitened**2, camera_count)
+    return squares / np.maximum(np.bincount(row_camera, minlength=camera_count), 1)
+
+
+def camera_sandwich_covariance(anchor_columns: scipy.sparse.csr_matrix, parameter_columns: np.ndarray,
+                               anchor_prior: AnchorPrior, whitened: np.ndarray, weights: np.ndarray,
+                               prior_residual: np.ndarray, row_camera: np.ndarray,
+                               camera_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sigma and correlation of the free parameters with each camera's rows at their own residual variance.
+
+    The floors (compare.floor) can be off by a different factor for each camera: on the minimal alignment the
+    imagers' come out 1.3-1.6 times their residual scatter and HIPO's right, and one s^2 = RSS / (n - k), set by
+    the WFI's rows, then shrinks HIPO's sigmas by 1.3 (issue 25, the pull table's hipo_fiducial_error). The
+    covariance of the estimate actually made is the sandwich G^+ (J^T W S W J + P) G^+, G = J^T W J + P, S each
+    row's camera ratio (camera_variance_ratios), P the anchors' prior.
+
+    Args:
+        anchor_columns: whitened d data rows / d anchors (2N, 3K), sparse.
+        parameter_columns: whitened d data rows / d free parameters (2N, P).
+        anchor_prior: the anchors' prior.
+        whitened: the data rows' whitened residuals (2N).
+        weights: their Huber weights (2N).
+        prior_residual: the prior rows' residuals.
+        row_camera: each data row's camera index (2N).
+        camera_count: the number of cameras.
+
+    Returns:
+        (P,) the sigmas (inf for a parameter the data do not determine) and (P, P) the correlation.
+    """
+    gram = normal_equations(anchor_columns, parameter_columns, anchor_prior, whitened, weights, prior_residual)[0]
+    ratios = camera_variance_ratios(whitened, weights, row_camera, camera_count)
+    meat = normal_equations(anchor_columns, parameter_columns, anchor_prior, whitened,
+                            weights**2 * ratios[row_camera], prior_residual)[0]
+    inverse = NormalInverse.of(gram)
+    parameters = slice(anchor_columns.shape[1], None)
+    bread = inverse.matrix[parameters]
+    covariance = bread @ meat @ bread.T
+    unconstrained = inverse.unconstrained[parameters]
+    sigma = np.sqrt(np.diag(covariance))
+    sigma[unconstrained] = np.inf
+    with np.errstate(invalid='ignore', divide='ignore'):
+        correlation = covariance / np.outer(sigma, sigma)
+    correlation[unconstrained, :] = np.nan
+    correlation[:, unconstrained] = np.nan
+    return sigma, correlation
 
 
 @dataclass(frozen=True, eq=False)
@@ -510,11 +570,12 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     current = with_values(effects, free, values)
     weights = _huber_weights(whitened)
     prior_residual = -(problem.prior @ anchors.ravel())
-    final = normal_equations_fit(*normal_equations(anchor_columns, columns, anchor_prior, whitened, weights,
-                                                   prior_residual), names, rows)
-    parameters = slice(anchors.size, None)
+    centroids = predictor.observations.centroids
+    sigma, correlation = camera_sandwich_covariance(anchor_columns, columns, anchor_prior, whitened, weights,
+                                                    prior_residual, np.repeat(centroids.camera_index, 2),
+                                                    len(centroids.cameras))
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)
-    return ModelFit(current, free, values, final.sigma[parameters], final.correlation[parameters, parameters],
+    return ModelFit(current, free, values, sigma, correlation,
                     anchors, residual_arcsec, whitened, prior_residual, anchor_columns, columns, anchor_prior, weights,
                     outlier, iteration)

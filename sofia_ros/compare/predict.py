@@ -534,11 +534,11 @@ class Predictor:
             return np.zeros((len(times), 3))
         return self.anchor_rotations_rad(anchors_rad, times)
 
-    def _project_camera_px(self, effects, index, in_tarf, times):
+    def _project_camera_px(self, effects, index, rows_in_tarf, times):
         """Pixels (rows, 2) of one camera's rows from their TARF star directions through its model."""
         rows = self._camera_rows[index]
         errors, mounting, context = self._camera_model(effects, index, times)
-        pixels = vector_to_pixel(np.einsum('nij,nj->ni', mounting, in_tarf[rows]), errors.detector)
+        pixels = vector_to_pixel(np.einsum('nij,nj->ni', mounting, rows_in_tarf), errors.detector)
         if errors.shift_plugins:
             pixels = shifted_centroids_px(errors, pixels, context, self.observations.centroids.hip[rows])
         return pixels
@@ -547,7 +547,7 @@ class Predictor:
         """Pixels (N, 2) of TARF star directions through each camera's model."""
         predicted = np.empty((len(times), 2))
         for index, rows in enumerate(self._camera_rows):
-            predicted[rows] = self._project_camera_px(effects, index, in_tarf, times)
+            predicted[rows] = self._project_camera_px(effects, index, in_tarf[rows], times)
         return predicted
 
     def tarf_directions(self, effects: Mapping[str, EffectParams], anchors_rad: npt.ArrayLike | None = None) -> np.ndarray:
@@ -579,6 +579,42 @@ class Predictor:
         """
         return self._project_px(effects, self.tarf_directions(effects, anchors_rad), self.row_times_s(effects))
 
+    def camera_rows(self, camera_index: int) -> slice | np.ndarray:
+        """The rows of one camera (a slice where they are contiguous), as predict_px orders them.
+
+        Args:
+            camera_index: the camera's index in the centroids' cameras.
+
+        Returns:
+            The rows.
+        """
+        return self._camera_rows[camera_index]
+
+    def predict_camera_px(self, effects: Mapping[str, EffectParams], camera_index: int,
+                          anchors_rad: npt.ArrayLike | None = None) -> np.ndarray:
+        """predict_px's rows of one camera (camera_rows), computed alone and not cached: a row's prediction depends
+        on its own time only, so a trial that moves one camera's times (a HIPO clock offset) costs that camera's rows.
+
+        Args:
+            effects: the model's effects and parameters.
+            camera_index: the camera's index in the centroids' cameras.
+            anchors_rad: (knots, 3) the attitude anchors (rad), or None for none.
+
+        Returns:
+            (n, 2) the camera's predicted centroids (px).
+        """
+        rows = self._camera_rows[camera_index]
+        all_times = self.row_times_s(effects)
+        times = all_times[rows]
+        directions = self._directions_of(effects, self._hip_row[rows], times)
+        correction = self._anchor_correction(anchors_rad, times)
+        if np.any(correction):
+            directions = np.einsum('nij,nj->ni', _dcms_from_rotvecs(correction), directions)
+        tick_attitudes, increments = self._gyro_track(effects)
+        attitudes = attitudes_at(times, self._tick_end_s, tick_attitudes, increments)
+        return self._project_camera_px(effects, camera_index, np.einsum('nij,nj->ni', attitudes, directions),
+                                       all_times)
+
     def reprojected_px(self, effects: Mapping[str, EffectParams], cameras: Iterable[int], in_tarf: np.ndarray,
                        predicted_px: npt.ArrayLike) -> np.ndarray:
         """predict_px under ``effects``, which change only the models of the cameras (indices) against the effect set
@@ -596,7 +632,8 @@ class Predictor:
         times = self.row_times_s(effects)
         pixels = np.array(predicted_px, dtype=float)
         for index in cameras:
-            pixels[self._camera_rows[index]] = self._project_camera_px(effects, index, in_tarf, times)
+            rows = self._camera_rows[index]
+            pixels[rows] = self._project_camera_px(effects, index, in_tarf[rows], times)
         return pixels
 
     def irf_derivative_px(self, effects: Mapping[str, EffectParams], anchors_rad: npt.ArrayLike | None, predicted_px: np.ndarray,

@@ -10,6 +10,16 @@ terms while the BIC falls (an empirical shape pays EMPIRICAL_PENALTY more than p
 shape that only mimics an effect does not take its place); the model it ends on is fitted in
 full and linearized again, until a round changes nothing. The models within EQUIVALENT_DELTA_BIC
 of the end are the equivalence class the data allow.
+
+A comparison fits its model along a path (the ledger: the fixed effects, then each fitted term in
+the model's order, each step from the one before), and a path can end in another minimum than the
+full refit that proposed the model reached for the same terms: the terms fitted before the new one
+have absorbed its part along a near-degenerate direction (an equal rotation of the imagers against
+the gyro misalignment about the LOS) and the last step cannot take it back. Such a comparison
+judges a fit that is not the model's best; the search compares the same terms again, the terms it
+added fitted in reverse order (the newest first), instead of building on it (issue 25: a gyro
+scale factor added last ended 155,000 BIC above its refit, and a HIPO fiducial error the truth
+lacks was added to escape).
 """
 
 from __future__ import annotations
@@ -49,8 +59,6 @@ SEARCH_POOL = 14
 #: Rounds of search and full refit (each a whole comparison) at most; the range --search-rounds takes.
 MAX_SEARCH_ROUNDS = 12
 SEARCH_ROUNDS_RANGE = (1, 20)
-#: Moves of one linearized search at most (each adds, removes or swaps one term).
-_MAX_MOVES = 30
 
 
 @dataclass(frozen=True)
@@ -371,25 +379,63 @@ def _next_model(model, result, step):
 
 
 def _steps(result):
-    """The steps worth trying from a comparison, each with the BIC it is expected to reach: the verdict's next
-    step, and adding each other refitted physical member of the best candidate's competing set instead."""
+    """The steps worth trying from a comparison, each with the BIC it is expected to reach and whether a full refit
+    of the model it leads to reached that BIC (else a linearized guess): the verdict's next step, and adding each
+    other refitted physical member of the best candidate's competing set instead."""
     document = result.document
     bic_now = float(result.final_fit.bic)
     scores = {c['effect']: c['delta_bic'] for c in document['candidates']}
+    refined = {c['effect'] for c in document['candidates'] if c['refined']}
     step = document['verdict']['next']
     steps = []
     if step['action'] == 'add':
-        steps.append((bic_now - scores[step['effect']], step))
+        steps.append((bic_now - scores[step['effect']], step, step['effect'] in refined))
     elif step['action'] in ('remove', 'replace'):
-        steps.append((bic_now - document['model_change']['delta_bic'], step))
-    refined = {c['effect'] for c in document['candidates'] if c['refined']}
+        # model_change's delta_bic is that of its full refit (compare.pipeline)
+        steps.append((bic_now - document['model_change']['delta_bic'], step, True))
     for entry in document['competing']:
         if step['effect'] not in entry['effects']:
             continue
         for name in entry['effects']:
             if name != step['effect'] and name in refined and not is_empirical(name):
-                steps.append((bic_now - scores[name], {'action': 'add', 'effect': name, 'term': None}))
+                steps.append((bic_now - scores[name], {'action': 'add', 'effect': name, 'term': None}, True))
     return steps
+
+
+def _step_label(step):
+    return ' '.join(filter(None, (step['action'], step['term'], step['effect'])))
+
+
+def _newest_first(model, given):
+    """``model`` with the fitted terms the search added to ``given`` moved behind the others in reverse order (the
+    newest first): the comparison's ledger then fits them along another path."""
+    added = [name for name in model.effects if name in model.fitted and name not in given.fitted]
+    effects = {name: params for name, params in model.effects.items() if name not in added}
+    effects.update((name, model.effects[name]) for name in reversed(added))
+    return EffectConfig(effects, model.fitted, model.scenario, model.text, model.source)
+
+
+@dataclass(frozen=True)
+class _Queued:
+    """A model the search may compare: the BIC it is expected to reach, when it was queued (ties: first queued
+    first), how it was reached, the BIC a full refit of it already reached (None: a linearized guess) and by how
+    much more a comparison may miss it, and whether it is the same terms compared again after a comparison lost
+    that refit's minimum."""
+
+    expected_bic: float
+    order: int
+    model: EffectConfig
+    how: str
+    refit_bic: float | None = None
+    lost_margin: float = 0.0
+    again: bool = False
+
+    def lost(self, bic: float, given: EffectConfig) -> bool:
+        """Whether a comparison of this model that ended at ``bic`` lost the refit's minimum, and fitting the terms
+        the search added newest first is another path to it."""
+        if self.again or self.refit_bic is None or bic <= self.refit_bic + self.lost_margin:
+            return False
+        return list(_newest_first(self.model, given).effects) != list(self.model.effects)
 
 
 def _difference(other, best):
@@ -417,7 +463,10 @@ def search_model(observations: Observations, model: EffectConfig,
                  ) -> tuple[_ComparisonT, EffectConfig, list[SearchRound], list[dict[str, Any]]]:
     """A best-first search over models: compare one, queue the steps it suggests (the verdict's next step and the
     other members of a competing set, each with the BIC it is expected to reach), compare the most promising
-    model not yet compared, until nothing is queued or ``rounds`` comparisons are made. The answer is the
+    model not yet compared, until nothing is queued or ``rounds`` comparisons are made. A comparison that ends
+    above the full refit that proposed its model by more than the competing margin of the step's gain lost that
+    minimum: the same terms are compared again, those the search added fitted newest first (where that is
+    another order), before any step from it. The answer is the
     explained model with the lowest BIC (else the lowest BIC); the others explained within EQUIVALENT_DELTA_BIC
     of it are its equivalents. ``compare(observations, model)`` is compare.run.compare_observations with its
     options. Returns the answer's CompareResult, its model (EffectConfig), the SearchRounds and the equivalents
@@ -439,28 +488,45 @@ def search_model(observations: Observations, model: EffectConfig,
     low, high = SEARCH_ROUNDS_RANGE
     if not low <= rounds <= high:
         raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')
-    history, compared, queue, order = [], {}, [(0.0, 0, model, 'the model given')], 0
-    while queue and len(compared) < rounds:
-        queue.sort(key=lambda item: (item[0], item[1]))
-        _, _, model, how = queue.pop(0)
-        if model.fitted in compared:
+    given = model
+    history, compared, queue, order = [], {}, [_Queued(0.0, 0, model, 'the model given')], 0
+    while queue and len(history) < rounds:
+        queue.sort(key=lambda item: (item.expected_bic, item.order))
+        item = queue.pop(0)
+        if item.model.fitted in compared and not item.again:
             continue
-        progress(f'search: round {len(compared) + 1}/{rounds}, {how}')
-        result = compare(observations, model)
-        verdict = result.document['verdict']
-        compared[model.fitted] = (result, model)
-        steps = _steps(result)
-        history.append(SearchRound(round=len(compared), fitted=sorted(model.fitted), status=verdict['status'],
-                                   rms_arcsec=result.document['residual_rms_arcsec'].get('total'),
-                                   bic=float(result.final_fit.bic),
-                                   moves=[' '.join(filter(None, (step['action'], step['term'], step['effect'])))
-                                          for _, step in steps]))
-        for expected_bic, step in steps:
+        progress(f'search: round {len(history) + 1}/{rounds}, {item.how}')
+        compared_now = compare(observations, item.model)
+        bic = float(compared_now.final_fit.bic)
+        earlier = compared.get(item.model.fitted)
+        if earlier is None or bic < earlier[0].final_fit.bic:
+            compared[item.model.fitted] = (compared_now, item.model)
+        # the steps go on from the best fit of these terms
+        result, model = compared[item.model.fitted]
+        if item.lost(bic, given):
+            # Its verdict is on a fit that is not the model's best: the same terms again, not steps from it.
+            label = (f'{item.how.partition(": ")[2]}, the terms added fitted newest first: this fit ended at BIC '
+                     f'{bic:.0f}, the refit that proposed it at {item.refit_bic:.0f}')
+            order += 1
+            queue.append(_Queued(item.refit_bic, order, _newest_first(item.model, given),
+                                 f'after round {len(history) + 1}: {label}', again=True))
+            steps, moves = [], [label]
+        else:
+            steps = _steps(result)
+            moves = [_step_label(step) for _, step, _ in steps]
+        history.append(SearchRound(round=len(history) + 1, fitted=sorted(item.model.fitted),
+                                   status=compared_now.document['verdict']['status'],
+                                   rms_arcsec=compared_now.document['residual_rms_arcsec'].get('total'), bic=bic,
+                                   moves=moves))
+        for expected_bic, step, refitted in steps:
             order += 1
             following = _next_model(model, result, step)
             if following.fitted not in compared:
-                label = ' '.join(filter(None, (step['action'], step['term'], step['effect'])))
-                queue.append((expected_bic, order, following, f'after round {len(compared)}: {label}'))
+                # a BIC difference within the competing margin of the gain is the fit's, not the model's
+                margin = competing_margin(float(result.final_fit.bic) - expected_bic, 0.0)
+                queue.append(_Queued(expected_bic, order, following,
+                                     f'after round {len(history)}: {_step_label(step)}',
+                                     expected_bic if refitted else None, margin))
     explained = {fitted: entry for fitted, entry in compared.items()
                  if entry[0].document['verdict']['status'] == 'explained'}
     pool = explained or compared

@@ -5,11 +5,13 @@ never takes back a term it added; when explanations compete it can end on the wr
 (issue 25). The search instead scores whole models. At a fit, every model reachable by switching
 the fitted terms off and the strongest candidates on is linearized (LinearizedModels: the Gram
 matrix of the residual, the switch vectors and the columns, with the attitude anchors projected
-out once), so that a model's BIC costs a small solve. A stepwise search adds, removes and swaps
-terms while the BIC falls (an empirical shape pays EMPIRICAL_PENALTY more than physics, so a
-shape that only mimics an effect does not take its place); the model it ends on is fitted in
-full and linearized again, until a round changes nothing. The models within EQUIVALENT_DELTA_BIC
-of the end are the equivalence class the data allow.
+out once), so that a model's BIC costs a small solve: each comparison questions its own terms with
+it (model_terms, structural_changes, rival_swaps, equivalent_models; an empirical shape pays
+EMPIRICAL_PENALTY more than physics, so a shape that only mimics an effect does not take its
+place). search_model is best-first over whole comparisons: each queues the steps its verdict
+suggests with the BIC they are expected to reach, and the most promising model not yet compared is
+compared next. The models within EQUIVALENT_DELTA_BIC of the end are the equivalence class the
+data allow.
 
 A comparison fits its model along a path (the ledger: the fixed effects, then each fitted term in
 the model's order, each step from the one before), and a path can end in another minimum than the

@@ -158,7 +158,8 @@ def one_row(work: Path, set_name: str, seed: int) -> dict:
            'status': design['status'], 'flight_s': design['flight_s'], 'chosen': [e['name'] for e in design['chosen']],
            'flight_share': round(design['flight_share'], 3), 'predicted_before': design['before'][true],
            'predicted_after': design['predicted'][true], 'predicted_rival_after': design['predicted'][rival],
-           'reproduced': design['reproduced'], 'sizes': design['sizes'][true]}
+           'reproduced': design['reproduced'], 'sizes': design['sizes'][true],
+           'assumed_sizes': design['assumed_sizes'][true]}
     check_json = Path(f'{stem}-check.json')
     flown = design['status'] in {'designed', 'not_reached'}
     if flown:

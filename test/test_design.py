@@ -137,6 +137,32 @@ def test_a_target_out_of_reach_gives_the_best_within_the_budget():
     assert not choice.reached and choice.flight_s <= 100.0
 
 
+_SWAP_TC = 'gyro_axis_swap.scale_temperature_coefficient_ppm_per_c'
+
+
+def test_a_coefficient_the_bag_does_not_measure_is_taken_at_its_catalogue_size():
+    """The swap's temperature coefficient on a night without a temperature step (issue 28's gyro set, seed 1: 8.4 +- 55
+    ppm/C) is predicted with at the catalogue's 20 ppm/C, said so; what the bag measures, or bounds below its catalogue
+    size, and shaping parameters keep their estimates."""
+    from sofia_ros.compare.fit import free_parameters
+    from sofia_ros.design.run import stated_sizes
+
+    sizes, assumed = stated_sizes(free_parameters(['gyro_axis_swap']), np.array([396.0, 8.4, -0.0065]),
+                                  np.array([16.0, 55.0, 0.00022]))
+    np.testing.assert_array_equal(sizes, [396.0, 20.0, -0.0065])
+    assert assumed == {_SWAP_TC: {'value': 20.0, 'unit': 'ppm/C', 'bag_value': 8.4, 'bag_sigma': 55.0}}
+    # 2 +- 21 ppm bounds the LOS scale factor far below its catalogue 400 ppm: the estimate stands.
+    bounded = np.array([393.5, -421.0, 2.3])
+    sizes, assumed = stated_sizes(free_parameters(['gyro_scale_factor']), bounded, np.array([1.0, 14.0, 21.0]))
+    np.testing.assert_array_equal(sizes, bounded)
+    assert assumed == {}
+    # A period and a phase have no size (the data see them not at all where the amplitude vanishes).
+    sizes, assumed = stated_sizes(free_parameters(['los_oscillation']), np.array([0.0, 0.1, 0.0]),
+                                  np.array([np.inf, np.inf, np.inf]))
+    np.testing.assert_array_equal(sizes, [0.0, 5.0, 0.0])
+    assert list(assumed) == ['los_oscillation.amplitude_arcsec']
+
+
 def test_a_budget_below_the_shortest_element_is_refused():
     base, elements, flight_s = _element_blocks()
     member = Hypothesis('a', ('a.0',), np.array([1.0]))
@@ -246,6 +272,8 @@ def _stubbed_design(monkeypatch, plan_only_bag, status, reproduced=()):
 
     document = {'bag': str(plan_only_bag), 'model': str(NOMINAL_MODEL), 'members': ['a', 'b'], 'shared': [],
                 'flight_s': 800.0, 'budget_s': 240.0, 'target_delta_bic': 20.0, 'sizes': {'a': {}, 'b': {}},
+                'assumed_sizes': {'a': {'a.k': {'value': 20.0, 'unit': 'ppm/C', 'bag_value': 8.4, 'bag_sigma': 55.0}},
+                                  'b': {}},
                 'observed_delta_bic': {'a': 50.0, 'b': 10.0}, 'before': {'a': -21.0, 'b': 35.0}, 'elements': [],
                 'status': status, 'chosen': [], 'chosen_flight_s': 0.0, 'flight_share': 0.0,
                 'predicted': {'a': -21.0, 'b': 35.0}, 'sigma_before': {'a': {}, 'b': {}}, 'sigma_after': {},
@@ -274,15 +302,36 @@ def test_a_set_no_plan_helps_says_so_and_writes_no_plan(capsys, tmp_path, plan_o
     assert not (tmp_path / 'plan.yaml').exists()
 
 
+def test_a_size_taken_at_the_catalogue_is_printed_and_in_the_json(capsys, tmp_path, plan_only_bag, monkeypatch):
+    _stubbed_design(monkeypatch, plan_only_bag, 'already_separated')
+    code = main(['design', str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',
+                 'gyro_axis_swap,gyro_scale_factor', '--json', str(tmp_path / 'design.json'), '--quiet'])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert 'assuming a.k at its catalogue size 20 ppm/C if a is true (the bag does not measure it: 8.4 +- 55)' in out
+    assert json.loads((tmp_path / 'design.json').read_text())['assumed_sizes']['a']['a.k']['value'] == 20.0
+
+
 # --- the prediction on a real bag -----------------------------------------------------------------------------
 
 
-def test_the_prediction_on_the_session_bag(campaign_bags):
+def test_the_prediction_on_the_session_bag(campaign_bags, monkeypatch):
     """The session's gyro_axis_swap bag as the old bag and, cut in time windows, as the library: the members' sizes are
-    the truth's, they are not separated (issue 25's tie), and each window adds what its rows add."""
+    the truth's, they are not separated (issue 25's tie), and each window adds what its rows add. The swap's
+    temperature coefficient, which a night without a temperature step does not measure, is predicted with at its
+    catalogue size."""
+    import sofia_ros.design.run as design_run
     from sofia_ros.compare.observations import read_observations
     from sofia_ros.config import load_effect_config
     from sofia_ros.design.run import design_plan
+
+    predicted_with = []
+
+    def recording_predict(information, shared, first, second, variance):
+        predicted_with.append(dict(zip(first.labels, first.values)))
+        return predict(information, shared, first, second, variance)
+
+    monkeypatch.setattr(design_run, 'predict', recording_predict)
 
     observations = read_observations(campaign_bags.reduced_alignment(effect='gyro_axis_swap'))
     stamps = observations.centroids.stamp_s
@@ -295,6 +344,10 @@ def test_the_prediction_on_the_session_bag(campaign_bags):
     assert document['status'] in {'designed', 'not_reached'} and document['skipped'] == ['skipped one']
     assert document['before']['gyro_axis_swap'] < 20.0
     assert [entry['name'] for entry in document['elements']] == ['first half', 'second half']
+    assumed = document['assumed_sizes']['gyro_axis_swap'][_SWAP_TC]
+    assert assumed['value'] == 20.0 and assumed['bag_sigma'] > max(20.0, abs(assumed['bag_value']))
+    assert document['sizes']['gyro_axis_swap'][_SWAP_TC] == assumed['bag_value']
+    assert predicted_with and all(values[_SWAP_TC] == 20.0 for values in predicted_with)
     json.dumps(document)  # JSON-ready as --json writes it
 
 
@@ -410,15 +463,29 @@ def test_an_unknown_maneuver_in_a_designed_plan_is_refused():
         plan_from_document(_plan('alignment', [{'spin': {'duration_s': 10.0}}]), 'designed.yaml', 'alignment')
 
 
-def test_the_library_flight_returns_to_the_nights_temperature_after_each_step():
+def test_a_temperature_step_flies_the_same_slew_wherever_the_telescope_was():
+    """The step is held at one end of its slew, so the library flight and the designed plan (which starts it from the
+    plan's last star) fly the same 30 deg slew at the new temperature."""
+    from sofia_ros.design.elements import THERMAL_SLEW_ELEVATIONS_DEG, thermal_library
+
+    stepped = [element for element in thermal_library(10.0, 35.0, 120.0) if element.then]
+    assert [element.name for element in stepped] == ['warm to 35 C at 55 deg for 120 s, then a slew to 25 deg',
+                                                     'cool to 10 C at 25 deg for 120 s, then a slew to 55 deg']
+    for element in stepped:
+        (slew,) = element.then
+        ends = (element.document['temperature']['elevation_deg'], slew['hold']['elevation_deg'])
+        assert sorted(ends) == sorted(THERMAL_SLEW_ELEVATIONS_DEG)
+
+
+def test_each_step_of_the_library_flight_starts_from_the_same_temperature():
     from sofia_ros.design.elements import is_thermal, thermal_library, with_thermal_resets
 
-    reset = Element('back', {'temperature': {'target_c': 22.8, 'duration_s': 720.0}})
+    reset = Element('back', {'temperature': {'target_c': 22.5, 'duration_s': 720.0}})
     plain = Element('hold', {'hold': {'duration_s': 60.0}})
     steps = thermal_library(10.0, 35.0, 120.0)
     flight = with_thermal_resets((plain, *steps), reset)
-    # After each step that another element follows, and after no other element.
-    assert flight == (plain, steps[0], reset, steps[1], reset, steps[2])
+    # Before each step (the first too: the library flight's own temperature has drifted by then), before no other.
+    assert flight == (plain, reset, steps[0], reset, steps[1], reset, steps[2])
     assert all(is_thermal(step) for step in steps) and not is_thermal(plain)
 
 
@@ -482,7 +549,7 @@ def test_the_star_hop_library_holds_at_most_three_other_stars_the_last_observed(
 
 
 def test_the_thermal_library_flight_is_flown_on_the_nominal_truth_with_the_bags_control():
-    from sofia_ros.design.cli import _flight_elements, _library_truth
+    from sofia_ros.design.cli import _elements_start_c, _flight_elements, _library_truth
     from sofia_ros.design.elements import thermal_library
 
     control = {'min_c': 10.0, 'max_c': 35.0, 'max_rate_c_per_h': 60.0, 'time_constant_s': 120.0}
@@ -490,8 +557,12 @@ def test_the_thermal_library_flight_is_flown_on_the_nominal_truth_with_the_bags_
     assert truth.scenario['thermal_control'] == control
     assert set(truth.effects) == set(_library_truth(None).effects)
     steps = thermal_library(10.0, 35.0, 120.0)
-    flight = _flight_elements(steps, truth, control)
-    # Back to the night's start temperature (the scenario's 22.8 C), held six time constants, between the steps.
-    assert [element.name for element in flight[1::2]] == ["back to the night's 22.8 C"] * 2
-    assert flight[1].document == {'temperature': {'target_c': 22.8, 'duration_s': 720.0}}
-    assert _flight_elements(steps, truth, None) == steps
+    # The designed plan's elements start where the bag ended: 22.475 C after 1170 s of a night falling 1 C/h.
+    bag = type('Observations', (), {'gyro': type('Gyro', (), {'tick_temperature_c': np.array([22.8, 22.475])})})
+    flight = _flight_elements(steps, control, _elements_start_c(bag))
+    # To the bag's last temperature, held six time constants, before each step; then the fine drive back at LOS 0,
+    # which the Earth's turn walked during the hold, so that the step's star is in its reach.
+    assert [element.name for element in flight[0::2]] == ["to the bag's last 22.5 C"] * 3
+    assert flight[0].plan_elements == [{'temperature': {'target_c': 22.5, 'duration_s': 720.0}},
+                                       {'hold': {'duration_s': 1.0, 'los_deg': 0.0}}]
+    assert _flight_elements(steps, None, None) == steps

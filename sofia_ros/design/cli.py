@@ -181,9 +181,13 @@ def _library_document(elements: tuple, old_plan: Any) -> dict:
     return {**document, 'elements': [step for element in elements for step in element.plan_elements]}
 
 
-#: How long the library flight's reset after a temperature step holds, in time constants of the thermal control: the
-#: temperature back within 1 % of the night's before the next element.
+#: How long the library flight's reset before a temperature step holds, in time constants of the thermal control: the
+#: temperature within 1 % of the bag's last before the step.
 _RESET_TIME_CONSTANTS = 6.0
+#: The reset ends with a hold this long (s) at LOS 0: the Earth's turn walks the fine drive's LOS through the reset's
+#: long hold, and the next element's move to its star was refused beyond the fine drive's +-3 deg (a step at 25 deg
+#: after a reset at 55 deg: "fine drive LOS would reach -3.756 deg").
+_RECENTRE_HOLD_S = 1.0
 
 
 def _library_truth(thermal_control: dict | None) -> Any:
@@ -202,19 +206,33 @@ def _library_truth(thermal_control: dict | None) -> Any:
     return parse_effect_config(yaml.safe_dump(document), f'{path} with the thermal control of the bag')
 
 
-def _flight_elements(elements: tuple, truth: Any, thermal_control: dict | None) -> tuple:
-    """What the library flight flies: the library, each temperature step followed by a return to the night's
-    temperature (the library truth's start) so that the next element starts from it."""
+#: The bag's last temperature is rounded to this (C) for the library flight's resets: the bags of one plan and truth
+#: (seeds) end within it of each other and share one library flight.
+_RESET_ROUNDING_C = 0.1
+
+
+def _elements_start_c(observations: Any) -> float:
+    """The temperature a designed plan's elements start at: the bag's last (the plan is flown again before them),
+    rounded to _RESET_ROUNDING_C."""
+    last_c = float(observations.gyro.tick_temperature_c[-1])
+    return round(round(last_c / _RESET_ROUNDING_C) * _RESET_ROUNDING_C, 3)
+
+
+def _flight_elements(elements: tuple, thermal_control: dict | None, start_c: float | None) -> tuple:
+    """What the library flight flies: the library, each temperature step after a change to ``start_c``, the
+    temperature the designed plan's elements start at, and the fine drive back at LOS 0.
+
+    A temperature-dependent signature is the coefficient times the temperature's departure from the bag's: started
+    from the night's 22.8 C where the designed plan starts from the bag's last 22.5 C, the library's departure at the
+    slew after a 2 C step was 25 % short, and its prediction half the flight's (issue 28's gyro set, seed 1)."""
     from sofia_ros.design.elements import Element, with_thermal_resets
-    from sofia_ros.scenario import Scenario
 
     if thermal_control is None:
         return elements
-    default_c = Scenario.__dataclass_fields__['start_temperature_c'].default
-    night_c = (truth.scenario or {}).get('start_temperature_c', default_c)
     held_s = _RESET_TIME_CONSTANTS * thermal_control['time_constant_s']
-    return with_thermal_resets(elements, Element(f"back to the night's {night_c:g} C",
-                                                 {'temperature': {'target_c': night_c, 'duration_s': held_s}}))
+    return with_thermal_resets(elements, Element(f"to the bag's last {start_c:g} C",
+                                                 {'temperature': {'target_c': start_c, 'duration_s': held_s}},
+                                                 ({'hold': {'duration_s': _RECENTRE_HOLD_S, 'los_deg': 0.0}},)))
 
 
 def _library_bag(flight: tuple, old_plan: Any, truth: Any, progress: Progress) -> Path:
@@ -260,6 +278,10 @@ def _print_design(document: dict, out: TextIO) -> None:
                          for label, value in sizes.items())
         print(f'  {name}: fitted size {text}; delta-BIC on the bag {document["observed_delta_bic"][name]:.0f}',
               file=out)
+    for name, assumed in document['assumed_sizes'].items():
+        for label, size in assumed.items():
+            print(f'  assuming {label} at its catalogue size {size["value"]:g} {size["unit"]} if {name} is true (the '
+                  f'bag does not measure it: {size["bag_value"]:.3g} +- {size["bag_sigma"]:.2g})', file=out)
     before = document['before']
     print(f'  expected separation now: {_ways(before)}', file=out)
     print('elements (expected delta-BIC with the element added; per minute of flight)', file=out)
@@ -334,11 +356,17 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     thermal_control = _thermal_control(bag)
     elements = _library_elements(old_plan, thermal_control)
     truth = _library_truth(thermal_control)
-    flight = _flight_elements(elements, truth, thermal_control)
-    library = _library_bag(flight, old_plan, truth, progress)
-    with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):
-        progress.phase('reading the bags')
-        observations, library_observations = read_observations(bag), read_observations(library)
+
+    def read(path: Path, what: str) -> Any:
+        with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):
+            progress.phase(f'reading {what}')
+            return read_observations(path)
+
+    # The bag first: its last temperature is where the library flight's temperature steps start.
+    observations = read(bag, 'the bag')
+    start_c = _elements_start_c(observations) if thermal_control is not None else None
+    flight = _flight_elements(elements, thermal_control, start_c)
+    library_observations = read(_library_bag(flight, old_plan, truth, progress), 'the library flight')
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
     progress.phase('linearizing the members on the bag and on the library flight')

@@ -97,19 +97,25 @@ def star_hop_library(stars: Sequence[str]) -> tuple:
     return tuple(elements)
 
 
-#: The elevations a temperature step's slews visit (25 and 55 deg from wherever the telescope is): a scale factor
-#: shows only while the telescope turns, and a slew of tens of degrees turns it far more than Table 3.4's moves.
+#: The two ends of a temperature step's slew: a scale factor shows only while the telescope turns, and a slew of tens
+#: of degrees turns it far more than Table 3.4's moves. The step is held at one end and the telescope then slews to
+#: the other, so that the element flies the same 30 deg slew wherever the telescope was before it: in the library
+#: flight (after another element) as in the designed plan (after the plan's last star, 59 deg for the full alignment).
+#: Held where the telescope happened to be, with slews to 25 and 55 deg after it, the library's first slew was 18 deg
+#: and the designed plan's 35, and the prediction (from the library) fell short of the flight by a factor 2 (issue
+#: 28's gyro set, seed 1); with the move to the step's end and a second slew, the element outgrew the budget.
 THERMAL_SLEW_ELEVATIONS_DEG = (25.0, 55.0)
-#: How long the telescope waits at each of them, s: enough for the frames of the position.
+#: How long the telescope waits at the slew's end, s: enough for the frames of the position.
 THERMAL_SLEW_HOLD_S = 20.0
 
 
 def thermal_library(min_c: float, max_c: float, time_constant_s: float) -> tuple:
     """The alignment's thermal elements for a truth whose thermal control reaches ``min_c``..``max_c``.
 
-    A step to each end held one time constant, then slews to 25 and 55 deg (short holds there) while the temperature
-    still follows it: a temperature-dependent scale factor against a constant one. And a step to the warm end held
-    two and a half time constants, alone: a temperature-driven shift against one that follows time.
+    A step to each end held one time constant at one end of THERMAL_SLEW_ELEVATIONS_DEG (the warm one at the high
+    end), then a slew to the other end (a short hold there) while the temperature still follows it: a
+    temperature-dependent scale factor against a constant one. And a step to the warm end held two and a half time
+    constants, alone: a temperature-driven shift against one that follows time.
 
     Args:
         min_c: the control's lowest setpoint (deg C).
@@ -120,13 +126,12 @@ def thermal_library(min_c: float, max_c: float, time_constant_s: float) -> tuple
         The Elements.
     """
     elements = []
-    for verb, target, elevations in (('warm', max_c, THERMAL_SLEW_ELEVATIONS_DEG),
-                                     ('cool', min_c, THERMAL_SLEW_ELEVATIONS_DEG[::-1])):
-        slews = tuple({'hold': {'duration_s': THERMAL_SLEW_HOLD_S, 'elevation_deg': elevation}}
-                      for elevation in elevations)
-        elements.append(Element(f'{verb} to {target:.0f} C for {time_constant_s:.0f} s, then slews to '
-                                f'{elevations[0]:.0f} and {elevations[1]:.0f} deg',
-                                {'temperature': {'target_c': target, 'duration_s': time_constant_s}}, slews))
+    low_deg, high_deg = THERMAL_SLEW_ELEVATIONS_DEG
+    for verb, target, held_deg, slew_deg in (('warm', max_c, high_deg, low_deg), ('cool', min_c, low_deg, high_deg)):
+        step = {'target_c': target, 'duration_s': time_constant_s, 'elevation_deg': held_deg}
+        slew = {'hold': {'duration_s': THERMAL_SLEW_HOLD_S, 'elevation_deg': slew_deg}}
+        elements.append(Element(f'{verb} to {target:.0f} C at {held_deg:.0f} deg for {time_constant_s:.0f} s, '
+                                f'then a slew to {slew_deg:.0f} deg', {'temperature': step}, (slew,)))
     held_s = 2.5 * time_constant_s
     elements.append(Element(f'warm to {max_c:.0f} C, held {held_s:.0f} s',
                             {'temperature': {'target_c': max_c, 'duration_s': held_s}}))
@@ -139,27 +144,29 @@ def is_thermal(element: Element) -> bool:
 
 
 def with_thermal_resets(elements: Sequence[Element], reset: Element) -> tuple:
-    """``elements`` in the library flight's order, with ``reset`` after each temperature step that another element
-    follows: each is then flown from the night's own temperature, as in a designed plan, not from the last step's.
+    """``elements`` in the library flight's order, with ``reset`` before each temperature step: each is then flown from
+    the temperature a designed plan starts its elements at, not from the last step's or the library flight's own.
 
     Args:
         elements: the library.
-        reset: a temperature element back to the night's temperature, held long enough to get there.
+        reset: a temperature element to the temperature the designed plan's elements start at, held long enough to get
+            there.
 
     Returns:
         The flight's elements (the library's and the resets).
     """
     flight = []
-    for index, element in enumerate(elements):
-        flight.append(element)
-        if is_thermal(element) and index < len(elements) - 1:
+    for element in elements:
+        if is_thermal(element):
             flight.append(reset)
+        flight.append(element)
     return tuple(flight)
 
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """One member of the competing set: its name, fitted labels and size (the comparison's linearized fit)."""
+    """One member of the competing set: its name, fitted labels and the size a prediction assumes (its fit on the bag,
+    or a catalogue size where the bag does not measure it: design.run.stated_sizes)."""
 
     name: str
     labels: tuple

@@ -1,8 +1,9 @@
 """`sofia design`'s prediction: which plan elements separate a competing set, and by how much (docs/design.md).
 
 1. The old bag: the model fitted, both members linearized at the fit (design.geometry); each
-   member's size is its linearized fit on the bag (what the comparison would fit), the residual
-   variance that of the better member.
+   member's size is its linearized fit on the bag (what the comparison would fit), except a
+   scaling parameter the bag does not measure, which is taken at its catalogue size and said so
+   (stated_sizes); the residual variance is that of the better member.
 2. The library flight: the same columns over each element's window of a bag that flew the
    library on the nominal truth; each element's profiled information and flight time.
 3. Each element's expected separation per minute, each set's prediction, the choice
@@ -18,14 +19,16 @@ from typing import Sequence, TypedDict
 import numpy as np
 import yaml
 
+from sofia_ros.compare.fit import FreeParameter, free_parameters
 from sofia_ros.config import EffectConfig
 from sofia_ros.design.elements import Choice, Element, Hypothesis, Prediction, choose_elements, predict
 from sofia_ros.design.geometry import BagColumns, bag_columns, element_windows, member_labels
-from sofia_ros.design.separation import Information, fitted_values, rss_drop
+from sofia_ros.design.separation import Information, fitted_values, rss_drop, sigma_of
+from sofia_ros.effects import get_effect
 from sofia_ros.errors import BagError, ConfigError
 
-__all__ = ['REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'check_members', 'design_plan', 'flown_elements',
-           'member_name']
+__all__ = ['REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'StatedSize', 'check_members', 'design_plan',
+           'flown_elements', 'member_name', 'stated_sizes']
 
 #: A true member's signature that the rival leaves less of than this (lambda / s^2, in units of the noise variance)
 #: is one it reproduces: the BIC cannot see it, only the members' parameter counts.
@@ -43,6 +46,15 @@ class ElementEntry(TypedDict):
     sigma_ratio: dict
 
 
+class StatedSize(TypedDict):
+    """A parameter the bag does not measure, taken at its catalogue size for the prediction (docs/design.md)."""
+
+    value: float
+    unit: str
+    bag_value: float
+    bag_sigma: float
+
+
 class DesignDocument(TypedDict):
     """`sofia design --json` (docs/design.md)."""
 
@@ -54,6 +66,7 @@ class DesignDocument(TypedDict):
     budget_s: float
     target_delta_bic: float
     sizes: dict
+    assumed_sizes: dict
     observed_delta_bic: dict
     before: dict
     elements: list
@@ -80,7 +93,40 @@ def _observed_delta_bic(columns: BagColumns, information: Information, labels: S
     return float(columns.rows * np.log(columns.rss / max(after, 1e-300)) - len(labels) * np.log(columns.rows))
 
 
+def stated_sizes(parameters: Sequence[FreeParameter], values: np.ndarray,
+                 sigma: np.ndarray) -> tuple[np.ndarray, dict]:
+    """The size a prediction assumes for a member: its fit on the bag, except where the bag does not measure a scaling
+    parameter (its 1-sigma there at least its estimate and its catalogue size), which is taken at the catalogue's.
+
+    The separation grows with the square of what tells the members apart, and that is often the one number the bag
+    could not measure (gyro_axis_swap's temperature coefficient on a night without a temperature step: 8.4 +- 55 ppm/C,
+    the catalogue's 20): its estimate is noise, and a prediction scaled by it was 5.7 times too small. A parameter the
+    bag bounds below its catalogue size (a scale factor of 2 +- 21 ppm against 400) keeps its estimate, and so does a
+    shaping one (a period: no size) or one whose catalogue size is zero (a plug-in's: no size stated).
+
+    Args:
+        parameters: the member's fitted parameters (compare.fit.free_parameters), in the order of ``values``.
+        values: their linearized fit on the bag.
+        sigma: their 1-sigma on the bag, fitted with the model's terms.
+
+    Returns:
+        (the sizes to predict with, {label: StatedSize} of those taken at the catalogue's size).
+    """
+    sizes, assumed = np.array(values, dtype=float), {}
+    for index, parameter in enumerate(parameters):
+        spec = get_effect(parameter.effect).parameter(parameter.name)
+        catalogue = float(spec.default)
+        undetermined = sigma[index] >= abs(values[index]) and sigma[index] >= abs(catalogue)
+        if spec.shape or catalogue == 0.0 or not undetermined:
+            continue
+        sizes[index] = catalogue
+        assumed[parameter.label] = StatedSize(value=catalogue, unit=parameter.unit, bag_value=float(values[index]),
+                                              bag_sigma=float(sigma[index]))
+    return sizes, assumed
+
+
 def _hypotheses(columns: BagColumns, information: Information, members: Sequence[Sequence[str]]) -> list:
+    """Each member as the bag fits it (its linearized fit with the model's terms)."""
     shared = list(columns.shared_labels)
     hypotheses = []
     for member in members:
@@ -88,6 +134,17 @@ def _hypotheses(columns: BagColumns, information: Information, members: Sequence
         values = fitted_values(information, [*shared, *labels])[len(shared):]
         hypotheses.append(Hypothesis(member_name(member), labels, values))
     return hypotheses
+
+
+def _assumed_hypotheses(information: Information, shared: Sequence[str], members: Sequence[Sequence[str]],
+                        fitted: Sequence[Hypothesis], variance: float) -> tuple[list, dict]:
+    """The members at the sizes the prediction assumes (stated_sizes), and {member: {label: StatedSize}}."""
+    hypotheses, assumed = [], {}
+    for member, hypothesis in zip(members, fitted):
+        sigma = sigma_of(information, [*shared, *hypothesis.labels], variance)[len(shared):]
+        sizes, assumed[hypothesis.name] = stated_sizes(free_parameters(member), hypothesis.values, sigma)
+        hypotheses.append(Hypothesis(hypothesis.name, hypothesis.labels, sizes))
+    return hypotheses, assumed
 
 
 def flown_elements(calibration_text: str | None, library_elements: Sequence[Element]) -> tuple[list, list]:
@@ -183,10 +240,11 @@ def design_plan(observations: object, library_observations: object, windows: Seq
     old = bag_columns(observations, model, members, anchor_spacing_s=anchor_spacing_s)
     library = bag_columns(library_observations, model, members, anchor_spacing_s=anchor_spacing_s)
     base = old.information()
-    first, second = _hypotheses(old, base, members)
+    fitted = _hypotheses(old, base, members)
     shared = list(old.shared_labels)
-    best_drop = max(rss_drop(base, [*shared, *member.labels]) for member in (first, second))
+    best_drop = max(rss_drop(base, [*shared, *member.labels]) for member in fitted)
     variance = max(old.rss - best_drop, 1.0) / old.rows
+    (first, second), assumed = _assumed_hypotheses(base, shared, members, fitted, variance)
     before = predict(base, shared, first, second, variance)
     elements = _element_information(library, windows)
     if not elements:
@@ -210,7 +268,8 @@ def design_plan(observations: object, library_observations: object, windows: Seq
     document = DesignDocument(
         bag=str(observations.bag_path), model=model.source, members=[member_name(m) for m in members],
         shared=shared, flight_s=round(flight_s, 1), budget_s=round(budget_s, 1), target_delta_bic=target,
-        sizes={member.name: dict(zip(member.labels, member.values.tolist())) for member in (first, second)},
+        sizes={member.name: dict(zip(member.labels, member.values.tolist())) for member in fitted},
+        assumed_sizes=assumed,
         observed_delta_bic={member_name(m): _observed_delta_bic(old, base, member_labels(m)) for m in members},
         before=before.separation, elements=entries, status='already_separated', chosen=[], chosen_flight_s=0.0,
         flight_share=0.0, predicted=before.separation, sigma_before=before.sigma, sigma_after=before.sigma,

@@ -116,6 +116,17 @@ class BagSource:
             return {name: params for name, params in self.effects.items() if name not in self.model.fitted}
         return {**previous.effects, term: self.effects[term]}
 
+    def given_start(self) -> dict | None:
+        """The model at its given values where fitted terms carry values of their own and there are several (with
+        one, the chain's last step starts there already); else None (ComparisonSource.given_start).
+
+        Returns:
+            {effect: params}, or None.
+        """
+        terms = self.ledger_terms()
+        given = any(self.effects[name] != resolve_params(name, {}) for name in terms)
+        return dict(self.effects) if given and len(terms) > 1 else None
+
     def fit(self, effects: dict, free: tuple, start: ModelFit | None) -> ModelFit:
         """compare.fit.fit_model, its anchors (and the parameters it fitted) starting from ``start``'s.
 

@@ -274,6 +274,14 @@ class SetSource:
         """
         return self.start_effects
 
+    def given_start(self) -> None:
+        """None: every step of a set's ledger starts from the model's start values already.
+
+        Returns:
+            None.
+        """
+        return None
+
     def fit(self, effects: dict, free: tuple, start: Any) -> Any:
         """Trust-region least squares on the whitened residuals.
 

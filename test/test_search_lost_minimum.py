@@ -2,11 +2,10 @@
 
 A comparison fits its model along the ledger (each term in the model's order, from the one before).
 On the reduced alignment with a gyro scale factor, an imager rotation of field and an imager scale
-error hidden, the model of exactly those three, with the scale factor added last, ended 155,000 BIC
+error hidden, the model of exactly those three, with the scale factor added last, ended 139,000 BIC
 above the refit that proposed it; the search then added a HIPO fiducial error the truth lacks to
 escape, and ended explained on four terms. A fake comparison with that behaviour (no bag: the test
-takes milliseconds) holds the search to comparing the same terms again along another path; and
-the model after a step starts where the refit that proposed it ended.
+takes milliseconds) holds the search to comparing the same terms again along another path.
 """
 
 from dataclasses import dataclass
@@ -37,8 +36,6 @@ class _Fit:
 class _Comparison:
     document: dict
     final_fit: _Fit
-    best_name: str | None = None
-    best_fit: _Fit | None = None
 
 
 def _bic(terms):
@@ -89,29 +86,3 @@ def test_a_comparison_near_its_refit_is_not_compared_again(stuck_bic):
     _, found, rounds, _ = search_model(None, nominal, compare)
     assert sorted(found.fitted - nominal.fitted) == sorted(TRUTH) and len(rounds) == 4
     assert not any('newest first' in move for entry in rounds for move in entry['moves'])
-
-
-def test_the_model_after_a_step_starts_at_the_values_of_the_refit_that_proposed_it():
-    nominal = load_effect_config(ROOT / 'config' / 'model' / 'nominal.yaml')
-    refit = {'gyro_bias': {'el_deg_per_h': 0.25, 'xel_deg_per_h': -0.5, 'los_deg_per_h': 0.75},
-             'imager_scale_error': {'fpi_ppm': 7300.0, 'ffi_ppm': 2.0, 'wfi_ppm': 50590.0}}
-    models = []
-
-    def compare(observations, model):
-        models.append(model)
-        explained = 'imager_scale_error' in model.fitted
-        step = {'action': 'none' if explained else 'add', 'effect': None if explained else 'imager_scale_error',
-                'term': None}
-        document = {'verdict': {'status': 'explained' if explained else 'missing_effect', 'next': step},
-                    'candidates': [{'effect': 'imager_scale_error', 'refined': True, 'delta_bic': 99_000.0,
-                                    'params': {'fpi_ppm': 7000.0, 'ffi_ppm': 0.0, 'wfi_ppm': 50000.0}}],
-                    'competing': [], 'equivalent_models': [], 'model_change': None,
-                    'residual_rms_arcsec': {'total': 0.3}}
-        effects = {name: dict(params) for name, params in model.effects.items()}
-        bic = 1000.0 if explained else 100_000.0
-        return _Comparison(document, _Fit(bic, effects), None if explained else 'imager_scale_error',
-                           None if explained else _Fit(1000.0, {**effects, **refit}))
-
-    search_model(None, nominal, compare)
-    assert len(models) == 2
-    assert {name: models[1].effects[name] for name in refit} == refit

@@ -19,10 +19,10 @@ full refit that proposed the model reached for the same terms: the terms fitted 
 have absorbed its part along a near-degenerate direction (an equal rotation of the imagers against
 the gyro misalignment about the LOS) and the last step cannot take it back (issue 25: a gyro scale
 factor added last ended 139,000 BIC above its refit, and a HIPO fiducial error the truth lacks was
-added to escape). So the model after adding the best candidate starts every term at that refit's
-values (the comparison also fits the whole model from its given values); and a comparison that
-still ends above its refit judges a fit that is not the model's best: the search compares the same
-terms again, those it added fitted newest first, instead of building on it.
+added to escape). The comparison also fits the whole model from its given values (compare.pipeline),
+which closes most such paths; one that still ends above its refit judges a fit that is not the
+model's best, and the search compares the same terms again, those it added fitted in reverse order
+(the newest first), instead of building on it.
 """
 
 from __future__ import annotations
@@ -365,22 +365,8 @@ def search_pool(candidate_terms: Iterable[CandidateTerm],
     return [term for term in candidate_terms if term.name in strongest]
 
 
-def _refit_values(result, step):
-    """{effect: params} of the comparison's full refit with the effect the step adds, where that is the best
-    candidate's (the only refit a comparison keeps), else {}. A measurement set's comparison keeps none (its
-    ledger starts every step from the model's values)."""
-    best_fit = getattr(result, 'best_fit', None)
-    if step['action'] != 'add' or best_fit is None or step['effect'] != getattr(result, 'best_name', None):
-        return {}
-    return best_fit.effects
-
-
 def _next_model(model, result, step):
-    """The model after the verdict's next step: a term added at its refitted values, or terms removed/replaced.
-
-    Where the comparison refitted the whole model with the added term, every term starts at that refit's values:
-    the next comparison fits the model from its given values as well as along its ledger, and so reaches at least
-    the minimum that proposed it."""
+    """The model after the verdict's next step: a term added at its refitted values, or terms removed/replaced."""
     candidates = {c['effect']: c for c in result.document['candidates']}
     removed = set(step['term'].split(',')) if step['term'] else set()
     effects = {name: dict(params) for name, params in result.final_fit.effects.items() if name not in removed}
@@ -392,7 +378,6 @@ def _next_model(model, result, step):
         start = {key: value for key, value in entry['params'].items() if value is not None and np.isfinite(value)}
         effects[step['effect']] = resolve_params(step['effect'], start)
         fitted.add(step['effect'])
-    effects.update((name, dict(params)) for name, params in _refit_values(result, step).items() if name in effects)
     return EffectConfig(effects, frozenset(fitted), model.scenario, model.text, model.source)
 
 

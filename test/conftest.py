@@ -139,19 +139,23 @@ ALONE = frozenset({
 #: modules that share a unit of work with others (module -> unit)
 UNITS = {'test_live_graph': 'dds', 'test_mode_bags': 'dds',
          'test_run_signals': 'dds-runs', 'test_star_hop_processes': 'dds-runs', 'test_full_disk': 'dds-runs'}
-#: seconds of the longest units (a SPREAD module: all its tests), each run alone with -n 0 on the loaded
-#: 2-core machine (2026-11-27, other jobs running; the shared campaign bags recorded where first asked for)
+#: seconds of the longest units (a SPREAD module: all its tests, or a 'module::test' entry: each of its
+#: cases), each module run alone with -n 0 on the loaded 2-core machine, wall time (2026-11-27 14:22-15:10,
+#: load 4.5-11 from other jobs; the shared campaign bags recorded where first asked for)
 MEASURED_S = {
-    'dds': 711,  # test_live_graph 704, test_mode_bags 7
-    'dds-runs': 471,  # test_run_signals 219, test_full_disk 150, test_star_hop_processes 102
-    'test_star_hop': 397,  # 639 with its two ALONE tests
-    'test_star_hop::test_tracker_drift_sinusoid_is_recovered_from_a_hold_of_one_period': 141,
-    'test_star_hop::test_fpi_internal_flexure_is_named_and_measures_about_1_1_arcsec_over_23_to_60_deg': 101,
-    'test_atlas_cluster': 394, 'test_observation_cache': 292, 'test_perturb': 268, 'test_effect_plugins': 244,
-    'test_fuzz_inputs': 203, 'test_atlas_multi_effect': 162, 'test_plan_files': 149,
-    'test_plugin_perturb_refusals': 147, 'test_search_loop': 97, 'test_gyro_noise': 88, 'test_alignment_campaign': 86,
-    'test_cli': 89, 'test_gyro_stability_campaign': 71, 'test_input_validation': 49, 'test_json_schemas': 160,
-    'test_spectra': 78, 'test_structure': 54, 'test_noise_report': 68,
+    'dds-runs': 459,  # test_run_signals 233, test_full_disk 148, test_star_hop_processes 78
+    'dds': 221,  # test_live_graph 207, test_mode_bags 14
+    'test_atlas_cluster': 207, 'test_search_loop': 105, 'test_star_hop': 104,  # 177 with its two ALONE tests
+    'test_star_hop::test_tracker_drift_sinusoid_is_recovered_from_a_hold_of_one_period': 41,
+    'test_star_hop::test_fpi_internal_flexure_is_named_and_measures_about_1_1_arcsec_over_23_to_60_deg': 32,
+    # each case records its own bag and compares it: 40-73 s
+    'test_compare::test_hidden_effect_is_the_top_candidate_within_three_sigma_and_brings_the_floor': 73,
+    'test_compare::test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scale_factor': 54,
+    'test_perturb': 99, 'test_alignment_campaign': 97, 'test_observation_cache': 96, 'test_noise_report': 95,
+    'test_atlas_multi_effect': 71, 'test_plugin_perturb_refusals': 65, 'test_json_schemas': 64,
+    'test_fuzz_inputs': 63, 'test_effect_plugins': 58, 'test_plan_files': 43, 'test_gyro_noise': 33,
+    'test_input_validation': 31, 'test_gyro_stability_campaign': 29, 'test_cli': 26, 'test_spectra': 26,
+    'test_structure': 13,
 }
 #: units handed out first, longest first; every other unit follows in collection order
 FIRST = tuple(sorted(MEASURED_S, key=MEASURED_S.get, reverse=True))
@@ -159,6 +163,11 @@ FIRST = tuple(sorted(MEASURED_S, key=MEASURED_S.get, reverse=True))
 
 def _module_of(nodeid):
     return nodeid.split('::', 1)[0].rsplit('/', 1)[-1].removesuffix('.py')
+
+
+def _function_of(nodeid):
+    """'module::test' of a test id, without its parameters: the MEASURED_S key of a SPREAD module's test."""
+    return f"{_module_of(nodeid)}::{nodeid.split('::', 1)[-1].split('[', 1)[0]}"
 
 
 def _unit_of(nodeid):
@@ -196,7 +205,8 @@ def pytest_collection_modifyitems(config, items):
         rank = {unit: index for index, unit in enumerate(FIRST)}
 
         def order(item):
-            # a SPREAD module's tests are units of their own, ranked by their module's entry
-            return rank.get(_unit_of(item.nodeid), rank.get(_module_of(item.nodeid), len(rank)))
+            # a SPREAD module's tests are units of their own, ranked by their test's entry, else their module's
+            nodeid = item.nodeid
+            return rank.get(_unit_of(nodeid), rank.get(_function_of(nodeid), rank.get(_module_of(nodeid), len(rank))))
 
         items.sort(key=order)  # stable otherwise

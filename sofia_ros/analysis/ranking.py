@@ -145,7 +145,15 @@ class NormalInverse:
     unconstrained: np.ndarray
 
     @classmethod
-    def of(cls, gram):
+    def of(cls, gram: np.ndarray) -> NormalInverse:
+        """The pseudo-inverse of a Gram matrix J^T J and the parameters its null space touches.
+
+        Args:
+            gram: (k, k) the symmetric positive semi-definite matrix.
+
+        Returns:
+            The NormalInverse.
+        """
         diagonal = np.diag(gram).copy()
         norms = np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
         scaled = gram / np.outer(norms, norms)
@@ -160,8 +168,15 @@ class NormalInverse:
         unconstrained = np.any(np.abs(vectors[:, ~keep]) > 1e-6, axis=1)
         return cls(inverse, unconstrained)
 
-    def covariance(self, variance):
-        """Scaled covariance with infinite variance (and undefined covariance) along unconstrained parameters."""
+    def covariance(self, variance: float) -> np.ndarray:
+        """Scaled covariance with infinite variance (and undefined covariance) along unconstrained parameters.
+
+        Args:
+            variance: the residual variance s^2 the inverse is scaled by.
+
+        Returns:
+            (k, k) the covariance.
+        """
         covariance = self.matrix * variance
         covariance[self.unconstrained, :] = np.nan
         covariance[:, self.unconstrained] = np.nan

@@ -365,11 +365,38 @@ def search_pool(candidate_terms: Iterable[CandidateTerm],
     return [term for term in candidate_terms if term.name in strongest]
 
 
-def _next_model(model, result, step):
+@dataclass(frozen=True)
+class _Outcome:
+    """What the search keeps of a comparison: its document, BIC and fitted effects. The CompareResult itself, whose
+    fits hold their Jacobians (tens of MB a comparison on a star hop), is kept for the answer so far only."""
+
+    document: dict
+    bic: float
+    effects: dict
+
+    @classmethod
+    def of(cls, result: _Comparison) -> _Outcome:
+        """The outcome of a comparison.
+
+        Args:
+            result: the comparison.
+
+        Returns:
+            Its _Outcome.
+        """
+        return cls(result.document, float(result.final_fit.bic), result.final_fit.effects)
+
+    @property
+    def rank(self) -> tuple[bool, float]:
+        """How the answer is chosen: explained first, then the lowest BIC."""
+        return self.document['verdict']['status'] != 'explained', self.bic
+
+
+def _next_model(model, outcome, step):
     """The model after the verdict's next step: a term added at its refitted values, or terms removed/replaced."""
-    candidates = {c['effect']: c for c in result.document['candidates']}
+    candidates = {c['effect']: c for c in outcome.document['candidates']}
     removed = set(step['term'].split(',')) if step['term'] else set()
-    effects = {name: dict(params) for name, params in result.final_fit.effects.items() if name not in removed}
+    effects = {name: dict(params) for name, params in outcome.effects.items() if name not in removed}
     effects.update({name: dict(params) for name, params in model.effects.items()
                     if name not in effects and name not in removed})
     fitted = set(model.fitted) - removed
@@ -381,12 +408,12 @@ def _next_model(model, result, step):
     return EffectConfig(effects, frozenset(fitted), model.scenario, model.text, model.source)
 
 
-def _steps(result):
+def _steps(outcome):
     """The steps worth trying from a comparison, each with the BIC it is expected to reach and whether a full refit
     of the model it leads to reached that BIC (else a linearized guess): the verdict's next step, and adding each
     other refitted physical member of the best candidate's competing set instead."""
-    document = result.document
-    bic_now = float(result.final_fit.bic)
+    document = outcome.document
+    bic_now = outcome.bic
     scores = {c['effect']: c['delta_bic'] for c in document['candidates']}
     refined = {c['effect'] for c in document['candidates'] if c['refined']}
     step = document['verdict']['next']
@@ -492,7 +519,7 @@ def search_model(observations: Observations, model: EffectConfig,
     if not low <= rounds <= high:
         raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')
     given = model
-    history, compared, queue, order = [], {}, [_Queued(0.0, 0, model, 'the model given')], 0
+    history, compared, queue, order, answer = [], {}, [_Queued(0.0, 0, model, 'the model given')], 0, None
     while queue and len(history) < rounds:
         queue.sort(key=lambda item: (item.expected_bic, item.order))
         item = queue.pop(0)
@@ -500,10 +527,14 @@ def search_model(observations: Observations, model: EffectConfig,
             continue
         progress(f'search: round {len(history) + 1}/{rounds}, {item.how}')
         compared_now = compare(observations, item.model)
-        bic = float(compared_now.final_fit.bic)
+        outcome = _Outcome.of(compared_now)
+        bic = outcome.bic
         earlier = compared.get(item.model.fitted)
-        if earlier is None or bic < earlier[0].final_fit.bic:
-            compared[item.model.fitted] = (compared_now, item.model)
+        if earlier is None or bic < earlier[0].bic:
+            compared[item.model.fitted] = (outcome, item.model)
+        if answer is None or outcome.rank < _Outcome.of(answer[0]).rank:
+            answer = (compared_now, item.model)
+        del compared_now
         # the steps go on from the best fit of these terms
         result, model = compared[item.model.fitted]
         if item.lost(bic, given):
@@ -518,27 +549,24 @@ def search_model(observations: Observations, model: EffectConfig,
             steps = _steps(result)
             moves = [_step_label(step) for _, step, _ in steps]
         history.append(SearchRound(round=len(history) + 1, fitted=sorted(item.model.fitted),
-                                   status=compared_now.document['verdict']['status'],
-                                   rms_arcsec=compared_now.document['residual_rms_arcsec'].get('total'), bic=bic,
+                                   status=outcome.document['verdict']['status'],
+                                   rms_arcsec=outcome.document['residual_rms_arcsec'].get('total'), bic=bic,
                                    moves=moves))
         for expected_bic, step, refitted in steps:
             order += 1
             following = _next_model(model, result, step)
             if following.fitted not in compared:
                 # a BIC difference within the competing margin of the gain is the fit's, not the model's
-                margin = competing_margin(float(result.final_fit.bic) - expected_bic, 0.0)
+                margin = competing_margin(result.bic - expected_bic, 0.0)
                 queue.append(_Queued(expected_bic, order, following,
                                      f'after round {len(history)}: {_step_label(step)}',
                                      expected_bic if refitted else None, margin))
-    explained = {fitted: entry for fitted, entry in compared.items()
-                 if entry[0].document['verdict']['status'] == 'explained'}
-    pool = explained or compared
-    best = min(pool, key=lambda fitted: pool[fitted][0].final_fit.bic)
-    result, model = pool[best]
-    bic_best = result.final_fit.bic
+    result, model = answer
+    best, bic_best = model.fitted, float(result.final_fit.bic)
     equivalent = list(result.document['equivalent_models'])
-    for fitted, (other, _) in explained.items():
-        if fitted != best and other.final_fit.bic - bic_best < EQUIVALENT_DELTA_BIC:
+    for fitted, (other, _) in compared.items():
+        explained = other.document['verdict']['status'] == 'explained'
+        if explained and fitted != best and other.bic - bic_best < EQUIVALENT_DELTA_BIC:
             equivalent.append({'model': f'{_difference(fitted, best)} (compared in full)',
-                               'delta_bic': round(float(other.final_fit.bic - bic_best), 1)})
+                               'delta_bic': round(other.bic - bic_best, 1)})
     return result, model, history, sorted(equivalent, key=lambda entry: entry['delta_bic'])

@@ -377,9 +377,26 @@ class SequenceCore(NodeCore):
             yield
 
     def _hold_for(self, duration_s):
-        """Hold the star (the TASCU keeps the attitude) ``duration_s`` while every camera records; (start, end) s."""
+        """Hold the star (the TASCU keeps the attitude) ``duration_s`` while every camera records; (start, end) s.
+
+        The Earth's turn walks the fine drive while the TASCU holds (about 6 deg of LOS in 25 minutes): a drive held
+        at its end stop on two joint readings running is pushed there, the telescope rides with the cradle and the
+        star is lost, so the sequence ends there with the reason, not with a later step's timeout.
+        """
         start_s = self.stamp_ns / m.NS_PER_S
-        yield from self._until(start_s + duration_s)
+        at_stop_before = ()
+        while self.stamp_ns < m.seconds_to_ns(start_s + duration_s):
+            at_stop = tuple(axis for axis, joint in zip(('EL', 'XEL', 'LOS'), FD_JOINTS)
+                            if abs(self.joints.get(joint, 0.0)) >= mount.FINE_DRIVE_LIMIT_DEG * RAD_PER_DEG * (1 - 1e-9))
+            pushed = [axis for axis in at_stop if axis in at_stop_before]
+            if pushed:
+                held_s = self.stamp_ns / m.NS_PER_S - start_s
+                raise CalibrationAbort(
+                    f'a hold of {duration_s:g} s: the Earth\'s turn drove the fine drive\'s {pushed[0]} to its '
+                    f'+-{mount.FINE_DRIVE_LIMIT_DEG:g} deg end stop after {held_s:.0f} s, where the TASCU cannot hold '
+                    'the star; hold shorter there, or start the hold at a LOS angle on the other side of zero')
+            at_stop_before = at_stop
+            yield
         return start_s, self.stamp_ns / m.NS_PER_S
 
     def _command_temperature(self, target_c, rate_c_per_h):

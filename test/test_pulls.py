@@ -7,6 +7,7 @@ bench/bench_pulls.py runs the pull table of every visible effect; these tests ho
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -55,16 +56,24 @@ class _StaircaseClock:
         self.times_s = np.arange(0.1, 30.0, 0.25)
         self.measured = self._trajectory(self.times_s - self.TRUE_OFFSET_S)
         self.predictor = self
+        # one camera, HIPO, whose rows the offset moves
+        self.observations = SimpleNamespace(centroids=SimpleNamespace(camera_index=np.zeros(len(self.times_s), int)))
 
     @staticmethod
     def _trajectory(times_s):
         return 10.0 * np.floor(times_s)
 
-    def predict_px(self, effects, anchors):
-        return self._trajectory(self.times_s - effects['timestamp_offset']['offset_s'])
+    def row_times_s(self, effects):
+        return self.times_s - effects['timestamp_offset']['offset_s']
 
-    def whiten(self, predicted):
-        return (self.measured - predicted) / 0.3
+    def camera_rows(self, camera_index):
+        return slice(None)
+
+    def predict_camera_px(self, effects, camera_index, anchors):
+        return self._trajectory(self.row_times_s(effects))
+
+    def whiten_rows(self, predicted, rows):
+        return (self.measured[rows] - predicted) / 0.3
 
 
 @pytest.mark.parametrize('start_s', [0.0, 0.15, -2.0])

@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -135,7 +136,17 @@ def _truth(work: Path, name: str, competing: CompetingSet) -> Path:
     return path
 
 
-def _fly(campaign: str, plan_options: list, seed: int, truth: Path, bag: Path) -> None:
+def _same_plan(bag: Path, plan: Path) -> bool:
+    """Whether a kept bag was flown with ``plan`` (its recorded plan.yaml says the same)."""
+    recorded = bag / 'plan.yaml'
+    return recorded.is_file() and yaml.safe_load(recorded.read_text()) == yaml.safe_load(plan.read_text())
+
+
+def _fly(campaign: str, plan_options: list, seed: int, truth: Path, bag: Path, plan: Path | None = None) -> None:
+    """Fly a campaign into ``bag``, unless a kept one is there (flown with ``plan``, if given: a design that changed
+    flies its plan again)."""
+    if (bag / 'summary.json').exists() and plan is not None and not _same_plan(bag, plan):
+        shutil.rmtree(bag)
     if not (bag / 'summary.json').exists():
         _run(['run', campaign, *plan_options, '--direct', '--seed', str(seed), '--truth', str(truth), '--bag',
               str(bag)], Path(f'{bag}.log'))
@@ -159,11 +170,13 @@ def one_row(work: Path, set_name: str, seed: int) -> dict:
            'flight_share': round(design['flight_share'], 3), 'predicted_before': design['before'][true],
            'predicted_after': design['predicted'][true], 'predicted_rival_after': design['predicted'][rival],
            'reproduced': design['reproduced'], 'sizes': design['sizes'][true],
-           'assumed_sizes': design['assumed_sizes'][true]}
+           'assumed_sizes': design['assumed_sizes'][true], 'elements_start_s': design['elements_start_s'],
+           'chosen_start_s': [entry['start_s'] for entry in design['elements']
+                              if entry['name'] in {chosen['name'] for chosen in design['chosen']}]}
     check_json = Path(f'{stem}-check.json')
     flown = design['status'] in {'designed', 'not_reached'}
     if flown:
-        _fly(competing.campaign, ['--plan', str(plan)], seed, truth, new)
+        _fly(competing.campaign, ['--plan', str(plan)], seed, truth, new, plan)
     # No plan: the old bag alone is checked (its refit given as the "new" bag too, which is not reported).
     _run(['design', '--check', str(new if flown else old), '--prediction', str(design_json), '--json',
           str(check_json), '--quiet'], Path(f'{stem}-check.txt'))
@@ -194,11 +207,25 @@ def _text(rows: list, header: str) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _with_kept_rows(rows: list) -> list:
+    """``rows`` and, for each set not among them, the rows of the last results (bench/results/design.json), in the
+    order of SETS; a kept row without its run's date and commit takes the file's."""
+    last = json.loads((RESULTS / 'design.json').read_text())
+    run = {'date': last['date'], 'commit': last['commit']}
+    done = {row['set'] for row in rows}
+    kept = [{'run': run, **row} for row in last['rows'] if row['set'] not in done]
+    order = list(SETS)
+    return sorted([*rows, *kept], key=lambda row: (order.index(row['set']), row['seed']))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--seeds', default='1,2,3')
     parser.add_argument('--sets', default=','.join(SETS))
     parser.add_argument('--work', help='folder for the bags (kept; default: a temporary folder)')
+    parser.add_argument('--keep-other-sets', action='store_true',
+                        help="keep the rows of bench/results/design.json of the sets not run, with their run's date "
+                             'and commit')
     args = parser.parse_args()
     work = Path(args.work or tempfile.mkdtemp(prefix='bench_design-'))
     work.mkdir(parents=True, exist_ok=True)
@@ -213,11 +240,15 @@ def main() -> None:
     rows = []
     for set_name in args.sets.split(','):
         for seed in (int(text) for text in args.seeds.split(',')):
-            rows.append(one_row(work, set_name, seed))
+            rows.append({**one_row(work, set_name, seed), 'run': {'date': started, 'commit': commit}})
             print(_text(rows[-1:], f'{set_name} seed {seed} ({_load()})'), flush=True)
+    if args.keep_other_sets:
+        rows = _with_kept_rows(rows)
     # Timed against the target: the designs on the alignment campaign whose library was already flown.
     alignment_s = sorted(row['design_s'] for row in rows if row['campaign'] == 'alignment')
-    header = (f'sofia design, issue 28: {started}, commit {commit}, {_load()}\n'
+    runs = sorted({(row['run']['date'], row['run']['commit']) for row in rows})
+    header = (f'sofia design, issue 28: {"; ".join(f"{date}, commit {run_commit}" for date, run_commit in runs)} '
+              f'(each row\'s in design.json), {_load()}\n'
               f'direct mode, model config/model/nominal.yaml, target expected delta-BIC 20 both ways (in the one '
               f'left where the rival reproduces the other), budget 30 % of the flight; a member wins at delta-BIC '
               f'>= {DECIDES:.0f}\n'

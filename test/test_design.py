@@ -338,12 +338,16 @@ def test_the_prediction_on_the_session_bag(campaign_bags, monkeypatch):
     middle = float(np.median(stamps))
     windows = [(Element('first half', {'hold': {'duration_s': 60.0}}), float(stamps.min()), middle),
                (Element('second half', {'hold': {'duration_s': 60.0}}), middle, float(stamps.max()) + 1.0)]
-    document = design_plan(observations, observations, windows, ['skipped one'], load_effect_config(NOMINAL_MODEL),
+    # Two library flights (as a temperature step is flown in one of its own), and one that flew nothing.
+    library = [(observations, windows[:1]), (None, []), (observations, windows[1:])]
+    document = design_plan(observations, library, ['skipped one'], load_effect_config(NOMINAL_MODEL),
                            [['gyro_axis_swap'], ['gyro_scale_factor']], flight_s=800.0, budget_s=400.0, target=20.0)
     assert document['sizes']['gyro_axis_swap']['gyro_axis_swap.scale_difference_ppm'] == pytest.approx(400.0, rel=0.1)
     assert document['status'] in {'designed', 'not_reached'} and document['skipped'] == ['skipped one']
     assert document['before']['gyro_axis_swap'] < 20.0
     assert [entry['name'] for entry in document['elements']] == ['first half', 'second half']
+    assert [entry['start_s'] for entry in document['elements']] == [round(float(stamps.min()), 1), round(middle, 1)]
+    assert document['elements_start_s'] == round(float(stamps.max()), 1)
     assumed = document['assumed_sizes']['gyro_axis_swap'][_SWAP_TC]
     assert assumed['value'] == 20.0 and assumed['bag_sigma'] > max(20.0, abs(assumed['bag_value']))
     assert document['sizes']['gyro_axis_swap'][_SWAP_TC] == assumed['bag_value']
@@ -477,16 +481,85 @@ def test_a_temperature_step_flies_the_same_slew_wherever_the_telescope_was():
         assert sorted(ends) == sorted(THERMAL_SLEW_ELEVATIONS_DEG)
 
 
-def test_each_step_of_the_library_flight_starts_from_the_same_temperature():
-    from sofia_ros.design.elements import is_thermal, thermal_library, with_thermal_resets
+def test_each_temperature_step_is_flown_in_a_flight_of_its_own_after_the_lead():
+    from sofia_ros.design.elements import is_thermal, step_flights, thermal_library
 
-    reset = Element('back', {'temperature': {'target_c': 22.5, 'duration_s': 720.0}})
+    lead = (Element('wait', {'hold': {'duration_s': 100.0}}),
+            Element('back', {'temperature': {'target_c': 22.5, 'duration_s': 720.0}}))
     plain = Element('hold', {'hold': {'duration_s': 60.0}})
     steps = thermal_library(10.0, 35.0, 120.0)
-    flight = with_thermal_resets((plain, *steps), reset)
-    # Before each step (the first too: the library flight's own temperature has drifted by then), before no other.
-    assert flight == (plain, reset, steps[0], reset, steps[1], reset, steps[2])
+    assert step_flights((plain, *steps), lead) == tuple((*lead, step) for step in steps)
     assert all(is_thermal(step) for step in steps) and not is_thermal(plain)
+
+
+@pytest.mark.parametrize('wait_s, count', [(0.0, 0), (16.0, 0), (100.0, 1), (315.0, 1), (316.0, 2), (1300.0, 5)])
+def test_a_wait_is_filled_with_holds_short_of_the_fine_drives_end_stop(wait_s, count):
+    from sofia_ros.design.elements import ELEMENT_OVERHEAD_S, WAIT_HOLD_S, waiting_holds
+
+    holds = waiting_holds(wait_s)
+    assert len(holds) == count
+    durations = [hold.document['hold']['duration_s'] for hold in holds]
+    assert all(0.0 < duration <= WAIT_HOLD_S for duration in durations)
+    assert all(hold.document['hold']['los_deg'] == 0.0 for hold in holds)
+    if holds:
+        assert sum(durations) + count * ELEMENT_OVERHEAD_S == pytest.approx(wait_s, abs=0.1 * count)
+
+
+_CONTROL = {'min_c': 10.0, 'max_c': 35.0, 'max_rate_c_per_h': 60.0, 'time_constant_s': 120.0}
+
+
+def _planned_start_s(flight, campaign_end_s):
+    """When a flight's last element starts, from its plan: each element before it takes its duration and the overhead
+    of one where the telescope is."""
+    from sofia_ros.design.elements import ELEMENT_OVERHEAD_S
+
+    before = [step for element in flight[:-1] for step in element.plan_elements]
+    return campaign_end_s + sum(next(iter(step.values()))['duration_s'] + ELEMENT_OVERHEAD_S for step in before)
+
+
+@pytest.mark.parametrize('bag_end_s, steps_start_s, reset_s, waits', [
+    # issue 28's thermal set, seeds 1 and 3: 1842 s of alignment; the library's short campaign ends at 566.8 s.
+    (1842.25, 1840.0, 720.0, 2),
+    # seed 2: 1172 s; the change to the bag's temperature is shortened to end there.
+    (1172.25, 1170.0, 572.0, 0),
+    # a bag that ends before three time constants could follow the short campaign: the steps start late.
+    (700.0, 957.8, 360.0, 0),
+])
+def test_the_library_flies_each_temperature_step_at_the_bags_end_time_and_temperature(
+        tmp_path, monkeypatch, bag_end_s, steps_start_s, reset_s, waits):
+    """Issue 28's thermal set: the library flew its cool step at 3383 s of its record, after the other elements and the
+    warm step, where the designed plan flies it at 1843 s; against a rival that follows time, the prediction was
+    2.3-2.6 times short. Each step now has a flight of its own whose plan starts it where the bag ends."""
+    import sofia_ros.design.cli as design_cli
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.elements import is_thermal, thermal_library
+
+    flown = []
+
+    def fly(flight, old_plan, truth, progress):
+        bag = tmp_path / f'flight{len(flown)}'
+        bag.mkdir()
+        (bag / 'calibration.yaml').write_text('elements:\n- {index: 1, kind: hold, start_s: 566.8, end_s: 600.0}\n')
+        flown.append(flight)
+        return bag
+
+    monkeypatch.setattr(design_cli, '_library_bag', fly)
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-full.yaml')
+    elements = design_cli._library_elements(plan, _CONTROL)
+    bag = type('Observations', (), {
+        'gyro': type('Gyro', (), {'tick_temperature_c': np.array([22.8, 22.288])}),
+        'centroids': type('Centroids', (), {'stamp_s': np.array([0.25, bag_end_s])})})
+    flights = design_cli._library_flights(elements, plan, None, _CONTROL, bag, None)
+    assert [flight for _, flight in flights] == flown
+    plain, *stepped = flown
+    assert plain == tuple(element for element in elements if not is_thermal(element))
+    assert [flight[-1] for flight in stepped] == list(thermal_library(10.0, 35.0, 120.0))
+    for flight in stepped:
+        *wait, reset, step = flight
+        assert len(wait) == waits and all('hold' in element.document for element in wait)
+        assert reset.plan_elements == [{'temperature': {'target_c': 22.3, 'duration_s': reset_s}},
+                                       {'hold': {'duration_s': 1.0, 'los_deg': 0.0}}]
+        assert _planned_start_s(flight, 566.8) == pytest.approx(steps_start_s, abs=0.5)
 
 
 def test_the_library_flight_is_shaped_by_the_bags_plan():
@@ -549,20 +622,18 @@ def test_the_star_hop_library_holds_at_most_three_other_stars_the_last_observed(
 
 
 def test_the_thermal_library_flight_is_flown_on_the_nominal_truth_with_the_bags_control():
-    from sofia_ros.design.cli import _elements_start_c, _flight_elements, _library_truth
-    from sofia_ros.design.elements import thermal_library
+    from sofia_ros.design.cli import _library_truth
 
-    control = {'min_c': 10.0, 'max_c': 35.0, 'max_rate_c_per_h': 60.0, 'time_constant_s': 120.0}
-    truth = _library_truth(control)
-    assert truth.scenario['thermal_control'] == control
+    truth = _library_truth(_CONTROL)
+    assert truth.scenario['thermal_control'] == _CONTROL
     assert set(truth.effects) == set(_library_truth(None).effects)
-    steps = thermal_library(10.0, 35.0, 120.0)
-    # The designed plan's elements start where the bag ended: 22.475 C after 1170 s of a night falling 1 C/h.
-    bag = type('Observations', (), {'gyro': type('Gyro', (), {'tick_temperature_c': np.array([22.8, 22.475])})})
-    flight = _flight_elements(steps, control, _elements_start_c(bag))
-    # To the bag's last temperature, held six time constants, before each step; then the fine drive back at LOS 0,
-    # which the Earth's turn walked during the hold, so that the step's star is in its reach.
-    assert [element.name for element in flight[0::2]] == ["to the bag's last 22.5 C"] * 3
-    assert flight[0].plan_elements == [{'temperature': {'target_c': 22.5, 'duration_s': 720.0}},
-                                       {'hold': {'duration_s': 1.0, 'los_deg': 0.0}}]
-    assert _flight_elements(steps, None, None) == steps
+
+
+def test_a_library_without_temperature_steps_is_one_flight(tmp_path, monkeypatch):
+    import sofia_ros.design.cli as design_cli
+    from sofia_ros.campaigns.plan_files import read_plan_file
+
+    monkeypatch.setattr(design_cli, '_library_bag', lambda flight, *args: tmp_path)
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    elements = design_cli._library_elements(plan, None)
+    assert design_cli._library_flights(elements, plan, None, None, None, None) == [(tmp_path, elements)]

@@ -2,7 +2,8 @@
 
 `sofia design SOURCE` takes a comparison's JSON (`sofia compare --json`) or a bag with --model,
 and a competing set (the comparison's first, --set N of it, or --between A,B). It flies the
-library of plan elements once on the nominal truth (kept in the user's cache), predicts, prints
+library of plan elements once on the nominal truth (each temperature step in a flight of its
+own, from the bag's end time and last temperature; kept in the user's cache), predicts, prints
 the table, and writes the plan. `sofia design --check NEW_BAG --prediction DESIGN.json` refits
 the members on the old and the new bag and prints predicted against achieved separation.
 
@@ -22,7 +23,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from sofia_ros.cli_args import integer, number
-from sofia_ros.errors import ConfigError
+from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.output_files import json_ready, output_target, write_text_atomically
 from sofia_ros.progress import Progress
 
@@ -181,13 +182,17 @@ def _library_document(elements: tuple, old_plan: Any) -> dict:
     return {**document, 'elements': [step for element in elements for step in element.plan_elements]}
 
 
-#: How long the library flight's reset before a temperature step holds, in time constants of the thermal control: the
-#: temperature within 1 % of the bag's last before the step.
-_RESET_TIME_CONSTANTS = 6.0
-#: The reset ends with a hold this long (s) at LOS 0: the Earth's turn walks the fine drive's LOS through the reset's
+#: How long the change to the bag's last temperature before a library step holds, in time constants of the thermal
+#: control: at most six (the temperature within 0.3 % of the change), and shorter where the bag ends sooner after the
+#: library's short campaign, down to three (5 % of the change: the night's course is then within a few 0.1 C of it).
+_RESET_TIME_CONSTANTS = (3.0, 6.0)
+#: The change ends with a hold this long (s) at LOS 0: the Earth's turn walks the fine drive's LOS through the change's
 #: long hold, and the next element's move to its star was refused beyond the fine drive's +-3 deg (a step at 25 deg
-#: after a reset at 55 deg: "fine drive LOS would reach -3.756 deg").
+#: after a change at 55 deg: "fine drive LOS would reach -3.756 deg").
 _RECENTRE_HOLD_S = 1.0
+#: The bag's end is rounded to this (s) for the library's step flights: the bags of one plan and truth (seeds) that end
+#: within it of each other share them.
+_START_ROUNDING_S = 10.0
 
 
 def _library_truth(thermal_control: dict | None) -> Any:
@@ -206,8 +211,8 @@ def _library_truth(thermal_control: dict | None) -> Any:
     return parse_effect_config(yaml.safe_dump(document), f'{path} with the thermal control of the bag')
 
 
-#: The bag's last temperature is rounded to this (C) for the library flight's resets: the bags of one plan and truth
-#: (seeds) end within it of each other and share one library flight.
+#: The bag's last temperature is rounded to this (C) for the library's step flights: the bags of one plan and truth
+#: (seeds) end within it of each other and share them.
 _RESET_ROUNDING_C = 0.1
 
 
@@ -218,21 +223,62 @@ def _elements_start_c(observations: Any) -> float:
     return round(round(last_c / _RESET_ROUNDING_C) * _RESET_ROUNDING_C, 3)
 
 
-def _flight_elements(elements: tuple, thermal_control: dict | None, start_c: float | None) -> tuple:
-    """What the library flight flies: the library, each temperature step after a change to ``start_c``, the
-    temperature the designed plan's elements start at, and the fine drive back at LOS 0.
+def _elements_start_s(observations: Any) -> float:
+    """The sim time a designed plan's elements start at: the bag's last frame (the plan is flown again before them),
+    rounded to _START_ROUNDING_S."""
+    return round(float(observations.centroids.stamp_s.max()) / _START_ROUNDING_S) * _START_ROUNDING_S
 
-    A temperature-dependent signature is the coefficient times the temperature's departure from the bag's: started
-    from the night's 22.8 C where the designed plan starts from the bag's last 22.5 C, the library's departure at the
-    slew after a 2 C step was 25 % short, and its prediction half the flight's (issue 28's gyro set, seed 1)."""
-    from sofia_ros.design.elements import Element, with_thermal_resets
 
-    if thermal_control is None:
-        return elements
-    held_s = _RESET_TIME_CONSTANTS * thermal_control['time_constant_s']
-    return with_thermal_resets(elements, Element(f"to the bag's last {start_c:g} C",
-                                                 {'temperature': {'target_c': start_c, 'duration_s': held_s}},
-                                                 ({'hold': {'duration_s': _RECENTRE_HOLD_S, 'los_deg': 0.0}},)))
+def _step_lead(thermal_control: dict, start_c: float, start_s: float, campaign_end_s: float) -> tuple:
+    """What a library step's flight flies between the short campaign (ending at ``campaign_end_s``) and the step: holds
+    until about ``start_s``, where the designed plan's elements start, ending with a change to ``start_c``, the bag's
+    last temperature, and the fine drive back at LOS 0.
+
+    A temperature-dependent signature is the coefficient times the temperature's departure from the bag's, and one
+    that follows time is told from it by the departure from the night's course: started from the night's 22.8 C where
+    the designed plan starts from the bag's last 22.5 C, the library's departure at the slew after a 2 C step was 25 %
+    short (issue 28's gyro set, seed 1); flown 1540 s later in the record than the designed plan, a third (its thermal
+    set)."""
+    from sofia_ros.design.elements import ELEMENT_OVERHEAD_S, Element, waiting_holds
+
+    shortest, longest = (count * thermal_control['time_constant_s'] for count in _RESET_TIME_CONSTANTS)
+    available_s = start_s - campaign_end_s - 2.0 * ELEMENT_OVERHEAD_S - _RECENTRE_HOLD_S
+    held_s = float(round(min(max(available_s, shortest), longest)))
+    reset = Element(f"to the bag's last {start_c:g} C", {'temperature': {'target_c': start_c, 'duration_s': held_s}},
+                    ({'hold': {'duration_s': _RECENTRE_HOLD_S, 'los_deg': 0.0}},))
+    return (*waiting_holds(available_s - held_s), reset)
+
+
+def _campaign_end_s(bag: Path) -> float:
+    """When a library flight's short campaign ended: its first element's start (sim s, calibration.yaml)."""
+    import yaml
+
+    from sofia_ros.design.geometry import element_windows
+    from sofia_ros.input_files import read_text_capped
+
+    calibration = yaml.safe_load(read_text_capped(bag / 'calibration.yaml', _MAX_JSON_BYTES, 'a calibration result'))
+    starts = [entry['start_s'] for entry in (calibration or {}).get('elements') or [] if 'start_s' in entry]
+    if not starts:
+        raise BagError(f'the library flight {bag} records no element; delete it so that it is flown again')
+    return float(min(starts))
+
+
+def _library_flights(elements: tuple, old_plan: Any, truth: Any, thermal_control: dict | None, observations: Any,
+                     progress: Progress) -> list:
+    """[(bag, the elements it flew)] of the library flights, each flown if not in the user's cache yet: the elements
+    that command no temperature in one, and each temperature step in one of its own after a lead to the bag's end
+    time and last temperature (design.elements.step_flights)."""
+    from sofia_ros.design.elements import is_thermal, step_flights
+
+    plain = tuple(element for element in elements if not is_thermal(element))
+    first = _library_bag(plain, old_plan, truth, progress)
+    flights = [(first, plain)]
+    if thermal_control is None or len(plain) == len(elements):
+        return flights
+    lead = _step_lead(thermal_control, _elements_start_c(observations), _elements_start_s(observations),
+                      _campaign_end_s(first))
+    return flights + [(_library_bag(flight, old_plan, truth, progress), flight)
+                      for flight in step_flights(elements, lead)]
 
 
 def _library_bag(flight: tuple, old_plan: Any, truth: Any, progress: Progress) -> Path:
@@ -253,7 +299,7 @@ def _library_bag(flight: tuple, old_plan: Any, truth: Any, progress: Progress) -
     # Flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs that
     # fly it at once the first to finish is kept.
     folder = Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix='.flying', dir=bag.parent))
-    progress.phase(f'flying the element library once ({len(flight)} elements; kept in {bag.parent})')
+    progress.phase(f'flying a library flight once ({len(flight)} elements; kept in {bag.parent})')
     try:
         campaign_named(campaign).run(truth, seed=0, bag_path=folder / 'bag', plan=plan, mode='direct')
         if not bag.exists():
@@ -362,20 +408,20 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
             progress.phase(f'reading {what}')
             return read_observations(path)
 
-    # The bag first: its last temperature is where the library flight's temperature steps start.
+    # The bag first: its end and last temperature are where the library's temperature steps start.
     observations = read(bag, 'the bag')
-    start_c = _elements_start_c(observations) if thermal_control is not None else None
-    flight = _flight_elements(elements, thermal_control, start_c)
-    library_observations = read(_library_bag(flight, old_plan, truth, progress), 'the library flight')
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
-    progress.phase('linearizing the members on the bag and on the library flight')
-    windows, skipped = flown_elements(library_observations.calibration_result, flight)
-    # The resets between temperature steps are the flight's, not the library's.
-    windows = [window for window in windows if window[0] in elements]
-    skipped = [name for name in skipped if name in {element.name for element in elements}]
-    document = design_plan(observations, library_observations, windows, skipped, model, members, flight_s=flight_s,
-                           budget_s=budget_s, target=args.target, anchor_spacing_s=args.anchor_s)
+    library, skipped = [], []
+    for path, flight in _library_flights(elements, old_plan, truth, thermal_control, observations, progress):
+        flown = read(path, 'a library flight')
+        windows, missed = flown_elements(flown.calibration_result, flight)
+        # The waits and changes of temperature before a step are the flight's, not the library's.
+        library.append((flown, [window for window in windows if window[0] in elements]))
+        skipped += [name for name in missed if name in {element.name for element in elements}]
+    progress.phase('linearizing the members on the bag and on the library flights')
+    document = design_plan(observations, library, skipped, model, members, flight_s=flight_s, budget_s=budget_s,
+                           target=args.target, anchor_spacing_s=args.anchor_s)
     _print_design(document, out)
     if document['status'] in {'designed', 'not_reached'} and args.plan_out:
         planned = plan_document(old_plan)

@@ -5,8 +5,9 @@ fly), or a temperature step and the slews flown after it. The alignment's: Table
 another elevation, LOS rotations, holds at a LOS angle, a longer hold, and where the truth's
 thermal control allows, temperature steps. The star hop's: holds on the plan's stars, a longer
 hold, and holds with the star placed across a camera's field. A library is flown once, on the
-nominal truth after a short campaign, to learn each element's geometry and flight time; an
-element is then summarized by its profiled information.
+nominal truth after a short campaign (each temperature step in a flight of its own, at the time and
+temperature the designed plan will start it at), to learn each element's geometry and flight time;
+an element is then summarized by its profiled information.
 """
 
 from __future__ import annotations
@@ -20,10 +21,10 @@ import numpy as np
 from sofia_ros.design.separation import Information, expected_delta_bic, noncentrality, sigma_of
 from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['ALIGNMENT_LIBRARY', 'STAR_HOP_HOLD_S', 'STAR_HOP_OTHER_STARS', 'STAR_HOP_PLACEMENTS',
-           'THERMAL_SLEW_ELEVATIONS_DEG', 'THERMAL_SLEW_HOLD_S', 'Choice', 'Element', 'Hypothesis', 'Prediction',
-           'choose_elements', 'is_thermal', 'predict', 'smallest_flight_s', 'star_hop_library', 'thermal_library',
-           'with_thermal_resets']
+__all__ = ['ALIGNMENT_LIBRARY', 'ELEMENT_OVERHEAD_S', 'STAR_HOP_HOLD_S', 'STAR_HOP_OTHER_STARS',
+           'STAR_HOP_PLACEMENTS', 'THERMAL_SLEW_ELEVATIONS_DEG', 'THERMAL_SLEW_HOLD_S', 'WAIT_HOLD_S', 'Choice',
+           'Element', 'Hypothesis', 'Prediction', 'choose_elements', 'is_thermal', 'predict', 'smallest_flight_s',
+           'star_hop_library', 'step_flights', 'thermal_library', 'waiting_holds']
 
 
 @dataclass(frozen=True)
@@ -143,24 +144,52 @@ def is_thermal(element: Element) -> bool:
     return any('temperature' in step for step in element.plan_elements)
 
 
-def with_thermal_resets(elements: Sequence[Element], reset: Element) -> tuple:
-    """``elements`` in the library flight's order, with ``reset`` before each temperature step: each is then flown from
-    the temperature a designed plan starts its elements at, not from the last step's or the library flight's own.
+#: The longest hold a library flight waits in: the Earth's turn walks the fine drive's LOS about 3 deg in 12 minutes,
+#: and a hold driven into its end stop ends the flight there (docs/plans.md); each hold starts back at LOS 0.
+WAIT_HOLD_S = 300.0
+#: What a hold or temperature element flown at the elevation where the telescope is adds to its duration_s in a flight
+#: (the star centred, the frames of the position): 6-9 s, 15 s for a hold of 1 s, in issue 28's library flights; taken
+#: at 15, a step's flight starts it about 25 s before the time aimed at (0.007 C of the night's course).
+ELEMENT_OVERHEAD_S = 15.0
+
+
+def waiting_holds(wait_s: float) -> tuple:
+    """Holds at LOS 0, each at most WAIT_HOLD_S, that fill about ``wait_s`` of flight (their overhead counted).
+
+    Args:
+        wait_s: the flight time to fill (s); none is filled below one element's overhead.
+
+    Returns:
+        The Elements (none for a wait too short for one).
+    """
+    if wait_s <= ELEMENT_OVERHEAD_S + 1.0:
+        return ()
+    count = int(np.ceil(wait_s / (WAIT_HOLD_S + ELEMENT_OVERHEAD_S)))
+    held_s = round(wait_s / count - ELEMENT_OVERHEAD_S, 1)
+    return tuple(Element(f'wait {held_s:g} s ({index + 1} of {count})',
+                         {'hold': {'duration_s': held_s, 'los_deg': 0.0}}) for index in range(count))
+
+
+def step_flights(elements: Sequence[Element], lead: Sequence[Element]) -> tuple:
+    """Each temperature step of the library in a flight of its own, after ``lead``, which brings the telescope to the
+    time and temperature the designed plan starts its elements at.
+
+    A step is compared with a rival that follows the record's time (a creep, a drift), and what tells them apart is
+    how far the step takes the temperature off the night's course at that time: flown after the other elements and
+    the earlier steps (at 3383 s of the library's record where the designed plan flies it at 1843 s), the step's
+    departure from the night's course was a third smaller, and the prediction 2.3-2.6 times short (issue 28's thermal
+    set). The elements that command no temperature are flown in one flight, on the night's course, where temperature
+    and time move together as in the designed plan.
 
     Args:
         elements: the library.
-        reset: a temperature element to the temperature the designed plan's elements start at, held long enough to get
-            there.
+        lead: what each step's flight flies before the step (waits to the bag's end, the change to its last
+            temperature).
 
     Returns:
-        The flight's elements (the library's and the resets).
+        One flight (a tuple of Elements) per temperature step, in the library's order.
     """
-    flight = []
-    for element in elements:
-        if is_thermal(element):
-            flight.append(reset)
-        flight.append(element)
-    return tuple(flight)
+    return tuple((*lead, element) for element in elements if is_thermal(element))
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,10 @@
    member's size is its linearized fit on the bag (what the comparison would fit), except a
    scaling parameter the bag does not measure, which is taken at its catalogue size and said so
    (stated_sizes); the residual variance is that of the better member.
-2. The library flight: the same columns over each element's window of a bag that flew the
-   library on the nominal truth; each element's profiled information and flight time.
+2. The library flights: the same columns over each element's window of the bags that flew the
+   library on the nominal truth (each temperature step in a flight of its own, started at the
+   bag's end time and last temperature, as the designed plan starts it); each element's profiled
+   information, flight time and start.
 3. Each element's expected separation per minute, each set's prediction, the choice
    (design.elements.choose_elements). A direction in which the rival reproduces the true member
    even with every element flown (REPRODUCED_BELOW) is one no plan can separate: it is named,
@@ -41,6 +43,7 @@ class ElementEntry(TypedDict):
     name: str
     element: list
     flight_s: float
+    start_s: float
     separation: dict
     separation_per_minute: dict
     sigma_ratio: dict
@@ -63,6 +66,7 @@ class DesignDocument(TypedDict):
     members: list
     shared: list
     flight_s: float
+    elements_start_s: float
     budget_s: float
     target_delta_bic: float
     sizes: dict
@@ -178,12 +182,12 @@ def flown_elements(calibration_text: str | None, library_elements: Sequence[Elem
 
 
 def _element_information(library: BagColumns, windows: Sequence[tuple]) -> list:
-    """(Element, Information without gradient, flight s) of each flown element: what its geometry adds."""
+    """(Element, Information without gradient, flight s, start s) of each flown element: what its geometry adds."""
     out = []
     for element, start, end in windows:
         information = library.information(start, end)
         out.append((element, Information(information.labels, information.gram, np.zeros_like(information.gradient),
-                                         information.rows), end - start))
+                                         information.rows), end - start, start))
     return out
 
 
@@ -209,16 +213,16 @@ def check_members(model: EffectConfig, members: Sequence[Sequence[str]]) -> None
                                   'the model lacks (remove it from the model, or name another)')
 
 
-def design_plan(observations: object, library_observations: object, windows: Sequence[tuple], skipped: Sequence[str],
-                model: EffectConfig, members: Sequence[Sequence[str]], *, flight_s: float, budget_s: float,
-                target: float, anchor_spacing_s: float = 30.0) -> DesignDocument:
+def design_plan(observations: object, library: Sequence[tuple], skipped: Sequence[str], model: EffectConfig,
+                members: Sequence[Sequence[str]], *, flight_s: float, budget_s: float, target: float,
+                anchor_spacing_s: float = 30.0) -> DesignDocument:
     """The prediction and the choice for one competing set of two members.
 
     Args:
         observations: the old bag's observations.
-        library_observations: the library flight's observations.
-        windows: (Element, start_s, end_s) of each element the library flight flew (flown_elements).
-        skipped: the names of the library elements it could not fly.
+        library: per library flight, (its observations, the (Element, start_s, end_s) of each library element it flew
+            (flown_elements)); each temperature step is flown in a flight of its own.
+        skipped: the names of the library elements the flights could not fly.
         model: the model compared (its fitted terms are shared by both members).
         members: the two members, each a list of effect names.
         flight_s: the old bag's flight time (s).
@@ -238,7 +242,6 @@ def design_plan(observations: object, library_observations: object, windows: Seq
     """
     check_members(model, members)
     old = bag_columns(observations, model, members, anchor_spacing_s=anchor_spacing_s)
-    library = bag_columns(library_observations, model, members, anchor_spacing_s=anchor_spacing_s)
     base = old.information()
     fitted = _hypotheses(old, base, members)
     shared = list(old.shared_labels)
@@ -246,19 +249,23 @@ def design_plan(observations: object, library_observations: object, windows: Seq
     variance = max(old.rss - best_drop, 1.0) / old.rows
     (first, second), assumed = _assumed_hypotheses(base, shared, members, fitted, variance)
     before = predict(base, shared, first, second, variance)
-    elements = _element_information(library, windows)
+    elements = []
+    for flight, windows in library:
+        if windows:  # a flight whose elements were all skipped measures nothing: no fit of it
+            columns = bag_columns(flight, model, members, anchor_spacing_s=anchor_spacing_s)
+            elements += _element_information(columns, windows)
     if not elements:
         raise BagError('the library flight flew none of its elements (no star in reach); see its summary.json')
     entries = []
-    for element, information, seconds in elements:
+    for element, information, seconds, start in elements:
         alone = predict(base + information, shared, first, second, variance)
         per_minute = {name: 60.0 * (alone.separation[name] - before.separation[name]) / seconds
                       for name in alone.separation}
         entries.append(ElementEntry(name=element.name, element=element.plan_elements, flight_s=round(seconds, 1),
-                                    separation=alone.separation, separation_per_minute=per_minute,
-                                    sigma_ratio=_sigma_ratio(before, alone)))
+                                    start_s=round(start, 1), separation=alone.separation,
+                                    separation_per_minute=per_minute, sigma_ratio=_sigma_ratio(before, alone)))
     whole = base
-    for _, information, _ in elements:
+    for _, information, _, _ in elements:
         whole = whole + information
     with_all = predict(whole, shared, first, second, variance)
     # A direction the rival reproduces even with every element flown is one no plan of these elements can separate:
@@ -267,20 +274,22 @@ def design_plan(observations: object, library_observations: object, windows: Seq
     separable = [name for name in before.separation if name not in reproduced]
     document = DesignDocument(
         bag=str(observations.bag_path), model=model.source, members=[member_name(m) for m in members],
-        shared=shared, flight_s=round(flight_s, 1), budget_s=round(budget_s, 1), target_delta_bic=target,
+        shared=shared, flight_s=round(flight_s, 1),
+        elements_start_s=round(float(observations.centroids.stamp_s.max()), 1), budget_s=round(budget_s, 1),
+        target_delta_bic=target,
         sizes={member.name: dict(zip(member.labels, member.values.tolist())) for member in fitted},
         assumed_sizes=assumed,
         observed_delta_bic={member_name(m): _observed_delta_bic(old, base, member_labels(m)) for m in members},
         before=before.separation, elements=entries, status='already_separated', chosen=[], chosen_flight_s=0.0,
         flight_share=0.0, predicted=before.separation, sigma_before=before.sigma, sigma_after=before.sigma,
         skipped=list(skipped), reproduced=reproduced,
-        whole_library={'flight_s': round(sum(seconds for _, _, seconds in elements), 1),
+        whole_library={'flight_s': round(sum(seconds for _, _, seconds, _ in elements), 1),
                        'separation': with_all.separation, 'signature_left': with_all.signature_left})
     if not separable or before.weakest_of(separable) >= target:
         document['status'] = 'inseparable' if reproduced else 'already_separated'
         return document
-    choice: Choice = choose_elements(base, [information for _, information, _ in elements],
-                                     [seconds for _, _, seconds in elements], shared, first, second, variance,
+    choice: Choice = choose_elements(base, [information for _, information, _, _ in elements],
+                                     [seconds for _, _, seconds, _ in elements], shared, first, second, variance,
                                      target=target, budget_s=budget_s, directions=separable)
     document.update(status='designed' if choice.reached else 'not_reached',
                     chosen=[{'name': elements[index][0].name, 'element': elements[index][0].plan_elements}

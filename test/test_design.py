@@ -637,3 +637,29 @@ def test_a_library_without_temperature_steps_is_one_flight(tmp_path, monkeypatch
     plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
     elements = design_cli._library_elements(plan, None)
     assert design_cli._library_flights(elements, plan, None, None, None, None) == [(tmp_path, elements)]
+
+
+@pytest.mark.parametrize('period_min, nested', [(5.2, True), (5.3, False)])
+def test_the_tracker_drift_is_the_gyro_bias_and_the_generic_period_of_its_length(period_min, nested):
+    """Why no flight separates issue 28's tracker set (docs/design.md): the drift is a rate error of the EL gyro, a
+    constant (the gyro bias the model fits) plus a sinusoid, and at its own period the generic term's sine and cosine
+    span that sinusoid whatever its phase, at every time of any record; every camera then sees the two alike. A generic
+    period other than the drift's is not nested (5.3 against 5.2 min leaves half of it over 90 minutes)."""
+    from sofia_ros.effects.context import GyroContext
+    from sofia_ros.effects.empirical import empirical_spec
+    from sofia_ros.sensors.gyro_errors import gyro_error_model, rate_offsets_rad_per_s
+
+    times = np.linspace(0.0, 5400.0, 5401)
+    context = GyroContext.at_rest(times, 22.0)
+    generic = empirical_spec('empirical:gyro.el:time:period_312s')
+    columns = [generic.gyro_rate_offset({param.name: float(param is unit) for param in generic.params}, context)
+               for unit in generic.params]
+    assert all(not column[:, 1:].any() for column in columns)  # the EL gyro only, as the drift
+    basis = np.column_stack([np.ones_like(times), *(column[:, 0] for column in columns)])
+    drift = rate_offsets_rad_per_s(gyro_error_model({'tracker_drift': {
+        'linear_px_per_min': 1.4, 'sine_amplitude_px': 2.2, 'sine_period_min': period_min, 'sine_phase_deg': 37.0}}),
+        times, 22.0)
+    assert not drift[:, 1:].any()
+    left = drift[:, 0] - basis @ np.linalg.lstsq(basis, drift[:, 0], rcond=None)[0]
+    share = np.linalg.norm(left) / np.linalg.norm(drift[:, 0] - drift[:, 0].mean())
+    assert (share < 1e-9) if nested else (share > 0.3)

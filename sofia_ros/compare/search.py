@@ -41,7 +41,7 @@ from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, 
                                         shared_share)
 from sofia_ros.compare.fit import ModelFit, vanishing_values
 from sofia_ros.config import EffectConfig
-from sofia_ros.effects import resolve_params
+from sofia_ros.effects import get_effect, resolve_params
 from sofia_ros.effects.empirical import is_empirical
 from sofia_ros.errors import ConfigError
 
@@ -71,8 +71,9 @@ class LinearizedModels:
     ``names`` are the blocks (the model's fitted effects, then candidates), ``in_model`` says
     which are on at the fit. The Gram matrix is over [residual, one switch vector per block,
     every block's columns], each with the nuisance columns (the attitude anchors) projected out.
-    Switching a model term off adds what its columns explained (J (value - vanishing value));
-    switching a candidate on subtracts its shift (the prediction's change at its start values).
+    Switching a model term off adds what its columns explained (its scaling columns times their values: a
+    shaping parameter, a period or a phase, shapes nothing once the term is off); switching a candidate on
+    subtracts its shift (the prediction's change at its start values).
     """
 
     names: tuple
@@ -105,14 +106,17 @@ class LinearizedModels:
         groups = {}
         for index, parameter in enumerate(free):
             groups.setdefault(parameter.effect, []).append(index)
-        off = vanishing_values(free)
+        # A term switched off is its scaling parameters at 0. Its shaping ones (a period, a phase) then shape
+        # nothing: their distance from the default is no part of what the term explains (a LOS oscillation of
+        # 511 s against the default 1200 s seemed to pay 92 BIC where it cost 28, issue 25's truth29).
+        departure = np.where(_shaping(free), 0.0, values - vanishing_values(free))
         names, in_model, switches, columns, parameters, starts = [], [], [], [], [], []
         for effect, indices in groups.items():
             own = jacobian[:, nuisance_count + np.array(indices)]
             own = own.toarray() if scipy.sparse.issparse(own) else np.asarray(own)
             names.append(effect)
             in_model.append(True)
-            switches.append(own @ (values[indices] - off[indices]))
+            switches.append(own @ departure[indices])
             columns.append(own)
             parameters.append(tuple(free[i].name for i in indices))
             starts.append(np.asarray(values[indices], dtype=float))
@@ -200,6 +204,11 @@ class LinearizedModels:
         penalty = EMPIRICAL_PENALTY * sum(1 for name in chosen if is_empirical(name)) if prefer_physics else 0.0
         return (self.rows * np.log(self.rss(chosen) / self.rows) + (self.nuisance_count + width) * np.log(self.rows)
                 + penalty)
+
+
+def _shaping(free):
+    """Per free parameter, whether it shapes its effect (catalogue: ``shape``) rather than scales it."""
+    return np.array([get_effect(p.effect).parameter(p.name).shape for p in free], dtype=bool)
 
 
 def _projected_gram(pieces, nuisance):
@@ -351,18 +360,34 @@ class SearchRound(TypedDict):
 
 def search_pool(candidate_terms: Iterable[CandidateTerm],
                 candidates: Iterable[Mapping[str, Any]]) -> list[CandidateTerm]:
-    """The candidates a model's terms are questioned against: the SEARCH_POOL strongest observable ones.
+    """The candidates a model's terms are questioned against: the SEARCH_POOL strongest observable ones, and every
+    physical one the model's terms absorb in part.
+
+    A physical effect the model's terms stand in for is not observable beside them: they take most of its
+    columns, and what they leave of it is too weak to count (issue 25: on the atlas' truth29 star hop a gyro
+    scale factor and a LOS oscillation took the place of the gyro axis swap, whose scale difference the scale
+    factor absorbs and whose temperature slope alone is left). It is still the one effect that could take the
+    place of them all, so it is questioned too. One the model absorbs whole, with no parameter the data
+    determine, is left out: the data cannot tell it from the terms there at all (where one term absorbs it,
+    the comparison names the two degenerate).
 
     Args:
         candidate_terms: the candidates linearized where they vanish.
-        candidates: the candidates' entries of the JSON (detectable, delta_bic).
+        candidates: the candidates' entries of the JSON (detectable, delta_bic, empirical, sigma).
 
     Returns:
-        The terms of the SEARCH_POOL strongest detectable candidates, in ``candidate_terms`` order.
+        The terms of those candidates, in ``candidate_terms`` order.
     """
+    candidates = list(candidates)
     ranked = sorted((c for c in candidates if c['detectable']), key=lambda c: -c['delta_bic'])
-    strongest = {c['effect'] for c in ranked[:SEARCH_POOL]}
-    return [term for term in candidate_terms if term.name in strongest]
+    chosen = {c['effect'] for c in ranked[:SEARCH_POOL]}
+    chosen |= {c['effect'] for c in candidates if not c['detectable'] and not c['empirical'] and _partly_measured(c)}
+    return [term for term in candidate_terms if term.name in chosen]
+
+
+def _partly_measured(candidate):
+    """Whether the data determine at least one of a candidate's parameters (a finite sigma)."""
+    return any(sigma is not None and np.isfinite(sigma) for sigma in candidate['sigma'].values())
 
 
 @dataclass(frozen=True)

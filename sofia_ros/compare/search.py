@@ -412,9 +412,24 @@ class _Outcome:
         return cls(result.document, float(result.final_fit.bic), result.final_fit.effects)
 
     @property
-    def rank(self) -> tuple[bool, float]:
-        """How the answer is chosen: explained first, then the lowest BIC."""
-        return self.document['verdict']['status'] != 'explained', self.bic
+    def explained(self) -> bool:
+        """Whether its verdict is explained."""
+        return self.document['verdict']['status'] == 'explained'
+
+    def replaces(self, answer: _Outcome) -> bool:
+        """Whether this comparison takes the place of the answer so far: explained before not; between explained
+        ones, a BIC lower by SIGNIFICANT_DELTA_BIC, the gain from which a verdict changes its model (a lower one
+        is an equivalent of the answer, which the data cannot choose from it); else the lower BIC.
+
+        Args:
+            answer: the answer so far.
+
+        Returns:
+            Whether this one is the answer now.
+        """
+        if self.explained != answer.explained:
+            return self.explained
+        return self.bic < answer.bic - (SIGNIFICANT_DELTA_BIC if self.explained else 0.0)
 
 
 def _next_model(model, outcome, step):
@@ -522,8 +537,9 @@ def search_model(observations: Observations, model: EffectConfig,
     above the full refit that proposed its model by more than the competing margin of the step's gain lost that
     minimum: the same terms are compared again, those the search added fitted newest first (where that is
     another order), before any step from it. The answer is the
-    explained model with the lowest BIC (else the lowest BIC); the others explained within EQUIVALENT_DELTA_BIC
-    of it are its equivalents. ``compare(observations, model)`` is compare.run.compare_observations with its
+    first explained model compared, replaced by a later one only where that one's BIC is lower by
+    SIGNIFICANT_DELTA_BIC (else the lowest BIC); the others explained within EQUIVALENT_DELTA_BIC of it are its
+    equivalents. ``compare(observations, model)`` is compare.run.compare_observations with its
     options. Returns the answer's CompareResult, its model (EffectConfig), the SearchRounds and the equivalents
     (the answer's one-term alternatives by linearized BIC, and the other explained models compared).
 
@@ -557,7 +573,7 @@ def search_model(observations: Observations, model: EffectConfig,
         earlier = compared.get(item.model.fitted)
         if earlier is None or bic < earlier[0].bic:
             compared[item.model.fitted] = (outcome, item.model)
-        if answer is None or outcome.rank < _Outcome.of(answer[0]).rank:
+        if answer is None or outcome.replaces(_Outcome.of(answer[0])):
             answer = (compared_now, item.model)
         del compared_now
         # the steps go on from the best fit of these terms

@@ -20,7 +20,9 @@ The sets:
   plug-in effects written by this bench, FFI_TERMS: on a night whose temperature drifts linearly
   they are one signature), the alignment on the truth with thermal control;
 - tracker: the tracker drift against the generic period of its length, reduced star hop;
-- hipo-hop: the HIPO set on the reduced star hop, whose library places the star off HIPO's centre.
+- hipo-hop: the HIPO set on the reduced star hop, whose library places the star off HIPO's centre;
+- hipo-min: the HIPO set on the minimal alignment (294 s of flight, one frame per position): whether
+  a smaller campaign than the reduced one is blind to it before the addition.
 
 Run: .venv/bin/python bench/bench_design.py [--seeds 1,2,3] [--sets hipo,gyro,...] [--work DIR]
 """
@@ -72,6 +74,8 @@ SETS = {
                             'nominal.yaml'),
     'hipo-hop': CompetingSet('hipo_fiducial_error', 'imager_boresight_offset+imager_rotation_of_field', 'star-hop',
                              'reduced', 'nominal.yaml'),
+    'hipo-min': CompetingSet('hipo_fiducial_error', 'imager_boresight_offset+imager_rotation_of_field', 'alignment',
+                             'minimal', 'nominal.yaml'),
 }
 
 #: The thermal set's members: the FFI's frame turned about XEL in proportion to the temperature above the night's

@@ -177,9 +177,9 @@ def step_flights(elements: Sequence[Element], lead: Sequence[Element]) -> tuple:
     A step is compared with a rival that follows the record's time (a creep, a drift), and what tells them apart is
     how far the step takes the temperature off the night's course at that time: flown after the other elements and
     the earlier steps (at 3383 s of the library's record where the designed plan flies it at 1843 s), the step's
-    departure from the night's course was a third smaller, and the prediction 2.3-2.6 times short (issue 28's thermal
-    set). The elements that command no temperature are flown in one flight, on the night's course, where temperature
-    and time move together as in the designed plan.
+    departure from the night's course was about a third smaller, and the prediction 2.3-2.6 times short (issue 28's
+    thermal set). The elements that command no temperature are flown in one flight, on the night's course, where
+    temperature and time move together as in the designed plan.
 
     Args:
         elements: the library.

@@ -19,9 +19,10 @@ __all__ = ['MemberFit', 'member_fits']
 
 
 class MemberFit(TypedDict):
-    """One member fitted in full on a bag: its BIC and fitted values."""
+    """One member fitted in full on a bag: its BIC, whitened RSS (the prior's rows included) and fitted values."""
 
     bic: float
+    rss: float
     values: dict
     sigma: dict
 
@@ -53,6 +54,7 @@ def member_fits(observations: object, model: EffectConfig, members: Sequence[Seq
             free += list(added)
         fit = source.fit(effects, tuple(free), base)
         fits['+'.join(member)] = MemberFit(
-            bic=float(fit.bic), values={p.label: float(v) for p, v in zip(fit.free, fit.values)},
+            bic=float(fit.bic), rss=float(fit.augmented_residual @ fit.augmented_residual),
+            values={p.label: float(v) for p, v in zip(fit.free, fit.values)},
             sigma={p.label: float(s) for p, s in zip(fit.free, fit.sigma)})
     return fits

@@ -32,7 +32,8 @@ def _stand_in_problem(seed=3):
     """
     rng = np.random.default_rng(seed)
     bias, scale, slope, other = (rng.standard_normal(ROWS) for _ in range(4))
-    oscillation = [rng.standard_normal(ROWS), slope + 0.5 * other, rng.standard_normal(ROWS)]  # period, amplitude, phase
+    # the oscillation's columns: period, amplitude, phase
+    oscillation = [rng.standard_normal(ROWS), slope + 0.5 * other, rng.standard_normal(ROWS)]
     nuisance = rng.standard_normal((ROWS, ANCHORS))
     data = bias + scale + 0.3 * slope + rng.standard_normal(ROWS)
     design = np.column_stack([nuisance, bias, scale, *oscillation])

@@ -417,8 +417,8 @@ class _Outcome:
 
     def replaces(self, answer: _Outcome) -> bool:
         """Whether this comparison takes the place of the answer so far: explained before not; between explained
-        ones, a BIC lower by SIGNIFICANT_DELTA_BIC, the gain from which a verdict changes its model (a lower one
-        is an equivalent of the answer, which the data cannot choose from it); else the lower BIC.
+        ones, a BIC lower by SIGNIFICANT_DELTA_BIC, the gain from which a verdict changes its model (one lower by
+        less is an equivalent of the answer, which the data cannot choose from it); else the lower BIC.
 
         Args:
             answer: the answer so far.

@@ -89,7 +89,8 @@ def main(executable=None, argv=None):
     try:
         try:
             node = _build(executable, _read_parameters(executable))
-            # Which install runs is worth a line: a workspace can hold more than one sofia_ros.
+            # Which install runs is worth a line: a workspace can hold more than one sofia_ros. The launcher reads it
+            # as the sign that the process is up (launch.STARTED_LOG).
             package_dir = Path(sofia_ros.__file__).parent
             node.get_logger().info(f'started from {package_dir}; waiting for the other nodes of the graph')
             # EventsExecutor: 3-10x the callback rate of the SingleThreadedExecutor.

@@ -158,6 +158,17 @@ RECORDER_GRACE_S = 30.0
 #: How long the clock may take to exit by itself once the recorder has closed the bag: the clock stopped the run
 #: first, and its exit code (3: a fault) is how the run ended; a SIGINT during its teardown would lose it.
 CLOCK_EXIT_GRACE_S = 10.0
+#: How long a node may take to connect (find the graph's other nodes and report done(0)) once every node process has
+#: logged its start. Starting is the slow part on a loaded machine (each process imports numpy, scipy and rclpy: 20-50 s
+#: at load 10-20), connecting takes 1-3 s after it; a node not connected after this never connected in the runs seen,
+#: and the clock's own start-up limit (120 s from its start) only told the user minutes later.
+CONNECT_GRACE_S = 30.0
+#: How long the nodes of a stopped graph may take to exit after its SIGINT, all together, before they are killed.
+STOP_GRACE_S = 10.0
+#: What a node process logs once it is up (nodes.executables.main) and once it has connected
+#: (nodes.shell.LockstepNode._check_ready).
+STARTED_LOG = ': started from '
+CONNECTED_LOG = ': connected; waiting for ticks'
 
 
 @dataclass
@@ -233,6 +244,8 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
     then stop every remaining node. GraphRunError when the recorder died or the time ran out."""
     start = time.monotonic()
     clock, clock_stopped, bag_closed = graph.processes['clock'], None, None
+    # when every node process had logged its start; None before that, and once every node has connected
+    connecting, all_started = True, None
     try:
         with interrupts.graceful():
             while graph.processes['recorder'].poll() is None and interrupts.requested() is None:
@@ -244,6 +257,16 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
                     _dump_stacks(graph)
                     raise GraphRunError(f'the graph did not finish within {timeout_s:g} s of wall time; '
                                         f'logs, with where each running node was, in {graph.workdir}')
+                if connecting:
+                    unconnected = _unconnected_nodes(graph)
+                    connecting = unconnected != []
+                    if unconnected:
+                        all_started = all_started or now
+                        if now - all_started > CONNECT_GRACE_S:
+                            _dump_stacks(graph)
+                            raise GraphRunError(f'{", ".join(unconnected)} did not connect within '
+                                                f'{CONNECT_GRACE_S:g} s of the last node starting; is every node '
+                                                f'running? logs, with where each node was, in {graph.workdir}')
                 if clock_stopped is None and clock.poll() is not None:
                     clock_stopped = now
                 if bag_closed is None and _bag_is_closed(graph):
@@ -271,6 +294,22 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
             raise RecorderError(reported)
         raise GraphRunError(f'the recorder node {_exit_text(recorder.returncode)}; its bag is not closed: '
                             f'rebuild it with `sofia recover {graph.bag_path}`; logs in {graph.workdir}')
+
+
+def _unconnected_nodes(graph):
+    """The nodes not connected yet once every node process has logged its start (read from their logs), or None
+    while one has not started."""
+    unconnected = []
+    for name in graph.processes:
+        try:
+            text = (graph.workdir / f'{name}.log').read_text(errors='replace')
+        except OSError:
+            return None
+        if STARTED_LOG not in text:
+            return None
+        if CONNECTED_LOG not in text:
+            unconnected.append(name)
+    return unconnected
 
 
 def _dump_stacks(graph):
@@ -322,9 +361,11 @@ def stop_graph(graph):
         except ProcessLookupError:
             for process in running:
                 process.send_signal(signal.SIGINT)
+    # One deadline for all: a wait of its own for each would let eleven stuck nodes hold the run for minutes.
+    deadline = time.monotonic() + STOP_GRACE_S
     for process in graph.processes.values():
         try:
-            process.wait(timeout=10)
+            process.wait(timeout=max(deadline - time.monotonic(), 0.0))
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()

@@ -54,6 +54,10 @@ class _Source:
             return _Fit(self.given_bic, 'given')
         return _Fit(self.chain_bic, 'chain')
 
+    def chain_step(self, term, effects, free, start):
+        fit = self.fit(effects, free, start)
+        return fit, self.ledger_row(term, fit)
+
     def ledger_row(self, term, fit):
         return {'term': term, 'bic': fit.bic}
 

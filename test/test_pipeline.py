@@ -83,6 +83,10 @@ class FakeSource:
         return WhitenedFit(fitted, tuple(free), values + solved.step, solved.sigma, solved.correlation,
                            residual - jacobian @ solved.step, jacobian)
 
+    def chain_step(self, term, effects, free, start):
+        fit = self.fit(effects, free, start)
+        return fit, self.ledger_row(term, fit)
+
     def ledger_row(self, term, fit):
         return {'term': term or 'fixed effects only', 'residual_rms_arcsec': self.residual_rms(fit), 'bic': fit.bic}
 

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from sofia_ros.compare.observations import READER_VERSION, Centroids, GyroSamples, Observations
+from sofia_ros.compare.steps import StepStore, remove_step_files
 from sofia_ros.errors import ConfigError
 from sofia_ros.input_files import require_regular_file
 from sofia_ros.output_files import atomic_output, describe_os_error
@@ -243,6 +244,8 @@ class ObservationCache:
         self.warn = warn
         self.progress = progress or Progress.silent()
         self.home = home or user_cache_home()
+        #: bag directory -> the folder its observations were read from or written to
+        self._used: dict[Path, Path] = {}
 
     def folders(self, bag_path: Path) -> tuple[Path, ...]:
         """Where the cache of a bag may be, in the order tried.
@@ -279,7 +282,7 @@ class ObservationCache:
             self.progress.phase('decoded observations from the cache')
             return cached
         observations = decode(bag_path)
-        unwritable = self._store(folders, key, observations)
+        unwritable = self._store(folders, key, observations, bag_path)
         # One line, once the bag decoded: a bag that cannot be read gets its one error line alone.
         told = []
         if unusable:
@@ -299,7 +302,9 @@ class ObservationCache:
             if not (path.exists() or path.is_symlink()):
                 continue
             try:
-                return _load(path, key, bag_path), None
+                observations = _load(path, key, bag_path)
+                self._used[bag_path] = folder
+                return observations, None
             except UnusableCache as err:
                 _remove(path)
                 return None, f'ignored the observation cache {path} ({err})'
@@ -308,9 +313,20 @@ class ObservationCache:
             return None, f'the bag or the reader changed since {stale[0]} was written'
         return None, None
 
-    def _store(self, folders: tuple[Path, ...], key: str, observations: Observations) -> str | None:
-        """Write the cache file into the first folder that takes it, removing that folder's older files; why none
-        took it, or None."""
+    def step_store(self, bag_path: Path) -> StepStore:
+        """Where the ledger's steps of a bag read through this cache are kept (compare.steps).
+
+        Args:
+            bag_path: the bag directory, as read.
+
+        Returns:
+            A StepStore on the folder of the bag's observations (memory only where there is none).
+        """
+        return StepStore(self._used.get(bag_path), warn=self.warn)
+
+    def _store(self, folders: tuple[Path, ...], key: str, observations: Observations, bag_path: Path) -> str | None:
+        """Write the cache file into the first folder that takes it, removing that folder's older files (and its
+        fitted steps, of the bag as it was); why none took it, or None."""
         reasons = []
         for folder in folders:
             path = folder / _file_name(key)
@@ -323,6 +339,8 @@ class ObservationCache:
             for old in _cache_files(folder):
                 if old != path:
                     _remove(old)
+            remove_step_files(folder)
+            self._used[bag_path] = folder
             return None
         return '; '.join(reasons)
 

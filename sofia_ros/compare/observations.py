@@ -24,6 +24,7 @@ import numpy as np
 from sofia_ros import messages as m
 from sofia_ros.bag import BagReader
 from sofia_ros.compare.predict import tick_means
+from sofia_ros.compare.steps import StepStore
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.frames import dcm_from_quaternion
 from sofia_ros.scenario import Scenario, scenario_from_document
@@ -43,7 +44,7 @@ from sofia_ros.topics import (
 from sofia_ros.units import DEG_PER_RAD
 
 __all__ = ['MOTION_STATES', 'READER_VERSION', 'Centroids', 'GyroSamples', 'ObservationSource', 'Observations',
-           'decode_observations', 'observation_cache', 'read_observations']
+           'decode_observations', 'observation_cache', 'read_observations', 'step_store']
 
 #: The version of what decode_observations returns. Bump it whenever the decoding or the dataclasses below
 #: change: caches of decoded observations (compare.cache) written by another version are then decoded again.
@@ -189,6 +190,17 @@ class ObservationSource(Protocol):
         """
 
 
+    def step_store(self, bag_path: Path) -> StepStore:
+        """Where the ledger's steps of a bag the source has read are kept (compare.steps).
+
+        Args:
+            bag_path: the bag directory, as read.
+
+        Returns:
+            The StepStore.
+        """
+
+
 _ACTIVE_SOURCE: ContextVar[ObservationSource | None] = ContextVar('observation_source', default=None)
 
 
@@ -210,6 +222,20 @@ def observation_cache(source: ObservationSource | None) -> Iterator[None]:
         yield
     finally:
         _ACTIVE_SOURCE.reset(token)
+
+
+def step_store(bag_path: str | PathLike[str]) -> StepStore:
+    """Where the ledger's steps of a bag are kept: beside its cached observations where an observation cache is
+    active, else in this process's memory (compare.steps).
+
+    Args:
+        bag_path: the bag directory, as read.
+
+    Returns:
+        The StepStore.
+    """
+    source = _ACTIVE_SOURCE.get()
+    return StepStore() if source is None else source.step_store(Path(bag_path))
 
 
 def read_observations(bag_path: str | PathLike[str]) -> Observations:

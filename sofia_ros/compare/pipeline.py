@@ -158,6 +158,19 @@ class ComparisonSource(Protocol):
             FitError: the fit cannot proceed (a prediction is undefined at the start).
         """
 
+    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any) -> tuple[Any, LedgerRow]:
+        """An inner step of the ledger's chain: fitted, or read back where the source keeps steps (compare.steps).
+
+        Args:
+            term: the fitted effect the step adds (None: the fixed effects alone).
+            effects: {effect: params} at the starting values.
+            free: FreeParameters to fit.
+            start: the step before, or None.
+
+        Returns:
+            (the step, which the next starts from: a fit or what the source kept of one; its ledger row).
+        """
+
     def ledger_row(self, term: str | None, fit: SourceFit) -> LedgerRow:
         """One row of the ledger.
 
@@ -344,8 +357,13 @@ def _ledger(source: ComparisonSource, progress: Progress) -> tuple[list, SourceF
         progress.count('fitting the model, term', step, len(terms))
         if term is not None:
             free = free + free_parameters([term])
-        fit = source.fit(source.ledger_start(fit, term), free, fit)
-        rows.append(source.ledger_row(term, fit))
+        effects = source.ledger_start(fit, term)
+        if step < len(terms):
+            fit, row = source.chain_step(term, effects, free, fit)
+        else:  # the last step's whole fit is the comparison's
+            fit = source.fit(effects, free, fit)
+            row = source.ledger_row(term, fit)
+        rows.append(row)
     # The chain's earlier terms absorb what the later ones explain, and the last step can converge from there to
     # another minimum than the values the model was given: a refit's values for a gyro scale factor added last
     # reached BIC 1023 where the chain ended at 140018 (issue 25, multi-effect atlas). The lower of the two is the fit.

@@ -15,9 +15,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -26,12 +29,13 @@ from sofia_ros.analysis.ranking import CandidateTerm
 from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
 from sofia_ros.compare.fit import ModelFit, WhitenedProblem, fit_model
 from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
-from sofia_ros.compare.observations import read_observations
+from sofia_ros.compare.observations import read_observations, step_store
 from sofia_ros.compare.pipeline import Comparison, Judgement, LinearizedCandidate, run_comparison, switched_on
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.compare.records import LedgerRow
+from sofia_ros.compare.steps import ChainStep, StepStore, step_key
 from sofia_ros.compare.verdict import BAG_OBSERVABLE_KEYS, beyond_bag_floor, empirical_candidate_names
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import get_effect, resolve_params
@@ -68,15 +72,18 @@ class BagSource:
     #: RMS / floor above 1.2 with a 5-sigma excess (compare.diagnostics).
     beyond_floor = staticmethod(beyond_bag_floor)
 
-    def __init__(self, observations: Any, model: EffectConfig, *, anchor_spacing_s: float = 30.0) -> None:
+    def __init__(self, observations: Any, model: EffectConfig, *, anchor_spacing_s: float = 30.0,
+                 steps: StepStore | None = None) -> None:
         """Set up the bag's problem: noise floors, predictor, the anchors' prior.
 
         Args:
             observations: the bag's observations (compare.observations.read_observations).
             model: the model compared (EffectConfig).
             anchor_spacing_s: seconds between attitude anchors.
+            steps: where the ledger's inner steps are kept (compare.steps), or None for this process's memory.
         """
         self.observations = observations
+        self.steps = steps or StepStore()
         self.model = model
         self.model_source = model.source
         self.anchor_spacing_s = anchor_spacing_s
@@ -89,9 +96,12 @@ class BagSource:
         # Rate random walk from the model's noise terms, else Table 5.1 (gyro_noise defaults).
         rrw_deg_per_h_sqrt_h = self.effects.get('gyro_noise', resolve_params('gyro_noise', {}))['rrw_deg_per_h_sqrt_h']
         rrw = rrw_deg_per_h_sqrt_h_to_arcsec_per_s_sqrt_s(rrw_deg_per_h_sqrt_h) / ARCSEC_PER_RAD
-        self.predictor.align_initial_attitude(self.effects)
+        # The start attitude and the prior from the fixed effects alone, where the ledger's chain starts: a step
+        # of the chain then depends on its own terms only, the same in every model that shares the chain so far.
+        fixed = self.ledger_start(None, None)
+        self.predictor.align_initial_attitude(fixed)
         knots = self.predictor.anchor_knots_s
-        self.prior = anchor_prior(knots, self.predictor.attitudes(self.effects, (knots[:-1] + knots[1:]) / 2.0),
+        self.prior = anchor_prior(knots, self.predictor.attitudes(fixed, (knots[:-1] + knots[1:]) / 2.0),
                                   self.arw, rrw)
 
     def ledger_terms(self) -> list[str]:
@@ -115,6 +125,49 @@ class BagSource:
         if previous is None:
             return {name: params for name, params in self.effects.items() if name not in self.model.fitted}
         return {**previous.effects, term: self.effects[term]}
+
+    @cached_property
+    def problem_digest(self) -> str:
+        """A digest of what every fit of this bag shares: the observations, the noise floors, the start attitude,
+        the anchors' knots and prior."""
+        digest = hashlib.sha256(repr((self.observations.scenario, self.anchor_spacing_s)).encode())
+        records = (self.observations, self.observations.centroids, self.observations.gyro)
+        for record in records:
+            for field in dataclasses.fields(record):
+                value = getattr(record, field.name)
+                if isinstance(value, np.ndarray):
+                    digest.update(f'{field.name} {value.dtype} {value.shape}\0'.encode())
+                    digest.update(np.ascontiguousarray(value).tobytes())
+                elif field.name not in {'bag_path', 'scenario', 'centroids', 'gyro'}:
+                    digest.update(f'{field.name} {value!r}\0'.encode())
+        prior = self.prior.matrix.tocsr()
+        for array in (self.noise_arcsec, self.predictor.initial_dcm, self.predictor.anchor_knots_s, prior.data,
+                      prior.indices, prior.indptr, self.prior.whitening, np.array([self.prior.unit_rad])):
+            digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.hexdigest()
+
+    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any) -> tuple[Any, LedgerRow]:
+        """An inner step of the ledger's chain, read back where this bag, code and chain fitted it before
+        (compare.steps), else fitted and kept (ComparisonSource.chain_step).
+
+        Args:
+            term: the fitted effect the step adds, or None.
+            effects: {effect: params} it starts from.
+            free: FreeParameters to fit.
+            start: the step before (a ModelFit or ChainStep), or None.
+
+        Returns:
+            (the step, its ledger row).
+        """
+        key = step_key(self.problem_digest, effects, [p.label for p in free],
+                       None if start is None else start.anchors_rad, [] if start is None else [p.label for p in start.free])
+        kept = self.steps.get(key, free)
+        if kept is not None:
+            return kept, kept.row
+        fit = self.fit(effects, free, start)
+        row = self.ledger_row(term, fit)
+        self.steps.put(key, ChainStep(fit.effects, tuple(free), fit.anchors_rad, float(fit.bic), row))
+        return fit, row
 
     def given_start(self) -> dict | None:
         """The model at its given values where fitted terms carry values of their own and there are several (with
@@ -313,13 +366,15 @@ def compare_bag(bag_path: Any, model: EffectConfig, *, anchor_spacing_s: float =
     started = time.perf_counter()
     progress = progress or Progress.silent()
     progress.phase('reading the bag')
-    return compare_observations(read_observations(bag_path), model, anchor_spacing_s=anchor_spacing_s,
-                                candidate_names=candidate_names, started=started, progress=progress)
+    observations = read_observations(bag_path)
+    return compare_observations(observations, model, anchor_spacing_s=anchor_spacing_s,
+                                candidate_names=candidate_names, started=started, progress=progress,
+                                steps=step_store(bag_path))
 
 
 def compare_observations(observations: Any, model: EffectConfig, *, anchor_spacing_s: float = 30.0,
                          candidate_names: Sequence[str] | None = None, started: float | None = None,
-                         progress: Progress | None = None) -> CompareResult:
+                         progress: Progress | None = None, steps: StepStore | None = None) -> CompareResult:
     """Compare ``model`` with observations already read (compare.observations) through compare.pipeline.
 
     Args:
@@ -329,11 +384,12 @@ def compare_observations(observations: Any, model: EffectConfig, *, anchor_spaci
         candidate_names: the candidates to try, or None for the catalogue.
         started: perf_counter at which the comparison began, or None for now.
         progress: where the phases go, or None for nowhere.
+        steps: where the ledger's inner steps are kept (compare.steps), or None for this process's memory.
 
     Returns:
         The CompareResult.
     """
-    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
+    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s, steps=steps)
     outcome = run_comparison(source, model.effects, candidate_names=candidate_names, started=started,
                              progress=progress)
     return CompareResult(outcome.document, observations, outcome.final_fit, outcome.best_fit, outcome.best_name,

@@ -240,11 +240,16 @@ def main() -> None:
     os.environ['SOFIA_EFFECT_MODULES'] = 'bench_design_terms'
     commit = subprocess.run(['git', '-C', str(ROOT), 'rev-parse', '--short', 'HEAD'], capture_output=True,
                             text=True).stdout.strip()
+    # Where the sofia commands import sofia_ros from (PYTHONPATH may name a clean export of a commit instead of the
+    # working tree, which other work in progress may change under a run).
+    package = subprocess.run([sys.executable, '-c', 'import sofia_ros; print(sofia_ros.__file__)'], capture_output=True,
+                             text=True, cwd=work).stdout.strip()  # not the checkout's folder, which -c would import
     started = datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')
     rows = []
     for set_name in args.sets.split(','):
         for seed in (int(text) for text in args.seeds.split(',')):
-            rows.append({**one_row(work, set_name, seed), 'run': {'date': started, 'commit': commit}})
+            rows.append({**one_row(work, set_name, seed), 'run': {'date': started, 'commit': commit,
+                                                                  'sofia_ros': package}})
             print(_text(rows[-1:], f'{set_name} seed {seed} ({_load()})'), flush=True)
     if args.keep_other_sets:
         rows = _with_kept_rows(rows)
@@ -252,7 +257,7 @@ def main() -> None:
     alignment_s = sorted(row['design_s'] for row in rows if row['campaign'] == 'alignment')
     runs = sorted({(row['run']['date'], row['run']['commit']) for row in rows})
     header = (f'sofia design, issue 28: {"; ".join(f"{date}, commit {run_commit}" for date, run_commit in runs)} '
-              f'(each row\'s in design.json), {_load()}\n'
+              f'(each row\'s in design.json; this run\'s sofia_ros: {package}), {_load()}\n'
               f'direct mode, model config/model/nominal.yaml, target expected delta-BIC 20 both ways (in the one '
               f'left where the rival reproduces the other), budget 30 % of the flight; a member wins at delta-BIC '
               f'>= {DECIDES:.0f}\n'

@@ -1,7 +1,8 @@
 """The clock offset's grid (compare.fit._profiled_values) predicts only the rows the offset moves.
 
 A HIPO clock offset moves HIPO's row times and nothing else, so the grid predicts HIPO's rows alone
-(Predictor.predict_camera_px): on the Waco star hop 1800 of 123k rows. Checked here: one camera's rows predicted
+(Predictor.predict_camera_px): on the Waco star hop 1800 of 123k rows; so does its column in each iteration
+(WhitenedProblem.moved_rows_change). Checked here: one camera's rows predicted
 alone equal predict_px's rows of that camera, and the grid's choice is that of the whole prediction's cost.
 """
 
@@ -61,3 +62,22 @@ def test_the_shift_grid_chooses_what_the_whole_predictions_cost_chooses(source):
     assert np.ptp(difference) <= 1e-9 * np.max(whole)
     assert np.argmin(alone) == np.argmin(whole)
     assert np.ptp(alone) > 1.0, 'the grid must span costs that differ, or the test chooses nothing'
+
+
+@pytest.mark.parametrize('stepped', ['timestamp_offset.offset_s', 'atmospheric_refraction.pressure_hpa'])
+def test_a_time_shifts_column_predicts_only_the_moved_cameras_and_equals_the_whole_predictions(source, stepped):
+    """A step of the clock offset moves HIPO's rows alone (moved_rows_change); a refraction step moves every star."""
+    predictor = source.predictor
+    effects = {name: dict(params) for name, params in source.effects.items()}
+    effect, name = stepped.split('.')
+    parameter = fit.FreeParameter(effect, name, '', 1e-3 * max(abs(effects[effect][name]), 1.0))
+    moved = {**effects, effect: {**effects[effect], name: effects[effect][name] + parameter.step}}
+    problem = fit.WhitenedProblem(predictor, source.noise_arcsec, source.prior)
+    anchors = _anchors(source)
+    predicted = predictor.predict_px(effects, anchors)
+    change = problem.moved_rows_change(effects, parameter, moved, anchors, predicted)
+    whole = predictor.predict_px(moved, anchors) - predicted
+    np.testing.assert_allclose(change, whole, rtol=0, atol=1e-9)
+    changed_cameras = np.unique(predictor.observations.centroids.camera_index[np.any(change != 0, axis=1)])
+    expected = ['hipo'] if effect == 'timestamp_offset' else list(predictor.observations.centroids.cameras)
+    assert [predictor.observations.centroids.cameras[c] for c in changed_cameras] == expected

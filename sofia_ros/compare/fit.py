@@ -376,7 +376,8 @@ class WhitenedProblem:
         attitude change the step makes, linearized over the ticks (Predictor.attitude_changes_irf),
         through ``derivative`` (irf_derivative): the gyro track is not propagated again for each
         step. The camera part projects the rows of the cameras whose model the step changes again,
-        from the TARF directions of ``effects`` (Predictor.reprojected_px). Other steps predict anew.
+        from the TARF directions of ``effects`` (Predictor.reprojected_px). Other steps predict anew, a time shift
+        only the cameras whose rows it moves (moved_rows_change).
 
         Args:
             effects: the model at ``values``.
@@ -404,7 +405,8 @@ class WhitenedProblem:
         for index, (parameter, moved_effects, (moves_rows, attitude, cameras)) in enumerate(
                 zip(free, stepped_effects, reaches)):
             if moves_rows:
-                columns[:, index] = self.scaled(predictor.predict_px(moved_effects, anchors) - predicted) / parameter.step
+                change = self.moved_rows_change(effects, parameter, moved_effects, anchors, predicted)
+                columns[:, index] = self.scaled(change) / parameter.step
                 continue
             column = np.einsum('nai,ni->na', derivative, next(changes)).ravel() if attitude else np.zeros(predicted.size)
             if cameras:
@@ -412,6 +414,34 @@ class WhitenedProblem:
                 column += self.scaled(predictor.reprojected_px(moved_effects, cameras, in_tarf, predicted) - predicted)
             columns[:, index] = column / parameter.step
         return columns
+
+
+    def moved_rows_change(self, effects: Mapping[str, Any], parameter: FreeParameter,
+                          moved_effects: Mapping[str, Any], anchors: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        """The change of the prediction (N, 2) [px] under a step that moves row times or star places. A time shift
+        (family 'timing') moves only some cameras' rows, and a row's prediction depends on its own time: only those
+        cameras are predicted again (a HIPO clock offset: 1800 of the Waco star hop's 123k rows). Any other step
+        predicts every row.
+
+        Args:
+            effects: the model at the current values.
+            parameter: the parameter stepped.
+            moved_effects: ``effects`` with it stepped.
+            anchors: the anchor rotations (K, 3) [rad].
+            predicted: the prediction under ``effects`` (N, 2) [px].
+
+        Returns:
+            The change (N, 2) [px].
+        """
+        predictor = self.predictor
+        if get_effect(parameter.effect).family != 'timing':
+            return predictor.predict_px(moved_effects, anchors) - predicted
+        moved = predictor.row_times_s(effects) != predictor.row_times_s(moved_effects)
+        change = np.zeros_like(predicted)
+        for camera in np.unique(predictor.observations.centroids.camera_index[moved]):
+            rows = predictor.camera_rows(int(camera))
+            change[rows] = predictor.predict_camera_px(moved_effects, int(camera), anchors) - predicted[rows]
+        return change
 
 
 def rows_scaled(matrix: scipy.sparse.spmatrix, scale: np.ndarray) -> scipy.sparse.csr_matrix:

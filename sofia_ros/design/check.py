@@ -1,14 +1,14 @@
 """Closing the circle: the achieved separation of a competing set on a bag, by full refits (docs/design.md).
 
-Each member is switched on where it vanishes and fitted in full with the model's terms
-(compare.fit.fit_model through compare.run.BagSource, the comparison's own robust fit); the
-achieved separation is the difference of the two fits' BIC, compare's BIC of every row at
-full weight.
+Each member is switched on where it vanishes (on the designed flight: where its fit on the old
+bag put it) and fitted in full with the model's terms (compare.fit.fit_model through
+compare.run.BagSource, the comparison's own robust fit); the achieved separation is the
+difference of the two fits' BIC, compare's BIC of every row at full weight.
 """
 
 from __future__ import annotations
 
-from typing import Sequence, TypedDict
+from typing import Mapping, Sequence, TypedDict
 
 from sofia_ros.compare.fit import free_parameters
 from sofia_ros.compare.pipeline import switched_on
@@ -28,7 +28,7 @@ class MemberFit(TypedDict):
 
 
 def member_fits(observations: object, model: EffectConfig, members: Sequence[Sequence[str]], *,
-                anchor_spacing_s: float = 30.0) -> dict:
+                anchor_spacing_s: float = 30.0, start: Mapping[str, Mapping[str, float]] | None = None) -> dict:
     """Each member fitted in full with the model's fitted terms.
 
     Args:
@@ -36,6 +36,8 @@ def member_fits(observations: object, model: EffectConfig, members: Sequence[Seq
         model: the model.
         members: each member's effect names.
         anchor_spacing_s: seconds between attitude anchors.
+        start: per member name, {label: value} its parameters start from (its fit on a bag of the same telescope:
+            the old bag, for the designed flight); by default each starts where it vanishes.
 
     Returns:
         {member name ('+'-joined): MemberFit}.
@@ -52,6 +54,10 @@ def member_fits(observations: object, model: EffectConfig, members: Sequence[Seq
         for name in member:
             added, _, effects = switched_on(effects, name)
             free += list(added)
+        given = (start or {}).get('+'.join(member), {})
+        effects = {effect: {**params, **{parameter.name: given[parameter.label] for parameter in free
+                                          if parameter.effect == effect in member and parameter.label in given}}
+                   for effect, params in effects.items()}
         fit = source.fit(effects, tuple(free), base)
         fits['+'.join(member)] = MemberFit(
             bic=float(fit.bic), rss=float(fit.augmented_residual @ fit.augmented_residual),

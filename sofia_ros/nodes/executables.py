@@ -4,7 +4,9 @@ graph_nodes.EXECUTABLES: clock, plant, gyro_box, imager (fpi/ffi/wfi by the ``ca
 
 from __future__ import annotations
 
+import ctypes
 import faulthandler
+import os
 import signal
 import sys
 from pathlib import Path
@@ -142,12 +144,25 @@ def __getattr__(name):
         raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
 
     def entry_point():
-        return main(name)
+        _exit_at_once(main(name))
 
     entry_point.__name__ = entry_point.__qualname__ = name
     entry_point.__doc__ = f'ros2 run sofia_ros {name}'
     return entry_point
 
 
+def _exit_at_once(code):
+    """End the node's process with ``code`` once main() has returned, without the interpreter's teardown.
+
+    The run is over and rclpy is shut down; unloading numpy, scipy and rclpy is all that is left, and in a
+    --processes graph its eleven processes did it at once: they exited 2.5-4.5 s after the run's stop at load 7-10,
+    0.2-0.6 s without it. Python's and C's output buffers (the node's log) are flushed first.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    ctypes.CDLL(None).fflush(None)
+    os._exit(code)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    _exit_at_once(main())

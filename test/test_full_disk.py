@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from graph_startup import STARTUP_RERUNS
 from sofia_ros.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -247,6 +248,7 @@ def test_a_read_only_disk_is_one_line_exit_2_before_any_node_starts(disk, capfd,
 
 
 @needs_mount
+@STARTUP_RERUNS
 def test_processes_mode_on_a_full_disk_reports_the_recorders_disk_full_and_leaves_no_log_folder(disk):
     """The recorder process meets ENOSPC: its own error line reaches the launcher (was: 'the recorder node exited
     with code 1' after 80 lines of traceback, the node logs kept in /tmp/sofia_graph_*)."""

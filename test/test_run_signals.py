@@ -293,8 +293,9 @@ def test_when_every_domain_is_held_the_run_is_told_to_wait(held_domain, monkeypa
 @pytest.mark.timeout(420)
 @STARTUP_RERUNS
 def test_a_node_that_dies_under_processes_is_a_fault_exit_3(tmp_path):
+    # _start_run returns with the first second of gyro samples in the bag: the clock is at tick 5 or later, past its
+    # start-up watchdog (which waits up to 120 s for the first tick), so a stall is named after stall_timeout_s.
     process, bag = _start_run(tmp_path, MODES['processes'])
-    time.sleep(3.0)  # past the start-up watchdog's first tick
     gyro_box = [pid for pid in _children(process.pid)
                 if b'gyro_box' in Path(f'/proc/{pid}/cmdline').read_bytes()]
     assert len(gyro_box) == 1, _children(process.pid)

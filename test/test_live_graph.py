@@ -4,6 +4,7 @@ process per node, the recorder stopped, replays.
 A node killed mid-run is test_run_signals.py's (`sofia run --processes`, the same stall watchdog).
 """
 
+import shutil
 import signal
 import subprocess
 import sys
@@ -160,6 +161,7 @@ def test_recorder_stopped_by_sigint_closes_a_complete_bag(tmp_path):
         assert graph.processes['recorder'].wait(timeout=30) == 0
     finally:
         stop_graph(graph)
+    shutil.rmtree(graph.workdir)  # the node logs, kept when the graph did not start (the error names them)
     assert (bag / 'metadata.yaml').exists()
     with BagReader(bag) as reader:
         counts = {topic.name: topic.count for topic in reader.topics}

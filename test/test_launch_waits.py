@@ -24,6 +24,9 @@ if gets_as_far_as in ('start', 'connection'):
           flush=True)
 if gets_as_far_as == 'connection':
     print(f'[INFO] [1795798817.5] [{name}]: connected; waiting for ticks', flush=True)
+if gets_as_far_as == 'death':
+    signal.signal(signal.SIGSEGV, signal.SIG_DFL)
+    signal.raise_signal(signal.SIGSEGV)
 def waiting_for_the_graph():
     time.sleep(600)
 waiting_for_the_graph()
@@ -31,10 +34,10 @@ waiting_for_the_graph()
 
 
 def _stand_ins(tmp_path, stuck=None):
-    """A clock, a plant, a tascu and a recorder, each logging into tmp_path like a real node; ``stuck``: (node, as far as
-    it gets: 'start' or 'nothing'), the others get as far as their connection."""
+    """A clock, a plant, a wfi, a tascu and a recorder, each logging into tmp_path like a real node; ``stuck``: (node,
+    as far as it gets: 'start', 'nothing' or 'death'), the others get as far as their connection."""
     processes = {}
-    for name in ('clock', 'plant', 'tascu', 'recorder'):
+    for name in ('clock', 'plant', 'wfi', 'tascu', 'recorder'):
         gets_as_far_as = stuck[1] if stuck and name == stuck[0] else 'connection'
         with open(tmp_path / f'{name}.log', 'w') as log:
             processes[name] = subprocess.Popen([sys.executable, '-c', _NODE, name, gets_as_far_as],
@@ -42,7 +45,8 @@ def _stand_ins(tmp_path, stuck=None):
     # Those that connect have, before the launcher looks: on a loaded machine a stand-in may take a second to start.
     deadline = time.monotonic() + 30.0
     while not all(launch.CONNECTED_LOG in (tmp_path / f'{name}.log').read_text()
-                  for name in processes if not stuck or name != stuck[0]):
+                  for name in processes if not stuck or name != stuck[0]) or (
+            stuck and stuck[1] == 'death' and processes[stuck[0]].poll() is None):
         assert time.monotonic() < deadline, 'the stand-ins did not start'
         time.sleep(0.05)
     return launch.GraphProcesses(processes, tmp_path, bag_path=tmp_path / 'bag')
@@ -66,6 +70,17 @@ def test_a_node_that_never_connects_is_named_soon_after_the_first_node_started(t
     assert time.monotonic() - started < 20  # start-up of the stand-ins, 1 s, the stack dump's 1 s
     assert 'in waiting_for_the_graph' in (tmp_path / f'{stuck[0]}.log').read_text()
     assert all(process.returncode == -signal.SIGINT for process in graph.processes.values())
+
+
+@pytest.mark.timeout(60)
+def test_a_node_process_that_dies_starting_is_named_at_once(tmp_path):
+    # Seen: wfi's process killed by SIGSEGV in _read_parameters; the others waited for the clock's 120 s.
+    graph = _stand_ins(tmp_path, ('wfi', 'death'))
+    started = time.monotonic()
+    with pytest.raises(GraphRunError, match=r'^wfi did not connect within \d+ s: its process was killed by SIGSEGV '
+                                            r'while the graph was starting; logs in '):
+        launch.wait_for_graph(graph, timeout_s=50)
+    assert time.monotonic() - started < launch.CONNECT_GRACE_S / 2
 
 
 @pytest.mark.timeout(60)

@@ -262,6 +262,12 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
                 if connecting:
                     unconnected = _unconnected_nodes(graph)
                     connecting = unconnected != []
+                    # A node process that died starting (seen: a SIGSEGV reading its parameters) never connects.
+                    dead = [name for name in unconnected or () if graph.processes[name].poll() is not None]
+                    if dead:
+                        raise GraphRunError(f'{dead[0]} did not connect within {now - start:.0f} s: its process '
+                                            f'{_exit_text(graph.processes[dead[0]].returncode)} while the graph was '
+                                            f'starting; logs in {graph.workdir}')
                     if unconnected:
                         first_started = first_started or now
                         if now - first_started > CONNECT_GRACE_S:

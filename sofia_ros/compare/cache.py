@@ -18,19 +18,17 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import os
-import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from sofia_ros.compare.cache_files import UnusableCacheFile, read_members, write_members
 from sofia_ros.compare.observations import READER_VERSION, Centroids, GyroSamples, Observations
 from sofia_ros.compare.steps import StepStore, remove_step_files
 from sofia_ros.errors import ConfigError
-from sofia_ros.input_files import require_regular_file
-from sofia_ros.output_files import atomic_output, describe_os_error
+from sofia_ros.output_files import describe_os_error
 from sofia_ros.progress import Progress
 from sofia_ros.scenario import scenario_document, scenario_from_document
 from sofia_ros.sensors.imager_model import CAMERAS
@@ -45,16 +43,11 @@ CACHE_FORMAT = 1
 WHOLE_FILE_BYTES = 1 << 20
 #: Of a larger file (an MCAP file), its last bytes: the MCAP footer (29 bytes) and the closing magic (8).
 FOOTER_BYTES = 64
-_HEADER = 'header'
 _FILE_PREFIX = 'observations-'
 #: Observations' fields kept outside the arrays and the header's values: the path is the one asked for,
 #: the scenario is stored as its document and the nested records field by field.
 _NESTED = {'centroids': Centroids, 'gyro': GyroSamples}
 _NOT_STORED = {'bag_path', 'scenario', *_NESTED}
-
-
-class UnusableCache(Exception):
-    """A cache file that must not be used; the message says why, for the line on stderr."""
 
 
 def user_cache_home() -> Path | None:
@@ -140,61 +133,38 @@ def _write(path: Path, key: str, observations: Observations) -> None:
     arrays, values = _split(observations)
     header = {'format': CACHE_FORMAT, 'reader_version': READER_VERSION, 'key': key, 'values': values,
               'scenario_document': scenario_document(observations.scenario)}
-    encoded = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
-    with atomic_output(path, 'wb') as stream:
-        np.savez(stream, **{_HEADER: encoded}, **arrays)
+    write_members(path, header, arrays)
 
 
 def _load(path: Path, key: str, bag_path: Path) -> Observations:
-    """The observations of the cache file at ``path``; UnusableCache naming the first check it fails."""
-    try:
-        require_regular_file(path, 'observation cache')
-        with np.load(path, allow_pickle=False) as archive:
-            # np.savez stores every member: a compressed one is not ours (and could expand without bound).
-            if any(info.compress_type != zipfile.ZIP_STORED for info in archive.zip.infolist()):
-                raise UnusableCache('it holds compressed members')
-            members = {name: archive[name] for name in archive.files}
-    except ConfigError as err:
-        raise UnusableCache(str(err)) from err
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        # zipfile checks every member's CRC-32 as it reads it; numpy refuses object arrays (pickles).
-        detail = str(err).splitlines()[0] if str(err) else ''
-        raise UnusableCache(f'unreadable: {type(err).__name__} {detail}'.rstrip()) from err
-    header = _header(members.pop(_HEADER, None), key)
+    """The observations of the cache file at ``path``; UnusableCacheFile naming the first check it fails."""
+    header, members = read_members(path, 'observation cache')
+    _check_header(header, key)
     values = header['values']
     if set(members) != _array_names() or set(values) != set(_VALUE_CHECKS):
-        raise UnusableCache('its fields are not those of this reader')
+        raise UnusableCacheFile('its fields are not those of this reader')
     if any(value.dtype.kind not in 'biuf' or value.ndim == 0 for value in members.values()):
-        raise UnusableCache('it holds members that are not arrays of numbers')
+        raise UnusableCacheFile('it holds members that are not arrays of numbers')
     if not _rows_agree(members):
-        raise UnusableCache('its arrays do not agree in length')
+        raise UnusableCacheFile('its arrays do not agree in length')
     wrong = [name for name, check in _VALUE_CHECKS.items() if not check(values[name])]
     if wrong:
-        raise UnusableCache(f'its {", ".join(wrong)} is not what the reader writes')
+        raise UnusableCacheFile(f'its {", ".join(wrong)} is not what the reader writes')
     try:
         scenario = scenario_from_document(header.get('scenario_document'))
     except (ConfigError, AttributeError, TypeError, ValueError) as err:
-        raise UnusableCache(f'its scenario is not one ({err})') from err
+        raise UnusableCacheFile(f'its scenario is not one ({err})') from err
     nested = {name: _record(cls, f'{name}.', members, values) for name, cls in _NESTED.items()}
     return _record(Observations, '', members, values, bag_path=bag_path, scenario=scenario, **nested)
 
 
-def _header(member: np.ndarray | None, key: str) -> dict:
-    """The JSON header of a cache file, checked against this reader and ``key``; UnusableCache otherwise."""
-    if member is None or member.dtype != np.uint8 or member.ndim != 1:
-        raise UnusableCache('it has no header')
-    try:
-        header = json.loads(member.tobytes().decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise UnusableCache('its header is not JSON') from err
-    if not isinstance(header, dict):
-        raise UnusableCache('its header is not a JSON object')
+def _check_header(header: dict, key: str) -> None:
+    """A cache file's header checked against this reader and ``key``; UnusableCacheFile otherwise."""
     if (header.get('format'), header.get('reader_version')) != (CACHE_FORMAT, READER_VERSION):
-        raise UnusableCache(f'it was written by another reader (format {header.get("format")}, reader version '
-                            f'{header.get("reader_version")}; this is {CACHE_FORMAT}, {READER_VERSION})')
+        raise UnusableCacheFile(f'it was written by another reader (format {header.get("format")}, reader version '
+                                f'{header.get("reader_version")}; this is {CACHE_FORMAT}, {READER_VERSION})')
     if header.get('key') != key or not isinstance(header.get('values'), dict):
-        raise UnusableCache('its header is for another bag')
-    return header
+        raise UnusableCacheFile('its header is for another bag')
 
 
 def _is_float(value: object) -> bool:
@@ -305,7 +275,7 @@ class ObservationCache:
                 observations = _load(path, key, bag_path)
                 self._used[bag_path] = folder
                 return observations, None
-            except UnusableCache as err:
+            except UnusableCacheFile as err:
                 _remove(path)
                 return None, f'ignored the observation cache {path} ({err})'
         stale = [path for folder in folders for path in _cache_files(folder)]

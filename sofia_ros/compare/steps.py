@@ -14,8 +14,8 @@ the bag's observation cache folder (compare.cache) for the next `sofia compare`.
 inner steps are kept, as their effects, anchors, BIC and ledger row; the last step, whose whole fit
 the comparison goes on with, is always fitted.
 
-On disk: one numpy .npz per step (``steps-<digest>.npz``, read with allow_pickle=False, members
-stored), the anchors and a JSON header (the digest, the effects, the BIC, the row). A file that fails
+On disk: one numpy .npz per step (``steps-<digest>.npz``, compare.cache_files), the anchors and a
+JSON header (the digest, the effects, the parameters, the BIC, the row). A file that fails
 a check is removed and the step fitted again, with one line on stderr.
 """
 
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import zipfile
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -33,9 +32,8 @@ from pathlib import Path
 import numpy as np
 import scipy
 
+from sofia_ros.compare.cache_files import UnusableCacheFile, read_members, write_members
 from sofia_ros.errors import ConfigError
-from sofia_ros.input_files import require_regular_file
-from sofia_ros.output_files import atomic_output
 
 __all__ = ['STEP_FILE_PREFIX', 'ChainStep', 'StepStore', 'code_fingerprint', 'remove_step_files', 'step_key']
 
@@ -45,7 +43,6 @@ STEP_FILE_PREFIX = 'steps-'
 MEMORY_STEPS = 256
 #: Step files kept in one cache folder; the oldest are removed beyond (a file is a few kB per 100 anchors).
 DISK_STEPS = 512
-_HEADER = 'header'
 _ANCHORS = 'anchors_rad'
 _PACKAGE = Path(__file__).resolve().parents[1]
 
@@ -100,10 +97,6 @@ def step_key(problem: str, effects: Mapping, free_labels: Iterable[str], start_a
     return digest.hexdigest()
 
 
-class UnusableStep(Exception):
-    """A step file that must not be used; the message says why."""
-
-
 class StepStore:
     """Chain steps by key: in memory (shared by the process) and, given a folder, on disk.
 
@@ -136,7 +129,7 @@ class StepStore:
             return None
         try:
             step = _load(path, key, free)
-        except UnusableStep as err:
+        except UnusableCacheFile as err:
             _remove(path)
             self.warn(f'sofia compare: ignored the fit cache {path} ({err}); fitted the step again')
             return None
@@ -171,41 +164,26 @@ class StepStore:
 def _write(path: Path, key: str, step: ChainStep) -> None:
     header = {'key': key, 'effects': step.effects, 'free': [p.label for p in step.free], 'bic': step.bic,
               'row': step.row}
-    encoded = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
-    with atomic_output(path, 'wb') as stream:
-        np.savez(stream, **{_HEADER: encoded, _ANCHORS: np.asarray(step.anchors_rad, dtype=float)})
+    write_members(path, header, {_ANCHORS: np.asarray(step.anchors_rad, dtype=float)})
 
 
 def _load(path: Path, key: str, free: tuple) -> ChainStep:
-    """The step of the file at ``path``; UnusableStep naming the first check it fails."""
-    try:
-        require_regular_file(path, 'fit cache')
-        with np.load(path, allow_pickle=False) as archive:
-            if any(info.compress_type != zipfile.ZIP_STORED for info in archive.zip.infolist()):
-                raise UnusableStep('it holds compressed members')
-            if set(archive.files) != {_HEADER, _ANCHORS}:
-                raise UnusableStep('its members are not a step\'s')
-            encoded, anchors = archive[_HEADER], archive[_ANCHORS]
-    except ConfigError as err:
-        raise UnusableStep(str(err)) from err
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        detail = str(err).splitlines()[0] if str(err) else ''
-        raise UnusableStep(f'unreadable: {type(err).__name__} {detail}'.rstrip()) from err
-    try:
-        header = json.loads(encoded.tobytes().decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise UnusableStep('its header is not JSON') from err
-    if not isinstance(header, dict) or header.get('key') != key:
-        raise UnusableStep('its header is for another step')
+    """The step of the file at ``path``; UnusableCacheFile naming the first check it fails."""
+    header, members = read_members(path, 'fit cache')
+    if set(members) != {_ANCHORS}:
+        raise UnusableCacheFile('its members are not a step\'s')
+    anchors = members[_ANCHORS]
+    if header.get('key') != key:
+        raise UnusableCacheFile('its header is for another step')
     if header.get('free') != [p.label for p in free]:
-        raise UnusableStep('its parameters are not the step\'s')
+        raise UnusableCacheFile('its parameters are not the step\'s')
     if anchors.dtype.kind != 'f' or anchors.ndim != 2 or anchors.shape[1] != 3 or not np.all(np.isfinite(anchors)):
-        raise UnusableStep('its anchors are not a (K, 3) array of finite numbers')
+        raise UnusableCacheFile('its anchors are not a (K, 3) array of finite numbers')
     if not isinstance(header.get('effects'), dict) or not isinstance(header.get('row'), dict):
-        raise UnusableStep('its effects or row are not JSON objects')
+        raise UnusableCacheFile('its effects or row are not JSON objects')
     bic = header.get('bic')
     if not isinstance(bic, float):
-        raise UnusableStep('its BIC is not a number')
+        raise UnusableCacheFile('its BIC is not a number')
     return ChainStep(header['effects'], free, anchors, bic, header['row'])
 
 

@@ -9,8 +9,11 @@ prints the graph between the packages.
 from __future__ import annotations
 
 import ast
+import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / 'sofia_ros'
 #: modules a user or ``ros2 run`` starts (the ``sofia`` verbs' front ends, the node executables); they sit
@@ -128,6 +131,21 @@ def test_graph_layers_import_only_downwards():
 def test_the_science_core_imports_neither_the_graph_nor_the_tools():
     layers = {group(module) for module in GRAPH} - set(GRAPH_LAYERS) - set(OFFLINE_TOOLS)
     assert offending(layers, {*GRAPH_LAYERS, *OFFLINE_TOOLS} - {'bag'}) == []
+
+
+#: What a node process imports on its way to "started" that it does not need to start: the bag's type store and
+#: reader (rosbags, mcap: 0.2-0.4 CPU-s) and scipy.optimize (0.1-0.3 CPU-s), in each of a graph's eleven processes.
+NODE_PATH_HEAVY = ('rosbags', 'mcap', 'scipy.optimize')
+
+
+@pytest.mark.parametrize('module', ['sofia_ros.messages', 'sofia_ros.bag.timebase', 'sofia_ros.calibration'])
+def test_a_node_path_module_loads_no_bag_reader_or_optimizer(module):
+    # A fresh interpreter: this session has long imported both.
+    probe = (f'import sys, {module}; '
+             f'print(*sorted(name for name in {NODE_PATH_HEAVY!r} if name in sys.modules))')
+    loaded = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True, check=True,
+                            cwd=PACKAGE.parent, timeout=120).stdout.split()
+    assert loaded == [], f'importing {module} loads {loaded}'
 
 
 if __name__ == '__main__':

@@ -51,18 +51,23 @@ Reading::
         joints.values['position[]'], joints.counts['position[]']   # any type as columns (bag.columns)
 """
 
-from sofia_ros.bag.imu import ImuArrays
-from sofia_ros.bag.msgtypes import (
-    DOCUMENT_MSGTYPE,
-    IMU_MSGTYPE,
-    ROS_DISTRO,
-    TYPESTORE,
-    TopicInfo,
-    wire_cdr,
-)
-from sofia_ros.bag.reader import BagReader
-from sofia_ros.bag.recovery import RecoveryReport, recover_bag
-from sofia_ros.bag.writer import BagWriter
+from importlib import import_module
+
+# Each name's module, imported on first use: a node process needs only the light modules (timebase, imu), and
+# importing any of them runs this file first; the reader, writer and type store (rosbags, mcap) cost 0.2-0.4 CPU-s.
+_MODULE_OF = {
+    'BagReader': 'reader',
+    'BagWriter': 'writer',
+    'DOCUMENT_MSGTYPE': 'msgtypes',
+    'IMU_MSGTYPE': 'msgtypes',
+    'ImuArrays': 'imu',
+    'ROS_DISTRO': 'msgtypes',
+    'RecoveryReport': 'recovery',
+    'TYPESTORE': 'msgtypes',
+    'TopicInfo': 'msgtypes',
+    'recover_bag': 'recovery',
+    'wire_cdr': 'msgtypes',
+}
 
 __all__ = [
     'BagReader',
@@ -77,3 +82,10 @@ __all__ = [
     'recover_bag',
     'wire_cdr',
 ]
+
+
+def __getattr__(name: str) -> object:
+    """The public name ``name`` from its module (PEP 562), imported now."""
+    if name not in _MODULE_OF:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    return getattr(import_module(f'{__name__}.{_MODULE_OF[name]}'), name)

@@ -15,7 +15,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sofia_ros.bag.columns import payload_blocks
 from sofia_ros.errors import InvalidArgumentError
 
 if TYPE_CHECKING:
@@ -48,6 +47,9 @@ class ImuArrays:
 
 def decode_imu_cdr(stamp_ns: Sequence[int], payloads: Sequence[bytes]) -> ImuArrays:
     """Decode little-endian Imu CDR ``payloads`` logged at ``stamp_ns`` into ImuArrays."""
+    # Imported here: bag.columns needs rosbags, which a node process decoding its ImuBlocks (messages.py) does not.
+    from sofia_ros.bag.columns import payload_blocks
+
     return decode_imu_blocks(payload_blocks(stamp_ns, payloads))
 
 

@@ -16,7 +16,6 @@ from functools import cache
 
 import numpy as np
 
-from sofia_ros.bag.msgtypes import TYPESTORE
 from sofia_ros.errors import InvalidArgumentError
 
 __all__ = ['NS_PER_S', 'epoch_ns_of', 'has_leading_stamp', 'leading_stamps_ns', 'shift_stamp', 'shift_stamps',
@@ -37,6 +36,10 @@ def epoch_ns_of(utc: dt.datetime) -> int:
 @cache
 def has_leading_stamp(msgtype: str) -> bool:
     """Whether ``msgtype``'s CDR starts with a stamp (sec int32, nanosec uint32 at bytes 4-12)."""
+    # Imported here: the rest of this module is what every node process needs (messages.py), the type store
+    # (rosbags, 0.1-0.2 CPU-s) only what reads or writes a bag.
+    from sofia_ros.bag.msgtypes import TYPESTORE
+
     _, fields = TYPESTORE.fielddefs[msgtype]
     return bool(fields) and fields[0][1][1] in _STAMP_TYPES
 

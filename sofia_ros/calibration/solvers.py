@@ -33,7 +33,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import InvalidArgumentError
@@ -350,6 +349,10 @@ def fit_alignment(maneuvers, detector=HIPO_2004, *, solve_for=('el', 'xel', 'los
     model = _ManeuverModel(maneuvers, detector, solve_for, reference, fit_drift)
     k, n = len(solve_for), len(maneuvers)
     x0 = np.r_[np.zeros(model.n_leading), model.start.ravel()]
+    # Imported here: scipy.optimize (0.1-0.3 CPU-s) is needed when the fit runs, not by every node process that
+    # imports this module through sim.calibration.
+    from scipy.optimize import least_squares
+
     solution = least_squares(model.residuals, x0, jac=model.jacobian,
                              xtol=1e-12, ftol=1e-12, gtol=1e-12)
     # Re-linearize at the solution so that sigma refers to small rotations about the TARF axes.

@@ -148,6 +148,21 @@ def test_a_node_path_module_loads_no_bag_reader_or_optimizer(module):
     assert loaded == [], f'importing {module} loads {loaded}'
 
 
+#: A node process needs the type store (it decodes its DDS inputs with it), not the bag's files or an optimizer.
+NODE_PROCESS_HEAVY = ('mcap', 'rosbags.highlevel', 'rosbags.rosbag2', 'scipy.optimize')
+
+
+def test_a_node_process_loads_no_bag_file_code_or_optimizer():
+    # What executables' _build imports for any node: the graph, its cores, the clock and the campaigns' documents.
+    modules = ('sofia_ros.nodes.executables', 'sofia_ros.sim.graph', 'sofia_ros.nodes.shell',
+               'sofia_ros.nodes.clock_node', 'sofia_ros.campaigns.recording')
+    probe = (f'import sys; import {", ".join(modules)}; '
+             f'print(*sorted(name for name in {NODE_PROCESS_HEAVY!r} if name in sys.modules))')
+    loaded = subprocess.run([sys.executable, '-c', probe], capture_output=True, text=True, check=True,
+                            cwd=PACKAGE.parent, timeout=120).stdout.split()
+    assert loaded == [], f'a node process loads {loaded}'
+
+
 if __name__ == '__main__':
     for source, targets in sorted(package_graph().items()):
         print(f'{source:18} -> {", ".join(sorted(targets))}')

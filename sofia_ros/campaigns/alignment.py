@@ -12,7 +12,6 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from sofia_ros.bag import BagReader
 from sofia_ros.campaigns.plan_files import check_plan_with_truth
 from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
 from sofia_ros.frames import AXES
@@ -117,6 +116,8 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
 
 def result_from_bag(bag_path):
     """The calibration node's last /calibration/result and the last /clock time (s since the start), from the bag."""
+    from sofia_ros.bag import BagReader  # here: node processes import this module, and need no bag reader
+
     with BagReader(bag_path, campaign_time=True) as bag:
         names = {topic.name for topic in bag.topics}
         # One pass through the message indexes: the clock's log times only, not a message object per tick.

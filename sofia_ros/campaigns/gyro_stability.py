@@ -19,7 +19,6 @@ import yaml
 
 from sofia_ros import interrupts
 from sofia_ros import messages as m
-from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.campaigns.recording import finish_run, new_bag_path, write_summary
 from sofia_ros.effects import resolve_params
@@ -120,6 +119,8 @@ def run_gyro_stability(truth, *, case, hours, seed, bag_path, progress=None):
                                 'heading_deg': scenario.heading_deg, 'elevation_deg': scenario.start_elevation_deg,
                                 'latitude_deg': scenario.latitude_deg, 'effects': effects}, sort_keys=False)
     wall_start = time.perf_counter()
+    from sofia_ros.bag import BagWriter  # here: node processes import this module, and need no bag writer
+
     bag = BagWriter(bag_path, epoch_ns=epoch_ns_of(scenario.start_utc))
     bag.open()
     runner = LockstepRunner(cores, tick_ns=DEFAULT_TICK_NS, bag=bag)

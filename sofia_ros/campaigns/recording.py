@@ -14,7 +14,6 @@ from typing import Any, Callable, Mapping
 
 
 from sofia_ros import interrupts
-from sofia_ros.bag import BagWriter
 from sofia_ros.bag.timebase import epoch_ns_of
 from sofia_ros.errors import ConfigError, OutputError, RunFaultError, RunInterrupted
 from sofia_ros.output_files import output_error, write_text_atomically
@@ -196,6 +195,8 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
 def _run_direct(config, bag_path, documents, max_sim_s, progress):
     """The cores in one loop; a signal (sofia_ros.interrupts) ends it between ticks. Whatever stops
     the loop, the bag is closed with every tick recorded so far."""
+    from sofia_ros.bag import BagWriter  # here: node processes import this module, and need no bag writer
+
     cores = build_cores(config)
     calibration = next(core for core in cores if core.ends_run)
     bag = BagWriter(bag_path, epoch_ns=epoch_ns_of(config.scenario.start_utc))

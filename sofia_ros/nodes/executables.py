@@ -54,7 +54,6 @@ def _build(executable, values):
     from sofia_ros.campaigns.recording import graph_documents
     from sofia_ros.config import load_effect_config
     from sofia_ros.nodes.clock_node import ClockNode
-    from sofia_ros.nodes.recorder_node import RecorderNode
     from sofia_ros.nodes.shell import CoreNode
     from sofia_ros.sim.graph import build_core, build_cores, graph_topics
 
@@ -67,6 +66,8 @@ def _build(executable, values):
                          stall_timeout_s=values['stall_timeout_s'], subscribers=len(topics[CLOCK.name][2]) + 1,
                          ending=[core.name for core in cores if core.ends_run])
     if executable == 'recorder':
+        from sofia_ros.nodes.recorder_node import RecorderNode  # the bag writer: the recorder's process alone
+
         if not values['bag_path']:
             raise SofiaError('parameter bag_path is empty; pass -p bag_path:=bags/run1')
         model_text = load_effect_config(values['model_file']).text if values['model_file'] else None

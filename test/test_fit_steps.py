@@ -1,6 +1,7 @@
-"""The ledger's chain kept (compare.steps): an inner step fitted once is read back, from memory or from the bag's
-cache folder, and gives the ledger and the fit a fresh chain gives; a damaged, foreign or unwritable step file is
-fitted again with one line; a bag decoded anew drops its steps; without an observation cache nothing is written.
+"""The ledger's chain kept (compare.steps): a step fitted once is read back by the chains that share it, from memory
+or from the bag's cache folder, and gives the ledger and the fit a fresh chain gives; a damaged, foreign or
+unwritable step file is fitted again with one line; a bag decoded anew drops its steps; without an observation cache
+nothing is written.
 
 Fits are counted through compare.run.BagSource.fit on the session's reduced alignment bag, decoded once.
 """
@@ -73,13 +74,13 @@ def _step(key_free=('gyro_bias',)):
                      {'term': 'gyro_bias', 'residual_rms_arcsec': {'total': 0.5}, 'bic': 1234.5})
 
 
-def test_an_inner_step_is_fitted_once_and_a_chain_sharing_it_reads_it_back(decoded, fits, tmp_path):
+def test_a_step_is_fitted_once_and_a_chain_sharing_it_reads_it_back(decoded, fits, tmp_path):
     nominal = load_effect_config(str(NOMINAL))
     rows, fit = _chain(decoded, nominal, StepStore(tmp_path))
-    assert len(fits) == 3  # fixed effects, + gyro_misalignment (inner, kept), + gyro_bias (the last)
-    assert len(list(tmp_path.glob(f'{STEP_FILE_PREFIX}*.npz'))) == 2
+    assert len(fits) == 3  # fixed effects, + gyro_misalignment, + gyro_bias (the last): each kept
+    assert len(list(tmp_path.glob(f'{STEP_FILE_PREFIX}*.npz'))) == 3
     again_rows, again = _chain(decoded, nominal, StepStore(tmp_path))
-    assert len(fits) == 4  # only the last step fitted again
+    assert len(fits) == 4  # only the last step fitted again: its whole fit is the comparison's
     assert again_rows == rows
     assert np.array_equal(again.values, fit.values) and np.array_equal(again.anchors_rad, fit.anchors_rad)
     # A chain sharing the first step: the misalignment is its last step, fitted from the kept fixed-effects step.
@@ -88,6 +89,12 @@ def test_an_inner_step_is_fitted_once_and_a_chain_sharing_it_reads_it_back(decod
     shorter_rows, _ = _chain(decoded, load_effect_config(str(shorter)), StepStore(tmp_path))
     assert fits[4:] == [[p.label for p in free_parameters(['gyro_misalignment'])]]
     assert shorter_rows == rows[:2]
+    # The loop's next round, a term added: the nominal model's steps, its last one too, are read back.
+    longer = tmp_path / 'nominal-and-scale-factor.yaml'
+    longer.write_text(NOMINAL.read_text() + '  gyro_scale_factor: {fit: true}\n')
+    longer_rows, _ = _chain(decoded, load_effect_config(str(longer)), StepStore(tmp_path))
+    assert len(fits) == 6 and 'gyro_scale_factor.el_ppm' in fits[5]
+    assert longer_rows[:3] == rows
 
 
 def test_steps_on_disk_give_the_ledger_and_fit_of_a_fresh_chain(decoded, fits, tmp_path, monkeypatch):

@@ -54,7 +54,7 @@ class _Source:
             return _Fit(self.given_bic, 'given')
         return _Fit(self.chain_bic, 'chain')
 
-    def chain_step(self, term, effects, free, start):
+    def chain_step(self, term, effects, free, start, *, whole=False):
         fit = self.fit(effects, free, start)
         return fit, self.ledger_row(term, fit)
 

@@ -83,7 +83,7 @@ class FakeSource:
         return WhitenedFit(fitted, tuple(free), values + solved.step, solved.sigma, solved.correlation,
                            residual - jacobian @ solved.step, jacobian)
 
-    def chain_step(self, term, effects, free, start):
+    def chain_step(self, term, effects, free, start, *, whole=False):
         fit = self.fit(effects, free, start)
         return fit, self.ledger_row(term, fit)
 

@@ -158,14 +158,16 @@ class ComparisonSource(Protocol):
             FitError: the fit cannot proceed (a prediction is undefined at the start).
         """
 
-    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any) -> tuple[Any, LedgerRow]:
-        """An inner step of the ledger's chain: fitted, or read back where the source keeps steps (compare.steps).
+    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any, *,
+                   whole: bool = False) -> tuple[Any, LedgerRow]:
+        """A step of the ledger's chain: fitted, or read back where the source keeps steps (compare.steps).
 
         Args:
             term: the fitted effect the step adds (None: the fixed effects alone).
             effects: {effect: params} at the starting values.
             free: FreeParameters to fit.
             start: the step before, or None.
+            whole: the step's whole fit is wanted (the chain's last): fitted, and kept for the chains that go on.
 
         Returns:
             (the step, which the next starts from: a fit or what the source kept of one; its ledger row).
@@ -357,12 +359,8 @@ def _ledger(source: ComparisonSource, progress: Progress) -> tuple[list, SourceF
         progress.count('fitting the model, term', step, len(terms))
         if term is not None:
             free = free + free_parameters([term])
-        effects = source.ledger_start(fit, term)
-        if step < len(terms):
-            fit, row = source.chain_step(term, effects, free, fit)
-        else:  # the last step's whole fit is the comparison's
-            fit = source.fit(effects, free, fit)
-            row = source.ledger_row(term, fit)
+        # The last step's whole fit is the comparison's.
+        fit, row = source.chain_step(term, source.ledger_start(fit, term), free, fit, whole=step == len(terms))
         rows.append(row)
     # The chain's earlier terms absorb what the later ones explain, and the last step can converge from there to
     # another minimum than the values the model was given: a refit's values for a gyro scale factor added last

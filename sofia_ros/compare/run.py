@@ -146,22 +146,25 @@ class BagSource:
             digest.update(np.ascontiguousarray(array).tobytes())
         return digest.hexdigest()
 
-    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any) -> tuple[Any, LedgerRow]:
-        """An inner step of the ledger's chain, read back where this bag, code and chain fitted it before
-        (compare.steps), else fitted and kept (ComparisonSource.chain_step).
+    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any, *,
+                   whole: bool = False) -> tuple[Any, LedgerRow]:
+        """A step of the ledger's chain, read back where this bag, code and chain fitted it before (compare.steps),
+        else fitted and kept; the chain's last (``whole``) is always fitted, and kept for the model's next round
+        (ComparisonSource.chain_step).
 
         Args:
             term: the fitted effect the step adds, or None.
             effects: {effect: params} it starts from.
             free: FreeParameters to fit.
             start: the step before (a ModelFit or ChainStep), or None.
+            whole: the step's whole fit is wanted.
 
         Returns:
             (the step, its ledger row).
         """
         key = step_key(self.problem_digest, effects, [p.label for p in free],
                        None if start is None else start.anchors_rad, [] if start is None else [p.label for p in start.free])
-        kept = self.steps.get(key, free)
+        kept = None if whole else self.steps.get(key, free)
         if kept is not None:
             return kept, kept.row
         fit = self.fit(effects, free, start)

@@ -10,9 +10,9 @@ then been fitted before.
 
 A step is kept under a digest of all it depends on and of this code (every module of sofia_ros and the
 numpy and scipy versions): in memory for the process (the search, the atlas' workers), and on disk in
-the bag's observation cache folder (compare.cache) for the next `sofia compare`. Only the chain's
-inner steps are kept, as their effects, anchors, BIC and ledger row; the last step, whose whole fit
-the comparison goes on with, is always fitted.
+the bag's observation cache folder (compare.cache) for the next `sofia compare`, as its effects,
+anchors, BIC and ledger row. The chain's last step, whose whole fit the comparison goes on with, is
+always fitted, and kept for the chains that go on from it (the loop's next round).
 
 On disk: one numpy .npz per step (``steps-<digest>.npz``, compare.cache_files), the anchors and a
 JSON header (the digest, the effects, the parameters, the BIC, the row). A file that fails
@@ -49,7 +49,7 @@ _PACKAGE = Path(__file__).resolve().parents[1]
 
 @dataclass(frozen=True, eq=False)
 class ChainStep:
-    """An inner step of the ledger's chain: what the next step starts from and the step's row.
+    """A step of the ledger's chain as kept: what the next step starts from and the step's row.
 
     ``effects`` at the fitted values, ``free`` the parameters fitted, ``anchors_rad`` (K, 3) the anchors,
     ``bic`` and ``row`` the ledger's (compare.records.LedgerRow).

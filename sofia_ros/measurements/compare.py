@@ -298,14 +298,16 @@ class SetSource:
         """
         return _fit(self.problem, effects, free)
 
-    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any) -> tuple[Any, LedgerRow]:
-        """An inner step of the ledger's chain, fitted: a set's fit takes milliseconds, none is kept.
+    def chain_step(self, term: str | None, effects: dict, free: tuple, start: Any, *,
+                   whole: bool = False) -> tuple[Any, LedgerRow]:
+        """A step of the ledger's chain, fitted: a set's fit takes milliseconds, none is kept.
 
         Args:
             term: the fitted effect the step adds, or None.
             effects: {effect: params} at the starting values.
             free: FreeParameters to fit.
             start: not used.
+            whole: not used (every step is a whole fit).
 
         Returns:
             (the fit, its ledger row).

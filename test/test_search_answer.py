@@ -35,9 +35,10 @@ class _Comparison:
     final_fit: _Fit
 
 
-def _fake_compare(later_bic):
+def _fake_compare(later_bic, linearized_equivalent=None):
     """The model given lacks one effect; FIRST and LATER compete for it (FIRST the stronger, so compared first), and
-    either explains the data: FIRST at BIC_FIRST, LATER at ``later_bic``."""
+    either explains the data: FIRST at BIC_FIRST, LATER at ``later_bic``; FIRST's comparison lists
+    ``linearized_equivalent`` among its equivalent models."""
     nominal = load_effect_config(ROOT / 'config' / 'model' / 'nominal.yaml')
 
     def compare(observations, model):
@@ -51,8 +52,9 @@ def _fake_compare(later_bic):
         else:
             bic = BIC_FIRST if terms == {FIRST} else later_bic
             candidates, step, status, competing = [], {'action': 'none', 'effect': None, 'term': None}, 'explained', []
+        linearized = [linearized_equivalent] if linearized_equivalent and terms == {FIRST} else []
         document = {'verdict': {'status': status, 'next': step}, 'candidates': candidates, 'competing': competing,
-                    'equivalent_models': [], 'model_change': None, 'residual_rms_arcsec': {'total': 0.3}}
+                    'equivalent_models': linearized, 'model_change': None, 'residual_rms_arcsec': {'total': 0.3}}
         return _Comparison(document, _Fit(bic, {name: dict(params) for name, params in model.effects.items()}))
 
     return nominal, compare
@@ -72,3 +74,10 @@ def test_a_later_model_lower_by_the_significant_gain_is_the_answer():
     result, found, _, equivalents = search_model(None, nominal, compare)
     assert found.fitted - nominal.fitted == {LATER}
     assert equivalents == [{'model': f'{FIRST} instead of {LATER} (compared in full)', 'delta_bic': 6.1}]
+
+
+def test_a_model_compared_in_full_replaces_its_linearized_equivalent():
+    linearized = {'model': f'{LATER} instead of {FIRST}', 'delta_bic': 4.0}
+    nominal, compare = _fake_compare(BIC_FIRST - 2.5, linearized)
+    _, _, _, equivalents = search_model(None, nominal, compare)
+    assert equivalents == [{'model': f'{LATER} instead of {FIRST} (compared in full)', 'delta_bic': -2.5}]

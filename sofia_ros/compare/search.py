@@ -559,9 +559,12 @@ def search_model(observations: Observations, model: EffectConfig,
                 queue.append(_Queued(expected_bic, order, following, how))
     result, model = answer
     best, bic_best = model.fitted, float(result.final_fit.bic)
-    equivalent = list(result.document['equivalent_models'])
+    # A model compared in full replaces the answer's linearized estimate of the same model (truth29 listed both).
+    equivalent = {entry['model']: entry for entry in result.document['equivalent_models']}
     for fitted, other in compared.items():
         if other.explained and fitted != best and other.bic - bic_best < EQUIVALENT_DELTA_BIC:
-            equivalent.append({'model': f'{_difference(fitted, best)} (compared in full)',
-                               'delta_bic': round(other.bic - bic_best, 1)})
-    return result, model, history, sorted(equivalent, key=lambda entry: entry['delta_bic'])
+            difference = _difference(fitted, best)
+            equivalent.pop(difference, None)
+            equivalent[difference] = {'model': f'{difference} (compared in full)',
+                                      'delta_bic': round(other.bic - bic_best, 1)}
+    return result, model, history, sorted(equivalent.values(), key=lambda entry: entry['delta_bic'])

@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import hashlib
 import time
@@ -80,7 +81,7 @@ class BagSource:
             observations: the bag's observations (compare.observations.read_observations).
             model: the model compared (EffectConfig).
             anchor_spacing_s: seconds between attitude anchors.
-            steps: where the ledger's inner steps are kept (compare.steps), or None for this process's memory.
+            steps: where the ledger's steps are kept (compare.steps), or None for this process's memory.
         """
         self.observations = observations
         self.steps = steps or StepStore()
@@ -169,7 +170,9 @@ class BagSource:
             return kept, kept.row
         fit = self.fit(effects, free, start)
         row = self.ledger_row(term, fit)
-        self.steps.put(key, ChainStep(fit.effects, tuple(free), fit.anchors_rad, float(fit.bic), row))
+        # Copies: the step outlives this fit, whose effects and anchors its callers may change.
+        self.steps.put(key, ChainStep(copy.deepcopy(fit.effects), tuple(free), np.array(fit.anchors_rad),
+                                      float(fit.bic), copy.deepcopy(row)))
         return fit, row
 
     def given_start(self) -> dict | None:
@@ -387,7 +390,7 @@ def compare_observations(observations: Any, model: EffectConfig, *, anchor_spaci
         candidate_names: the candidates to try, or None for the catalogue.
         started: perf_counter at which the comparison began, or None for now.
         progress: where the phases go, or None for nowhere.
-        steps: where the ledger's inner steps are kept (compare.steps), or None for this process's memory.
+        steps: where the ledger's steps are kept (compare.steps), or None for this process's memory.
 
     Returns:
         The CompareResult.

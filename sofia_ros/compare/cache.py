@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sofia_ros.compare.cache_files import UnusableCacheFile, read_members, write_members
+from sofia_ros.compare.cache_files import UnusableCacheFile, read_members, remove_cache_file, write_members
 from sofia_ros.compare.observations import READER_VERSION, Centroids, GyroSamples, Observations
 from sofia_ros.compare.steps import StepStore, remove_step_files
 from sofia_ros.errors import ConfigError
@@ -276,7 +276,7 @@ class ObservationCache:
                 self._used[bag_path] = folder
                 return observations, None
             except UnusableCacheFile as err:
-                _remove(path)
+                remove_cache_file(path)
                 return None, f'ignored the observation cache {path} ({err})'
         stale = [path for folder in folders for path in _cache_files(folder)]
         if stale:
@@ -308,7 +308,7 @@ class ObservationCache:
                 continue
             for old in _cache_files(folder):
                 if old != path:
-                    _remove(old)
+                    remove_cache_file(old)
             remove_step_files(folder)
             self._used[bag_path] = folder
             return None
@@ -321,11 +321,3 @@ def _cache_files(folder: Path) -> list[Path]:
         return sorted(folder.glob(f'{_FILE_PREFIX}*.npz'))
     except OSError:
         return []
-
-
-def _remove(path: Path) -> None:
-    """Remove a cache file that is not to be used again; one that cannot be removed is left (it is checked anew)."""
-    try:
-        path.unlink(missing_ok=True)
-    except OSError:
-        pass

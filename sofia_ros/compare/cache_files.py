@@ -13,7 +13,7 @@ from sofia_ros.errors import ConfigError
 from sofia_ros.input_files import require_regular_file
 from sofia_ros.output_files import atomic_output
 
-__all__ = ['HEADER', 'UnusableCacheFile', 'read_members', 'write_members']
+__all__ = ['HEADER', 'UnusableCacheFile', 'read_members', 'remove_cache_file', 'write_members']
 
 #: The member that holds a file's JSON header.
 HEADER = 'header'
@@ -21,6 +21,18 @@ HEADER = 'header'
 
 class UnusableCacheFile(Exception):
     """A cache file that must not be used; the message says why, for the line on stderr."""
+
+
+def remove_cache_file(path: Path) -> None:
+    """Remove a cache file that is not to be used again; one that cannot be removed is left (it is checked anew).
+
+    Args:
+        path: the file.
+    """
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 def write_members(path: Path, header: dict, arrays: dict[str, np.ndarray]) -> None:

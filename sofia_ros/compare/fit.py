@@ -441,9 +441,8 @@ class WhitenedProblem:
         predictor = self.predictor
         if get_effect(parameter.effect).family != 'timing':
             return predictor.predict_px(moved_effects, anchors) - predicted
-        moved = predictor.row_times_s(effects) != predictor.row_times_s(moved_effects)
         change = np.zeros_like(predicted)
-        for camera in np.unique(predictor.observations.centroids.camera_index[moved]):
+        for camera in predictor.cameras_moved_in_time(effects, moved_effects):
             rows = predictor.camera_rows(int(camera))
             change[rows] = predictor.predict_camera_px(moved_effects, int(camera), anchors) - predicted[rows]
         return change
@@ -505,8 +504,7 @@ def _cameras_moved(problem, effects, free, values, index, grid):
     """Indices of the cameras whose row times the time shift ``free[index]`` moves across ``grid``."""
     trials = [values.copy(), values.copy()]
     trials[0][index], trials[1][index] = grid.min(), grid.max()
-    low, high = (problem.predictor.row_times_s(with_values(effects, free, trial)) for trial in trials)
-    return np.unique(problem.predictor.observations.centroids.camera_index[low != high])
+    return problem.predictor.cameras_moved_in_time(*(with_values(effects, free, trial) for trial in trials))
 
 
 def _shift_cost(problem, effects, free, values, anchors, cameras):

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import scipy
 
-from sofia_ros.compare.cache_files import UnusableCacheFile, read_members, write_members
+from sofia_ros.compare.cache_files import UnusableCacheFile, read_members, remove_cache_file, write_members
 from sofia_ros.errors import ConfigError
 
 __all__ = ['STEP_FILE_PREFIX', 'ChainStep', 'StepStore', 'code_fingerprint', 'remove_step_files', 'step_key']
@@ -130,7 +130,7 @@ class StepStore:
         try:
             step = _load(path, key, free)
         except UnusableCacheFile as err:
-            _remove(path)
+            remove_cache_file(path)
             self.warn(f'sofia compare: ignored the fit cache {path} ({err}); fitted the step again')
             return None
         self._remember(key, step)
@@ -194,14 +194,7 @@ def _prune(folder: Path) -> None:
     except OSError:
         return
     for _, path in files[:max(len(files) - DISK_STEPS, 0)]:
-        _remove(path)
-
-
-def _remove(path: Path) -> None:
-    try:
-        path.unlink(missing_ok=True)
-    except OSError:
-        pass
+        remove_cache_file(path)
 
 
 def remove_step_files(folder: Path) -> None:
@@ -215,4 +208,4 @@ def remove_step_files(folder: Path) -> None:
     except OSError:
         return
     for path in files:
-        _remove(path)
+        remove_cache_file(path)

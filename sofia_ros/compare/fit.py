@@ -442,7 +442,7 @@ class WhitenedProblem:
         if get_effect(parameter.effect).family != 'timing':
             return predictor.predict_px(moved_effects, anchors) - predicted
         change = np.zeros_like(predicted)
-        for camera in predictor.cameras_moved_in_time(effects, moved_effects):
+        for camera in _cameras_moved_in_time(predictor, effects, moved_effects):
             rows = predictor.camera_rows(int(camera))
             change[rows] = predictor.predict_camera_px(moved_effects, int(camera), anchors) - predicted[rows]
         return change
@@ -500,11 +500,17 @@ def _try_predicted(problem, effects, free, values, anchors):
         return None
 
 
+def _cameras_moved_in_time(predictor, effects, other_effects):
+    """Indices of the cameras some of whose row times differ between two effect sets (a clock offset's)."""
+    moved = predictor.row_times_s(effects) != predictor.row_times_s(other_effects)
+    return np.unique(predictor.observations.centroids.camera_index[moved])
+
+
 def _cameras_moved(problem, effects, free, values, index, grid):
     """Indices of the cameras whose row times the time shift ``free[index]`` moves across ``grid``."""
     trials = [values.copy(), values.copy()]
     trials[0][index], trials[1][index] = grid.min(), grid.max()
-    return problem.predictor.cameras_moved_in_time(*(with_values(effects, free, trial) for trial in trials))
+    return _cameras_moved_in_time(problem.predictor, *(with_values(effects, free, trial) for trial in trials))
 
 
 def _shift_cost(problem, effects, free, values, anchors, cameras):

@@ -472,20 +472,6 @@ class Predictor:
             times[hipo] -= effects['timestamp_offset']['offset_s']
         return times
 
-    def cameras_moved_in_time(self, effects: Mapping[str, EffectParams],
-                              other_effects: Mapping[str, EffectParams]) -> np.ndarray:
-        """The indices of the cameras some of whose row times differ between two effect sets (a clock offset's).
-
-        Args:
-            effects: one effect set.
-            other_effects: the other.
-
-        Returns:
-            The camera indices, ascending.
-        """
-        moved = self.row_times_s(effects) != self.row_times_s(other_effects)
-        return np.unique(self.observations.centroids.camera_index[moved])
-
     def camera_context(self, effects: Mapping[str, EffectParams], camera_index: int, times_s: np.ndarray) -> CameraContext:
         """The CameraContext of one camera's rows: what plug-in hooks see on the model side (effects.context).
 

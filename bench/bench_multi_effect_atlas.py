@@ -10,7 +10,7 @@ confused, and every truth not ended right with its final model. Written: bench/r
 (date, commit, workers, load, the grid, rates, confusions, every row) and .txt (what was printed).
 
 Run: .venv/bin/python bench/bench_multi_effect_atlas.py [--campaigns alignment:reduced] [--truths N] [--controls M]
-     [--k 2,3] [--rounds R] [--draw-seed S] [--workers W] [--time-limit-s T] [--out DIR]
+     [--k 2,3] [--rounds R] [--draw-seed S] [--workers W] [--time-limit-s T] [--out DIR] [--keep-bags]
 """
 
 from __future__ import annotations
@@ -53,6 +53,8 @@ def _arguments():
     parser.add_argument('--time-limit-s', type=float, help='interrupt the atlas after this long and report what ran')
     parser.add_argument('--out', default=str(Path(os.environ.get('TMPDIR', '/tmp')) / 'sofia-bench-multi-effect-atlas'),
                         help='the atlas directory (resumed when the grid is the same)')
+    parser.add_argument('--keep-bags', action='store_true',
+                        help='keep every bag under OUT/bags, to search them again with later code')
     return parser.parse_args()
 
 
@@ -76,7 +78,7 @@ def _effective_grid(args) -> dict:
 def _run_atlas(grid_path: Path, args) -> tuple[int, list[str]]:
     """`sofia atlas --grid` in its own session; SIGINT after --time-limit-s. Its exit code and output lines."""
     argv = [str(Path(sys.executable).parent / 'sofia'), 'atlas', '--grid', str(grid_path), '--out', args.out,
-            '--workers', str(args.workers)]
+            '--workers', str(args.workers)] + (['--keep-bags'] if args.keep_bags else [])
     process = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                start_new_session=True)
     lines = []

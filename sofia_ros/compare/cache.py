@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from sofia_ros.compare.cache_files import UnusableCacheFile, read_members, remove_cache_file, write_members
-from sofia_ros.compare.observations import READER_VERSION, Centroids, GyroSamples, Observations
+from sofia_ros.compare.observations import READER_VERSION, Centroids, GyroSamples, Observations, keyed
 from sofia_ros.compare.steps import StepStore, remove_step_files
 from sofia_ros.errors import ConfigError
 from sofia_ros.output_files import describe_os_error
@@ -241,7 +241,8 @@ class ObservationCache:
             decode: decodes the bag (compare.observations.decode_observations); its errors pass through.
 
         Returns:
-            The bag's Observations, with ``bag_path`` as given.
+            The bag's Observations, with ``bag_path`` as given, keyed by the bag's key (observations.keyed: the
+            fitted steps of the bag are found by it).
         """
         key = bag_key(bag_path)
         if key is None:
@@ -250,8 +251,8 @@ class ObservationCache:
         cached, unusable = self._lookup(folders, key, bag_path)
         if cached is not None:
             self.progress.phase('decoded observations from the cache')
-            return cached
-        observations = decode(bag_path)
+            return keyed(cached, key)
+        observations = keyed(decode(bag_path), key)
         unwritable = self._store(folders, key, observations, bag_path)
         # One line, once the bag decoded: a bag that cannot be read gets its one error line alone.
         told = []

@@ -11,6 +11,8 @@ and the scenario (site and epoch, as the logbook records them).
 
 from __future__ import annotations
 
+import dataclasses
+import weakref
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -44,7 +46,7 @@ from sofia_ros.topics import (
 from sofia_ros.units import DEG_PER_RAD
 
 __all__ = ['MOTION_STATES', 'READER_VERSION', 'Centroids', 'GyroSamples', 'ObservationSource', 'Observations',
-           'decode_observations', 'observation_cache', 'read_observations', 'step_store']
+           'content_key', 'decode_observations', 'keyed', 'observation_cache', 'read_observations', 'step_store']
 
 #: The version of what decode_observations returns. Bump it whenever the decoding or the dataclasses below
 #: change: caches of decoded observations (compare.cache) written by another version are then decoded again.
@@ -114,6 +116,43 @@ class Observations:
     initial_tarf_from_irf: np.ndarray
     move_start_s: np.ndarray
     calibration_result: str | None = None
+
+
+#: Observations whose content a bag's cache key stands for (compare.cache.bag_key), by object: a field would travel
+#: into a copy with other arrays (dataclasses.replace), and the copy would pass for the bag it no longer is.
+_CONTENT_KEYS: weakref.WeakKeyDictionary[Observations, str] = weakref.WeakKeyDictionary()
+
+
+def keyed(observations: Observations, key: str) -> Observations:
+    """Record ``observations`` as the decoding of the bag whose cache key is ``key``; their arrays become read-only
+    (the key stands for their content, which must then not change).
+
+    Args:
+        observations: the observations decoded from the bag, or read from its cache file under ``key``.
+        key: the bag's cache key (compare.cache.bag_key).
+
+    Returns:
+        ``observations``.
+    """
+    for record in (observations, observations.centroids, observations.gyro):
+        for field in dataclasses.fields(record):
+            value = getattr(record, field.name)
+            if isinstance(value, np.ndarray):
+                value.flags.writeable = False
+    _CONTENT_KEYS[observations] = key
+    return observations
+
+
+def content_key(observations: Observations) -> str | None:
+    """The cache key of the bag these observations are the decoding of (keyed), or None.
+
+    Args:
+        observations: the observations.
+
+    Returns:
+        The key, or None for observations not read through the cache (decoded by the library, made by a test).
+    """
+    return _CONTENT_KEYS.get(observations)
 
 
 def _motion_series(table):

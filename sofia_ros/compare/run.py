@@ -30,7 +30,7 @@ from sofia_ros.analysis.ranking import CandidateTerm
 from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
 from sofia_ros.compare.fit import ModelFit, WhitenedProblem, fit_model
 from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
-from sofia_ros.compare.observations import read_observations, step_store
+from sofia_ros.compare.observations import content_key, read_observations, step_store
 from sofia_ros.compare.pipeline import Comparison, Judgement, LinearizedCandidate, run_comparison, switched_on
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
@@ -58,6 +58,19 @@ class CompareResult:
     best_name: str | None
     predictor: Any
     candidate_terms: tuple = ()
+
+
+def _hash_arrays(digest: Any, observations: Any) -> None:
+    """Feed ``digest`` every field of the observations, their centroids and gyro samples, arrays by their bytes."""
+    for record in (observations, observations.centroids, observations.gyro):
+        for field in dataclasses.fields(record):
+            value = getattr(record, field.name)
+            if isinstance(value, np.ndarray):
+                digest.update(f'{field.name} {value.dtype} {value.shape}\0'.encode())
+                # The buffer itself: a copy of the gyro rates alone is 56 MB on a star hop.
+                digest.update(np.ascontiguousarray(value).reshape(-1).view(np.uint8))
+            elif field.name not in {'bag_path', 'scenario', 'centroids', 'gyro'}:
+                digest.update(f'{field.name} {value!r}\0'.encode())
 
 
 class BagSource:
@@ -130,17 +143,20 @@ class BagSource:
     @cached_property
     def problem_digest(self) -> str:
         """A digest of what every fit of this bag shares: the observations, the noise floors, the start attitude,
-        the anchors' knots and prior."""
+        the anchors' knots and prior.
+
+        Observations read through the observation cache stand by the bag's cache key (observations.content_key):
+        the reader's version and every file of the bag by name, size, mtime and content or MCAP footer, the same
+        key that lets the cache serve them for the bag, and they are read-only. Others are hashed whole (about
+        100 MB on a star hop, 0.2 s). The step keys add the code (compare.steps.code_fingerprint), the reader's
+        with it.
+        """
         digest = hashlib.sha256(repr((self.observations.scenario, self.anchor_spacing_s)).encode())
-        records = (self.observations, self.observations.centroids, self.observations.gyro)
-        for record in records:
-            for field in dataclasses.fields(record):
-                value = getattr(record, field.name)
-                if isinstance(value, np.ndarray):
-                    digest.update(f'{field.name} {value.dtype} {value.shape}\0'.encode())
-                    digest.update(np.ascontiguousarray(value).tobytes())
-                elif field.name not in {'bag_path', 'scenario', 'centroids', 'gyro'}:
-                    digest.update(f'{field.name} {value!r}\0'.encode())
+        key = content_key(self.observations)
+        if key is not None:
+            digest.update(f'bag {key}\0'.encode())
+        else:
+            _hash_arrays(digest, self.observations)
         prior = self.prior.matrix.tocsr()
         for array in (self.noise_arcsec, self.predictor.initial_dcm, self.predictor.anchor_knots_s, prior.data,
                       prior.indices, prior.indptr, self.prior.whitening, np.array([self.prior.unit_rad])):

@@ -3,7 +3,8 @@ or from the bag's cache folder, and gives the ledger and the fit a fresh chain g
 unwritable step file is fitted again with one line; a bag decoded anew drops its steps; without an observation cache
 nothing is written.
 
-Fits are counted through compare.run.BagSource.fit on the session's reduced alignment bag, decoded once.
+Fits are counted through compare.run.BagSource._fitted (every fit of a bag, the chain's and BagSource.fit's) on the
+session's reduced alignment bag, decoded once.
 """
 
 import collections
@@ -52,13 +53,13 @@ def empty_memory(monkeypatch):
 def fits(monkeypatch):
     """The number of fits BagSource runs."""
     counted = []
-    real = BagSource.fit
+    real = BagSource._fitted
 
-    def fit(self, effects, free, start):
+    def fitted(self, effects, free, start):
         counted.append([p.label for p in free])
         return real(self, effects, free, start)
 
-    monkeypatch.setattr(BagSource, 'fit', fit)
+    monkeypatch.setattr(BagSource, '_fitted', fitted)
     return counted
 
 

@@ -18,6 +18,7 @@ moves (6.3).
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+import dataclasses
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -208,11 +209,40 @@ def camera_sandwich_covariance(anchor_columns: scipy.sparse.csr_matrix, paramete
 
 
 @dataclass(frozen=True, eq=False)
+class JacobianPoint:
+    """Where a fit took its Jacobian (its last iteration's start) and what it takes it with: a few kB."""
+
+    predictor: Predictor
+    sigma_arcsec: np.ndarray
+    anchor_prior: AnchorPrior
+    #: the model at ``values``, as that iteration had it
+    effects: dict
+    free: tuple
+    values: np.ndarray
+    anchors_rad: np.ndarray
+
+    def columns(self) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
+        """The anchor and parameter columns at this point, computed as fit_model's iteration computed them.
+
+        Returns:
+            (anchor columns (2N, 3K), parameter columns (2N, P)), whitened.
+        """
+        problem = WhitenedProblem(self.predictor, self.sigma_arcsec, self.anchor_prior)
+        predicted = self.predictor.predict_px(self.effects, self.anchors_rad)
+        derivative = problem.irf_derivative(self.effects, self.anchors_rad, predicted)
+        return (problem.anchor_columns(self.effects, derivative),
+                problem.parameter_columns(self.effects, self.free, self.values, self.anchors_rad, predicted,
+                                          derivative))
+
+
+@dataclass(frozen=True, eq=False)
 class ModelFit:
     """A converged fit: effects with fitted values, sigmas, correlation, anchors, residuals, weights.
 
     Its Jacobian is kept in blocks (``anchor_columns``, ``parameter_columns``, the prior): ``normal_equations``
-    weights them without assembling it; ``jacobian`` assembles it (sparse) for what needs its columns.
+    weights them without assembling it; ``jacobian`` assembles it (sparse) for what needs its columns. A fit
+    ``released`` holds no columns (about 55 MB on a star hop) and takes them again at its ``jacobian_point``
+    where they are asked for: the comparison keeps several refits while it fits others, and judges few.
     """
 
     effects: dict
@@ -224,17 +254,38 @@ class ModelFit:
     residual_arcsec: np.ndarray
     whitened: np.ndarray
     prior_residual: np.ndarray
-    anchor_columns: scipy.sparse.csr_matrix
-    parameter_columns: np.ndarray
     anchor_prior: AnchorPrior
     weights: np.ndarray
     outlier: np.ndarray
     iterations: int
+    jacobian_point: JacobianPoint
+
+    @cached_property
+    def _columns(self) -> tuple[scipy.sparse.csr_matrix, np.ndarray]:
+        return self.jacobian_point.columns()
+
+    @property
+    def anchor_columns(self) -> scipy.sparse.csr_matrix:
+        """Whitened d data rows / d anchors (2N, 3K), sparse."""
+        return self._columns[0]
+
+    @property
+    def parameter_columns(self) -> np.ndarray:
+        """Whitened d data rows / d free parameters (2N, P)."""
+        return self._columns[1]
+
+    def released(self) -> ModelFit:
+        """This fit without its columns: they are taken again at its Jacobian point where asked for.
+
+        Returns:
+            A ModelFit of the same values that holds no columns.
+        """
+        return dataclasses.replace(self)
 
     @property
     def parameter_count(self) -> int:
         """Fitted numbers including the anchors."""
-        return self.anchor_columns.shape[1] + self.parameter_columns.shape[1]
+        return self.anchors_rad.size + len(self.free)
 
     @property
     def augmented_residual(self) -> np.ndarray:
@@ -595,6 +646,7 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     rows = whitened.size + problem.prior.shape[0]
     for iteration in range(1, _MAX_ITERATIONS + 1):
         current = with_values(effects, free, values)
+        jacobian_at = (current, free, values, anchors)
         derivative = problem.irf_derivative(current, anchors, predicted)
         columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
         anchor_columns = problem.anchor_columns(current, derivative)
@@ -650,6 +702,9 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
                                                     len(centroids.cameras))
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)
-    return ModelFit(current, free, values, sigma, correlation,
-                    anchors, residual_arcsec, whitened, prior_residual, anchor_columns, columns, anchor_prior, weights,
-                    outlier, iteration)
+    fit = ModelFit(current, free, values, sigma, correlation, anchors, residual_arcsec, whitened, prior_residual,
+                   anchor_prior, weights, outlier, iteration,
+                   JacobianPoint(predictor, np.asarray(sigma_arcsec), anchor_prior, *jacobian_at))
+    # The columns of the last iteration: released() drops them, and they are taken again the same where asked for.
+    fit.__dict__['_columns'] = (anchor_columns, columns)
+    return fit

@@ -277,8 +277,6 @@ class Comparison:
     best_fit: Any
     best_name: str | None
     judgement: Judgement
-    linearized: tuple
-    refits: dict
 
 
 def switched_on(effects: Mapping, name: str) -> tuple[tuple, np.ndarray, dict]:
@@ -534,6 +532,9 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     degenerate = sorted(set(degenerate_pairs(ranked, scores))
                         | {tuple(sorted((name, by))) for name, by in absorbed.items()})
     competing = competing_sets(ranked, scores, preferred=lambda name: not is_empirical(name))
+    # Only the contenders are judged again: the other refits (each holds its Jacobian, about 55 MB on a star hop)
+    # go before the model's own terms are refitted.
+    refits = {name: refits[name] for name in contenders(refits, scores, competing)}
 
     progress.phase('alternative models')
     alternatives_started = time.perf_counter()
@@ -547,7 +548,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
 
     progress.phase('diagnostics after the contenders')
     diagnostics_started = time.perf_counter()
-    after = {name: source.judge_fit(refits[name]) for name in contenders(refits, scores, competing)}
+    after = {name: source.judge_fit(fit) for name, fit in refits.items()}
     diagnostics_s += time.perf_counter() - diagnostics_started
     members = {name: after_member(judged.diagnostics, judged.consistency) for name, judged in after.items()}
     best_name = preferred_best(after, scores, members, competing)
@@ -577,7 +578,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
         'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4), 'diagnostics': round(diagnostics_s, 3),
                     'model_terms': round(alternatives_s, 3)},
     }
-    outcome = Comparison(document, final, refits.get(best_name), best_name, judgement, tuple(linearized), refits)
+    outcome = Comparison(document, final, refits.get(best_name), best_name, judgement)
     document.update(source.extra_document(outcome, progress))
     document['seconds']['total'] = round(time.perf_counter() - started, 3)
     return outcome

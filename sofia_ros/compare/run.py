@@ -57,7 +57,6 @@ class CompareResult:
     best_fit: Any
     best_name: str | None
     predictor: Any
-    candidate_terms: tuple = ()
 
 
 def _hash_arrays(digest: Any, observations: Any) -> None:
@@ -184,7 +183,8 @@ class BagSource:
         kept = None if whole else self.steps.get(key, free)
         if kept is not None:
             return kept, kept.row
-        fit = self.fit(effects, free, start)
+        # With its columns: the chain's last is the comparison's fit, judged and ranked at once.
+        fit = self._fitted(effects, free, start)
         row = self.ledger_row(term, fit)
         # Copies: the step outlives this fit, whose effects and anchors its callers may change.
         self.steps.put(key, ChainStep(copy.deepcopy(fit.effects), tuple(free), np.array(fit.anchors_rad),
@@ -203,7 +203,9 @@ class BagSource:
         return dict(self.effects) if given and len(terms) > 1 else None
 
     def fit(self, effects: dict, free: tuple, start: ModelFit | None) -> ModelFit:
-        """compare.fit.fit_model, its anchors (and the parameters it fitted) starting from ``start``'s.
+        """compare.fit.fit_model, its anchors (and the parameters it fitted) starting from ``start``'s; the fit
+        released of its columns (ModelFit.released): the comparison holds its refits while it fits more, and asks
+        for the columns of the few it judges again, which then take them anew.
 
         Args:
             effects: {effect: params} at the starting values.
@@ -216,6 +218,10 @@ class BagSource:
         Raises:
             FitError: the starting values put stars off their detectors.
         """
+        return self._fitted(effects, free, start).released()
+
+    def _fitted(self, effects: dict, free: tuple, start: Any) -> ModelFit:
+        """fit_model from ``start``'s anchors, with the columns of its last iteration."""
         # A time shift the start has already fitted is in its basin: its grid (fit._profiled_values) is not run again.
         return fit_model(self.predictor, effects, free, self.noise_arcsec, self.prior,
                          anchors_rad=None if start is None else start.anchors_rad,
@@ -415,4 +421,4 @@ def compare_observations(observations: Any, model: EffectConfig, *, anchor_spaci
     outcome = run_comparison(source, model.effects, candidate_names=candidate_names, started=started,
                              progress=progress)
     return CompareResult(outcome.document, observations, outcome.final_fit, outcome.best_fit, outcome.best_name,
-                         source.predictor, tuple(candidate.term for candidate in outcome.linearized))
+                         source.predictor)

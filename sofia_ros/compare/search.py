@@ -22,6 +22,14 @@ and the search gives a model the refit's values (_next_model), which closes such
 retry of the same terms in another order (025fe47, before that) no longer fired on the atlas' truth12 it
 was made for, and where it fired (truth6, reduced alignment, seed 7) its comparison ended 10,025 BIC above
 the one it repeated and cost a round: it is gone.
+
+Once it has an explained answer, the search compares a queued model only if it could still end as the answer
+or one of its equivalents (could_still_count), and ends when nothing queued could: each comparison costs 5-70 s,
+and on the Waco 2004 alignment rounds 9-12 compared models queued in rounds 3-4 (and their next steps) that ended
+130-6570 above the answer, none explained. A queued model's expected BIC is its parent's less the step's refitted
+gain; its comparison can end lower than that where its ledger's path finds a deeper minimum than the refit did
+(higher does not matter here). How much lower was measured against how far the parent lay above the search's
+answer (EXPECTATION_ERROR_SHARE). The last round says why the search ended.
 """
 
 from __future__ import annotations
@@ -49,8 +57,9 @@ if TYPE_CHECKING:
     from sofia_ros.compare.fit import FreeParameter
     from sofia_ros.compare.observations import Observations
 
-__all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'MAX_SEARCH_ROUNDS', 'LinearizedModels', 'SearchRound',
-           'equivalent_models', 'model_terms', 'rival_swaps', 'search_pool', 'search_model', 'structural_changes']
+__all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'EXPECTATION_ERROR_SHARE', 'MAX_SEARCH_ROUNDS',
+           'LinearizedModels', 'SearchRound', 'could_still_count', 'equivalent_models', 'model_terms', 'rival_swaps',
+           'search_pool', 'search_model', 'structural_changes']
 
 #: An empirical shape enters a model only where it beats the physics by this much BIC (a tie goes to physics).
 EMPIRICAL_PENALTY = 10.0
@@ -58,6 +67,15 @@ EMPIRICAL_PENALTY = 10.0
 EQUIVALENT_DELTA_BIC = 10.0
 #: The candidates taken into the search besides the model's terms, the strongest first.
 SEARCH_POOL = 14
+#: How far below the BIC the search expects of a queued model its comparison can end, as a share of how far the
+#: comparison that queued it lies above the search's answer (docs/compare.md, the search). Measured on 2026-11-27
+#: with the code of 6635f70 on the Waco 2004 alignment, the atlas' truth6 and truth12 (reduced alignment and star
+#: hop) and truth29 (star hop): 0.0017 at most (Waco, a tracker drift added: expected 165.1, ended 163.1, parent
+#: 1107.7, answer -22.5). Before the fit's gyro columns took the inverse right Jacobian (6159846), refits stuck
+#: in other minima: 0.086 (truth12 star hop: expected 16,962, ended at the answer, 1,160, parent 185,074) and 0.173
+#: (truth29 star hop: expected 228,944, ended 188,013, parent 237,190, answer 910). 0.1 is 60 times today's
+#: largest and covers all but that one.
+EXPECTATION_ERROR_SHARE = 0.1
 #: Rounds of search and full refit (each a whole comparison) at most; the range --search-rounds takes.
 MAX_SEARCH_ROUNDS = 12
 SEARCH_ROUNDS_RANGE = (1, 20)
@@ -354,7 +372,11 @@ class SearchRound(TypedDict):
     status: str
     rms_arcsec: float | None
     bic: float
+    #: the BIC the search expected this model to reach when it queued it (None: the model given)
+    expected_bic: float | None
     moves: list[str]
+    #: on the last round only: why the search ends there (None on the others)
+    ends: str | None
 
 
 def search_pool(candidate_terms: Iterable[CandidateTerm],
@@ -477,12 +499,30 @@ def _step_label(step):
 @dataclass(frozen=True)
 class _Queued:
     """A model the search may compare: the BIC it is expected to reach, when it was queued (ties: first queued
-    first) and how it was reached."""
+    first), how it was reached and the BIC of the comparison that queued it (None: the model given)."""
 
     expected_bic: float
     order: int
     model: EffectConfig
     how: str
+    parent_bic: float | None = None
+
+
+def could_still_count(expected_bic: float, parent_bic: float, answer_bic: float) -> bool:
+    """Whether a model queued after an explained answer could still end as the answer or one of its equivalents:
+    its expected BIC, less the estimate's error (EXPECTATION_ERROR_SHARE of how far its parent lies above the
+    answer), within EQUIVALENT_DELTA_BIC of the answer's BIC or below it.
+
+    Args:
+        expected_bic: the BIC the queued model is expected to reach (its parent's, less the step's expected gain).
+        parent_bic: the BIC of the comparison that queued it.
+        answer_bic: the explained answer's BIC.
+
+    Returns:
+        Whether comparing it could change the answer or its equivalents.
+    """
+    lowest = expected_bic - EXPECTATION_ERROR_SHARE * max(parent_bic - answer_bic, 0.0)
+    return lowest < answer_bic + EQUIVALENT_DELTA_BIC
 
 
 def _difference(other, best):
@@ -492,6 +532,26 @@ def _difference(other, best):
     if added and removed:
         return f'{added} instead of {removed}'
     return f'with {added}' if added else f'without {removed}'
+
+
+def _why_the_search_ends(queue, out_of_reach, compared, answer, rounds):
+    """Why the search ends: its rounds are used up, no comparison suggests a step not yet compared, or nothing queued
+    can come within EQUIVALENT_DELTA_BIC of the explained answer (could_still_count)."""
+    if queue:
+        return f'the {rounds} rounds of --search-rounds are used; not compared: {_models(queue)} queued'
+    out_of_reach = [item for item in out_of_reach if item.model.fitted not in compared]
+    if not out_of_reach:
+        return 'no comparison suggests a step not yet compared'
+    nearest = min(out_of_reach, key=lambda item: (item.expected_bic, item.order))
+    return (f'explained at BIC {answer.bic:.1f}; nothing queued can reach within {EQUIVALENT_DELTA_BIC:g} of it '
+            f'(not compared: {_models(out_of_reach)} queued, the nearest {nearest.how}, expected at '
+            f'BIC {nearest.expected_bic:.1f})')
+
+
+def _models(items):
+    """'1 model', '3 models': how many different models the queued items hold."""
+    count = len({item.model.fitted for item in items})
+    return f'{count} model' if count == 1 else f'{count} models'
 
 
 class _Comparison(Protocol):
@@ -510,19 +570,21 @@ def search_model(observations: Observations, model: EffectConfig,
                  ) -> tuple[_ComparisonT, EffectConfig, list[SearchRound], list[dict[str, Any]]]:
     """A best-first search over models: compare one, queue the steps it suggests (the verdict's next step and the
     other members of a competing set, each with the BIC it is expected to reach), compare the most promising
-    model not yet compared, until nothing is queued or ``rounds`` comparisons are made. The answer is the first
+    model not yet compared, until nothing is queued, ``rounds`` comparisons are made, or an explained answer is
+    found and nothing queued could still end as it or its equivalent (could_still_count). The answer is the first
     explained model compared, replaced by a later one only where that one's BIC is lower by
     SIGNIFICANT_DELTA_BIC (else the lowest BIC); the others explained within EQUIVALENT_DELTA_BIC of it are its
     equivalents. ``compare(observations, model)`` is compare.run.compare_observations with its
-    options. Returns the answer's CompareResult, its model (EffectConfig), the SearchRounds and the equivalents
-    (the answer's one-term alternatives by linearized BIC, and the other explained models compared).
+    options. Returns the answer's CompareResult, its model (EffectConfig), the SearchRounds (the last one's ``ends``
+    says why the search ended) and the equivalents (the answer's one-term alternatives by linearized BIC, and the
+    other explained models compared).
 
     Args:
         observations: the bag's observations.
         model: the model the search starts from.
         compare: compares a model with the observations.
         rounds: the most whole comparisons made (SEARCH_ROUNDS_RANGE).
-        progress: takes a line per round.
+        progress: takes a line per round, and one saying why the search ends.
 
     Returns:
         The answer's CompareResult, its model, the rounds and the equivalents (model, delta_bic), lowest first.
@@ -533,12 +595,20 @@ def search_model(observations: Observations, model: EffectConfig,
     low, high = SEARCH_ROUNDS_RANGE
     if not low <= rounds <= high:
         raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')
-    history, compared, queue, order, answer = [], {}, [_Queued(0.0, 0, model, 'the model given')], 0, None
-    while queue and len(history) < rounds:
+    history, compared, order, answer = [], {}, 0, None
+    queue, out_of_reach = [_Queued(0.0, 0, model, 'the model given')], []
+    while True:
+        queue = [item for item in queue if item.model.fitted not in compared]
+        if answer is not None and compared[answer[1].fitted].explained:
+            # The answer's BIC only falls, so a model out of reach now stays out of reach.
+            answer_bic = compared[answer[1].fitted].bic
+            counts = [could_still_count(item.expected_bic, item.parent_bic, answer_bic) for item in queue]
+            out_of_reach += [item for item, counted in zip(queue, counts) if not counted]
+            queue = [item for item, counted in zip(queue, counts) if counted]
+        if not queue or len(history) >= rounds:
+            break
         queue.sort(key=lambda item: (item.expected_bic, item.order))
         item = queue.pop(0)
-        if item.model.fitted in compared:
-            continue
         progress(f'search: round {len(history) + 1}/{rounds}, {item.how}')
         compared_now = compare(observations, item.model)
         outcome = _Outcome.of(compared_now)
@@ -550,13 +620,17 @@ def search_model(observations: Observations, model: EffectConfig,
         history.append(SearchRound(round=len(history) + 1, fitted=sorted(item.model.fitted),
                                    status=outcome.document['verdict']['status'],
                                    rms_arcsec=outcome.document['residual_rms_arcsec'].get('total'),
-                                   bic=outcome.bic, moves=[_step_label(step) for _, step in steps]))
+                                   bic=outcome.bic, expected_bic=None if item.parent_bic is None else item.expected_bic,
+                                   moves=[_step_label(step) for _, step in steps], ends=None))
         for expected_bic, step in steps:
             order += 1
             following = _next_model(item.model, outcome, step)
             if following.fitted not in compared:
                 how = f'after round {len(history)}: {_step_label(step)}'
-                queue.append(_Queued(expected_bic, order, following, how))
+                queue.append(_Queued(expected_bic, order, following, how, outcome.bic))
+    history[-1]['ends'] = _why_the_search_ends(queue, out_of_reach, compared, compared[answer[1].fitted],
+                                                rounds)
+    progress(f'search: ends after round {len(history)}: {history[-1]["ends"]}')
     result, model = answer
     best, bic_best = model.fitted, float(result.final_fit.bic)
     # A model compared in full replaces the answer's linearized estimate of the same model (truth29 listed both).

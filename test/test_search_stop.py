@@ -1,0 +1,108 @@
+"""When the search stops (issue 25's performance): once it has an explained answer, a queued model is compared only
+if it could still end as the answer or an equivalent of it (could_still_count): its expected BIC, less the
+estimate's error (EXPECTATION_ERROR_SHARE of how far its parent lies above the answer), within
+EQUIVALENT_DELTA_BIC of the answer. The search says why it ended. Fake comparisons (no bag: milliseconds)."""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from sofia_ros.compare.search import EQUIVALENT_DELTA_BIC, EXPECTATION_ERROR_SHARE, could_still_count, search_model
+from sofia_ros.config import load_effect_config
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The model given (no term added) lacks one effect; FIRST explains it best, RIVAL competes with it.
+FIRST, RIVAL = 'gyro_axis_swap', 'gyro_scale_factor'
+BIC_GIVEN, BIC_FIRST = 3000.0, 1000.0
+#: The highest BIC at which RIVAL, queued from the model given, could still end within EQUIVALENT_DELTA_BIC of FIRST.
+REACH = BIC_FIRST + EQUIVALENT_DELTA_BIC + EXPECTATION_ERROR_SHARE * (BIC_GIVEN - BIC_FIRST)
+
+
+@dataclass
+class _Fit:
+    bic: float
+    effects: dict
+
+
+@dataclass
+class _Comparison:
+    document: dict
+    final_fit: _Fit
+
+
+def _fake_compare(outcomes):
+    """``outcomes`` maps the terms added to the model given (a frozenset) to (status, BIC, steps), steps being
+    [(effect, expected BIC)], the first the verdict's next step and all of them a competing set."""
+    nominal = load_effect_config(ROOT / 'config' / 'model' / 'nominal.yaml')
+
+    def compare(observations, model):
+        status, bic, steps = outcomes[frozenset(model.fitted - nominal.fitted)]
+        candidates = [{'effect': name, 'refined': True, 'params': {}, 'delta_bic': bic - expected}
+                      for name, expected in steps]
+        step = {'action': 'add', 'effect': steps[0][0], 'term': None} if steps else {'action': 'none',
+                                                                                  'effect': None, 'term': None}
+        document = {'verdict': {'status': status, 'next': step}, 'candidates': candidates,
+                    'competing': [{'effects': [name for name, _ in steps]}] if steps else [],
+                    'equivalent_models': [], 'model_change': None, 'residual_rms_arcsec': {'total': 0.3}}
+        return _Comparison(document, _Fit(bic, {name: dict(params) for name, params in model.effects.items()}))
+
+    return nominal, compare
+
+
+def _search(rival_expected, rival_bic=BIC_FIRST + 50.0, first_status='explained', rounds=12):
+    """The search over the model given, FIRST (at BIC_FIRST) and RIVAL (expected at ``rival_expected``)."""
+    nominal, compare = _fake_compare({
+        frozenset(): ('missing_effect', BIC_GIVEN, [(FIRST, BIC_FIRST), (RIVAL, rival_expected)]),
+        frozenset({FIRST}): (first_status, BIC_FIRST, []),
+        frozenset({RIVAL}): ('explained', rival_bic, [])})
+    lines = []
+    result = search_model(None, nominal, compare, rounds=rounds, progress=lines.append)
+    return (*result, lines)
+
+
+def _compared(rounds):
+    return [set(entry['fitted']) for entry in rounds]
+
+
+def test_a_queued_model_that_cannot_reach_the_answer_is_not_compared():
+    _, found, rounds, equivalents, lines = _search(REACH + 1.0)
+    assert found.fitted >= {FIRST} and len(rounds) == 2 and not any(RIVAL in fitted for fitted in _compared(rounds))
+    assert equivalents == []
+    assert rounds[1]['expected_bic'] == BIC_FIRST and rounds[0]['expected_bic'] is None
+    assert [entry['ends'] for entry in rounds] == [None, (
+        f'explained at BIC {BIC_FIRST:.1f}; nothing queued can reach within 10 of it (not compared: 1 model '
+        f'queued, the nearest after round 1: add {RIVAL}, expected at BIC {REACH + 1.0:.1f})')]
+    assert lines[-1] == f'search: ends after round 2: {rounds[-1]["ends"]}'
+
+
+@pytest.mark.parametrize('rival_bic, equivalent', [(BIC_FIRST + 4.0, True), (BIC_FIRST + 60.0, False)],
+                         ids=['ends-equivalent', 'ends-far'])
+def test_a_queued_model_that_can_reach_it_is_compared(rival_bic, equivalent):
+    _, found, rounds, equivalents, _ = _search(REACH - 1.0, rival_bic)
+    assert found.fitted >= {FIRST} and any(RIVAL in fitted for fitted in _compared(rounds))
+    assert rounds[2]['expected_bic'] == REACH - 1.0
+    assert [entry['model'] for entry in equivalents] == ([f'{RIVAL} instead of {FIRST} (compared in full)']
+                                                         if equivalent else [])
+    assert rounds[-1]['ends'] == 'no comparison suggests a step not yet compared'
+
+
+def test_before_an_explained_answer_nothing_is_pruned():
+    # FIRST is not explained: the rival, however far it is expected to end, is compared, and is the answer.
+    _, found, rounds, _, _ = _search(BIC_GIVEN - 1.0, rival_bic=BIC_GIVEN - 1.0, first_status='missing_effect')
+    assert found.fitted >= {RIVAL} and len(rounds) == 3
+    assert rounds[-1]['ends'] == 'no comparison suggests a step not yet compared'
+
+
+def test_a_search_cut_by_its_rounds_says_so():
+    _, _, rounds, _, _ = _search(REACH - 1.0, rounds=2)
+    assert rounds[-1]['ends'] == 'the 2 rounds of --search-rounds are used; not compared: 1 model queued'
+
+
+@pytest.mark.parametrize('parent_bic, expected_bic, counts', [
+    (3000.0, 1209.0, True), (3000.0, 1211.0, False),  # 10 % of 2000 above the answer: within 10 + 200
+    (1000.0, 1009.0, True), (1000.0, 1011.0, False),  # a parent at the answer: no error allowed for
+    (900.0, 1005.0, True)])  # a parent below the answer (a non-significant gain) allows no error either
+def test_could_still_count(parent_bic, expected_bic, counts):
+    assert EXPECTATION_ERROR_SHARE == 0.1  # the cases are computed for it
+    assert could_still_count(expected_bic, parent_bic, 1000.0) is counts

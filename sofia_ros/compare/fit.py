@@ -240,7 +240,7 @@ class ModelFit:
     """A converged fit: effects with fitted values, sigmas, correlation, anchors, residuals, weights.
 
     Its Jacobian is kept in blocks (``anchor_columns``, ``parameter_columns``, the prior): ``normal_equations``
-    weights them without assembling it; ``jacobian`` assembles it (sparse) for what needs its columns. A fit
+    weights them without assembling it; ``jacobian`` assembles it (sparse, each time) for what needs its columns. A fit
     ``released`` holds no columns (about 55 MB on a star hop) and takes them again at its ``jacobian_point``
     where they are asked for: the comparison keeps several refits while it fits others, and judges few.
     """
@@ -292,9 +292,10 @@ class ModelFit:
         """Whitened data rows followed by the anchors' gyro-noise prior rows (what the Jacobian's rows are)."""
         return np.concatenate([self.whitened, self.prior_residual])
 
-    @cached_property
+    @property
     def jacobian(self) -> scipy.sparse.csr_matrix:
-        """d augmented residual / d (anchors, parameters), whitened, sparse: data rows, then the prior's rows."""
+        """d augmented residual / d (anchors, parameters), whitened, sparse: data rows, then the prior's rows.
+        Assembled anew (about 40 MB on a star hop): the comparison drops it once it has ranked the candidates."""
         prior = self.anchor_prior.matrix
         data = scipy.sparse.hstack([self.anchor_columns, scipy.sparse.csr_matrix(self.parameter_columns)])
         prior_rows = scipy.sparse.hstack([prior, scipy.sparse.csr_matrix((prior.shape[0], self.parameter_columns.shape[1]))])

@@ -18,6 +18,7 @@ that source adds to the document. `run_comparison` runs the rest once for both:
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -96,9 +97,9 @@ class Judgement:
 @dataclass(frozen=True, eq=False)
 class LinearizedCandidate:
     """A candidate linearized where it vanishes: its ranking term, the parameters a full refit frees and the
-    effects of the fit with the candidate switched on at its start."""
+    effects of the fit with the candidate switched on at its start (``term`` None where only those are kept)."""
 
-    term: CandidateTerm
+    term: CandidateTerm | None
     free: tuple
     effects: dict
 
@@ -405,7 +406,7 @@ def _absorbing_terms(jacobian: Any, nuisance: int, free: Sequence[FreeParameter]
 
 
 def _refits(source: ComparisonSource, final: SourceFit, ranked: list[RankedCandidate],
-            linearized: Mapping[str, LinearizedCandidate], entries: dict, per_candidate_s: float,
+            starts: Mapping[str, LinearizedCandidate], entries: dict, per_candidate_s: float,
             progress: Progress) -> dict:
     """The best few (compare.competing.refit_order) refitted in full from their linearized values; their entries
     replaced. A refit that fails leaves the linearized entry standing."""
@@ -414,7 +415,7 @@ def _refits(source: ComparisonSource, final: SourceFit, ranked: list[RankedCandi
     for done, candidate in enumerate(order):
         progress.count('refitting the best candidates', done, len(order))
         started = time.perf_counter()
-        start = linearized[candidate.name]
+        start = starts[candidate.name]
         effects = {**start.effects, candidate.name: {**start.effects[candidate.name], **candidate.params}}
         try:
             trial = source.fit(effects, final.free + start.free, final)
@@ -430,7 +431,7 @@ def _refits(source: ComparisonSource, final: SourceFit, ranked: list[RankedCandi
 
 
 def _checked_change(source: ComparisonSource, change: dict, models: LinearizedModels, final: SourceFit,
-                    linearized: Mapping[str, LinearizedCandidate]) -> dict | None:
+                    starts: Mapping[str, LinearizedCandidate]) -> dict | None:
     """The proposed change refitted in full from its linearized values: its real delta-BIC against the model as it
     is, or None if the fit fails."""
     removed = set(change['term'].split(','))
@@ -438,7 +439,7 @@ def _checked_change(source: ComparisonSource, change: dict, models: LinearizedMo
     effects = {name: params for name, params in final.effects.items() if name not in removed}
     free = tuple(p for p in final.free if p.effect not in removed)
     if change['effect'] is not None:
-        incoming = linearized[change['effect']]
+        incoming = starts[change['effect']]
         effects[change['effect']] = dict(incoming.effects[change['effect']])
         free += incoming.free
     for name, values in models.values(chosen).items():
@@ -452,7 +453,7 @@ def _checked_change(source: ComparisonSource, change: dict, models: LinearizedMo
 
 def _confirmed_change(source: ComparisonSource, changes: Sequence[dict], swaps: Sequence[dict],
                       models: LinearizedModels, final: SourceFit,
-                      linearized: Mapping[str, LinearizedCandidate]) -> dict | None:
+                      starts: Mapping[str, LinearizedCandidate]) -> dict | None:
     """The changes the linearization calls significant, then the rival swaps (search.rival_swaps), refitted in full
     in that order until one lowers the BIC significantly: that one, else the best refitted (None if none was).
     At most CHECKED_CHANGES refits. A linearized gain is a guess where terms interact or an effect is far from
@@ -462,7 +463,7 @@ def _confirmed_change(source: ComparisonSource, changes: Sequence[dict], swaps: 
     queue = significant + [swap for swap in swaps if (swap['term'], swap['effect']) not in tried]
     best = None
     for change in queue[:CHECKED_CHANGES]:
-        checked = _checked_change(source, change, models, final, linearized)
+        checked = _checked_change(source, change, models, final, starts)
         if checked is not None and (best is None or checked['delta_bic'] > best['delta_bic']):
             best = checked
         if best is not None and best['delta_bic'] >= SIGNIFICANT_DELTA_BIC:
@@ -522,8 +523,9 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
                                                   _scaled(totals, candidate.rss_after / rss_base), candidate.delta_bic,
                                                   detectable=candidate.observable, seconds=per_candidate_s,
                                                   reason=reason)
-    by_name = {candidate.term.name: candidate for candidate in linearized}
-    refits = _refits(source, final, ranked, by_name, entries, per_candidate_s, progress)
+    # Where each candidate starts, without its columns: what the refits and the checked change need of it.
+    starts = {candidate.term.name: dataclasses.replace(candidate, term=None) for candidate in linearized}
+    refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress)
     scores = {candidate.name: entries[candidate.name]['delta_bic'] for candidate in ranked}
     for name, reason in unseen.items():
         entries[name] = candidate_entry(name, {}, {}, {}, 0.0, detectable=False, reason=reason)
@@ -541,9 +543,12 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     fitted_now = frozenset(p.effect for p in final.free)
     models = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance,
                                      search_pool(terms, [entries[name] for name in scores]))
+    # The candidates' columns and the fit's Jacobian (on a star hop about 190 and 40 MB) have served the ranking and
+    # the linearized models; the checked change and the judgements fit and hold more.
+    del linearized, terms, jacobian
     own_terms = model_terms(models, fitted_now)
     change = _confirmed_change(source, structural_changes(models, fitted_now, CHECKED_CHANGES),
-                               rival_swaps(models, fitted_now, own_terms), models, final, by_name)
+                               rival_swaps(models, fitted_now, own_terms), models, final, starts)
     alternatives_s = time.perf_counter() - alternatives_started
 
     progress.phase('diagnostics after the contenders')

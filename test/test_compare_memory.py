@@ -1,6 +1,7 @@
-"""What a comparison holds and hashes (issue 27): no refit outlives its use but the preferred one, and the bag's
-problem digest stands for the observations (by the observation cache's key where they came through the cache, else
-by their bytes): it changes when an observation changes and not otherwise.
+"""What a comparison holds, hashes and computes again (issue 27): no refit outlives its use but the preferred one;
+the bag's problem digest stands for the observations (by the observation cache's key where they came through the
+cache, else by their bytes): it changes when an observation changes and not otherwise; a HIPO clock offset's new
+value computes HIPO's star directions alone again, the same numbers.
 
 The refits are counted on test_pipeline's linear fake source; the digests on the session's reduced alignment bag.
 """
@@ -19,6 +20,7 @@ from sofia_ros.compare.cache import CACHE_DIRECTORY, ObservationCache, bag_key
 from sofia_ros.compare.fit import free_parameters
 from sofia_ros.compare.observations import content_key, decode_observations, keyed
 from sofia_ros.compare.pipeline import run_comparison
+from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.run import BagSource
 from sofia_ros.config import load_effect_config, parse_effect_config
 from sofia_ros.effects import resolve_params
@@ -126,3 +128,26 @@ def test_observations_through_the_cache_carry_the_bag_key_and_a_changed_bag_anot
     again = cache.read(bag, decode_observations)
     assert content_key(again) == bag_key(bag) != content_key(from_file)
     np.testing.assert_array_equal(again.centroids.measured_px, from_file.centroids.measured_px)
+
+
+def test_a_clock_offset_computes_hipos_star_directions_alone_again_the_same(decoded, monkeypatch):
+    predictor = Predictor(decoded)
+    effects = {name: resolve_params(name, {}) for name in ('earth_rotation', 'atmospheric_refraction',
+                                                            'timestamp_offset')}
+    hipo = decoded.centroids.cameras.index('hipo')
+    computed = []
+    real = Predictor._directions_of
+
+    def directions_of(self, effects, hip_rows, times_s):
+        computed.append(len(hip_rows))
+        return real(self, effects, hip_rows, times_s)
+
+    monkeypatch.setattr(Predictor, '_directions_of', directions_of)
+    for offset_s in (0.0, 0.25):
+        effects['timestamp_offset']['offset_s'] = offset_s
+        times = predictor.row_times_s(effects)
+        np.testing.assert_array_equal(predictor._directions(effects, times),
+                                      predictor._star_directions(effects, times), strict=True)
+    hipo_rows = int(np.sum(decoded.centroids.camera_index == hipo))
+    # the first offset: every camera, then the whole for the check; the second: HIPO alone, then the whole
+    assert computed[len(decoded.centroids.cameras) + 1:] == [hipo_rows, len(decoded.centroids)]

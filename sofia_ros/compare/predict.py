@@ -527,7 +527,21 @@ class Predictor:
                 repr(effects.get('timestamp_offset')))
 
     def _directions(self, effects, times):
-        return self._cached(self._star_key(effects), lambda: self._star_directions(effects, times))
+        """_star_directions of every row (N, 3), kept camera by camera: a HIPO clock offset (a fit steps it every
+        iteration) moves HIPO's rows alone, and the other cameras' directions (122k of the Waco star hop's 123k
+        rows) are read back. A row's direction depends on its own star and time only: the same numbers."""
+        directions = np.empty((len(times), 3))
+        for index, rows in enumerate(self._camera_rows):
+            directions[rows] = self._cached(
+                self._camera_star_key(effects, index),
+                lambda rows=rows: _read_only(self._directions_of(effects, self._hip_row[rows], times[rows])))
+        return directions
+
+    def _camera_star_key(self, effects, camera_index):
+        # A camera's row times move with the HIPO clock offset only if it is HIPO (row_times_s).
+        moves_in_time = self.observations.centroids.cameras[camera_index] == 'hipo'
+        return ('stars', camera_index, repr(effects.get('atmospheric_refraction')), repr(effects.get('earth_rotation')),
+                repr(effects.get('timestamp_offset')) if moves_in_time else None)
 
     def _anchor_correction(self, anchors_rad, times):
         if anchors_rad is None:

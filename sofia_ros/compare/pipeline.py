@@ -534,8 +534,8 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     degenerate = sorted(set(degenerate_pairs(ranked, scores))
                         | {tuple(sorted((name, by))) for name, by in absorbed.items()})
     competing = competing_sets(ranked, scores, preferred=lambda name: not is_empirical(name))
-    # Only the contenders are judged again: the other refits (each holds its Jacobian, about 55 MB on a star hop)
-    # go before the model's own terms are refitted.
+    # Only the contenders are judged again: the other refits go before the model's own terms are refitted (a bag's,
+    # released of its columns, still holds its residuals and weights: about 6 MB each on a star hop).
     refits = {name: refits[name] for name in contenders(refits, scores, competing)}
 
     progress.phase('alternative models')

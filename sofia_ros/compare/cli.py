@@ -376,8 +376,10 @@ def _searched(args, model, progress, data, compare):
 def _print_search(search, out):
     print('search: the model the data ask for (BIC; rounds of linearized search and full refit)', file=out)
     for entry in search['rounds']:
-        moves = '; '.join(entry['moves']) or 'no change: the search ends here'
+        moves = '; '.join(entry['moves']) or 'no change'
         print(f'  round {entry["round"]}: {entry["status"]:<15} RMS {entry["rms_arcsec"]:.3f}"  -> {moves}', file=out)
+        if entry['ends']:
+            print(f'  the search ends here: {entry["ends"]}', file=out)
     change = ', '.join([*(f'+{name}' for name in search['added']), *(f'-{name}' for name in search['removed'])])
     print(f'  found: {change or "the model as given"} ({search["status"]})', file=out)
     for entry in search['equivalent'][:5]:

@@ -99,10 +99,42 @@ def test_a_search_cut_by_its_rounds_says_so():
     assert rounds[-1]['ends'] == 'the 2 rounds of --search-rounds are used; not compared: 1 model queued'
 
 
-@pytest.mark.parametrize('parent_bic, expected_bic, counts', [
-    (3000.0, 1209.0, True), (3000.0, 1211.0, False),  # 10 % of 2000 above the answer: within 10 + 200
-    (1000.0, 1009.0, True), (1000.0, 1011.0, False),  # a parent at the answer: no error allowed for
-    (900.0, 1005.0, True)])  # a parent below the answer (a non-significant gain) allows no error either
-def test_could_still_count(parent_bic, expected_bic, counts):
+@pytest.mark.parametrize('parent_bic, expected_bic, path_bic, counts', [
+    (3000.0, 1209.0, 1000.0, True), (3000.0, 1211.0, 1000.0, False),  # 10 % of 2000 above the answer: within 10 + 200
+    (1000.0, 1009.0, 1000.0, True), (1000.0, 1011.0, 1000.0, False),  # a parent at the answer: no error allowed for
+    (900.0, 1005.0, 1000.0, True),  # a parent below the answer (a non-significant gain) allows no error either
+    (3000.0, 2209.0, 2000.0, True), (3000.0, 2211.0, 2000.0, False),  # beside a step of the path at 2000
+    (3000.0, 1211.0, 900.0, False)])  # a path below the answer does not lower the bar under the answer's
+def test_could_still_count(parent_bic, expected_bic, path_bic, counts):
     assert EXPECTATION_ERROR_SHARE == 0.1  # the cases are computed for it
-    assert could_still_count(expected_bic, parent_bic, 1000.0) is counts
+    assert could_still_count(expected_bic, parent_bic, 1000.0, path_bic) is counts
+
+
+#: A branch: THIRD closes the model after FIRST or after RIVAL; the two paths end 4 apart.
+THIRD = 'hipo_fiducial_error'
+
+
+def _branch_search(rival_expected):
+    nominal, compare = _fake_compare({
+        frozenset(): ('missing_effect', BIC_GIVEN, [(FIRST, BIC_FIRST), (RIVAL, rival_expected)]),
+        frozenset({FIRST}): ('missing_effect', BIC_FIRST, [(THIRD, 100.0)]),
+        frozenset({FIRST, THIRD}): ('explained', 100.0, []),
+        frozenset({RIVAL}): ('missing_effect', BIC_FIRST + 3.0, [(THIRD, 104.0)]),
+        frozenset({RIVAL, THIRD}): ('explained', 104.0, [])})
+    return search_model(None, nominal, compare, rounds=12)
+
+
+def test_a_rival_beside_the_answers_path_is_followed_to_its_end():
+    # The rival is expected 5 above FIRST, far above the answer (100) but within reach of the path's step: its own
+    # next step gains what the path gained after FIRST, and ends an equivalent two terms on.
+    _, found, rounds, equivalents = _branch_search(BIC_FIRST + 5.0)
+    assert found.fitted >= {FIRST, THIRD} and len(rounds) == 5
+    assert [entry['model'] for entry in equivalents] == [f'{RIVAL} instead of {FIRST} (compared in full)']
+    assert equivalents[0]['delta_bic'] == 4.0
+
+
+def test_a_rival_out_of_reach_of_the_answers_path_is_not_compared():
+    # 10 % of the given model's 2900 above the answer is 290: a rival expected 400 above FIRST is out of reach.
+    _, found, rounds, equivalents = _branch_search(BIC_FIRST + EQUIVALENT_DELTA_BIC + 400.0)
+    assert found.fitted >= {FIRST, THIRD} and len(rounds) == 3 and equivalents == []
+    assert rounds[-1]['ends'].startswith('explained at BIC 100.0; nothing queued can reach within 10 of it')

@@ -29,7 +29,10 @@ and on the Waco 2004 alignment rounds 9-12 compared models queued in rounds 3-4 
 130-6570 above the answer, none explained. A queued model's expected BIC is its parent's less the step's refitted
 gain; its comparison can end lower than that where its ledger's path finds a deeper minimum than the refit did
 (higher does not matter here). How much lower was measured against how far the parent lay above the search's
-answer (EXPECTATION_ERROR_SHARE). The last round says why the search ended.
+answer (EXPECTATION_ERROR_SHARE). A queued model is judged against the answer's path, not the answer alone: a
+rival queued beside a step of the path (the other member of a competing set) may gain by its own next steps
+what the path gained after that step, and end an equivalent of the answer two terms on. The last round says
+why the search ended.
 """
 
 from __future__ import annotations
@@ -506,23 +509,43 @@ class _Queued:
     model: EffectConfig
     how: str
     parent_bic: float | None = None
+    parent_fitted: frozenset | None = None
 
 
-def could_still_count(expected_bic: float, parent_bic: float, answer_bic: float) -> bool:
-    """Whether a model queued after an explained answer could still end as the answer or one of its equivalents:
-    its expected BIC, less the estimate's error (EXPECTATION_ERROR_SHARE of how far its parent lies above the
-    answer), within EQUIVALENT_DELTA_BIC of the answer's BIC or below it.
+def could_still_count(expected_bic: float, parent_bic: float, answer_bic: float, path_bic: float) -> bool:
+    """Whether a model queued after an explained answer, or a model its steps lead to, could still end as the answer
+    or one of its equivalents: its expected BIC, less the estimate's error (EXPECTATION_ERROR_SHARE of how far its
+    parent lies above the answer), within EQUIVALENT_DELTA_BIC of ``path_bic`` or below it.
+
+    ``path_bic`` is the lowest BIC the answer's path reached with no more terms than the queued model (at least
+    the answer's): a model queued beside a step of that path, a rival member of a competing set, is compared where
+    it came within reach of that step, since its own next steps may gain what the path gained after it.
 
     Args:
         expected_bic: the BIC the queued model is expected to reach (its parent's, less the step's expected gain).
         parent_bic: the BIC of the comparison that queued it.
         answer_bic: the explained answer's BIC.
+        path_bic: the lowest BIC of the answer's path with no more terms than the queued model, or the answer's.
 
     Returns:
         Whether comparing it could change the answer or its equivalents.
     """
     lowest = expected_bic - EXPECTATION_ERROR_SHARE * max(parent_bic - answer_bic, 0.0)
-    return lowest < answer_bic + EQUIVALENT_DELTA_BIC
+    return lowest < max(path_bic, answer_bic) + EQUIVALENT_DELTA_BIC
+
+
+def _path_bics(answer_fitted, compared, parents):
+    """The answer's path, from the model given to the answer: [(terms fitted, BIC)] of each comparison on it."""
+    path, fitted = [], answer_fitted
+    while fitted is not None:
+        path.append((len(fitted), compared[fitted].bic))
+        fitted = parents[fitted]
+    return path
+
+
+def _path_bic(path, terms):
+    """The lowest BIC the answer's path reached with at most ``terms`` terms fitted (inf where it had none)."""
+    return min((bic for count, bic in path if count <= terms), default=float('inf'))
 
 
 def _difference(other, best):
@@ -595,24 +618,28 @@ def search_model(observations: Observations, model: EffectConfig,
     low, high = SEARCH_ROUNDS_RANGE
     if not low <= rounds <= high:
         raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')
-    history, compared, order, answer = [], {}, 0, None
-    queue, out_of_reach = [_Queued(0.0, 0, model, 'the model given')], []
+    history, compared, parents, order, answer = [], {}, {}, 0, None
+    waiting = [_Queued(0.0, 0, model, 'the model given')]
     while True:
-        queue = [item for item in queue if item.model.fitted not in compared]
+        waiting = [item for item in waiting if item.model.fitted not in compared]
+        queue, out_of_reach = waiting, []
         if answer is not None and compared[answer[1].fitted].explained:
-            # The answer's BIC only falls, so a model out of reach now stays out of reach.
+            # Judged anew each round: a later answer has another path, whose BICs may lie higher.
             answer_bic = compared[answer[1].fitted].bic
-            counts = [could_still_count(item.expected_bic, item.parent_bic, answer_bic) for item in queue]
-            out_of_reach += [item for item, counted in zip(queue, counts) if not counted]
-            queue = [item for item, counted in zip(queue, counts) if counted]
+            path = _path_bics(answer[1].fitted, compared, parents)
+            counts = [could_still_count(item.expected_bic, item.parent_bic, answer_bic,
+                                        _path_bic(path, len(item.model.fitted))) for item in waiting]
+            queue = [item for item, counted in zip(waiting, counts) if counted]
+            out_of_reach = [item for item, counted in zip(waiting, counts) if not counted]
         if not queue or len(history) >= rounds:
             break
-        queue.sort(key=lambda item: (item.expected_bic, item.order))
-        item = queue.pop(0)
+        item = min(queue, key=lambda queued: (queued.expected_bic, queued.order))
+        waiting.remove(item)
         progress(f'search: round {len(history) + 1}/{rounds}, {item.how}')
         compared_now = compare(observations, item.model)
         outcome = _Outcome.of(compared_now)
         compared[item.model.fitted] = outcome
+        parents[item.model.fitted] = item.parent_fitted
         if answer is None or outcome.replaces(_Outcome.of(answer[0])):
             answer = (compared_now, item.model)
         del compared_now
@@ -627,7 +654,7 @@ def search_model(observations: Observations, model: EffectConfig,
             following = _next_model(item.model, outcome, step)
             if following.fitted not in compared:
                 how = f'after round {len(history)}: {_step_label(step)}'
-                queue.append(_Queued(expected_bic, order, following, how, outcome.bic))
+                waiting.append(_Queued(expected_bic, order, following, how, outcome.bic, item.model.fitted))
     history[-1]['ends'] = _why_the_search_ends(queue, out_of_reach, compared, compared[answer[1].fitted],
                                                 rounds)
     progress(f'search: ends after round {len(history)}: {history[-1]["ends"]}')

@@ -1,5 +1,7 @@
 """`sofia import`: CSV logs -> bag; a simulated bag exported to CSV and imported compares the same."""
 
+import shutil
+
 import pytest
 
 from sofia_ros.bag.csv_logs import export_csv_logs
@@ -16,10 +18,15 @@ def campaign(campaign_bags):
     return campaign_bags.reduced_alignment()
 
 
+@pytest.fixture(scope='module')
+def exported(campaign, tmp_path_factory):
+    """The campaign's CSV logs, exported once for the module (about 7 CPU-s); a test that edits them edits a copy."""
+    return export_csv_logs(campaign, tmp_path_factory.mktemp('export') / 'logs')
+
+
 @pytest.mark.timeout(600)
-def test_export_import_round_trip_compares_the_same(campaign, tmp_path, capsys):
-    logs = export_csv_logs(campaign, tmp_path / 'logs')
-    assert main(['import', str(logs), '--bag', str(tmp_path / 'imported')]) == 0
+def test_export_import_round_trip_compares_the_same(campaign, exported, tmp_path, capsys):
+    assert main(['import', str(exported), '--bag', str(tmp_path / 'imported')]) == 0
     assert 'bag: ' in capsys.readouterr().out
     model = load_effect_config('config/model/nominal.yaml')
     original = compare_bag(campaign, model, candidate_names=CANDIDATES).document
@@ -30,8 +37,8 @@ def test_export_import_round_trip_compares_the_same(campaign, tmp_path, capsys):
         (c['effect'], c['delta_bic'], c['params']) for c in original['candidates']]
 
 
-def test_bad_logs_are_one_line_and_exit_2(campaign, tmp_path, capsys):
-    logs = export_csv_logs(campaign, tmp_path / 'logs')
+def test_bad_logs_are_one_line_and_exit_2(exported, tmp_path, capsys):
+    logs = shutil.copytree(exported, tmp_path / 'logs')
     text = (logs / 'joints.csv').read_text().replace('fd_los_rad', 'fd_los_deg')
     (logs / 'joints.csv').write_text(text)
     assert main(['import', str(logs), '--bag', str(tmp_path / 'bag')]) == 2

@@ -104,4 +104,5 @@ def test_the_search_rounds_go_through_the_same_progress_and_quiet_silences_them(
     else:
         phases = [line.removeprefix(LINE_PREFIX).rsplit(' (', 1)[0] for line in err.splitlines()]
         assert phases == ['reading the bag', 'decoded observations from the cache',
-                          'search: round 1/1, the model given', 'comparing (stand-in)'], err
+                          'search: round 1/1, the model given', 'comparing (stand-in)',
+                          'search: ends after round 1: no comparison suggests a step not yet compared'], err

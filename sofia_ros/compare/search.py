@@ -561,7 +561,8 @@ def _why_the_search_ends(queue, out_of_reach, compared, answer, rounds):
     """Why the search ends: its rounds are used up, no comparison suggests a step not yet compared, or nothing queued
     can come within EQUIVALENT_DELTA_BIC of the explained answer (could_still_count)."""
     if queue:
-        return f'the {rounds} rounds of --search-rounds are used; not compared: {_models(queue)} queued'
+        used = f'the {rounds} rounds of --search-rounds are' if rounds != 1 else 'the one round of --search-rounds is'
+        return f'{used} used; not compared: {_models(queue)} queued'
     out_of_reach = [item for item in out_of_reach if item.model.fitted not in compared]
     if not out_of_reach:
         return 'no comparison suggests a step not yet compared'

@@ -108,3 +108,18 @@ def test_a_model_that_holds_the_truth_is_left_as_it_is():
     models = LinearizedModels.at_fit(residual, jacobian, free, values, ANCHORS, candidates)
     assert _best_change(models, {'gyro_bias'}) is None
     assert equivalent_models(models, {'gyro_bias'}) == []
+
+
+def test_the_models_of_a_part_of_the_candidates_are_the_part_of_the_models_of_all():
+    residual, jacobian, free, values, candidates, _, _ = _problem({'gyro_bias': 1.0, 'tracker_drift': 0.3})
+    every = LinearizedModels.at_fit(residual, jacobian, free, values, ANCHORS, candidates)
+    part = ['hipo_fiducial_error', 'empirical:fpi.x:time:period_312s']
+    direct = LinearizedModels.at_fit(residual, jacobian, free, values, ANCHORS,
+                                     [term for term in candidates if term.name in part])
+    restricted = every.restricted_to(part)
+    assert restricted.names == direct.names == ('gyro_bias', *part)
+    assert (restricted.in_model, restricted.widths, restricted.parameters) == (
+        direct.in_model, direct.widths, direct.parameters)
+    np.testing.assert_allclose(restricted.gram, direct.gram, rtol=1e-12, atol=1e-9)
+    for chosen in ({'gyro_bias'}, {'hipo_fiducial_error'}, {'gyro_bias', 'empirical:fpi.x:time:period_312s'}):
+        assert restricted.bic(chosen) == pytest.approx(direct.bic(chosen), rel=1e-12)

@@ -523,8 +523,13 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
                                                   _scaled(totals, candidate.rss_after / rss_base), candidate.delta_bic,
                                                   detectable=candidate.observable, seconds=per_candidate_s,
                                                   reason=reason)
-    # Where each candidate starts, without its columns: what the refits and the checked change need of it.
+    # Every model within reach, linearized over all the candidates before the refits (the search's pool, taken
+    # after them, is a part of it): the candidates' columns and the fit's Jacobian (on a star hop about 190 and
+    # 40 MB) have then served the ranking and the linearized models, and the refits, the checked change and the
+    # judgements fit and hold more. Where each candidate starts is what those need of it.
+    every_model = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance, terms)
     starts = {candidate.term.name: dataclasses.replace(candidate, term=None) for candidate in linearized}
+    del linearized, terms, jacobian
     refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress)
     scores = {candidate.name: entries[candidate.name]['delta_bic'] for candidate in ranked}
     for name, reason in unseen.items():
@@ -541,11 +546,8 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     progress.phase('alternative models')
     alternatives_started = time.perf_counter()
     fitted_now = frozenset(p.effect for p in final.free)
-    models = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance,
-                                     search_pool(terms, [entries[name] for name in scores]))
-    # The candidates' columns and the fit's Jacobian (on a star hop about 190 and 40 MB) have served the ranking and
-    # the linearized models; the checked change and the judgements fit and hold more.
-    del linearized, terms, jacobian
+    models = every_model.restricted_to(search_pool(every_model.names, [entries[name] for name in scores]))
+    del every_model
     own_terms = model_terms(models, fitted_now)
     change = _confirmed_change(source, structural_changes(models, fitted_now, CHECKED_CHANGES),
                                rival_swaps(models, fitted_now, own_terms), models, final, starts)

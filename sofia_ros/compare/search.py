@@ -154,6 +154,25 @@ class LinearizedModels:
         return cls(tuple(names), tuple(in_model), tuple(c.shape[1] for c in columns), gram, len(residual),
                    nuisance_count, tuple(parameters), tuple(starts))
 
+    def restricted_to(self, candidate_names: Collection[str]) -> LinearizedModels:
+        """The same models with only the model's terms and ``candidate_names`` among the candidates: the Gram's rows
+        and columns of those blocks (each entry of the Gram is one pair of pieces, so the part is the Gram of the
+        part).
+
+        Args:
+            candidate_names: the candidates kept.
+
+        Returns:
+            The LinearizedModels of the model's terms and those candidates, in this one's order.
+        """
+        kept = [i for i, (name, on) in enumerate(zip(self.names, self.in_model)) if on or name in candidate_names]
+        slices = self._column_slices()
+        rows = np.concatenate([[0], 1 + np.array(kept, dtype=int), *(slices[i] for i in kept)])
+        return LinearizedModels(tuple(self.names[i] for i in kept), tuple(self.in_model[i] for i in kept),
+                                tuple(self.widths[i] for i in kept), self.gram[np.ix_(rows, rows)], self.rows,
+                                self.nuisance_count, tuple(self.parameters[i] for i in kept),
+                                tuple(self.starts[i] for i in kept))
+
     def _column_slices(self):
         start = 1 + len(self.names)
         slices = []
@@ -382,8 +401,7 @@ class SearchRound(TypedDict):
     ends: str | None
 
 
-def search_pool(candidate_terms: Iterable[CandidateTerm],
-                candidates: Iterable[Mapping[str, Any]]) -> list[CandidateTerm]:
+def search_pool(candidate_names: Iterable[str], candidates: Iterable[Mapping[str, Any]]) -> list[str]:
     """The candidates a model's terms are questioned against: the SEARCH_POOL strongest observable ones, and every
     physical one the model's terms absorb in part.
 
@@ -396,17 +414,17 @@ def search_pool(candidate_terms: Iterable[CandidateTerm],
     the comparison names the two degenerate).
 
     Args:
-        candidate_terms: the candidates linearized where they vanish.
+        candidate_names: the candidates linearized where they vanish.
         candidates: the candidates' entries of the JSON (detectable, delta_bic, empirical, sigma).
 
     Returns:
-        The terms of those candidates, in ``candidate_terms`` order.
+        Those candidates' names, in ``candidate_names`` order.
     """
     candidates = list(candidates)
     ranked = sorted((c for c in candidates if c['detectable']), key=lambda c: -c['delta_bic'])
     chosen = {c['effect'] for c in ranked[:SEARCH_POOL]}
     chosen |= {c['effect'] for c in candidates if not c['detectable'] and not c['empirical'] and _partly_measured(c)}
-    return [term for term in candidate_terms if term.name in chosen]
+    return [name for name in candidate_names if name in chosen]
 
 
 def _partly_measured(candidate):

@@ -24,15 +24,19 @@ BIC_FIRST = 1000.0
 
 
 @dataclass
-class _Fit:
+class FakeFit:
+    """What the search reads of a comparison's final fit."""
+
     bic: float
     effects: dict
 
 
 @dataclass
-class _Comparison:
+class FakeComparison:
+    """What the search reads of a comparison (compare.search._Comparison)."""
+
     document: dict
-    final_fit: _Fit
+    final_fit: FakeFit
 
 
 def _fake_compare(later_bic, linearized_equivalent=None):
@@ -55,7 +59,7 @@ def _fake_compare(later_bic, linearized_equivalent=None):
         linearized = [linearized_equivalent] if linearized_equivalent and terms == {FIRST} else []
         document = {'verdict': {'status': status, 'next': step}, 'candidates': candidates, 'competing': competing,
                     'equivalent_models': linearized, 'model_change': None, 'residual_rms_arcsec': {'total': 0.3}}
-        return _Comparison(document, _Fit(bic, {name: dict(params) for name, params in model.effects.items()}))
+        return FakeComparison(document, FakeFit(bic, {name: dict(params) for name, params in model.effects.items()}))
 
     return nominal, compare
 

@@ -1,15 +1,16 @@
 """When the search stops (issue 25's performance): once it has an explained answer, a queued model is compared only
 if it could still end as the answer or an equivalent of it (could_still_count): its expected BIC, less the
 estimate's error (EXPECTATION_ERROR_SHARE of how far its parent lies above the answer), within
-EQUIVALENT_DELTA_BIC of the answer. The search says why it ended. Fake comparisons (no bag: milliseconds)."""
+EQUIVALENT_DELTA_BIC of the answer's path (the lowest BIC it reached with no more terms). The search says why it
+ended. Fake comparisons (no bag: milliseconds)."""
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from sofia_ros.compare.search import EQUIVALENT_DELTA_BIC, EXPECTATION_ERROR_SHARE, could_still_count, search_model
 from sofia_ros.config import load_effect_config
+from test_search_answer import FakeComparison, FakeFit
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The model given (no term added) lacks one effect; FIRST explains it best, RIVAL competes with it.
@@ -17,18 +18,6 @@ FIRST, RIVAL = 'gyro_axis_swap', 'gyro_scale_factor'
 BIC_GIVEN, BIC_FIRST = 3000.0, 1000.0
 #: The highest BIC at which RIVAL, queued from the model given, could still end within EQUIVALENT_DELTA_BIC of FIRST.
 REACH = BIC_FIRST + EQUIVALENT_DELTA_BIC + EXPECTATION_ERROR_SHARE * (BIC_GIVEN - BIC_FIRST)
-
-
-@dataclass
-class _Fit:
-    bic: float
-    effects: dict
-
-
-@dataclass
-class _Comparison:
-    document: dict
-    final_fit: _Fit
 
 
 def _fake_compare(outcomes):
@@ -45,7 +34,7 @@ def _fake_compare(outcomes):
         document = {'verdict': {'status': status, 'next': step}, 'candidates': candidates,
                     'competing': [{'effects': [name for name, _ in steps]}] if steps else [],
                     'equivalent_models': [], 'model_change': None, 'residual_rms_arcsec': {'total': 0.3}}
-        return _Comparison(document, _Fit(bic, {name: dict(params) for name, params in model.effects.items()}))
+        return FakeComparison(document, FakeFit(bic, {name: dict(params) for name, params in model.effects.items()}))
 
     return nominal, compare
 

@@ -82,7 +82,13 @@ def test_a_listener_outside_the_graph_gets_standard_imu_samples_and_what_the_bag
         run.communicate(timeout=60)
     stamps_ns = np.array([m.stamp_ns_of(sample.header.stamp) for sample in samples])
     assert {sample.header.frame_id for sample in samples} == {'gyrf'}
-    assert set(np.diff(stamps_ns)) == {2_500_000}  # every sample, 400 Hz, in order
+    # In order on the 400 Hz grid. The graph does not wait for a listener outside it: one that falls 1000 samples
+    # behind loses the oldest (nodes.sync.OUTSIDE_QOS), as this one did once on a loaded CI machine (a 457.5 ms gap).
+    # A whole second without a gap shows the graph itself sends every sample.
+    steps_ns = np.diff(stamps_ns)
+    assert np.all(steps_ns > 0) and np.all(steps_ns % 2_500_000 == 0), sorted(set(steps_ns))
+    unbroken = np.diff(np.flatnonzero(np.concatenate([[True], steps_ns != 2_500_000, [True]])))
+    assert unbroken.max() >= 400, f'the longest run of samples 2.5 ms apart is {unbroken.max()}'
     heard = {m.stamp_ns_of(attitude.header.stamp): m.quaternion_xyzw_of(attitude) for attitude in attitudes}
     assert set(np.diff(sorted(heard))) == {200_000_000}  # every tick's attitude, none lost
     ticks = [parse_done_text(report.data).tick for report in reports]

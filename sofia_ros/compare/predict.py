@@ -49,7 +49,7 @@ from sofia_ros.sensors.imager_model import (
 from sofia_ros.sky.catalogue import star_by_hip
 from sofia_ros.units import RAD_PER_DEG
 
-__all__ = ['NamedParameter', 'Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means']
+__all__ = ['CLOCK_OFFSET_CAMERA', 'NamedParameter', 'Predictor', 'propagate_tick_attitudes', 'attitudes_at', 'tick_means']
 
 
 class NamedParameter(Protocol):
@@ -157,6 +157,11 @@ def _contiguous(indices):
     if len(indices) and indices[-1] - indices[0] + 1 == len(indices):
         return slice(int(indices[0]), int(indices[-1]) + 1)
     return indices
+
+
+#: The camera whose row times the model's HIPO clock offset moves (row_times_s, eq. 6.2): one name for the times
+#: and for the star directions kept per camera.
+CLOCK_OFFSET_CAMERA = 'hipo'
 
 
 class Predictor:
@@ -467,8 +472,8 @@ class Predictor:
         """
         centroids = self.observations.centroids
         times = centroids.stamp_s.copy()
-        if 'timestamp_offset' in effects and 'hipo' in centroids.cameras:
-            hipo = centroids.camera_index == centroids.cameras.index('hipo')
+        if 'timestamp_offset' in effects and CLOCK_OFFSET_CAMERA in centroids.cameras:
+            hipo = centroids.camera_index == centroids.cameras.index(CLOCK_OFFSET_CAMERA)
             times[hipo] -= effects['timestamp_offset']['offset_s']
         return times
 
@@ -539,7 +544,7 @@ class Predictor:
 
     def _camera_star_key(self, effects, camera_index):
         # A camera's row times move with the HIPO clock offset only if it is HIPO (row_times_s).
-        moves_in_time = self.observations.centroids.cameras[camera_index] == 'hipo'
+        moves_in_time = self.observations.centroids.cameras[camera_index] == CLOCK_OFFSET_CAMERA
         return ('stars', camera_index, repr(effects.get('atmospheric_refraction')), repr(effects.get('earth_rotation')),
                 repr(effects.get('timestamp_offset')) if moves_in_time else None)
 

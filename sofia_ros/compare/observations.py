@@ -19,7 +19,7 @@ from contextvars import ContextVar
 from dataclasses import dataclass
 from os import PathLike
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -46,7 +46,8 @@ from sofia_ros.topics import (
 from sofia_ros.units import DEG_PER_RAD
 
 __all__ = ['MOTION_STATES', 'READER_VERSION', 'Centroids', 'GyroSamples', 'ObservationSource', 'Observations',
-           'content_key', 'decode_observations', 'keyed', 'observation_cache', 'read_observations', 'step_store']
+           'content_key', 'decode_observations', 'keyed', 'observation_cache', 'read_observations', 'record_fields',
+           'step_store']
 
 #: The version of what decode_observations returns. Bump it whenever the decoding or the dataclasses below
 #: change: caches of decoded observations (compare.cache) written by another version are then decoded again.
@@ -123,6 +124,20 @@ class Observations:
 _CONTENT_KEYS: weakref.WeakKeyDictionary[Observations, str] = weakref.WeakKeyDictionary()
 
 
+def record_fields(observations: Observations) -> Iterator[tuple[str, Any]]:
+    """Every field of the observations, of their centroids and of their gyro samples: (name, value).
+
+    Args:
+        observations: the observations.
+
+    Yields:
+        (field name, value), the records in that order.
+    """
+    for record in (observations, observations.centroids, observations.gyro):
+        for field in dataclasses.fields(record):
+            yield field.name, getattr(record, field.name)
+
+
 def keyed(observations: Observations, key: str) -> Observations:
     """Record ``observations`` as the decoding of the bag whose cache key is ``key``; their arrays become read-only
     (the key stands for their content, which must then not change).
@@ -134,11 +149,9 @@ def keyed(observations: Observations, key: str) -> Observations:
     Returns:
         ``observations``.
     """
-    for record in (observations, observations.centroids, observations.gyro):
-        for field in dataclasses.fields(record):
-            value = getattr(record, field.name)
-            if isinstance(value, np.ndarray):
-                value.flags.writeable = False
+    for _, value in record_fields(observations):
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
     _CONTENT_KEYS[observations] = key
     return observations
 

@@ -16,7 +16,6 @@
 from __future__ import annotations
 
 import copy
-import dataclasses
 import hashlib
 import time
 from collections.abc import Sequence
@@ -30,7 +29,7 @@ from sofia_ros.analysis.ranking import CandidateTerm
 from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
 from sofia_ros.compare.fit import ModelFit, WhitenedProblem, fit_model
 from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
-from sofia_ros.compare.observations import content_key, read_observations, step_store
+from sofia_ros.compare.observations import content_key, read_observations, record_fields, step_store
 from sofia_ros.compare.pipeline import Comparison, Judgement, LinearizedCandidate, run_comparison, switched_on
 from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
@@ -61,15 +60,13 @@ class CompareResult:
 
 def _hash_arrays(digest: Any, observations: Any) -> None:
     """Feed ``digest`` every field of the observations, their centroids and gyro samples, arrays by their bytes."""
-    for record in (observations, observations.centroids, observations.gyro):
-        for field in dataclasses.fields(record):
-            value = getattr(record, field.name)
-            if isinstance(value, np.ndarray):
-                digest.update(f'{field.name} {value.dtype} {value.shape}\0'.encode())
-                # The buffer itself: a copy of the gyro rates alone is 56 MB on a star hop.
-                digest.update(np.ascontiguousarray(value).reshape(-1).view(np.uint8))
-            elif field.name not in {'bag_path', 'scenario', 'centroids', 'gyro'}:
-                digest.update(f'{field.name} {value!r}\0'.encode())
+    for name, value in record_fields(observations):
+        if isinstance(value, np.ndarray):
+            digest.update(f'{name} {value.dtype} {value.shape}\0'.encode())
+            # The buffer itself: a copy of the gyro rates alone is 56 MB on a star hop.
+            digest.update(np.ascontiguousarray(value).reshape(-1).view(np.uint8))
+        elif name not in {'bag_path', 'scenario', 'centroids', 'gyro'}:
+            digest.update(f'{name} {value!r}\0'.encode())
 
 
 class BagSource:

@@ -17,6 +17,7 @@ channel before its messages.
 from __future__ import annotations
 
 import bisect
+import itertools
 import operator
 import struct
 import sys
@@ -112,6 +113,11 @@ class CheckedMcapStorage:
         """Buffer one message logged at ``timestamp`` ns."""
         self._pending.append((timestamp, connection.id, data if isinstance(data, bytes) else bytes(data)))
         self._counts[connection.id] += 1
+
+    def write_block(self, connection: Connection, timestamps: list[int], payloads: list[bytes]) -> None:
+        """Buffer messages logged at ``timestamps`` ns: write() of each in turn."""
+        self._pending.extend(zip(timestamps, itertools.repeat(connection.id), payloads))
+        self._counts[connection.id] += len(payloads)
 
     def close(self, version: int, metadata: str) -> None:
         """Write what is buffered, the rosbag2 metadata record, DataEnd, the summary and the footer."""

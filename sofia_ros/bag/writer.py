@@ -107,6 +107,19 @@ class _Rosbag2Writer(Writer):
         if timestamp > self.max_timestamp:
             self.max_timestamp = timestamp
 
+    def write_block(self, connection: Connection, timestamps: list[int], payloads: list[bytes]) -> None:
+        """write() of each (timestamp, payload) in turn, the per-message bookkeeping done once for the block."""
+        if self.compression_mode == CompressionMode.MESSAGE or not self.storage:
+            for timestamp, data in zip(timestamps, payloads):
+                self.write(connection, timestamp, data)
+            return
+        if not timestamps:
+            return
+        self.storage.write_block(connection, timestamps, payloads)
+        self.counts[connection.id] += len(timestamps)
+        self.min_timestamp = min(self.min_timestamp, min(timestamps))
+        self.max_timestamp = max(self.max_timestamp, max(timestamps))
+
 
 class BagWriter:
     """Write one new bag directory; use as a context manager.
@@ -218,11 +231,21 @@ class BagWriter:
                 rows = shift_stamps(rows, self.epoch_ns)
             except ValueError as err:
                 raise InvalidArgumentError(f'rows of {topic}: {err}') from err
+        if not len(rows):
+            return
         data, length = rows.tobytes(), rows.shape[1]
-        for index, stamp_ns in enumerate((stamps.astype(np.int64) + self.epoch_ns).tolist()):
-            self._writer.write(connection, stamp_ns, data[index * length:(index + 1) * length])
-            if stamp_ns >= self._flush_due_ns:
-                self._flush_before(stamp_ns)
+        payloads = [data[start:start + length] for start in range(0, len(data), length)]
+        log_ns = stamps.astype(np.int64) + self.epoch_ns
+        stamp_list = log_ns.tolist()
+        start = 0
+        while start < len(stamp_list):
+            # As write_raw row by row: the rows up to the first that reaches the next flush go in, then the flush.
+            due = np.flatnonzero(log_ns[start:] >= self._flush_due_ns)
+            end = start + int(due[0]) + 1 if len(due) else len(stamp_list)
+            self._writer.write_block(connection, stamp_list[start:end], payloads[start:end])
+            if len(due):
+                self._flush_before(stamp_list[end - 1])
+            start = end
 
     def write_message(self, topic: str, message: object, stamp_ns: int) -> None:
         """Write an rclpy message of the topic's type, as wire CDR, logged at ``stamp_ns``."""

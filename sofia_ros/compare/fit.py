@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse
 
 from sofia_ros.analysis.ranking import NormalInverse, bic, normal_equations_fit
-from sofia_ros.compare.predict import right_jacobians
+from sofia_ros.compare.predict import inverse_right_jacobians
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
 
@@ -458,7 +458,7 @@ class WhitenedProblem:
             # to first order (J_r the right Jacobian of SO(3)), and ``derivative`` is against a change of a. Taken
             # as a change of a itself, c was off by |a| (anchors of 0.5 deg on the Waco star hop: columns 0.8 % off).
             row_anchors = predictor.anchor_rotations_rad(anchors, predictor.row_times_s(effects))
-            derivative = derivative @ np.linalg.inv(right_jacobians(row_anchors))
+            derivative = derivative @ inverse_right_jacobians(row_anchors)
         in_tarf = None
         for index, (parameter, moved_effects, (moves_rows, attitude, cameras)) in enumerate(
                 zip(free, stepped_effects, reaches)):

@@ -210,11 +210,14 @@ def test_wire_cdr_serializes_directly_only_what_gives_the_round_trips_bytes():
                                                  little_endian=True)
             assert bytes(wire_cdr(message)) == bytes(round_trip), (msgtype, i)
     # Edge cases: no poses, a message without fields (rclpy has no member where the wire has one), NUL in a
-    # string (DDS carries it up to the NUL).
-    from std_msgs.msg import Empty
+    # string (DDS carries it up to the NUL), also inside a sequence; sequences of other numbers, and empty ones.
+    from std_msgs.msg import Empty, Float32MultiArray, UInt8MultiArray
 
     assert not serializes_directly('std_msgs/msg/Empty')
-    for message in (PoseArray(header=header(0, '')), Empty(), String(data='a\0b'), imu(1, 'gy\0rf')):
+    for message in (PoseArray(header=header(0, '')), Empty(), String(data='a\0b'), imu(1, 'gy\0rf'),
+                    JointState(name=['el\0x'], position=[0.5]), JointState(),
+                    DiagnosticStatus(values=[KeyValue(key='k', value='v\0w')]),
+                    UInt8MultiArray(data=[0, 7, 255]), Float32MultiArray(data=[1.5, -2.25e-30])):
         msgtype = msgtype_of(type(message))
         round_trip = TYPESTORE.serialize_cdr(decode_cdr(serialize_message(message), msgtype), msgtype,
                                              little_endian=True)

@@ -32,6 +32,9 @@ TOPICS = {
     'thermal_command': topics.THERMAL_COMMAND,
 }
 
+#: Gravity in HRF (Z zenith).
+_GRAVITY_HRF_M_PER_S2 = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_PER_S2])
+
 
 def thermal_command_of(message):
     """(start s, target deg C, rate deg C/h) of a topics.THERMAL_COMMAND message."""
@@ -64,6 +67,11 @@ class PlantCore(NodeCore):
         self.rate_command_rad_per_s = np.zeros(3)
         self.last_stamp_ns = 0
         self.tarf_from_irf = mount.tarf_from_hrf_dcm(self.heading_deg, self.elevation_deg)
+        # Computed once each: the heading never changes, the elevation only while the coarse drive slews, and a
+        # tick needs the Earth's turn at its time twice (the telescope's move and the specific force).
+        self._abrf_from_hrf = mount.abrf_from_hrf_dcm(self.heading_deg)
+        self._cradle_from_hrf_at = (None, None)  # (elevation deg, A_ICRF,HRF)
+        self._hrf_from_irf_at = (None, None)  # (elapsed s, A_HRF,IRF)
 
     def inputs(self):
         return (TOPICS['clock'], TOPICS['fd_command'], TOPICS['cd_command'], TOPICS['thermal_command'])
@@ -81,10 +89,16 @@ class PlantCore(NodeCore):
             self.thermal.command(*thermal_command_of(message))
 
     def _hrf_from_irf(self, elapsed_s):
-        return mount.hrf_from_irf_dcm(self.scenario.latitude_deg, elapsed_s, self.earth_rate_rad_per_s)
+        if self._hrf_from_irf_at[0] != elapsed_s:
+            self._hrf_from_irf_at = (elapsed_s, mount.hrf_from_irf_dcm(self.scenario.latitude_deg, elapsed_s,
+                                                                       self.earth_rate_rad_per_s))
+        return self._hrf_from_irf_at[1]
 
     def _cradle_from_hrf(self):
-        return mount.icrf_from_abrf_dcm(self.elevation_deg) @ mount.abrf_from_hrf_dcm(self.heading_deg)
+        if self._cradle_from_hrf_at[0] != self.elevation_deg:
+            self._cradle_from_hrf_at = (self.elevation_deg,
+                                        mount.icrf_from_abrf_dcm(self.elevation_deg) @ self._abrf_from_hrf)
+        return self._cradle_from_hrf_at[1]
 
     def tick(self, stamp_ns):
         interval_s = (stamp_ns - self.last_stamp_ns) / m.NS_PER_S
@@ -119,8 +133,7 @@ class PlantCore(NodeCore):
 
     def specific_force_tarf_m_per_s2(self, elapsed_s):
         """Accelerometer specific force at rest, f = -g (eq. 2.13), in TARF."""
-        gravity_hrf = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_PER_S2])
-        return -(self.tarf_from_irf @ self._hrf_from_irf(elapsed_s).T @ gravity_hrf)
+        return -(self.tarf_from_irf @ self._hrf_from_irf(elapsed_s).T @ _GRAVITY_HRF_M_PER_S2)
 
     def _messages(self, stamp_ns, elapsed_s, rate_rad_per_s):
         imu = m.Imu()

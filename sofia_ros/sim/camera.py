@@ -44,7 +44,7 @@ class CameraCore(NodeCore):
                                  exposure_s=self.exposure_ns / m.NS_PER_S, seed=seed)
         self.topic = centroid_topic(camera)
         self.thermal = ThermalHistory(scenario)
-        self.previous = None  # (stamp_ns, attitude quaternion xyzw, elevation_deg, specific force, LOS deg)
+        self.previous = None  # (stamp_ns, truth Imu, truth JointState) of the last tick
         self.pending = {}
 
     def inputs(self):
@@ -64,14 +64,15 @@ class CameraCore(NodeCore):
         joints = self.pending.pop(PLANT_TOPICS['truth_joints'].name, None)
         if imu is None or joints is None:
             return []
-        positions = m.joint_positions_of(joints)
-        current = (stamp_ns, m.quaternion_xyzw_of(imu.orientation), positions[CD_JOINT] * DEG_PER_RAD,
-                   m.vector_of(imu.linear_acceleration), positions[FD_JOINTS[2]] * DEG_PER_RAD)
-        previous, self.previous = self.previous, current
+        previous, self.previous = self.previous, (stamp_ns, imu, joints)
         if previous is None:
             return []
+        midpoints_ns = self._midpoints_ns(previous[0], stamp_ns)
+        if not midpoints_ns:
+            return []  # most ticks: the truth is read only around an exposure's midpoint
+        previous, current = _truth_state(*previous), _truth_state(stamp_ns, imu, joints)
         outputs = []
-        for midpoint_ns in self._midpoints_ns(previous[0], stamp_ns):
+        for midpoint_ns in midpoints_ns:
             fraction = (midpoint_ns - previous[0]) / (stamp_ns - previous[0])
             quaternion = slerp_quaternion(previous[1], current[1], fraction)
             elevation_deg, force, los_deg = (previous[i] + fraction * (current[i] - previous[i]) for i in (2, 3, 4))
@@ -89,3 +90,10 @@ class CameraCore(NodeCore):
         first = -(-(after_ns + 1 - half_ns) // self.frame_period_ns)
         last = (until_ns - half_ns) // self.frame_period_ns
         return [index * self.frame_period_ns + half_ns for index in range(max(first, 0), last + 1)]
+
+
+def _truth_state(stamp_ns, imu, joints):
+    """(stamp_ns, attitude quaternion xyzw, elevation deg, specific force, LOS deg) of a tick's truth messages."""
+    positions = m.joint_positions_of(joints)
+    return (stamp_ns, m.quaternion_xyzw_of(imu.orientation), positions[CD_JOINT] * DEG_PER_RAD,
+            m.vector_of(imu.linear_acceleration), positions[FD_JOINTS[2]] * DEG_PER_RAD)

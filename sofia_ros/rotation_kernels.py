@@ -40,12 +40,12 @@ def compose_quaternions(p, q):
     p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
     px, py, pz, pw = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack([
+    return _last_axis_stacked([
         pw * qx + qw * px + (py * qz - pz * qy),
         pw * qy + qw * py + (pz * qx - px * qz),
         pw * qz + qw * pz + (px * qy - py * qx),
         pw * qw - px * qx - py * qy - pz * qz,
-    ], axis=-1)
+    ])
 
 
 def matrices_from_quaternions(quaternions):
@@ -57,7 +57,16 @@ def matrices_from_quaternions(quaternions):
     elements = [x2 - y2 - z2 + w2, 2 * (xy - zw), 2 * (xz + yw),
                 2 * (xy + zw), -x2 + y2 - z2 + w2, 2 * (yz - xw),
                 2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2]
-    return np.stack(elements, axis=-1).reshape(*x.shape, 3, 3)
+    return _last_axis_stacked(elements).reshape(*x.shape, 3, 3)
+
+
+def _last_axis_stacked(components):
+    """np.stack(components, axis=-1) of equal-shape arrays or scalars, without its checks and concatenation (the
+    same values, each copied into its column; these kernels run several times per lock-step tick)."""
+    stacked = np.empty((*np.shape(components[0]), len(components)))
+    for column, component in enumerate(components):
+        stacked[..., column] = component
+    return stacked
 
 
 def _determinant(matrix):

@@ -88,45 +88,98 @@ def decode_cdr(data: bytes | memoryview, msgtype: str, typestore: Typestore = TY
     return message
 
 
-#: Base types whose rclpy value the typestore's serializer does not take as it is (rclpy: str of 1 for char),
+#: Base types whose rclpy value the typestore's serializer does not take as it is (rclpy: bytes and str of 1),
 #: or that are not checked here (wstring).
-_RCLPY_ONLY_BASE_TYPES = frozenset({'char', 'wstring'})
+_RCLPY_ONLY_BASE_TYPES = frozenset({'byte', 'char', 'wstring'})
 #: The one member the IDL gives a message without fields (std_msgs/Empty).
 _EMPTY_MESSAGE_MEMBER = 'structure_needs_at_least_one_member'
+
+
+@cache
+def _direct_string_fields(msgtype: str) -> tuple[tuple[str, ...], ...] | None:
+    """The attribute paths of the string fields of ``msgtype`` if the typestore serializes an rclpy message of it
+    as it is (serializes_directly), else None."""
+    fields = TYPESTORE.fielddefs[msgtype][1]
+    if not fields or fields[0][0] == _EMPTY_MESSAGE_MEMBER:
+        return None  # a message without fields: its placeholder member is on the wire, not in rclpy's class
+    paths = []
+    for name, (nodetype, spec) in fields:
+        if nodetype == Nodetype.BASE:
+            if spec[0] in _RCLPY_ONLY_BASE_TYPES or (spec[0] == 'string' and spec[1]):
+                return None  # bounded strings: rclpy checks the bound, the typestore does not
+            if spec[0] == 'string':
+                paths.append((name,))
+        elif nodetype == Nodetype.NAME:
+            nested = _direct_string_fields(spec)
+            if nested is None:
+                return None
+            paths.extend((name, *path) for path in nested)
+        else:
+            (element_type, element), bound = spec
+            if nodetype == Nodetype.SEQUENCE and (bound or element_type != Nodetype.NAME):
+                return None  # bounded sequences, and rclpy's array.array and lists of str
+            if element_type == Nodetype.NAME:
+                if _direct_string_fields(element) != ():
+                    return None  # strings inside a sequence or an array: not checked here
+            elif element[0] in _RCLPY_ONLY_BASE_TYPES | {'string'}:
+                return None
+    return tuple(paths)
+
+
+def serializes_directly(msgtype: str) -> bool:
+    """Whether the typestore serializes an rclpy message of ``msgtype`` as it is, reading its fields by name.
+
+    So it does when every field, at any depth, is a number, bool, unbounded string, message, fixed-size
+    array of numbers (numpy in rclpy) or unbounded sequence of messages without strings (a list); not for
+    byte, char and wstring fields, bounded strings and sequences, sequences of numbers or strings (array.array
+    and lists of str in rclpy), or a message without fields.
+    """
+    return _direct_string_fields(msgtype) is not None
+
+
+def _has_nul(message: object, paths: tuple[tuple[str, ...], ...]) -> bool:
+    """Whether a string field holds NUL: DDS carries such a string up to its first NUL, the typestore all of it."""
+    for path in paths:
+        value = message
+        for name in path:
+            value = getattr(value, name)
+        if '\0' in value:
+            return True
+    return False
+
+
 #: Element types of the sequences rclpy holds as array.array, and the numpy dtype the typestore takes them as.
 _NUMBER_DTYPES = {
     'int8': np.int8, 'uint8': np.uint8, 'int16': np.int16, 'uint16': np.uint16, 'int32': np.int32,
     'uint32': np.uint32, 'int64': np.int64, 'uint64': np.uint64, 'float32': np.float32, 'float64': np.float64,
 }
-
-# How each field of an rclpy message reaches the typestore's serializer (_field_plan): taken as it is, or
+# How a field of an rclpy message the typestore does not take as it is gets there (_field_plan): as it is, or
 # converted from what rclpy holds to what the typestore's own decoder would give.
 _AS_IS, _STRING, _BYTE, _NUMBERS, _STRINGS, _MESSAGE, _MESSAGES = range(7)
 
 
 @cache
 def _field_plan(msgtype: str) -> tuple[tuple[str, int, Any], ...] | None:
-    """(name, how, detail) of each field of ``msgtype`` as the typestore serializes it from an rclpy message
-    (see serializes_directly), or None for a type it cannot take."""
+    """(name, how, detail) of each field of ``msgtype`` for handing an rclpy message of it to the typestore's
+    serializer with byte fields and unbounded sequences of numbers or strings converted (wire_cdr); None for a
+    type with char, wstring, bool-, byte- or char-sequence fields, bounded strings or sequences, or no fields."""
     fields = TYPESTORE.fielddefs[msgtype][1]
     if not fields or fields[0][0] == _EMPTY_MESSAGE_MEMBER:
-        return None  # a message without fields: its placeholder member is on the wire, not in rclpy's class
+        return None
     plan = []
     for name, (nodetype, spec) in fields:
         if nodetype == Nodetype.BASE:
-            if spec[0] in _RCLPY_ONLY_BASE_TYPES or (spec[0] == 'string' and spec[1]):
-                return None  # bounded strings: rclpy checks the bound, the typestore does not
-            how = {'string': _STRING, 'byte': _BYTE}.get(spec[0], _AS_IS)
-            plan.append((name, how, None))
+            if spec[0] in ('char', 'wstring') or (spec[0] == 'string' and spec[1]):
+                return None
+            plan.append((name, {'string': _STRING, 'byte': _BYTE}.get(spec[0], _AS_IS), None))
         elif nodetype == Nodetype.NAME:
-            nested = _field_plan(spec)
-            if nested is None:
+            if _field_plan(spec) is None:
                 return None
             plan.append((name, _MESSAGE, spec))
         else:
             (element_type, element), bound = spec
             if nodetype == Nodetype.SEQUENCE and bound:
-                return None  # bounded sequences: rclpy checks the bound, the typestore does not
+                return None
             if element_type == Nodetype.NAME:
                 if _field_plan(element) is None:
                     return None
@@ -138,53 +191,39 @@ def _field_plan(msgtype: str) -> tuple[tuple[str, int, Any], ...] | None:
             elif nodetype == Nodetype.SEQUENCE and element[0] in _NUMBER_DTYPES:
                 plan.append((name, _NUMBERS, _NUMBER_DTYPES[element[0]]))
             else:
-                return None  # bool, byte and char sequences and arrays, bounded strings inside them
+                return None
     return tuple(plan)
-
-
-@cache
-def serializes_directly(msgtype: str) -> bool:
-    """Whether the typestore serializes an rclpy message of ``msgtype`` as it is, reading its fields by name.
-
-    So it does when every field, at any depth, is a number, bool, unbounded string, message, fixed-size
-    array of numbers (numpy in rclpy) or unbounded sequence of messages so made (a list). Byte fields and
-    unbounded sequences of numbers or strings (bytes of 1, array.array and lists of str in rclpy) are converted
-    first (wire_cdr); char and wstring fields, bounded strings and sequences, sequences of bool, byte or char,
-    and a message without fields go the round trip's way.
-    """
-    plan = _field_plan(msgtype)
-    return plan is not None and all(
-        how in (_AS_IS, _STRING) or (how == _MESSAGE and serializes_directly(detail))
-        or (how == _MESSAGES and serializes_directly(detail)) for _, how, detail in plan)
 
 
 class _NulInString(Exception):
     """A string field holds NUL: DDS carries such a string up to its first NUL, the typestore all of it."""
 
 
-def _checked_string(text: str) -> str:
+def _without_nul(text: str) -> str:
     if '\0' in text:
         raise _NulInString
     return text
 
 
 def _typestore_value(message: object, msgtype: str) -> object:
-    """An rclpy message of a type _field_plan takes, as the typestore's decoder gives it: sequences of numbers as
-    numpy arrays, byte fields as int; _NulInString if a string holds NUL."""
-    if serializes_directly(msgtype):
-        _check_strings(message, msgtype)
+    """An rclpy message of a type _field_plan takes, as the typestore's decoder gives it (sequences of numbers as
+    numpy arrays, byte fields as int); _NulInString if a string in it holds NUL."""
+    strings = _direct_string_fields(msgtype)
+    if strings is not None:
+        if _has_nul(message, strings):
+            raise _NulInString
         return message
     values = {}
     for name, how, detail in _field_plan(msgtype):
         value = getattr(message, name)
         if how == _STRING:
-            value = _checked_string(value)
+            value = _without_nul(value)
         elif how == _BYTE:
             value = value[0]
         elif how == _NUMBERS:
             value = np.asarray(value, dtype=detail)
         elif how == _STRINGS:
-            value = [_checked_string(item) for item in value]
+            value = [_without_nul(item) for item in value]
         elif how == _MESSAGE:
             value = _typestore_value(value, detail)
         elif how == _MESSAGES:
@@ -193,22 +232,14 @@ def _typestore_value(message: object, msgtype: str) -> object:
     return TYPESTORE.types[msgtype](**values)
 
 
-def _check_strings(message: object, msgtype: str) -> None:
-    """_NulInString if a string field of a message the typestore takes as it is holds NUL."""
-    for name, how, detail in _field_plan(msgtype):
-        if how == _STRING:
-            _checked_string(getattr(message, name))
-        elif how == _MESSAGE:
-            _check_strings(getattr(message, name), detail)
-        elif how == _MESSAGES:
-            for item in getattr(message, name):
-                _check_strings(item, detail)
-
-
 def wire_cdr(message: object) -> memoryview:
     """Serialize an rclpy message as a raw subscription receives it: exact length, zero padding."""
     msgtype = msgtype_of(type(message))
-    if _field_plan(msgtype) is not None:
+    strings = _direct_string_fields(msgtype)
+    if strings is not None:
+        if not _has_nul(message, strings):
+            return TYPESTORE.serialize_cdr(message, msgtype, little_endian=True)
+    elif _field_plan(msgtype) is not None:
         try:
             return TYPESTORE.serialize_cdr(_typestore_value(message, msgtype), msgtype, little_endian=True)
         except _NulInString:

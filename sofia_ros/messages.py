@@ -209,13 +209,14 @@ def imu_messages(block):
     return messages
 
 
-def imu_block_rows(block):
-    """Little-endian CDR of each sample as sensor_msgs/Imu, exactly as DDS carries it: one row each, (N, bytes) uint8."""
+def imu_block_rows(block, epoch_ns=0):
+    """Little-endian CDR of each sample as sensor_msgs/Imu, exactly as DDS carries it: one row each, (N, bytes) uint8;
+    the stamps moved by ``epoch_ns`` (a BagWriter's, for rows it writes with utc_stamps=True)."""
     frame = block.frame_id.encode() + b'\0'
     head_length = 4 + 8 + 4 + len(frame)  # encapsulation, stamp, string length, string
     head_length += -(head_length - 4) % 8  # doubles align to 8 from the end of the encapsulation
     count = len(block.stamp_ns)
-    sec, nanosec = stamp_fields(block.stamp_ns)
+    sec, nanosec = stamp_fields(np.asarray(block.stamp_ns, dtype=np.int64) + epoch_ns)
     head = np.zeros((count, head_length), dtype=np.uint8)
     head[:, :4] = np.frombuffer(b'\x00\x01\x00\x00', dtype=np.uint8)
     head[:, 4:8] = sec.view(np.uint8).reshape(count, 4)

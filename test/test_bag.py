@@ -225,23 +225,26 @@ def test_wire_cdr_serializes_directly_only_what_gives_the_round_trips_bytes():
 
 
 def test_write_rows_writes_the_file_write_raw_writes_row_by_row(tmp_path):
-    """A block of 400 Hz samples in one call: the same MCAP file, flushes inside the block and UTC stamps included."""
+    """A block of 400 Hz samples in one call: the same MCAP file, flushes inside the block and UTC stamps included,
+    whether the writer moves the rows' stamps to UTC or they are built in UTC (the lock-step runner's)."""
     from sofia_ros import messages as m
 
     rng = np.random.default_rng(5)
     stamps_ns = np.arange(1000, dtype=np.int64) * IMU_PERIOD_NS  # 2.5 s: flushes at 1 s and 2 s of the block
     block = m.ImuBlock('gyrf', stamps_ns, rng.normal(size=(1000, 3)), rng.normal(size=(1000, 3)))
     files = []
-    for name in ('rows', 'raw'):
+    for name in ('rows', 'raw', 'utc'):
         with BagWriter(tmp_path / name / 'bag', epoch_ns=STAMP0_NS) as bag:
             bag.add_topic('/gyro_box/imu', 'sensor_msgs/msg/Imu')
             if name == 'rows':
                 bag.write_rows('/gyro_box/imu', m.imu_block_rows(block), stamps_ns)
+            elif name == 'utc':
+                bag.write_rows('/gyro_box/imu', m.imu_block_rows(block, STAMP0_NS), stamps_ns, utc_stamps=True)
             else:
                 for data, stamp_ns in zip(m.imu_block_cdr(block), stamps_ns.tolist()):
                     bag.write_raw('/gyro_box/imu', data, stamp_ns)
         files.append((tmp_path / name / 'bag' / 'bag.mcap').read_bytes())
-    assert files[0] == files[1]
+    assert files[0] == files[1] == files[2]
     with BagReader(tmp_path / 'rows' / 'bag') as bag:
         imu_arrays = bag.imu_arrays('/gyro_box/imu')
     np.testing.assert_array_equal(imu_arrays.header_stamp_ns, STAMP0_NS + stamps_ns)

@@ -215,9 +215,13 @@ class BagWriter:
             )
         self._write(self._connection(topic), data, stamp_ns)
 
-    def write_rows(self, topic: str, rows: np.ndarray, stamps_ns: np.ndarray) -> None:
+    def write_rows(self, topic: str, rows: np.ndarray, stamps_ns: np.ndarray, *, utc_stamps: bool = False) -> None:
         """Write equal-length little-endian CDR messages, the rows of a 2-D uint8 array, logged at ``stamps_ns``:
-        what write_raw of each row in turn writes, with the per-message work done once for the block."""
+        what write_raw of each row in turn writes, with the per-message work done once for the block.
+
+        With ``utc_stamps`` the rows' leading stamps are UTC already (built with this writer's epoch_ns, e.g.
+        messages.imu_block_rows(block, bag.epoch_ns)), so only the log times are moved.
+        """
         connection = self._connection(topic)
         rows, stamps = np.asarray(rows), np.asarray(stamps_ns)
         if rows.dtype != np.uint8 or rows.ndim != 2:
@@ -226,7 +230,7 @@ class BagWriter:
         if stamps.shape != (len(rows),) or not np.issubdtype(stamps.dtype, np.integer) or np.any(stamps < 0):
             raise InvalidArgumentError(f'stamps_ns must be {len(rows)} integer ns >= 0, one per row, got '
                                        f'{stamps.dtype} with shape {stamps.shape}')
-        if self.epoch_ns and len(rows) and has_leading_stamp(connection.msgtype):
+        if self.epoch_ns and len(rows) and not utc_stamps and has_leading_stamp(connection.msgtype):
             try:
                 rows = shift_stamps(rows, self.epoch_ns)
             except ValueError as err:

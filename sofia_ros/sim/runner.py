@@ -106,7 +106,8 @@ def record_message(bag, topic, msgtype, message, fallback_ns):
     """Write a published message as a raw subscription receives it (an ImuBlock one record per sample, at its
     stamp), logged at its own stamp or else ``fallback_ns``; return the log stamp of its last record."""
     if isinstance(message, m.ImuBlock):
-        bag.write_rows(topic, m.imu_block_rows(message), message.stamp_ns)
+        # The samples' stamps written in UTC at once, not in campaign time and then moved (BagWriter.epoch_ns).
+        bag.write_rows(topic, m.imu_block_rows(message, bag.epoch_ns), message.stamp_ns, utc_stamps=True)
         return int(message.stamp_ns[-1]) if len(message) else fallback_ns
     cdr = wire_cdr(message)
     stamp_ns = m.log_stamp_ns(msgtype, cdr, fallback_ns)

@@ -22,6 +22,8 @@ __all__ = ['is_proper_orthonormal', 'quaternions_from_rotvecs', 'compose_quatern
 _ORTHONORMAL_TOLERANCE = 1e-12
 _DIAGONAL_TOLERANCE = 1e-12 + 1e-5
 _SMALL_ANGLE_RAD = 1e-3
+_IDENTITY = np.eye(3)
+_OFF_DIAGONAL = ~np.eye(3, dtype=bool)
 
 
 def quaternions_from_rotvecs(rotvecs):
@@ -76,15 +78,14 @@ def _determinant(matrix):
 
 def _is_orthonormal(matrix):
     """Whether scipy's from_matrix takes a 3x3 matrix as orthonormal (see _ORTHONORMAL_TOLERANCE)."""
-    departure = np.abs(matrix @ matrix.T - np.eye(3))
-    diagonal = departure.diagonal().max()
-    np.fill_diagonal(departure, 0.0)
-    return bool(departure.max() <= _ORTHONORMAL_TOLERANCE and diagonal <= _DIAGONAL_TOLERANCE)
+    departure = np.abs(matrix @ matrix.T - _IDENTITY)
+    return bool(departure[_OFF_DIAGONAL].max() <= _ORTHONORMAL_TOLERANCE
+                and departure.diagonal().max() <= _DIAGONAL_TOLERANCE)
 
 
 def is_proper_orthonormal(matrix):
     """Whether a 3x3 matrix is orthonormal to 1e-12 with determinant +1."""
-    departure = np.abs(matrix @ matrix.T - np.eye(3))
+    departure = np.abs(matrix @ matrix.T - _IDENTITY)
     return bool(departure.max() <= _ORTHONORMAL_TOLERANCE) and _determinant(matrix) > 0.0
 
 
@@ -98,7 +99,9 @@ def quaternion_from_matrix(matrix):
         matrix = left @ right
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = matrix.tolist()
     trace = m00 + m11 + m22
-    choice = int(np.argmax((m00, m11, m22, trace)))
+    # np.argmax's choice (the first largest; the matrix is finite here) without making an array of four floats.
+    candidates = (m00, m11, m22, trace)
+    choice = candidates.index(max(candidates))
     if choice == 0:
         quaternion = (1 - trace + 2 * m00, m10 + m01, m20 + m02, m21 - m12)
     elif choice == 1:

@@ -306,11 +306,18 @@ def refracted_directions_hrf(directions_hrf, site, weather):
     return unit_vector_hrf(altitude_deg + refraction_arcsec / 3600.0, azimuth_deg)
 
 
+@functools.lru_cache(maxsize=8)
 def _irf_from_icrs_dcm(scene, elapsed_s):
-    """A_IRF,ICRS to ~20" from the ICRS axes placed as stars (enough to select candidates)."""
+    """A_IRF,ICRS to ~20" from the ICRS axes placed as stars (enough to select candidates).
+
+    Kept for a few frames: the three imagers expose together and, moved together, reselect their stars
+    at the same frame (ERFA's places of the three axes are most of a selection's cost).
+    """
     axes_in_irf = star_directions_irf(_ICRS_AXES_AS_STARS, scene, elapsed_s)
     left, _, right = np.linalg.svd(axes_in_irf.T)
-    return left @ right
+    dcm = left @ right
+    dcm.flags.writeable = False  # the cached matrix is shared by every caller
+    return dcm
 
 
 @functools.lru_cache(maxsize=1)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.sparse
 
 from sofia_ros.compare.predict import inverse_right_jacobians, right_jacobians
 
@@ -13,3 +14,63 @@ def test_inverse_right_jacobians_are_the_inverses_of_the_right_jacobians(scale):
     # The series branch below |phi| = 1e-4, the closed form above it, both against LAPACK's inverse.
     np.testing.assert_allclose(inverse_right_jacobians(rotvecs), np.linalg.inv(right_jacobians(rotvecs)),
                                rtol=0, atol=1e-12)
+
+
+def _synthetic_fit(rows=400, knots=6, parameters=3, seed=5):
+    """A ModelFit of random whitened columns shaped as a bag's (two anchor knots per row, dense parameters)."""
+    from sofia_ros.compare.fit import ModelFit
+    from sofia_ros.compare.prior import anchor_prior
+
+    rng = np.random.default_rng(seed)
+    knots_s = np.linspace(0.0, 150.0, knots)
+    prior = anchor_prior(knots_s, np.broadcast_to(np.eye(3), (knots - 1, 3, 3)), 1e-5, 1e-7)
+    interval = np.repeat(rng.integers(0, knots - 1, rows), 2)
+    indices = (3 * interval[:, None] + np.arange(6)).ravel()
+    anchor_columns = scipy.sparse.csr_matrix((rng.normal(size=12 * rows), indices, np.arange(0, 12 * rows + 1, 6)),
+                                             shape=(2 * rows, 3 * knots))
+    whitened = rng.normal(size=2 * rows) * 2.0
+    weights = np.where(np.abs(whitened) <= 3.0, 1.0, 3.0 / np.abs(whitened))
+    fit = ModelFit({}, (), np.zeros(parameters), np.ones(parameters), np.eye(parameters), np.zeros((knots, 3)),
+                   np.zeros((rows, 2)), whitened, rng.normal(size=3 * (knots - 1)), prior, weights,
+                   np.zeros(rows, dtype=bool), 1, None)
+    fit.__dict__['_columns'] = (anchor_columns, rng.normal(size=(2 * rows, parameters)))
+    return fit, rng
+
+
+@pytest.mark.parametrize('share', [0.1, 0.5, 0.9])
+def test_split_normal_equations_are_those_of_each_half(share):
+    from sofia_ros.compare.fit import normal_equations
+
+    fit, rng = _synthetic_fit()
+    rows = rng.random(fit.whitened.size) < share
+    step = rng.normal(size=fit.weighted_normal_equations[0].shape[0])
+    for half, mask in zip(fit.split_normal_equations(rows), (rows, ~rows)):
+        # The half computed alone, each row weighted as the fit weights it (Huber) or not at all.
+        gram, gradient, rss_after = normal_equations(fit.anchor_columns, fit.parameter_columns, fit.anchor_prior,
+                                                     fit.whitened, fit.weights * mask, fit.prior_residual)
+        scale = np.abs(fit.weighted_normal_equations[0]).max()
+        np.testing.assert_allclose(half[0], gram, rtol=0, atol=1e-12 * scale)
+        np.testing.assert_allclose(half[1], gradient, rtol=0, atol=1e-12 * np.abs(gradient).max())
+        assert half[2](step) == pytest.approx(rss_after(step), rel=1e-12)
+
+
+def test_weighted_normal_equations_are_the_fits_own_at_its_weights():
+    fit, _ = _synthetic_fit()
+    gram, gradient, _ = fit.normal_equations(fit.weights)
+    np.testing.assert_array_equal(fit.weighted_normal_equations[0], gram)
+    np.testing.assert_array_equal(fit.weighted_normal_equations[1], gradient)
+    np.testing.assert_allclose(fit.weighted_inverse.matrix @ gram, np.eye(len(gram)), atol=1e-8)
+
+
+def test_projected_gram_in_bands_is_the_projection_of_the_stacked_pieces(monkeypatch):
+    from sofia_ros.compare import search
+
+    rng = np.random.default_rng(11)
+    pieces = [rng.normal(size=(50, width)) for width in (1, 1, 3, 2)]
+    nuisance = scipy.sparse.csr_matrix(rng.normal(size=(50, 4)) * (rng.random((50, 4)) < 0.5))
+    # Bands of 7 rows: the last one short, so that the bands' sum is exercised.
+    monkeypatch.setattr(search, '_GRAM_BAND_ROWS', 7)
+    stacked = np.hstack(pieces)
+    dense = nuisance.toarray()
+    projected = stacked - dense @ np.linalg.lstsq(dense, stacked, rcond=None)[0]
+    np.testing.assert_allclose(search._projected_gram(pieces, nuisance), projected.T @ projected, rtol=0, atol=1e-9)

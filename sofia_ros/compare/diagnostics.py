@@ -223,8 +223,7 @@ def _camera_series(observations, fit, noise_arcsec, variables):
 def _prior_residual_covariance(fit):
     """The prior rows' residuals' covariance under the null, (I - H) over those rows with H the whole fit's hat
     matrix, in units of the prior's (3(K-1), 3(K-1))."""
-    gram, _, _ = fit.normal_equations(fit.weights)
-    inverse = normal_pseudo_inverse(gram)
+    inverse = fit.weighted_inverse.matrix
     # The prior rows' Jacobian is the prior's matrix over the anchors and zero over the parameters.
     prior = fit.anchor_prior.matrix
     anchors = prior.shape[1]
@@ -454,9 +453,10 @@ def _split_masks(variables, centroids):
     return masks
 
 
-def _split_step(fit, keep_rows):
+def _split_step(fit, keep_rows, equations):
     """One Gauss-Newton step on a subset of the rows (prior rows kept): parameter values and sigmas."""
-    gram, gradient, rss_after = fit.normal_equations(fit.weights * np.repeat(keep_rows, 2))
+    gram, gradient, rss_after = equations
+    gram = gram.copy()
     # A parameter the subset does not touch (another camera's term) is decoupled and gets no comparison.
     determined = np.diag(gram) > 0
     gram[~determined, ~determined] = 1.0
@@ -486,8 +486,9 @@ def split_consistency(observations: Observations, fit: ModelFit, predictor: Pred
     variables = row_variables(observations, fit, predictor)
     comparisons = []
     for split, lower in _split_masks(variables, observations.centroids).items():
-        first, first_sigma = _split_step(fit, lower)
-        second, second_sigma = _split_step(fit, ~lower)
+        lower_equations, upper_equations = fit.split_normal_equations(np.repeat(lower, 2))
+        first, first_sigma = _split_step(fit, lower, lower_equations)
+        second, second_sigma = _split_step(fit, ~lower, upper_equations)
         for index, parameter in enumerate(fit.free):
             spread = np.hypot(first_sigma[index], second_sigma[index])
             if np.isfinite(spread) and spread > 0:

@@ -138,6 +138,11 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
         weighted_residual = whitened * gradient_weights
         gradient = np.concatenate([anchor_columns.T @ weighted_residual + prior.T @ prior_residual,
                                    parameter_columns.T @ weighted_residual])
+    return gram, gradient, _rss_after(anchor_columns, parameter_columns, prior, whitened, weights, prior_residual)
+
+
+def _rss_after(anchor_columns, parameter_columns, prior, whitened, weights, prior_residual):
+    """rss_after(step) of normal_equations: the weighted RSS of the data rows and the prior rows after a step."""
     anchor_count = anchor_columns.shape[1]
 
     def rss_after(step):
@@ -145,7 +150,7 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
         after_prior = prior_residual - prior @ step[:anchor_count]
         return float(weights @ data**2 + after_prior @ after_prior)
 
-    return gram, gradient, rss_after
+    return rss_after
 
 
 def camera_variance_ratios(whitened: np.ndarray, weights: np.ndarray, row_camera: np.ndarray,
@@ -168,7 +173,8 @@ def camera_variance_ratios(whitened: np.ndarray, weights: np.ndarray, row_camera
 def camera_sandwich_covariance(anchor_columns: scipy.sparse.csr_matrix, parameter_columns: np.ndarray,
                                anchor_prior: AnchorPrior, whitened: np.ndarray, weights: np.ndarray,
                                prior_residual: np.ndarray, row_camera: np.ndarray,
-                               camera_count: int) -> tuple[np.ndarray, np.ndarray]:
+                               camera_count: int, *, inverse: NormalInverse | None = None,
+                               ) -> tuple[np.ndarray, np.ndarray]:
     """Sigma and correlation of the free parameters with each camera's rows at their own residual variance.
 
     The floors (compare.floor) can be off by a different factor for each camera: on the minimal alignment the
@@ -186,15 +192,17 @@ def camera_sandwich_covariance(anchor_columns: scipy.sparse.csr_matrix, paramete
         prior_residual: the prior rows' residuals.
         row_camera: each data row's camera index (2N).
         camera_count: the number of cameras.
+        inverse: the NormalInverse of G where the caller has it, else None (computed here).
 
     Returns:
         (P,) the sigmas (inf for a parameter the data do not determine) and (P, P) the correlation.
     """
-    gram = normal_equations(anchor_columns, parameter_columns, anchor_prior, whitened, weights, prior_residual)[0]
+    if inverse is None:
+        gram = normal_equations(anchor_columns, parameter_columns, anchor_prior, whitened, weights, prior_residual)[0]
+        inverse = NormalInverse.of(gram)
     ratios = camera_variance_ratios(whitened, weights, row_camera, camera_count)
     meat = normal_equations(anchor_columns, parameter_columns, anchor_prior, whitened,
                             weights**2 * ratios[row_camera], prior_residual)[0]
-    inverse = NormalInverse.of(gram)
     parameters = slice(anchor_columns.shape[1], None)
     bread = inverse.matrix[parameters]
     covariance = bread @ meat @ bread.T
@@ -300,6 +308,45 @@ class ModelFit:
         data = scipy.sparse.hstack([self.anchor_columns, scipy.sparse.csr_matrix(self.parameter_columns)])
         prior_rows = scipy.sparse.hstack([prior, scipy.sparse.csr_matrix((prior.shape[0], self.parameter_columns.shape[1]))])
         return scipy.sparse.vstack([data, prior_rows], format='csr')
+
+    @cached_property
+    def weighted_normal_equations(self) -> tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], float]]:
+        """normal_equations at the fit's own Huber weights (``weights``): what its covariance, the prior rows'
+        covariance and the split halves start from, computed once (fit_model keeps those of its covariance).
+        Shared: callers copy before they change them."""
+        return self.normal_equations(self.weights)
+
+    @cached_property
+    def weighted_inverse(self) -> NormalInverse:
+        """The NormalInverse of weighted_normal_equations' Gram matrix (fit_model keeps its covariance's)."""
+        return NormalInverse.of(self.weighted_normal_equations[0])
+
+    def split_normal_equations(self, rows: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray, Callable],
+                                                                    tuple[np.ndarray, np.ndarray, Callable]]:
+        """normal_equations of the data rows in ``rows`` and of the others, each at the fit's Huber weights (the
+        prior rows in both). Their Gram matrices and gradients are sums over the data rows plus the prior's part:
+        the half with more rows is the whole (weighted_normal_equations) less the other, plus the prior's part, so
+        only the smaller half's products are taken (equal to rounding, about 1e-16 of the whole's entries).
+
+        Args:
+            rows: (2N,) bool, the data rows of the first half.
+
+        Returns:
+            (gram, gradient, rss_after) of the rows in ``rows``, then of the others.
+        """
+        first_weights, second_weights = self.weights * rows, self.weights * ~rows
+        smaller_is_first = np.count_nonzero(rows) <= rows.size - np.count_nonzero(rows)
+        direct = self.normal_equations(first_weights if smaller_is_first else second_weights)
+        whole_gram, whole_gradient, _ = self.weighted_normal_equations
+        anchors = self.anchor_columns.shape[1]
+        gram = whole_gram - direct[0]
+        gram[:anchors, :anchors] += self.anchor_prior.gram
+        gradient = whole_gradient - direct[1]
+        gradient[:anchors] += self.anchor_prior.matrix.T @ self.prior_residual
+        derived = (gram, gradient, _rss_after(self.anchor_columns, self.parameter_columns, self.anchor_prior.matrix,
+                                              self.whitened, second_weights if smaller_is_first else first_weights,
+                                              self.prior_residual))
+        return (direct, derived) if smaller_is_first else (derived, direct)
 
     def normal_equations(self, data_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray,
                                                                     Callable[[np.ndarray], float]]:
@@ -698,9 +745,11 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     weights = _huber_weights(whitened)
     prior_residual = -(problem.prior @ anchors.ravel())
     centroids = predictor.observations.centroids
+    equations = normal_equations(anchor_columns, columns, anchor_prior, whitened, weights, prior_residual)
+    inverse = NormalInverse.of(equations[0])
     sigma, correlation = camera_sandwich_covariance(anchor_columns, columns, anchor_prior, whitened, weights,
                                                     prior_residual, np.repeat(centroids.camera_index, 2),
-                                                    len(centroids.cameras))
+                                                    len(centroids.cameras), inverse=inverse)
     residual_arcsec = whitened.reshape(-1, 2) * problem.row_sigma
     outlier = np.any(np.abs(whitened.reshape(-1, 2)) > OUTLIER_SIGMA, axis=1)
     fit = ModelFit(current, free, values, sigma, correlation, anchors, residual_arcsec, whitened, prior_residual,
@@ -708,4 +757,7 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
                    JacobianPoint(predictor, np.asarray(sigma_arcsec), anchor_prior, *jacobian_at))
     # The columns of the last iteration: released() drops them, and they are taken again the same where asked for.
     fit.__dict__['_columns'] = (anchor_columns, columns)
+    # The covariance's normal equations are the fit's own at its weights (the diagnostics ask for them again).
+    fit.__dict__['weighted_normal_equations'] = equations
+    fit.__dict__['weighted_inverse'] = inverse
     return fit

@@ -67,12 +67,14 @@ _PLACE_EPOCH_S = 300.0
 #: iteration). 'rows': attitudes at the rows and their linearization maps (a star hop's are 9 MB each): a
 #: Gauss-Newton step evaluates the same rows under the same gyro errors for its prediction, its derivatives
 #: and its columns. 'cameras': each camera's errors under an effect set (a column asks for them per camera).
-_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024}
+#: 'anchors': the anchors' knot weights and rotations at a set of times (3 MB each on a star hop).
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 8}
 
 
 def _dcms_from_rotvecs(rotvecs):
     """Attitude DCMs of rotation vectors, A = R^T (the passive convention of B.3), (N, 3, 3)."""
-    return np.swapaxes(Rotation.from_rotvec(np.reshape(rotvecs, (-1, 3))).as_matrix(), -1, -2)
+    # A writeable copy: scipy's Cython takes no read-only buffer, and cached rotations are read-only.
+    return np.swapaxes(Rotation.from_rotvec(np.array(rotvecs, dtype=float).reshape(-1, 3)).as_matrix(), -1, -2)
 
 
 def propagate_tick_attitudes(increments_rad: npt.ArrayLike, initial_dcm: npt.ArrayLike) -> np.ndarray:
@@ -234,12 +236,16 @@ class Predictor:
             times_s: (N,) the times (s).
 
         Returns:
-            (N,) the knot indices k and (N,) the fractions f in [0, 1].
+            (N,) the knot indices k and (N,) the fractions f in [0, 1], read-only (cached).
         """
         knots = self.anchor_knots_s
-        index = np.clip(np.searchsorted(knots, times_s, side='right') - 1, 0, len(knots) - 2)
-        fraction = np.clip((times_s - knots[index]) / (knots[index + 1] - knots[index]), 0.0, 1.0)
-        return index, fraction
+
+        def compute():
+            index = np.clip(np.searchsorted(knots, times_s, side='right') - 1, 0, len(knots) - 2)
+            fraction = np.clip((times_s - knots[index]) / (knots[index + 1] - knots[index]), 0.0, 1.0)
+            return _read_only(index), _read_only(fraction)
+
+        return self._cached(('anchor weights', _bytes_digest(times_s)), compute, kind='anchors')
 
     def anchor_rotations_rad(self, anchors_rad: npt.ArrayLike, times_s: np.ndarray) -> np.ndarray:
         """The piecewise-linear anchor rotation (N, 3) at times.
@@ -249,11 +255,17 @@ class Predictor:
             times_s: (N,) the times (s).
 
         Returns:
-            (N, 3) the interpolated rotation vectors (rad).
+            (N, 3) the interpolated rotation vectors (rad), read-only (cached: a fit's iteration asks for the rows'
+            rotations at its anchors for its trial prediction, its IRF derivative and its gyro columns).
         """
-        anchors = np.asarray(anchors_rad).reshape(-1, 3)
-        index, fraction = self.anchor_weights(times_s)
-        return (1.0 - fraction)[:, None] * anchors[index] + fraction[:, None] * anchors[index + 1]
+        anchors = np.asarray(anchors_rad, dtype=float).reshape(-1, 3)
+
+        def compute():
+            index, fraction = self.anchor_weights(times_s)
+            return _read_only((1.0 - fraction)[:, None] * anchors[index] + fraction[:, None] * anchors[index + 1])
+
+        return self._cached(('anchor rotations', _bytes_digest(anchors), _bytes_digest(times_s)), compute,
+                            kind='anchors')
 
     def _catalogue_directions(self):
         """IRF unit vectors of every observed star on the place epochs, (epochs, stars, 3) (4.1, C.4.2)."""
@@ -327,8 +339,7 @@ class Predictor:
 
     def _times_key(self, what, effects, times_s):
         # The times by a digest of their bytes: the same rows under other model terms come as new arrays.
-        digest = hashlib.blake2b(np.ascontiguousarray(times_s, dtype=float).tobytes(), digest_size=16).digest()
-        return what, repr(self._gyro_effects(effects)), digest
+        return what, repr(self._gyro_effects(effects)), _bytes_digest(times_s)
 
     def _change_maps(self, effects, times_s):
         """What attitude_changes_irf maps tick increment changes with: per tick A_k+1^T J_r(phi_k), per time
@@ -736,6 +747,11 @@ def tick_means(per_sample: np.ndarray, tick_start_index: np.ndarray) -> np.ndarr
     sums = np.add.reduceat(per_sample, np.minimum(tick_start_index, len(per_sample) - 1), axis=0)
     sums[counts == 0] = 0.0
     return sums / np.maximum(counts, 1)[:, None]
+
+
+def _bytes_digest(array):
+    """A digest of a float array's values, to key a cache by (the same values come as new arrays)."""
+    return hashlib.blake2b(np.ascontiguousarray(array, dtype=float).tobytes(), digest_size=16).digest()
 
 
 def _read_only(array):

@@ -82,6 +82,8 @@ EXPECTATION_ERROR_SHARE = 0.1
 #: Rounds of search and full refit (each a whole comparison) at most; the range --search-rounds takes.
 MAX_SEARCH_ROUNDS = 12
 SEARCH_ROUNDS_RANGE = (1, 20)
+#: Rows per band of the stacked pieces in _projected_gram (a band of a hundred columns: about 6 MB).
+_GRAM_BAND_ROWS = 8192
 
 
 @dataclass(frozen=True)
@@ -251,15 +253,16 @@ def _shaping(free):
 
 
 def _projected_gram(pieces, nuisance):
-    """[pieces]^T (I - N (N^T N)^+ N^T) [pieces], without forming the stacked pieces (each n x w)."""
-    widths = [piece.shape[1] for piece in pieces]
-    offsets = np.concatenate([[0], np.cumsum(widths)])
-    gram = np.empty((offsets[-1], offsets[-1]))
-    for i, first in enumerate(pieces):
-        for j in range(i, len(pieces)):
-            block = first.T @ pieces[j]
-            gram[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = block
-            gram[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = block.T
+    """[pieces]^T (I - N (N^T N)^+ N^T) [pieces], the stacked pieces (each n x w) formed a band of rows at a time.
+
+    One product per band reads each piece once, where a product per pair of pieces read each about 40 times (a
+    star hop's 21 candidates: 1.3 of 1.6 s); a band of _GRAM_BAND_ROWS keeps the stack to a few MB.
+    """
+    width = sum(piece.shape[1] for piece in pieces)
+    gram = np.zeros((width, width))
+    for start in range(0, len(pieces[0]), _GRAM_BAND_ROWS):
+        band = np.hstack([piece[start:start + _GRAM_BAND_ROWS] for piece in pieces])
+        gram += band.T @ band
     if nuisance.shape[1] == 0:
         return gram
     crossed = np.hstack([np.asarray(nuisance.T @ piece) for piece in pieces])

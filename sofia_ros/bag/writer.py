@@ -108,12 +108,10 @@ class _Rosbag2Writer(Writer):
             self.max_timestamp = timestamp
 
     def write_block(self, connection: Connection, timestamps: list[int], payloads: list[bytes]) -> None:
-        """write() of each (timestamp, payload) in turn, the per-message bookkeeping done once for the block."""
+        """write() of each (timestamp, payload) of a non-empty block in turn, the per-message bookkeeping done once."""
         if self.compression_mode == CompressionMode.MESSAGE or not self.storage:
             for timestamp, data in zip(timestamps, payloads):
                 self.write(connection, timestamp, data)
-            return
-        if not timestamps:
             return
         self.storage.write_block(connection, timestamps, payloads)
         self.counts[connection.id] += len(timestamps)

@@ -67,8 +67,9 @@ _PLACE_EPOCH_S = 300.0
 #: iteration). 'rows': attitudes at the rows and their linearization maps (a star hop's are 9 MB each): a
 #: Gauss-Newton step evaluates the same rows under the same gyro errors for its prediction, its derivatives
 #: and its columns. 'cameras': each camera's errors under an effect set (a column asks for them per camera).
-#: 'anchors': the anchors' knot weights and rotations at a set of times (3 MB each on a star hop).
-_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 8}
+#: 'anchors': the anchors' knot weights and rotations at a set of times (2-3 MB each on a star hop): an iteration
+#: asks for one set of each at its anchors for its trial prediction, its IRF derivative and its gyro columns.
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4}
 
 
 def _dcms_from_rotvecs(rotvecs):

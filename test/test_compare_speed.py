@@ -54,6 +54,18 @@ def test_split_normal_equations_are_those_of_each_half(share):
         assert half[2](step) == pytest.approx(rss_after(step), rel=1e-12)
 
 
+def test_a_parameter_the_larger_half_lacks_has_an_exact_zero_there():
+    # A camera's term: its column is zero outside that camera's rows, the split's smaller half. Rows enough that
+    # BLAS sums the whole and the half in another order (their difference is then rounding, not zero).
+    fit, rng = _synthetic_fit(rows=20000, parameters=13)
+    rows = np.repeat(rng.random(20000) < 0.1, 2)
+    fit.parameter_columns[~rows, 0] = 0.0
+    _, others = fit.split_normal_equations(rows)
+    column = fit.anchor_columns.shape[1]
+    assert np.all(others[0][column, :] == 0.0) and np.all(others[0][:, column] == 0.0) and others[1][column] == 0.0
+    assert np.all(np.diag(others[0])[column + 1:] > 0.0)
+
+
 def test_weighted_normal_equations_are_the_fits_own_at_its_weights():
     fit, _ = _synthetic_fit()
     gram, gradient, _ = fit.normal_equations(fit.weights)

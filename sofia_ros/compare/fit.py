@@ -325,8 +325,9 @@ class ModelFit:
                                                                     tuple[np.ndarray, np.ndarray, Callable]]:
         """normal_equations of the data rows in ``rows`` and of the others, each at the fit's Huber weights (the
         prior rows in both). Their Gram matrices and gradients are sums over the data rows plus the prior's part:
-        the half with more rows is the whole (weighted_normal_equations) less the other, plus the prior's part, so
-        only the smaller half's products are taken (equal to rounding, about 1e-16 of the whole's entries).
+        the smaller half's are taken over its own rows alone (a product over every row with the others weighted 0
+        costs the whole), the larger half's are the whole (weighted_normal_equations) less the smaller's, plus the
+        prior's part (equal to rounding, about 1e-16 of the whole's entries).
 
         Args:
             rows: (2N,) bool, the data rows of the first half.
@@ -336,16 +337,25 @@ class ModelFit:
         """
         first_weights, second_weights = self.weights * rows, self.weights * ~rows
         smaller_is_first = np.count_nonzero(rows) <= rows.size - np.count_nonzero(rows)
-        direct = self.normal_equations(first_weights if smaller_is_first else second_weights)
+        own = np.flatnonzero(rows if smaller_is_first else ~rows)
+        direct = normal_equations(self.anchor_columns[own], self.parameter_columns[own], self.anchor_prior,
+                                  self.whitened[own], self.weights[own], self.prior_residual)
         whole_gram, whole_gradient, _ = self.weighted_normal_equations
         anchors = self.anchor_columns.shape[1]
         gram = whole_gram - direct[0]
         gram[:anchors, :anchors] += self.anchor_prior.gram
         gradient = whole_gradient - direct[1]
         gradient[:anchors] += self.anchor_prior.matrix.T @ self.prior_residual
+        derived_weights = second_weights if smaller_is_first else first_weights
+        # A parameter with no weighted row in the larger half (another camera's term) has exact zeros there, which
+        # the difference leaves as rounding: the split test reads a zero diagonal as a parameter the half lacks.
+        absent = anchors + np.flatnonzero(~np.any((derived_weights[:, None] != 0.0) & (self.parameter_columns != 0.0),
+                                                  axis=0))
+        gram[absent, :] = 0.0
+        gram[:, absent] = 0.0
+        gradient[absent] = 0.0
         derived = (gram, gradient, _rss_after(self.anchor_columns, self.parameter_columns, self.anchor_prior.matrix,
-                                              self.whitened, second_weights if smaller_is_first else first_weights,
-                                              self.prior_residual))
+                                              self.whitened, derived_weights, self.prior_residual))
         return (direct, derived) if smaller_is_first else (derived, direct)
 
     def normal_equations(self, data_weights: np.ndarray) -> tuple[np.ndarray, np.ndarray,

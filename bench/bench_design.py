@@ -232,7 +232,8 @@ def _text(rows: list, header: str) -> str:
     for row in rows:
         wins = f'{"yes" if row.get("wins_before") else "no"}/' + (
             ("yes" if row["wins_after"] else "no") if 'wins_after' in row else '-')
-        ratio = f'{row["ratio"]:6.2f}' if row.get('ratio') else f'{"-":>6}'
+        # A ratio that rounds to 0.00 (a prediction hundreds of times the achieved) is printed, not hidden as '-'.
+        ratio = f'{row["ratio"]:6.2f}' if row.get('ratio') is not None else f'{"-":>6}'
         lines.append(f'{row["set"]:12} {row["seed"]:>4} {row["status"]:12} {100 * row["flight_share"]:5.0f}% '
                      f'{row["predicted_before"]:16.1f} {row.get("achieved_before", float("nan")):15.1f} '
                      f'{row["predicted_after"]:15.1f} {row.get("achieved_after", float("nan")):14.1f} {ratio} '

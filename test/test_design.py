@@ -261,6 +261,7 @@ def _stubbed_design(monkeypatch, plan_only_bag, status, reproduced=()):
     """The command with the prediction stubbed (its machinery is tested below): a design document of ``status``."""
     import sofia_ros.compare.observations as observations
     import sofia_ros.design.cli as design_cli
+    import sofia_ros.design.geometry as design_geometry
     import sofia_ros.design.run as design_run
 
     class Stub:
@@ -283,6 +284,7 @@ def _stubbed_design(monkeypatch, plan_only_bag, status, reproduced=()):
     monkeypatch.setattr(design_cli, '_library_bag', lambda *args: plan_only_bag)
     monkeypatch.setattr(observations, 'read_observations', lambda path: Stub())
     monkeypatch.setattr(design_run, 'design_plan', lambda *args, **kwargs: dict(document))
+    monkeypatch.setattr(design_geometry, 'fitted_model_effects', lambda *args, **kwargs: {})
 
 
 @pytest.mark.parametrize('status, reproduced, says', [
@@ -641,9 +643,30 @@ def test_the_star_hop_library_holds_at_most_three_other_stars_the_last_observed(
 def test_the_thermal_library_flight_is_flown_on_the_nominal_truth_with_the_bags_control():
     from sofia_ros.design.cli import _library_truth
 
-    truth = _library_truth(_CONTROL)
+    truth = _library_truth(_CONTROL, {})
     assert truth.scenario['thermal_control'] == _CONTROL
-    assert set(truth.effects) == set(_library_truth(None).effects)
+    assert set(truth.effects) == set(_library_truth(None, {}).effects)
+
+
+def test_the_library_flight_holds_the_models_effects_the_nominal_truth_lacks_at_their_values_on_the_bag():
+    """The members' library columns are added to the bag's: both are taken on the telescope the bag's model fits."""
+    import numpy as np
+
+    from sofia_ros.config import load_effect_config
+    from sofia_ros.design.cli import _library_truth
+
+    nominal = load_effect_config(ROOT / 'config' / 'truth' / 'nominal.yaml')
+    offsets = {'fpi_el_arcsec': np.float64(9.5), 'fpi_xel_arcsec': -14.0, 'ffi_el_arcsec': 61.0,
+               'ffi_xel_arcsec': 44.0, 'wfi_el_arcsec': 301.0, 'wfi_xel_arcsec': -239.0}
+    fitted = {'gyro_bias': {'x_deg_per_h': 1.0, 'y_deg_per_h': 0.0, 'z_deg_per_h': 0.0},
+              'imager_boresight_offset': offsets, 'empirical:fpi.x:elevation:poly3': {'c1': 0.1}}
+    truth = _library_truth(None, fitted)
+    assert truth.effects['imager_boresight_offset'] == {name: float(value) for name, value in offsets.items()}
+    # What the nominal truth holds stays its own; an empirical shape is no error a telescope can have.
+    assert truth.effects['gyro_bias'] == nominal.effects['gyro_bias']
+    assert set(truth.effects) == {*nominal.effects, 'imager_boresight_offset'}
+    # A model with nothing the nominal truth lacks flies the nominal truth itself: the key of its cached flights holds.
+    assert _library_truth(None, {'gyro_bias': fitted['gyro_bias']}).text == nominal.text
 
 
 def test_a_library_without_temperature_steps_is_one_flight(tmp_path, monkeypatch):

@@ -195,20 +195,49 @@ _RECENTRE_HOLD_S = 1.0
 _START_ROUNDING_S = 10.0
 
 
-def _library_truth(thermal_control: dict | None) -> Any:
-    """The library flight's truth: the nominal one, with the bag's thermal control if it has one."""
+def _library_truth(thermal_control: dict | None, model_effects: dict) -> Any:
+    """The library flight's truth: the nominal one, with the bag's thermal control if it has one, and the model's
+    effects the nominal truth lacks at their values fitted on the bag (the telescope as the bag's fit knows it).
+
+    The members' columns of a library element are added to the bag's, so both must be taken where the model puts the
+    telescope: flown without the imagers' boresight offsets the bag's model fits (300" on the WFI), the HIPO set's
+    rival (imager_rotation_of_field with the offsets fitted) was predicted to be told apart by 1900-2200 after one
+    60 s hold, from geometry the bag and the library do not share; flown, it was 1-14.
+
+    Args:
+        thermal_control: the bag's scenario.thermal_control, or None.
+        model_effects: {effect: {parameter: value}} of the model fitted on the bag (fitted_model_effects).
+
+    Returns:
+        The truth (EffectConfig); the nominal truth file's own text when it needs neither addition (the cache key of
+        its flights).
+    """
     import yaml
 
     from sofia_ros.campaigns.plan_files import plans_directory
     from sofia_ros.config import load_effect_config, parse_effect_config, safe_load_limited
+    from sofia_ros.effects.empirical import is_empirical
     from sofia_ros.input_files import read_text_capped
 
     path = plans_directory().parent / 'truth' / 'nominal.yaml'
-    if thermal_control is None:
-        return load_effect_config(path)
+    nominal = load_effect_config(path)
+    # An empirical term is a shape fitted to a residual, not an error a truth can hold.
+    absent = {name: {key: _yaml_value(value) for key, value in params.items()}
+              for name, params in model_effects.items() if name not in nominal.effects and not is_empirical(name)}
+    if thermal_control is None and not absent:
+        return nominal
     document = safe_load_limited(read_text_capped(path, _MAX_JSON_BYTES, 'truth file'), str(path))
-    document['scenario'] = {**(document.get('scenario') or {}), 'thermal_control': thermal_control}
-    return parse_effect_config(yaml.safe_dump(document), f'{path} with the thermal control of the bag')
+    document['effects'] = {**document['effects'], **absent}
+    additions = [*(['the thermal control of the bag'] if thermal_control is not None else []),
+                 *([f'the model\'s {", ".join(absent)} as fitted on the bag'] if absent else [])]
+    if thermal_control is not None:
+        document['scenario'] = {**(document.get('scenario') or {}), 'thermal_control': thermal_control}
+    return parse_effect_config(yaml.safe_dump(document), f'{path} with {" and ".join(additions)}')
+
+
+def _yaml_value(value: Any) -> Any:
+    """A parameter's value as YAML writes it: numpy scalars as Python numbers."""
+    return value.item() if hasattr(value, 'item') else value
 
 
 #: The bag's last temperature is rounded to this (C) for the library's step flights: the bags of one plan and truth
@@ -387,6 +416,7 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     from sofia_ros.compare.cache import ObservationCache
     from sofia_ros.compare.observations import observation_cache, read_observations
     from sofia_ros.config import load_effect_config
+    from sofia_ros.design.geometry import fitted_model_effects
     from sofia_ros.design.run import check_members, design_plan, flown_elements
 
     bag, model_path, members = _source(args)
@@ -401,7 +431,6 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     old_plan = read_plan_file(args.plan) if args.plan else read_plan(bag)
     thermal_control = _thermal_control(bag)
     elements = _library_elements(old_plan, thermal_control)
-    truth = _library_truth(thermal_control)
 
     def read(path: Path, what: str) -> Any:
         with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):
@@ -410,6 +439,8 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
 
     # The bag first: its end and last temperature are where the library's temperature steps start.
     observations = read(bag, 'the bag')
+    progress.phase('fitting the model on the bag (the library flights fly the telescope it fits)')
+    truth = _library_truth(thermal_control, fitted_model_effects(observations, model, anchor_spacing_s=args.anchor_s))
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
     library, skipped = [], []

@@ -20,7 +20,7 @@ from sofia_ros.compare.run import BagSource
 from sofia_ros.config import EffectConfig
 from sofia_ros.design.separation import Information, profiled_gram, pseudo_inverse
 
-__all__ = ['BagColumns', 'bag_columns', 'element_windows', 'member_labels']
+__all__ = ['BagColumns', 'bag_columns', 'element_windows', 'fitted_model_effects', 'member_labels']
 
 
 def member_labels(member: Sequence[str]) -> tuple:
@@ -109,6 +109,18 @@ def bag_columns(observations: object, model: EffectConfig, members: Sequence[Seq
     augmented = fit.augmented_residual
     return BagColumns(_labels(free), _labels(shared), anchors, source.prior.gram, columns, fit.whitened,
                       source.prior.matrix.T @ fit.prior_residual, times, float(augmented @ augmented), len(augmented))
+
+
+def fitted_model_effects(observations: object, model: EffectConfig, *, anchor_spacing_s: float = 30.0) -> dict:
+    """{effect: {parameter: value}} of ``model`` fitted to the observations (compare's fit of its terms, as bag_columns
+    fits it).
+
+    Raises:
+        FitError: the model's own fit fails.
+    """
+    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
+    fit = source.fit(source.effects, free_parameters(source.ledger_terms()), None)
+    return {name: dict(params) for name, params in fit.effects.items()}
 
 
 def _labels(free: Sequence[FreeParameter]) -> tuple:

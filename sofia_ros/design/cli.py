@@ -222,7 +222,7 @@ def _library_truth(thermal_control: dict | None, model_effects: dict) -> Any:
     path = plans_directory().parent / 'truth' / 'nominal.yaml'
     nominal = load_effect_config(path)
     # An empirical term is a shape fitted to a residual, not an error a truth can hold.
-    absent = {name: {key: _yaml_value(value) for key, value in params.items()}
+    absent = {name: json_ready(params)
               for name, params in model_effects.items() if name not in nominal.effects and not is_empirical(name)}
     if thermal_control is None and not absent:
         return nominal
@@ -233,11 +233,6 @@ def _library_truth(thermal_control: dict | None, model_effects: dict) -> Any:
     if thermal_control is not None:
         document['scenario'] = {**(document.get('scenario') or {}), 'thermal_control': thermal_control}
     return parse_effect_config(yaml.safe_dump(document), f'{path} with {" and ".join(additions)}')
-
-
-def _yaml_value(value: Any) -> Any:
-    """A parameter's value as YAML writes it: numpy scalars as Python numbers."""
-    return value.item() if hasattr(value, 'item') else value
 
 
 #: The bag's last temperature is rounded to this (C) for the library's step flights: the bags of one plan and truth

@@ -90,9 +90,7 @@ def bag_columns(observations: object, model: EffectConfig, members: Sequence[Seq
     Raises:
         FitError: the model's own fit fails.
     """
-    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
-    shared = free_parameters(source.ledger_terms())
-    fit = source.fit(source.effects, shared, None)
+    source, shared, fit = _model_fit(observations, model, anchor_spacing_s)
     effects, free = dict(fit.effects), list(shared)
     for name in dict.fromkeys(name for member in members for name in member):
         if name in effects:
@@ -118,9 +116,15 @@ def fitted_model_effects(observations: object, model: EffectConfig, *, anchor_sp
     Raises:
         FitError: the model's own fit fails.
     """
-    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
-    fit = source.fit(source.effects, free_parameters(source.ledger_terms()), None)
+    _, _, fit = _model_fit(observations, model, anchor_spacing_s)
     return {name: dict(params) for name, params in fit.effects.items()}
+
+
+def _model_fit(observations: object, model: EffectConfig, anchor_spacing_s: float) -> tuple:
+    """(the bag's BagSource, the model's fitted terms as FreeParameters, compare's fit of them)."""
+    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
+    shared = free_parameters(source.ledger_terms())
+    return source, shared, source.fit(source.effects, shared, None)
 
 
 def _labels(free: Sequence[FreeParameter]) -> tuple:

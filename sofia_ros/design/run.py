@@ -30,7 +30,7 @@ from sofia_ros.design.separation import Information, fitted_values, rss_drop, si
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import BagError, ConfigError
 
-__all__ = ['REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'StatedSize', 'check_members', 'design_plan',
+__all__ = ['MEASURED_AT_SIGMA', 'REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'StatedSize', 'check_members', 'design_plan',
            'flown_elements', 'member_name', 'stated_sizes']
 
 #: A true member's signature that the rival leaves less of than this (lambda / s^2, in units of the noise variance)
@@ -110,15 +110,22 @@ def _residual_variance(observations: object, model: EffectConfig, members: Seque
     return max(min(fit['rss'] for fit in fits.values()), 1.0) / rows
 
 
+#: An estimate at least this many of its sigmas from zero is one the bag measures (stated_sizes).
+MEASURED_AT_SIGMA = 3.0
+
+
 def stated_sizes(parameters: Sequence[FreeParameter], values: np.ndarray,
                  sigma: np.ndarray) -> tuple[np.ndarray, dict]:
     """The size a prediction assumes for a member: its fit on the bag, except where the bag does not measure a scaling
-    parameter (its 1-sigma there at least its estimate and its catalogue size), which is taken at the catalogue's.
+    parameter (its estimate within MEASURED_AT_SIGMA sigmas of zero, and that bound not below its catalogue size),
+    which is taken at the catalogue's size.
 
     The separation grows with the square of what tells the members apart, and that is often the one number the bag
     could not measure (gyro_axis_swap's temperature coefficient on a night without a temperature step: 8.4 +- 55 ppm/C,
-    the catalogue's 20): its estimate is noise, and a prediction scaled by it was 5.7 times too small. A parameter the
-    bag bounds below its catalogue size (a scale factor of 2 +- 21 ppm against 400) keeps its estimate, and so does a
+    the catalogue's 20): its estimate is noise, and a prediction scaled by it was 5.7 times too small. Noise of 1-2
+    sigmas counts as no measurement too: a HIPO fiducial centre the imagers' fitted offsets leave free read
+    -764 +- 400 px against a true -8.8, and a prediction scaled by it was that much too large. A parameter the bag
+    bounds below its catalogue size (a scale factor of 2 +- 21 ppm against 400) keeps its estimate, and so does a
     shaping one (a period: no size) or one whose catalogue size is zero (a plug-in's: no size stated).
 
     Args:
@@ -133,12 +140,13 @@ def stated_sizes(parameters: Sequence[FreeParameter], values: np.ndarray,
     for index, parameter in enumerate(parameters):
         spec = get_effect(parameter.effect).parameter(parameter.name)
         catalogue = float(spec.default)
-        undetermined = sigma[index] >= abs(values[index]) and sigma[index] >= abs(catalogue)
+        bound = MEASURED_AT_SIGMA * sigma[index]
+        undetermined = bound > abs(values[index]) and bound >= abs(catalogue)
         if spec.shape or catalogue == 0.0 or not undetermined:
             continue
         sizes[index] = catalogue
-        assumed[parameter.label] = StatedSize(value=catalogue, unit=parameter.unit, bag_value=float(values[index]),
-                                              bag_sigma=float(sigma[index]))
+        assumed[parameter.label] = StatedSize(value=catalogue, unit=parameter.unit,
+                                              bag_value=float(values[index]), bag_sigma=float(sigma[index]))
     return sizes, assumed
 
 

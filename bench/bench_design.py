@@ -287,9 +287,12 @@ def main() -> None:
     alignment_s = sorted(row['design_s'] for row in rows if row['campaign'] == 'alignment')
     runs = sorted({(row['run']['date'], row['run']['commit']) for row in rows})
     # The sets whose model (and truth) hold more than the nominal one.
-    fitted_in_both = ''.join(sorted({f' (plus, in the truth and fitted, for {row["set"]}: '
-                                     f'{" ".join(row["fitted_in_both"])})' for row in rows
-                                     if row.get('fitted_in_both')}))
+    extra = {}
+    for row in rows:
+        if row.get('fitted_in_both'):
+            extra.setdefault(' '.join(row['fitted_in_both']), set()).add(row['set'])
+    fitted_in_both = ''.join(f' (plus, in the truth and fitted, for {", ".join(sorted(sets))}: {effects})'
+                             for effects, sets in sorted(extra.items()))
     header = (f'sofia design, issue 28: {"; ".join(f"{date}, commit {run_commit}" for date, run_commit in runs)} '
               f'(each row\'s in design.json; this run\'s sofia_ros: {package}), {_load()}\n'
               f'direct mode, model config/model/nominal.yaml{fitted_in_both}, target expected delta-BIC 20 both ways '

@@ -15,9 +15,16 @@ round's compare also runs from that checkout on the same model (without the cach
 not know), and the two JSON outputs are checked: the same verdict and next step, every fitted term
 within AGREEMENT_SIGMA of its sigma; its wall time is printed beside this checkout's.
 
-The figures are written to bench/results/compare_loop_<campaigns>.{json,txt} (date, commit, load, machine).
+With ``--search`` the same bag is searched instead (`sofia compare BAG --model nominal --search --no-cache`, one
+command, issue 25): its wall and CPU time, peak memory, rounds and the model found, against issue 25's targets
+(SEARCH_TARGET_S); with ``--baseline`` the baseline's search runs right after it, and the two must find the same
+model.
+
+The figures are written to bench/results/compare_loop_<campaigns>.{json,txt} (date, commit, load, machine;
+search_<campaigns>.{json,txt} with ``--search``).
 
 Run: .venv/bin/python bench/bench_compare_loop.py [--campaigns alignment,star-hop] [--rounds 8] [--seed N] [--baseline DIR]
+     [--search]
 """
 
 from __future__ import annotations
@@ -42,6 +49,8 @@ LOOPS = {'alignment': (7, ['--variant', 'reduced']), 'star-hop': (3904, [])}
 #: Issue 27's targets per compare round: wall seconds and peak memory.
 TARGET_S = {'alignment': 4.0, 'star-hop': 15.0}
 TARGET_MEMORY_MB = 600.0
+#: Issue 25's targets for one `sofia compare --search` from the nominal model: wall seconds.
+SEARCH_TARGET_S = {'alignment': 45.0, 'star-hop': 180.0}
 #: Fitted values of this checkout and the baseline may differ by this fraction of their sigma (issue 27).
 AGREEMENT_SIGMA = 0.01
 #: Every line printed, for bench/results/compare_loop_<campaigns>.txt.
@@ -55,6 +64,12 @@ def _say(line: str) -> None:
 
 def _sofia(checkout: Path, *arguments: str) -> tuple[subprocess.CompletedProcess, float, float]:
     """`python -m sofia_ros.cli ARGUMENTS` from a checkout: the completed process, its wall s and its own peak MB."""
+    process, wall_s, peak_mb, _ = _sofia_timed(checkout, *arguments)
+    return process, wall_s, peak_mb
+
+
+def _sofia_timed(checkout: Path, *arguments: str) -> tuple[subprocess.CompletedProcess, float, float, float]:
+    """_sofia, and the child's own CPU seconds (user + system)."""
     environment = {**os.environ, 'PYTHONPATH': str(checkout)}
     with tempfile.TemporaryFile('w+') as stdout, tempfile.TemporaryFile('w+') as stderr:
         started = time.perf_counter()
@@ -67,7 +82,7 @@ def _sofia(checkout: Path, *arguments: str) -> tuple[subprocess.CompletedProcess
         stdout.seek(0)
         stderr.seek(0)
         completed = subprocess.CompletedProcess(process.args, process.returncode, stdout.read(), stderr.read())
-    return completed, wall_s, usage.ru_maxrss / 1024.0
+    return completed, wall_s, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
 
 
 def _checked(process: subprocess.CompletedProcess, what: str) -> subprocess.CompletedProcess:
@@ -89,14 +104,49 @@ def _agreement(document: dict, baseline: dict) -> tuple[bool, float]:
     return same, worst
 
 
-def run_loop(campaign: str, seed: int, rounds: int, work: Path, baseline: Path | None) -> dict:
-    """Fly the Waco 2004 truth on one campaign and follow the advice loop; the rows of every round."""
-    options = LOOPS[campaign][1]
+def _flown(campaign: str, seed: int, work: Path) -> tuple[Path, float]:
+    """The Waco 2004 truth flown on one campaign: the bag and the run's wall seconds."""
     bag = work / f'waco-{campaign}'
     _, run_s, _ = _sofia(ROOT, 'run', campaign, '--truth', str(TRUTH), '--seed', str(seed), '--bag', str(bag),
-                         '--direct', *options)
+                         '--direct', *LOOPS[campaign][1])
     if not (bag / 'metadata.yaml').exists():
         raise SystemExit(f'sofia run {campaign} wrote no bag in {bag}')
+    return bag, run_s
+
+
+def _search(checkout: Path, bag: Path, output: Path) -> dict:
+    """One `sofia compare --search --no-cache` from the nominal model: its times, rounds and the model found."""
+    process, wall_s, peak_mb, cpu_s = _sofia_timed(checkout, 'compare', str(bag), '--model', str(MODEL), '--search',
+                                                   '--no-cache', '--quiet', '--json', str(output))
+    _checked(process, f'sofia compare --search from {checkout}')
+    search = json.loads(output.read_text())['search']
+    return {'wall_s': round(wall_s, 1), 'cpu_s': round(cpu_s, 1), 'peak_mb': round(peak_mb),
+            'rounds': len(search['rounds']), 'found': search['added'], 'status': search['status'],
+            'equivalent': [entry['model'] for entry in search['equivalent']], 'ends': search['rounds'][-1]['ends']}
+
+
+def run_search(campaign: str, seed: int, work: Path, baseline: Path | None) -> dict:
+    """Fly the Waco 2004 truth on one campaign and search it from the nominal model (and from the baseline)."""
+    bag, run_s = _flown(campaign, seed, work)
+    row = {'campaign': campaign, 'seed': seed, 'run_s': round(run_s, 1), 'target_s': SEARCH_TARGET_S[campaign],
+           'search': _search(ROOT, bag, work / f'{campaign}-search.json')}
+    found = row['search']
+    _say(f'  {campaign} --search: {found["wall_s"]:.1f} s wall, {found["cpu_s"]:.1f} CPU-s, {found["peak_mb"]} MB, '
+         f'{found["rounds"]} rounds (target <= {SEARCH_TARGET_S[campaign]:.0f} s): {found["status"]}, found '
+         f'{", ".join(found["found"]) or "nothing"}; equivalent: {"; ".join(found["equivalent"]) or "none"}; '
+         f'{found["ends"]}')
+    if baseline is not None:
+        old = row['baseline_search'] = _search(baseline, bag, work / f'{campaign}-search-baseline.json')
+        row['same_model'] = all(old[key] == found[key] for key in ('found', 'status', 'equivalent'))
+        _say(f'  {campaign} --search from the baseline: {old["wall_s"]:.1f} s wall, {old["cpu_s"]:.1f} CPU-s, '
+             f'{old["peak_mb"]} MB, {old["rounds"]} rounds; CPU ratio {found["cpu_s"] / old["cpu_s"]:.2f}, '
+             f'the same model and equivalents found: {row["same_model"]}')
+    return row
+
+
+def run_loop(campaign: str, seed: int, rounds: int, work: Path, baseline: Path | None) -> dict:
+    """Fly the Waco 2004 truth on one campaign and follow the advice loop; the rows of every round."""
+    bag, run_s = _flown(campaign, seed, work)
     model = work / f'model-{campaign}.yaml'
     shutil.copy(MODEL, model)
     rows = []
@@ -141,6 +191,8 @@ def main() -> None:
     parser.add_argument('--rounds', type=int, default=8)
     parser.add_argument('--baseline', type=Path, help='another checkout to run every round beside this one')
     parser.add_argument('--seed', type=int, help="the campaigns' seed (default: each loop's own, LOOPS)")
+    parser.add_argument('--search', action='store_true',
+                        help='time one `sofia compare --search` per campaign instead of the loop (issue 25)')
     args = parser.parse_args()
     load_before = os.getloadavg()[0]
     started = time.time()
@@ -148,10 +200,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix='sofia-bench-loop-') as work:
         for campaign in args.campaigns.split(','):
             seed = LOOPS[campaign][0] if args.seed is None else args.seed
+            if args.search:
+                _say(f'{campaign}: Waco 2004 truth, seed {seed}; target per search <= {SEARCH_TARGET_S[campaign]:.0f} s')
+                loops.append(run_search(campaign, seed, Path(work), args.baseline))
+                continue
             _say(f'{campaign}: Waco 2004 truth, seed {seed}; target per compare '
                  f'<= {TARGET_S[campaign]:.0f} s, <= {TARGET_MEMORY_MB:.0f} MB')
             loops.append(run_loop(campaign, seed, args.rounds, Path(work), args.baseline))
-    for loop in loops:
+    for loop in loops if not args.search else ():
         _say(f'{loop["campaign"]}: {len(loop["rounds"])} rounds, {loop["loop_compare_s"]:.0f} s of compare, '
               f'slowest round {max(row["wall_s"] for row in loop["rounds"]):.1f} s, '
               f'peak {max(row["peak_mb"] for row in loop["rounds"])} MB; load {load_before:.1f} before')
@@ -163,7 +219,7 @@ def main() -> None:
                 'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'load_before': load_before,
                 'load_after': os.getloadavg()[0], 'wall_s': round(time.time() - started, 1),
                 'baseline': str(args.baseline) if args.baseline else None, 'loops': loops}
-    name = 'compare_loop_' + '_'.join(campaign.replace('-', '_') for campaign in args.campaigns.split(','))
+    name = ('search_' if args.search else 'compare_loop_') + '_'.join(campaign.replace('-', '_') for campaign in args.campaigns.split(','))
     name += '' if args.seed is None else f'_seed{args.seed}'
     (results / f'{name}.json').write_text(json.dumps(document, indent=1) + '\n')
     (results / f'{name}.txt').write_text(f'{document["date"]} commit {commit}, {document["machine"]}, load '

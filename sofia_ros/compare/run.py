@@ -35,6 +35,7 @@ from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.compare.records import LedgerRow
+from sofia_ros.compare.search import chain_effects
 from sofia_ros.compare.steps import ChainStep, StepStore, step_key
 from sofia_ros.compare.verdict import BAG_OBSERVABLE_KEYS, beyond_bag_floor, empirical_candidate_names
 from sofia_ros.config import EffectConfig
@@ -102,6 +103,9 @@ class BagSource:
         self.counts = np.bincount(centroids.camera_index, minlength=len(centroids.cameras))
         self.predictor = Predictor(observations, anchor_spacing_s=anchor_spacing_s)
         self.effects = {name: dict(params) for name, params in model.effects.items()}
+        # Where the ledger's chain starts each term: a model the search reached starts them where the model it came
+        # from was given them (compare.search.ReachedModel), so that the chain reads that model's steps back.
+        self.chain_effects = {name: dict(params) for name, params in chain_effects(model).items()}
         self.arw = angle_random_walk_rad_per_sqrt_s(observations.gyro)
         # Rate random walk from the model's noise terms, else Table 5.1 (gyro_noise defaults).
         rrw_deg_per_h_sqrt_h = self.effects.get('gyro_noise', resolve_params('gyro_noise', {}))['rrw_deg_per_h_sqrt_h']
@@ -123,7 +127,8 @@ class BagSource:
         return [name for name in self.model.effects if name in self.model.fitted]
 
     def ledger_start(self, previous: ModelFit | None, term: str | None) -> dict:
-        """The fixed effects alone first; then the fit so far with ``term`` at its given values.
+        """The fixed effects alone first; then the fit so far with ``term`` at its given values (a model the search
+        reached: where the model it came from was given them, compare.search.ReachedModel).
 
         Args:
             previous: the fit of the step before, or None.
@@ -133,8 +138,8 @@ class BagSource:
             {effect: params}.
         """
         if previous is None:
-            return {name: params for name, params in self.effects.items() if name not in self.model.fitted}
-        return {**previous.effects, term: self.effects[term]}
+            return {name: params for name, params in self.chain_effects.items() if name not in self.model.fitted}
+        return {**previous.effects, term: self.chain_effects[term]}
 
     @cached_property
     def problem_digest(self) -> str:

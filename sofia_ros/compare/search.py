@@ -38,6 +38,7 @@ why the search ended.
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence, Set
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, TypedDict, TypeVar
 
@@ -61,7 +62,8 @@ if TYPE_CHECKING:
     from sofia_ros.compare.observations import Observations
 
 __all__ = ['EMPIRICAL_PENALTY', 'EQUIVALENT_DELTA_BIC', 'EXPECTATION_ERROR_SHARE', 'MAX_SEARCH_ROUNDS',
-           'LinearizedModels', 'SearchRound', 'could_still_count', 'equivalent_models', 'model_terms', 'rival_swaps',
+           'LinearizedModels', 'ReachedModel', 'SearchRound', 'chain_effects', 'could_still_count', 'equivalent_models',
+           'model_terms', 'rival_swaps',
            'search_pool', 'search_model', 'structural_changes']
 
 #: An empirical shape enters a model only where it beats the physics by this much BIC (a tie goes to physics).
@@ -477,6 +479,29 @@ class _Outcome:
         return self.bic < answer.bic - (SIGNIFICANT_DELTA_BIC if self.explained else 0.0)
 
 
+@dataclass(frozen=True)
+class ReachedModel(EffectConfig):
+    """A model the search reaches (_next_model). Its ``effects`` are where its whole fit starts: the fitted values of
+    the model it came from and the refit's values of the term it added. ``chain_effects`` are where its ledger's
+    chain starts each term (compare.run.BagSource.ledger_start): the values the model it came from was given, the
+    term added at the refit's, as `sofia model add` writes them; its chain then shares every step but the last
+    with that model's and reads them back (compare.steps) instead of fitting them again from other starts."""
+
+    chain_effects: dict = dataclasses.field(default_factory=dict)
+
+
+def chain_effects(model: EffectConfig) -> dict:
+    """Where a model's ledger chain starts its terms: a ReachedModel's chain_effects, else its own effects.
+
+    Args:
+        model: the model compared.
+
+    Returns:
+        {effect: params}.
+    """
+    return model.chain_effects if isinstance(model, ReachedModel) else model.effects
+
+
 def _next_model(model, outcome, step):
     """The model after the verdict's next step: a term added at its refitted values, or terms removed/replaced."""
     candidates = {c['effect']: c for c in outcome.document['candidates']}
@@ -484,13 +509,15 @@ def _next_model(model, outcome, step):
     effects = {name: dict(params) for name, params in outcome.effects.items() if name not in removed}
     effects.update({name: dict(params) for name, params in model.effects.items()
                     if name not in effects and name not in removed})
+    chain = {name: dict(params) for name, params in chain_effects(model).items() if name not in removed}
     fitted = set(model.fitted) - removed
     if step['effect'] is not None:
         entry = candidates.get(step['effect'], {'params': {}})
         start = {key: value for key, value in entry['params'].items() if value is not None and np.isfinite(value)}
         effects[step['effect']] = resolve_params(step['effect'], start)
+        chain[step['effect']] = dict(effects[step['effect']])
         fitted.add(step['effect'])
-    return EffectConfig(effects, frozenset(fitted), model.scenario, model.text, model.source)
+    return ReachedModel(effects, frozenset(fitted), model.scenario, model.text, model.source, chain)
 
 
 def _steps(outcome):

@@ -69,7 +69,8 @@ _PLACE_EPOCH_S = 300.0
 #: and its columns. 'cameras': each camera's errors under an effect set (a column asks for them per camera).
 #: 'anchors': the anchors' knot weights and rotations at a set of times (2-3 MB each on a star hop): an iteration
 #: asks for one set of each at its anchors for its trial prediction, its IRF derivative and its gyro columns.
-_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4}
+#: 'row times': the rows' times under a HIPO clock offset (1 MB on a star hop), with their digest (_times_digest).
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4, 'row times': 8}
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -246,7 +247,7 @@ class Predictor:
             fraction = np.clip((times_s - knots[index]) / (knots[index + 1] - knots[index]), 0.0, 1.0)
             return _read_only(index), _read_only(fraction)
 
-        return self._cached(('anchor weights', _bytes_digest(times_s)), compute, kind='anchors')
+        return self._cached(('anchor weights', self._times_digest(times_s)), compute, kind='anchors')
 
     def anchor_rotations_rad(self, anchors_rad: npt.ArrayLike, times_s: np.ndarray) -> np.ndarray:
         """The piecewise-linear anchor rotation (N, 3) at times.
@@ -265,7 +266,7 @@ class Predictor:
             index, fraction = self.anchor_weights(times_s)
             return _read_only((1.0 - fraction)[:, None] * anchors[index] + fraction[:, None] * anchors[index + 1])
 
-        return self._cached(('anchor rotations', _bytes_digest(anchors), _bytes_digest(times_s)), compute,
+        return self._cached(('anchor rotations', _bytes_digest(anchors), self._times_digest(times_s)), compute,
                             kind='anchors')
 
     def _catalogue_directions(self):
@@ -340,7 +341,7 @@ class Predictor:
 
     def _times_key(self, what, effects, times_s):
         # The times by a digest of their bytes: the same rows under other model terms come as new arrays.
-        return what, repr(self._gyro_effects(effects)), _bytes_digest(times_s)
+        return what, repr(self._gyro_effects(effects)), self._times_digest(times_s)
 
     def _change_maps(self, effects, times_s):
         """What attitude_changes_irf maps tick increment changes with: per tick A_k+1^T J_r(phi_k), per time
@@ -519,14 +520,31 @@ class Predictor:
             effects: the model's effects and parameters (its timestamp_offset).
 
         Returns:
-            (N,) the times (s), a new array.
+            (N,) the times (s), read-only (cached: the caches of the rows key by them, _times_digest).
         """
         centroids = self.observations.centroids
-        times = centroids.stamp_s.copy()
+        offset_s = None
         if 'timestamp_offset' in effects and CLOCK_OFFSET_CAMERA in centroids.cameras:
-            hipo = centroids.camera_index == centroids.cameras.index(CLOCK_OFFSET_CAMERA)
-            times[hipo] -= effects['timestamp_offset']['offset_s']
-        return times
+            offset_s = effects['timestamp_offset']['offset_s']
+
+        def compute():
+            times = centroids.stamp_s.copy()
+            if offset_s is not None:
+                times[centroids.camera_index == centroids.cameras.index(CLOCK_OFFSET_CAMERA)] -= offset_s
+            return _KeyedTimes(_read_only(times))
+
+        return self._cached(('row times', repr(offset_s)), compute, kind='row times').times
+
+    def _times_digest(self, times_s):
+        """_bytes_digest of times, kept with the arrays row_times_s hands out: an iteration keys its caches by the
+        same rows a dozen times, and hashing a star hop's (1 MB) each time cost 2.5 % of a compare. Other arrays
+        are hashed each time (they may change between calls)."""
+        for keyed in self._caches['row times'].values():
+            if keyed.times is times_s:
+                if keyed.digest is None:
+                    keyed.digest = _bytes_digest(times_s)
+                return keyed.digest
+        return _bytes_digest(times_s)
 
     def camera_context(self, effects: Mapping[str, EffectParams], camera_index: int, times_s: np.ndarray) -> CameraContext:
         """The CameraContext of one camera's rows: what plug-in hooks see on the model side (effects.context).
@@ -753,6 +771,14 @@ def tick_means(per_sample: np.ndarray, tick_start_index: np.ndarray) -> np.ndarr
 def _bytes_digest(array):
     """A digest of a float array's values, to key a cache by (the same values come as new arrays)."""
     return hashlib.blake2b(np.ascontiguousarray(array, dtype=float).tobytes(), digest_size=16).digest()
+
+
+@dataclasses.dataclass
+class _KeyedTimes:
+    """Row times as row_times_s keeps them, and their digest once a cache has asked for it."""
+
+    times: np.ndarray
+    digest: bytes | None = None
 
 
 def _read_only(array):

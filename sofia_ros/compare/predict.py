@@ -41,7 +41,10 @@ from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import (
     Scene,
     camera_errors,
-    camera_from_tarf_dcm,
+    flexure_dcm,
+    flexure_key,
+    mounted_dcm,
+    mounting_key,
     refracted_directions_hrf,
     shifted_centroids_px,
     star_directions_irf,
@@ -70,7 +73,8 @@ _PLACE_EPOCH_S = 300.0
 #: 'anchors': the anchors' knot weights and rotations at a set of times (2-3 MB each on a star hop): an iteration
 #: asks for one set of each at its anchors for its trial prediction, its IRF derivative and its gyro columns.
 #: 'row times': the rows' times under a HIPO clock offset (1 MB on a star hop), with their digest (_times_digest).
-_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4, 'row times': 8}
+#: 'flexure': each camera's flexure DCMs at its rows (9 MB for all a star hop's cameras), which its mountings share.
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4, 'row times': 8, 'flexure': 8}
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -587,12 +591,18 @@ class Predictor:
         if context_key is not None:
             context = self._cached(('context', camera, context_key),
                                    lambda: self.camera_context(effects, index, times_s))
-        # Only rotation hooks see the context; centroid shifts act after the mounting, whatever their parameters.
-        key = ('mount', camera, repr(dataclasses.replace(errors, shift_plugins=())),
-               context_key if errors.plugins else None)
-        mounting = self._cached(key, lambda: camera_from_tarf_dcm(
-            errors, centroids.elevation_deg[centroids.camera_index == index], context))
-        return errors, mounting, context
+        # Only rotation hooks see the context. The mounting is kept by what turns the frame alone (a HIPO clock
+        # offset or a detector's fiducials leave it), and its flexure apart from the fixed mounting: a step of a
+        # boresight offset or a rotation of field multiplies the kept flexure again (from_rotvec of the rows saved).
+        hooks_context = context_key if errors.plugins else None
+
+        def mounting():
+            flexure = self._cached(('flexure', camera, flexure_key(errors), hooks_context), lambda: _read_only(
+                flexure_dcm(errors, centroids.elevation_deg[centroids.camera_index == index], context)),
+                                   kind='flexure')
+            return _read_only(mounted_dcm(errors, flexure))
+
+        return errors, self._cached(('mount', camera, mounting_key(errors), hooks_context), mounting), context
 
     @staticmethod
     def _star_key(effects):

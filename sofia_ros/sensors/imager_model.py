@@ -88,6 +88,10 @@ __all__ = [
     'camera_errors',
     'flexure_rotation_arcsec',
     'camera_from_tarf_dcm',
+    'flexure_dcm',
+    'flexure_key',
+    'mounted_dcm',
+    'mounting_key',
     'shifted_centroids_px',
     'star_directions_irf',
     'refracted_directions_hrf',
@@ -272,12 +276,42 @@ def _fixed_mounting_dcm(boresight_el_xel_arcsec, rotation_of_field_deg):
     return dcm
 
 
+def flexure_dcm(errors, elevation_deg, context=None):
+    """A(flexure) of camera_from_tarf_dcm: the gravity rotation (Tables 3.2, 3.3; 6.2) and plug-ins' as DCMs, (..., 3, 3)."""
+    flexure_rad = flexure_rotation_arcsec(errors, elevation_deg, context) * RAD_PER_ARCSEC
+    dcms = np.swapaxes(Rotation.from_rotvec(flexure_rad.reshape(-1, 3)).as_matrix(), -1, -2)
+    return dcms.reshape(*flexure_rad.shape[:-1], 3, 3)
+
+
+def mounted_dcm(errors, flexure):
+    """A(rotation of field) A(boresight offset) times a camera's flexure DCMs (flexure_dcm), (..., 3, 3) (3.3.1, 3.3.3)."""
+    mounting = _fixed_mounting_dcm(errors.boresight_el_xel_arcsec, errors.rotation_of_field_deg) @ flexure.reshape(-1, 3, 3)
+    return mounting.reshape(flexure.shape)
+
+
 def camera_from_tarf_dcm(errors, elevation_deg, context=None):
     """True A_CAM,TARF = A(rotation of field) A(boresight offset) A(flexure) (3.3.1, 3.3.3, 3.4.1); (..., 3, 3)."""
-    flexure_rad = flexure_rotation_arcsec(errors, elevation_deg, context) * RAD_PER_ARCSEC
-    flexure_dcm = np.swapaxes(Rotation.from_rotvec(flexure_rad.reshape(-1, 3)).as_matrix(), -1, -2)
-    mounting = _fixed_mounting_dcm(errors.boresight_el_xel_arcsec, errors.rotation_of_field_deg) @ flexure_dcm
-    return mounting.reshape(*flexure_rad.shape[:-1], 3, 3)
+    return mounted_dcm(errors, flexure_dcm(errors, elevation_deg, context))
+
+
+#: CameraErrors fields that do not turn a camera's frame against TARF (camera_from_tarf_dcm): the detector and the
+#: centroid shifts act after it, the seeing on the centroids, the clock offset and the weather on the stars' times
+#: and places. A field added to CameraErrors counts for the frame until it is named here (a cache misses, never errs).
+_NOT_MOUNTING_FIELDS = frozenset({'detector', 'shift_plugins', 'seeing_rms_arcsec', 'clock_offset_s', 'weather'})
+#: The fields of the fixed mounting (_fixed_mounting_dcm), which flexure_dcm does not depend on.
+_FIXED_MOUNTING_FIELDS = frozenset({'boresight_el_xel_arcsec', 'rotation_of_field_deg'})
+
+
+def mounting_key(errors):
+    """What camera_from_tarf_dcm takes from ``errors`` (besides elevation and context), as a string to key a cache by."""
+    return repr([(field.name, getattr(errors, field.name)) for field in dataclasses.fields(errors)
+                 if field.name not in _NOT_MOUNTING_FIELDS])
+
+
+def flexure_key(errors):
+    """What flexure_dcm takes from ``errors`` (besides elevation and context), as a string to key a cache by."""
+    return repr([(field.name, getattr(errors, field.name)) for field in dataclasses.fields(errors)
+                 if field.name not in _NOT_MOUNTING_FIELDS | _FIXED_MOUNTING_FIELDS])
 
 
 def star_directions_irf(stars, scene, elapsed_s, weather=None):

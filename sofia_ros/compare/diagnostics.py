@@ -305,7 +305,7 @@ def _equivalents(frame_variables, variable):
 
 
 def residual_diagnostics(observations: Observations, fit: ModelFit, predictor: Predictor, noise_arcsec: np.ndarray,
-                         prior: AnchorPrior) -> Diagnostics:
+                         prior: AnchorPrior, *, variables: Mapping[str, np.ndarray] | None = None) -> Diagnostics:
     """Judge every camera and gyro axis of a fit: RMS against floor, trends and periods (family-wise sigmas).
 
     Args:
@@ -314,11 +314,12 @@ def residual_diagnostics(observations: Observations, fit: ModelFit, predictor: P
         predictor: the bag's predictor.
         noise_arcsec: each camera's centroid noise ["] (compare.floor.centroid_noise_arcsec).
         prior: the anchors' prior (compare.prior).
+        variables: the fit's row_variables where the caller has them (split_consistency takes the same), or None.
 
     Returns:
         Every observable's judgement and the findings, strongest first.
     """
-    variables = row_variables(observations, fit, predictor)
+    variables = row_variables(observations, fit, predictor) if variables is None else variables
     tests, observables = [], {}
     for series in _camera_series(observations, fit, noise_arcsec, variables):
         name, floor, residual = series.observable, series.floor_arcsec, series.residual_arcsec
@@ -470,20 +471,22 @@ def _split_step(fit, keep_rows, equations):
     return fit.values + step[parameters], np.where(determined[parameters], sigma, np.nan)
 
 
-def split_consistency(observations: Observations, fit: ModelFit, predictor: Predictor) -> list[ConsistencyFinding]:
+def split_consistency(observations: Observations, fit: ModelFit, predictor: Predictor, *,
+                      variables: Mapping[str, np.ndarray] | None = None) -> list[ConsistencyFinding]:
     """Fitted terms that change between halves of the data: [{param, split, values, sigmas, significance_sigma}].
 
     Args:
         observations: the bag's observations.
         fit: the fit whose free parameters are compared between halves.
         predictor: the bag's predictor.
+        variables: the fit's row_variables where the caller has them (residual_diagnostics takes the same), or None.
 
     Returns:
         The terms that differ at DETECTION_SIGMA (family-wise), the most significant first.
     """
     if not fit.free:
         return []
-    variables = row_variables(observations, fit, predictor)
+    variables = row_variables(observations, fit, predictor) if variables is None else variables
     comparisons = []
     for split, lower in _split_masks(variables, observations.centroids).items():
         lower_equations, upper_equations = fit.split_normal_equations(np.repeat(lower, 2))

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from sofia_ros.analysis.ranking import CandidateTerm
-from sofia_ros.compare.diagnostics import residual_diagnostics, split_consistency
+from sofia_ros.compare.diagnostics import residual_diagnostics, row_variables, split_consistency
 from sofia_ros.compare.fit import ModelFit, WhitenedProblem, fit_model
 from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import content_key, read_observations, record_fields, step_store
@@ -291,8 +291,11 @@ class BagSource:
         Returns:
             The Judgement.
         """
-        return Judgement(residual_diagnostics(self.observations, fit, self.predictor, self.noise_arcsec, self.prior),
-                         split_consistency(self.observations, fit, self.predictor))
+        # The rows' variables once for both (the specific forces and slew angles: 0.2 s a judgement on a star hop).
+        variables = row_variables(self.observations, fit, self.predictor)
+        return Judgement(residual_diagnostics(self.observations, fit, self.predictor, self.noise_arcsec, self.prior,
+                                              variables=variables),
+                         split_consistency(self.observations, fit, self.predictor, variables=variables))
 
     def candidate_names(self, names: list[str], judgement: Judgement) -> list[str]:
         """The catalogue's candidates and an empirical term for each shape the diagnostics found.

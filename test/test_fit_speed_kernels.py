@@ -137,3 +137,13 @@ def test_row_times_are_kept_read_only_and_keyed_by_their_digest(predictor_effect
     assert predictor._times_digest(other) == _bytes_digest(times)
     other[0] += 1.0
     assert predictor._times_digest(other) == _bytes_digest(other)
+
+
+def test_without_a_fixed_mounting_a_camera_is_mounted_by_its_flexure_alone():
+    elevation = np.linspace(22.0, 58.0, 40)
+    errors = _errors('fpi', imager_boresight_offset={'fpi_el_arcsec': 0.0, 'fpi_xel_arcsec': 0.0},
+                     imager_rotation_of_field={'fpi_deg': 0.0})
+    flexure = flexure_dcm(errors, elevation)
+    assert mounted_dcm(errors, flexure) is flexure
+    np.testing.assert_allclose(camera_from_tarf_dcm(errors, elevation), _independent_mounting(errors, elevation),
+                               rtol=0, atol=1e-13)

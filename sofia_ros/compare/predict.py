@@ -65,16 +65,18 @@ class NamedParameter(Protocol):
 
 #: Star places are evaluated on this grid and interpolated; unrefracted places move < 0.003" per minute in IRF.
 _PLACE_EPOCH_S = 300.0
-#: Entries of each cache, least recently used dropped first. 'main': gyro tracks, star places, camera
-#: mountings and hook contexts (a star hop's gyro track is 2.5 MB; a fit steps through a few new ones per
-#: iteration). 'rows': attitudes at the rows and their linearization maps (a star hop's are 9 MB each): a
-#: Gauss-Newton step evaluates the same rows under the same gyro errors for its prediction, its derivatives
-#: and its columns. 'cameras': each camera's errors under an effect set (a column asks for them per camera).
-#: 'anchors': the anchors' knot weights and rotations at a set of times (2-3 MB each on a star hop): an iteration
-#: asks for one set of each at its anchors for its trial prediction, its IRF derivative and its gyro columns.
-#: 'row times': the rows' times under a HIPO clock offset (1 MB on a star hop), with their digest (_times_digest).
-#: 'flexure': each camera's flexure DCMs at its rows (9 MB for all a star hop's cameras), which its mountings share.
-_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4, 'row times': 8, 'flexure': 8}
+#: Entries of each cache, least recently used dropped first. 'main': gyro tracks, star places and hook contexts
+#: (a star hop's gyro track is 2.5 MB; a fit steps through a few new ones per iteration). 'rows': attitudes at
+#: the rows and their linearization maps (a star hop's are 9 MB each): a Gauss-Newton step evaluates the same rows
+#: under the same gyro errors for its prediction, its derivatives and its columns. 'cameras': each camera's errors
+#: under an effect set (a column asks for them per camera). 'anchors': the anchors' knot weights and rotations at a
+#: set of times (2-3 MB each on a star hop): an iteration asks for one set of each at its anchors for its trial
+#: prediction, its IRF derivative and its gyro columns. 'row times': the rows' times under a HIPO clock offset (1 MB
+#: on a star hop), with their digest (_times_digest). 'flexure': each camera's flexure DCMs at its rows (9 MB for
+#: all a star hop's cameras), which its mountings share. 'mountings': each camera's A_CAM,TARF at its rows (its
+#: flexure's array itself without a fixed mounting), apart from 'main', whose gyro tracks pushed them out.
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4, 'row times': 8, 'flexure': 8,
+                  'mountings': 8}
 
 
 def _dcms_from_rotvecs(rotvecs):
@@ -606,7 +608,8 @@ class Predictor:
                                    kind='flexure')
             return _read_only(mounted_dcm(errors, flexure))
 
-        return errors, self._cached(('mount', camera, mounting_key(errors), hooks_context), mounting), context
+        return errors, self._cached(('mount', camera, mounting_key(errors), hooks_context), mounting,
+                                    kind='mountings'), context
 
     @staticmethod
     def _star_key(effects):

@@ -277,16 +277,22 @@ def _fixed_mounting_dcm(boresight_el_xel_arcsec, rotation_of_field_deg):
 
 
 def flexure_dcm(errors, elevation_deg, context=None):
-    """A(flexure) of camera_from_tarf_dcm: the gravity rotation (Tables 3.2, 3.3; 6.2) and plug-ins' as DCMs, (..., 3, 3)."""
+    """A(flexure) of camera_from_tarf_dcm: the gravity rotation (Tables 3.2, 3.3; 6.2) and plug-ins', (..., 3, 3)."""
     flexure_rad = flexure_rotation_arcsec(errors, elevation_deg, context) * RAD_PER_ARCSEC
     dcms = np.swapaxes(Rotation.from_rotvec(flexure_rad.reshape(-1, 3)).as_matrix(), -1, -2)
     return dcms.reshape(*flexure_rad.shape[:-1], 3, 3)
 
 
 def mounted_dcm(errors, flexure):
-    """A(rotation of field) A(boresight offset) times a camera's flexure DCMs (flexure_dcm), (..., 3, 3) (3.3.1, 3.3.3)."""
-    mounting = _fixed_mounting_dcm(errors.boresight_el_xel_arcsec, errors.rotation_of_field_deg) @ flexure.reshape(-1, 3, 3)
-    return mounting.reshape(flexure.shape)
+    """A(rotation of field) A(boresight offset) times a camera's flexure DCMs (flexure_dcm), (..., 3, 3) (3.3.1, 3.3.3).
+
+    Without a boresight offset or a rotation of field, ``flexure`` itself: the identity's product gives back the
+    same numbers bit for bit (1 x + 0 y + 0 z), at the cost of a batched product of every row.
+    """
+    if errors.boresight_el_xel_arcsec == (0.0, 0.0) and errors.rotation_of_field_deg == 0.0:
+        return flexure
+    fixed = _fixed_mounting_dcm(errors.boresight_el_xel_arcsec, errors.rotation_of_field_deg)
+    return (fixed @ flexure.reshape(-1, 3, 3)).reshape(flexure.shape)
 
 
 def camera_from_tarf_dcm(errors, elevation_deg, context=None):
@@ -303,7 +309,7 @@ _FIXED_MOUNTING_FIELDS = frozenset({'boresight_el_xel_arcsec', 'rotation_of_fiel
 
 
 def mounting_key(errors):
-    """What camera_from_tarf_dcm takes from ``errors`` (besides elevation and context), as a string to key a cache by."""
+    """What camera_from_tarf_dcm takes from ``errors`` (besides elevation and context), as a string for a cache key."""
     return repr([(field.name, getattr(errors, field.name)) for field in dataclasses.fields(errors)
                  if field.name not in _NOT_MOUNTING_FIELDS])
 

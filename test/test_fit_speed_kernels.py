@@ -147,3 +147,21 @@ def test_without_a_fixed_mounting_a_camera_is_mounted_by_its_flexure_alone():
     assert mounted_dcm(errors, flexure) is flexure
     np.testing.assert_allclose(camera_from_tarf_dcm(errors, elevation), _independent_mounting(errors, elevation),
                                rtol=0, atol=1e-13)
+
+
+def test_kept_resolved_parameters_are_resolve_params_own_and_each_caller_gets_a_copy():
+    from sofia_ros.effects import resolve_params
+    from sofia_ros.errors import ConfigError
+    from sofia_ros.sensors.imager_model import _resolved_params
+
+    given = {'fpi_deg': 0.25, 'wfi_deg': 1}
+    first = _resolved_params('imager_rotation_of_field', given)
+    assert first == resolve_params('imager_rotation_of_field', given)
+    first['fpi_deg'] = 99.0
+    assert _resolved_params('imager_rotation_of_field', given)['fpi_deg'] == 0.25
+    # What repr tells apart is resolved apart: a bool where a number belongs is refused each time, never kept.
+    for _ in range(2):
+        with pytest.raises(ConfigError, match='fpi_deg'):
+            _resolved_params('imager_rotation_of_field', {'fpi_deg': True})
+    assert camera_errors('fpi', {'imager_rotation_of_field': given}) == camera_errors(
+        'fpi', {'imager_rotation_of_field': resolve_params('imager_rotation_of_field', given)})

@@ -51,7 +51,7 @@ import functools
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sofia_ros.effects import plugin_terms, resolve_params
+from sofia_ros.effects import get_effect, plugin_terms, resolve_params
 from sofia_ros.effects.context import CameraContext
 from sofia_ros.errors import ConfigError, InvalidArgumentError
 from sofia_ros.flexure import (
@@ -202,12 +202,38 @@ class CameraErrors:
     shift_plugins: tuple = ()
 
 
+#: Effect parameter sets _resolved_params keeps (a fit's steps of one model come back within an iteration).
+_RESOLVED_ENTRIES = 512
+_resolved = {}
+
+
+def _resolved_params(name, params):
+    """resolve_params(name, params), kept: a fit steps one number of one effect at a time, and camera_errors resolved
+    every effect of the set again for each step and camera (with the weather's checks, 16 % of the fits of an
+    alignment compare). Kept by the effect's spec (a plug-in registered anew is resolved anew) and the repr of what
+    was given (plain YAML values: repr tells 1 from 1.0 and True); handed out as a copy, shared by no caller."""
+    spec = get_effect(name)
+    key = (name, id(spec), repr(params))
+    kept = _resolved.get(key)
+    if kept is None or kept[0] is not spec:
+        if len(_resolved) >= _RESOLVED_ENTRIES:
+            _resolved.clear()  # rather than an order: what a fit asks for again comes back within an iteration
+        kept = _resolved[key] = (spec, resolve_params(name, params))
+    return dict(kept[1])
+
+
+@functools.lru_cache(maxsize=16)
+def _weather(temperature_c, pressure_hpa, relative_humidity, wavelength_um):
+    """The Weather of resolved refraction parameters, checked once per set (Weather checks each value)."""
+    return Weather(temperature_c, pressure_hpa, relative_humidity, wavelength_um)
+
+
 def camera_errors(camera, effects):
     """The errors an effect set gives one camera; unknown effects or parameters raise (docs/effects.md)."""
     camera = _checked_camera(camera)
     if not isinstance(effects, dict):
         raise ConfigError(f'effects must map effect names to parameters, got {type(effects).__name__}')
-    effects = {name: resolve_params(name, params) for name, params in effects.items()}
+    effects = {name: _resolved_params(name, params) for name, params in effects.items()}
     values = {}
     offset, field = effects.get('imager_boresight_offset'), effects.get('imager_rotation_of_field')
     if offset is not None and camera != 'hipo':
@@ -229,8 +255,8 @@ def camera_errors(camera, effects):
         values['clock_offset_s'] = effects['timestamp_offset']['offset_s']
     refraction = effects.get('atmospheric_refraction')
     if refraction is not None:
-        values['weather'] = Weather(refraction['temperature_c'], refraction['pressure_hpa'],
-                                    refraction['humidity'], refraction['wavelength_um'])
+        values['weather'] = _weather(refraction['temperature_c'], refraction['pressure_hpa'],
+                                     refraction['humidity'], refraction['wavelength_um'])
     return CameraErrors(camera, _true_detector(camera, effects), plugins=plugin_terms(effects, 'camera_rotation'),
                         shift_plugins=plugin_terms(effects, 'camera_shift_px'), **values)
 

@@ -74,9 +74,10 @@ _PLACE_EPOCH_S = 300.0
 #: prediction, its IRF derivative and its gyro columns. 'row times': the rows' times under a HIPO clock offset (1 MB
 #: on a star hop), with their digest (_times_digest). 'flexure': each camera's flexure DCMs at its rows (9 MB for
 #: all a star hop's cameras), which its mountings share. 'mountings': each camera's A_CAM,TARF at its rows (its
-#: flexure's array itself without a fixed mounting), apart from 'main', whose gyro tracks pushed them out.
-_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4, 'row times': 8, 'flexure': 8,
-                  'mountings': 8}
+#: flexure's array itself without a fixed mounting), apart from 'main', whose gyro tracks pushed them out. These
+#: three hold 4 entries, a set of cameras (8 each held 50 MB more at the peak of a star hop's compare).
+_CACHE_ENTRIES = {'main': 32, 'rows': 4, 'cameras': 128, 'reach': 1024, 'anchors': 4, 'row times': 4, 'flexure': 4,
+                  'mountings': 4}
 
 
 def _dcms_from_rotvecs(rotvecs):

@@ -6,7 +6,7 @@ step but the last with that model's and reads them back (compare.steps). Its who
 values of the model it came from and the refit's of the new term (the start that closes a chain ending in another
 minimum, test_ledger_given_start). Before, the reached model carried the fitted values for its chain too, and every
 step of it was fitted again: on the Waco 2004 alignment 52 chain fits in 12 rounds, 16 now, with the same rounds,
-answer and ledger. Its whole fit starts at zero anchors but takes the terms its parent converged as fitted.
+answer and ledger.
 """
 
 from pathlib import Path
@@ -25,16 +25,12 @@ ADDED, REFIT = 'timestamp_offset', {'offset_s': 0.02}
 
 
 class _Counted(BagSource):
-    """A BagSource that counts its fits (chain steps fitted, not read back, and whole fits) and keeps the start of the
-    whole fit from the given values (the one fit without anchors to start from)."""
+    """A BagSource that counts its fits (chain steps fitted, not read back, and whole fits)."""
 
     fits = 0
-    whole_start = None
 
     def _fitted(self, effects, free, start):
         type(self).fits += 1
-        if start is None or start.anchors_rad is None:
-            type(self).whole_start = start
         return super()._fitted(effects, free, start)
 
 
@@ -48,7 +44,7 @@ def parent_and_child(campaign_bags):
     parent_rows, parent_fit = _ledger(BagSource(observations, nominal), Progress.silent())
     outcome = _Outcome({'candidates': [{'effect': ADDED, 'params': REFIT}]}, parent_fit.bic, parent_fit.effects)
     child = _next_model(nominal, outcome, {'action': 'add', 'effect': ADDED, 'term': None})
-    _Counted.fits, _Counted.whole_start = 0, None
+    _Counted.fits = 0
     child_rows, _ = _ledger(_Counted(observations, child), Progress.silent())
     return nominal, parent_fit, parent_rows, child, child_rows, _Counted.fits
 
@@ -71,14 +67,3 @@ def test_its_chain_reads_the_parents_steps_back_and_fits_only_its_last_and_the_w
     assert child_rows[:len(parent_rows)] == parent_rows
     assert [row['term'] for row in child_rows[len(parent_rows):]] == [ADDED]
     assert fits == 2, 'the chain\'s new last step and the whole model from the fitted values; the rest read back'
-
-
-def test_its_whole_fit_starts_at_zero_anchors_keeping_the_parents_converged_terms(parent_and_child):
-    """From zero anchors, its own start: from the parent's anchors round 9 of the Waco 2004 alignment's search ended
-    3.3 higher. The parent's terms converged at these values, so a time shift among them keeps its basin (the grid
-    of compare.fit._profiled_values, 4 of the whole fits' 9.4 CPU-s in that search, is not run again); the added
-    term, whose values may be a linearized guess, is profiled as before."""
-    nominal, _, _, _, _, _ = parent_and_child
-    start = _Counted.whole_start
-    assert start is not None and start.anchors_rad is None
-    assert {p.effect for p in start.free} == set(nominal.fitted)

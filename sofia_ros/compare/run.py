@@ -35,7 +35,7 @@ from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.compare.records import LedgerRow
-from sofia_ros.compare.search import ReachedModel, chain_effects
+from sofia_ros.compare.search import chain_effects
 from sofia_ros.compare.steps import ChainStep, StepStore, step_key
 from sofia_ros.compare.verdict import BAG_OBSERVABLE_KEYS, beyond_bag_floor, empirical_candidate_names
 from sofia_ros.config import EffectConfig
@@ -57,15 +57,6 @@ class CompareResult:
     best_fit: Any
     best_name: str | None
     predictor: Any
-
-
-@dataclass(frozen=True, eq=False)
-class _ZeroAnchors:
-    """A fit's start at zero anchors with ``free``, the parameters a fit converged at the values given (a time shift
-    among them keeps its basin: compare.fit._profiled_values does not run its grid)."""
-
-    free: tuple
-    anchors_rad: None = None
 
 
 def _hash_arrays(digest: Any, observations: Any) -> None:
@@ -221,9 +212,7 @@ class BagSource:
         Args:
             effects: {effect: params} at the starting values.
             free: FreeParameters to fit.
-            start: a fit whose anchors the fit starts from, or None: the whole model from its given values and zero
-                anchors (for a model the search reached, the time shifts the fit it came from converged keep their
-                basin: compare.search.ReachedModel.converged).
+            start: a fit whose anchors the fit starts from, or None.
 
         Returns:
             The ModelFit.
@@ -231,15 +220,7 @@ class BagSource:
         Raises:
             FitError: the starting values put stars off their detectors.
         """
-        return self._fitted(effects, free, self._given_start_fitted(free) if start is None else start).released()
-
-    def _given_start_fitted(self, free: tuple) -> _ZeroAnchors | None:
-        """Where the whole fit of a model the search reached starts: zero anchors, its own start (from the anchors of
-        the fit it came from, round 9 of the Waco 2004 alignment's search ended 3.3 higher), with the parameters
-        that fit converged taken as fitted; None (zero anchors, every time shift's grid) for any other model."""
-        if not isinstance(self.model, ReachedModel):
-            return None
-        return _ZeroAnchors(tuple(p for p in free if p.effect in self.model.converged))
+        return self._fitted(effects, free, start).released()
 
     def _fitted(self, effects: dict, free: tuple, start: Any) -> ModelFit:
         """fit_model from ``start``'s anchors, with the columns of its last iteration."""

@@ -479,7 +479,7 @@ class _Outcome:
         return self.bic < answer.bic - (SIGNIFICANT_DELTA_BIC if self.explained else 0.0)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True)
 class ReachedModel(EffectConfig):
     """A model the search reaches (_next_model). Its ``effects`` are where its whole fit starts: the fitted values of
     the model it came from and the refit's values of the term it added. ``chain_effects`` are where its ledger's
@@ -488,9 +488,6 @@ class ReachedModel(EffectConfig):
     with that model's and reads them back (compare.steps) instead of fitting them again from other starts."""
 
     chain_effects: dict = dataclasses.field(default_factory=dict)
-    #: The terms the fit its effects come from converged at those values: a time shift among them is in its basin,
-    #: and the whole fit does not run its grid again (compare.fit._profiled_values; BagSource.fit).
-    converged: frozenset = frozenset()
 
 
 def chain_effects(model: EffectConfig) -> dict:
@@ -520,8 +517,7 @@ def _next_model(model, outcome, step):
         effects[step['effect']] = resolve_params(step['effect'], start)
         chain[step['effect']] = dict(effects[step['effect']])
         fitted.add(step['effect'])
-    return ReachedModel(effects, frozenset(fitted), model.scenario, model.text, model.source, chain,
-                        frozenset(model.fitted) - removed)
+    return ReachedModel(effects, frozenset(fitted), model.scenario, model.text, model.source, chain)
 
 
 def _steps(outcome):

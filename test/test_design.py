@@ -284,6 +284,7 @@ def _stubbed_design(monkeypatch, plan_only_bag, status, reproduced=()):
     monkeypatch.setattr(design_cli, '_library_bag', lambda *args: plan_only_bag)
     monkeypatch.setattr(observations, 'read_observations', lambda path: Stub())
     monkeypatch.setattr(design_run, 'design_plan', lambda *args, **kwargs: dict(document))
+    monkeypatch.setattr(design_geometry, 'fit_model_on_bag', lambda *args, **kwargs: None)
     monkeypatch.setattr(design_geometry, 'fitted_model_effects', lambda *args, **kwargs: {})
 
 

@@ -411,7 +411,7 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     from sofia_ros.compare.cache import ObservationCache
     from sofia_ros.compare.observations import observation_cache, read_observations
     from sofia_ros.config import load_effect_config
-    from sofia_ros.design.geometry import fitted_model_effects
+    from sofia_ros.design.geometry import fit_model_on_bag, fitted_model_effects
     from sofia_ros.design.run import check_members, design_plan, flown_elements
 
     bag, model_path, members = _source(args)
@@ -435,7 +435,8 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     # The bag first: its end and last temperature are where the library's temperature steps start.
     observations = read(bag, 'the bag')
     progress.phase('fitting the model on the bag (the library flights fly the telescope it fits)')
-    truth = _library_truth(thermal_control, fitted_model_effects(observations, model, anchor_spacing_s=args.anchor_s))
+    on_bag = fit_model_on_bag(observations, model, anchor_spacing_s=args.anchor_s)
+    truth = _library_truth(thermal_control, fitted_model_effects(on_bag))
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
     library, skipped = [], []
@@ -447,7 +448,7 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
         skipped += [name for name in missed if name in {element.name for element in elements}]
     progress.phase('linearizing the members on the bag and on the library flights')
     document = design_plan(observations, library, skipped, model, members, flight_s=flight_s, budget_s=budget_s,
-                           target=args.target, anchor_spacing_s=args.anchor_s)
+                           target=args.target, anchor_spacing_s=args.anchor_s, on_bag=on_bag)
     _print_design(document, out)
     if document['status'] in {'designed', 'not_reached'} and args.plan_out:
         planned = plan_document(old_plan)

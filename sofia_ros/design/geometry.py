@@ -10,17 +10,18 @@ gyro-noise prior, are the nuisance each block eliminates.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from sofia_ros.compare.fit import FreeParameter, WhitenedProblem, free_parameters
+from sofia_ros.compare.fit import FreeParameter, ModelFit, WhitenedProblem, free_parameters
 from sofia_ros.compare.pipeline import switched_on
 from sofia_ros.compare.run import BagSource
 from sofia_ros.config import EffectConfig
 from sofia_ros.design.separation import Information, profiled_gram, pseudo_inverse
 
-__all__ = ['BagColumns', 'bag_columns', 'element_windows', 'fitted_model_effects', 'member_labels']
+__all__ = ['BagColumns', 'ModelOnBag', 'bag_columns', 'element_windows', 'fit_model_on_bag', 'fitted_model_effects',
+           'member_labels']
 
 
 def member_labels(member: Sequence[str]) -> tuple:
@@ -74,8 +75,32 @@ class BagColumns:
         return Information(self.labels, gram, gradient, int(np.count_nonzero(weights)))
 
 
+class ModelOnBag(NamedTuple):
+    """The model fitted to a bag as compare fits it: the bag's BagSource, the fitted terms, the fit."""
+
+    source: BagSource
+    shared: list
+    fit: ModelFit
+
+
+def fit_model_on_bag(observations: object, model: EffectConfig, *, anchor_spacing_s: float = 30.0) -> ModelOnBag:
+    """Fit ``model``'s terms to the observations (compare.run.BagSource.fit from zero anchors).
+
+    Raises:
+        FitError: the model's own fit fails.
+    """
+    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
+    shared = free_parameters(source.ledger_terms())
+    return ModelOnBag(source, shared, source.fit(source.effects, shared, None))
+
+
+def fitted_model_effects(on_bag: ModelOnBag) -> dict:
+    """{effect: {parameter: value}} of a model fitted to a bag (fit_model_on_bag)."""
+    return {name: dict(params) for name, params in on_bag.fit.effects.items()}
+
+
 def bag_columns(observations: object, model: EffectConfig, members: Sequence[Sequence[str]], *,
-                anchor_spacing_s: float = 30.0) -> BagColumns:
+                anchor_spacing_s: float = 30.0, on_bag: ModelOnBag | None = None) -> BagColumns:
     """Fit ``model`` to the observations and linearize every member of the competing set there.
 
     Args:
@@ -83,6 +108,7 @@ def bag_columns(observations: object, model: EffectConfig, members: Sequence[Seq
         model: the model (its fitted terms are the shared parameters).
         members: each member's effect names.
         anchor_spacing_s: seconds between attitude anchors (compare's --anchor-s).
+        on_bag: the model already fitted to these observations (fit_model_on_bag), or None: fitted here.
 
     Returns:
         The BagColumns.
@@ -90,7 +116,9 @@ def bag_columns(observations: object, model: EffectConfig, members: Sequence[Seq
     Raises:
         FitError: the model's own fit fails.
     """
-    source, shared, fit = _model_fit(observations, model, anchor_spacing_s)
+    if on_bag is None:
+        on_bag = fit_model_on_bag(observations, model, anchor_spacing_s=anchor_spacing_s)
+    source, shared, fit = on_bag
     effects, free = dict(fit.effects), list(shared)
     for name in dict.fromkeys(name for member in members for name in member):
         if name in effects:
@@ -107,24 +135,6 @@ def bag_columns(observations: object, model: EffectConfig, members: Sequence[Seq
     augmented = fit.augmented_residual
     return BagColumns(_labels(free), _labels(shared), anchors, source.prior.gram, columns, fit.whitened,
                       source.prior.matrix.T @ fit.prior_residual, times, float(augmented @ augmented), len(augmented))
-
-
-def fitted_model_effects(observations: object, model: EffectConfig, *, anchor_spacing_s: float = 30.0) -> dict:
-    """{effect: {parameter: value}} of ``model`` fitted to the observations (compare's fit of its terms, as bag_columns
-    fits it).
-
-    Raises:
-        FitError: the model's own fit fails.
-    """
-    _, _, fit = _model_fit(observations, model, anchor_spacing_s)
-    return {name: dict(params) for name, params in fit.effects.items()}
-
-
-def _model_fit(observations: object, model: EffectConfig, anchor_spacing_s: float) -> tuple:
-    """(the bag's BagSource, the model's fitted terms as FreeParameters, compare's fit of them)."""
-    source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s)
-    shared = free_parameters(source.ledger_terms())
-    return source, shared, source.fit(source.effects, shared, None)
 
 
 def _labels(free: Sequence[FreeParameter]) -> tuple:

@@ -25,13 +25,13 @@ from sofia_ros.compare.fit import FreeParameter, free_parameters
 from sofia_ros.config import EffectConfig
 from sofia_ros.design.check import member_fits
 from sofia_ros.design.elements import Choice, Element, Hypothesis, Prediction, choose_elements, predict
-from sofia_ros.design.geometry import BagColumns, bag_columns, element_windows, member_labels
+from sofia_ros.design.geometry import BagColumns, ModelOnBag, bag_columns, element_windows, member_labels
 from sofia_ros.design.separation import Information, fitted_values, rss_drop, sigma_of
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import BagError, ConfigError
 
-__all__ = ['MEASURED_AT_SIGMA', 'REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'StatedSize', 'check_members', 'design_plan',
-           'flown_elements', 'member_name', 'stated_sizes']
+__all__ = ['MEASURED_AT_SIGMA', 'REPRODUCED_BELOW', 'DesignDocument', 'ElementEntry', 'StatedSize', 'check_members',
+           'design_plan', 'flown_elements', 'member_name', 'stated_sizes']
 
 #: A true member's signature that the rival leaves less of than this (lambda / s^2, in units of the noise variance)
 #: is one it reproduces: the BIC cannot see it, only the members' parameter counts.
@@ -236,7 +236,7 @@ def check_members(model: EffectConfig, members: Sequence[Sequence[str]]) -> None
 
 def design_plan(observations: object, library: Sequence[tuple], skipped: Sequence[str], model: EffectConfig,
                 members: Sequence[Sequence[str]], *, flight_s: float, budget_s: float, target: float,
-                anchor_spacing_s: float = 30.0) -> DesignDocument:
+                anchor_spacing_s: float = 30.0, on_bag: ModelOnBag | None = None) -> DesignDocument:
     """The prediction and the choice for one competing set of two members.
 
     Args:
@@ -251,6 +251,7 @@ def design_plan(observations: object, library: Sequence[tuple], skipped: Sequenc
         target: the expected delta-BIC to reach in both directions (in the one left, where the rival reproduces the
             other member whatever is flown).
         anchor_spacing_s: seconds between attitude anchors.
+        on_bag: the model already fitted to the old bag (design.geometry.fit_model_on_bag), or None: fitted here.
 
     Returns:
         The DesignDocument (``status``: already_separated; inseparable, where a direction no element can separate is
@@ -262,7 +263,7 @@ def design_plan(observations: object, library: Sequence[tuple], skipped: Sequenc
         FitError: the model's fit fails.
     """
     check_members(model, members)
-    old = bag_columns(observations, model, members, anchor_spacing_s=anchor_spacing_s)
+    old = bag_columns(observations, model, members, anchor_spacing_s=anchor_spacing_s, on_bag=on_bag)
     base = old.information()
     fitted = _hypotheses(old, base, members)
     shared = list(old.shared_labels)

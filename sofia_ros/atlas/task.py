@@ -25,7 +25,7 @@ from sofia_ros.atlas.scoring import score_truth, stated_competitors, stated_pair
 from sofia_ros.campaigns.registry import campaign_named
 from sofia_ros.config import EffectConfig, parse_effect_config
 
-__all__ = ['ROW_FIELDS', 'TaskSetup', 'reference_param', 'run_task', 'scratch_directory']
+__all__ = ['ROW_FIELDS', 'TaskSetup', 'reference_param', 'run_task', 'scratch_directory', 'search_truth_bag']
 
 #: The row of one task: name -> kind ('str', 'float', 'int', 'bool'); the Parquet schema (atlas.store).
 ROW_FIELDS = {
@@ -156,7 +156,7 @@ def _truth_fields(task: AtlasTask, model: EffectConfig, result, final: EffectCon
             'score': score_truth(task.hidden, added, removed, status, stated_pairs(competing, equivalents), absorbed)}
 
 
-def _run_truth(task: AtlasTask, setup: TaskSetup, bag_path: Path) -> dict:
+def search_truth_bag(task: AtlasTask, setup: TaskSetup, bag_path: Path) -> dict:
     """A truth's bag searched for ``task.search_rounds`` rounds (or compared once); the row's truth fields."""
     from sofia_ros.compare.observations import read_observations
     from sofia_ros.compare.run import compare_observations
@@ -210,7 +210,7 @@ def run_task(task: AtlasTask, setup: TaskSetup) -> dict:
             result = compare_bag(bag_path, setup.model, candidate_names=setup.candidates)
             row.update(_compare_fields(task, result.document))
         else:
-            row.update(_run_truth(task, setup, bag_path))
+            row.update(search_truth_bag(task, setup, bag_path))
     except Exception as err:  # one failed cell is a row with its error, never a stopped atlas
         row['error'] = f'{type(err).__name__}: {err}'.splitlines()[0][:500]
     finally:

@@ -43,10 +43,13 @@ OUTLIER_SIGMA = 5.0
 _MAX_ITERATIONS = 12
 #: A fit has converged when no parameter's step exceeds this fraction of its sigma (and no anchor moves 1e-8 rad).
 _STEP_TOLERANCE_SIGMA = 1e-2
-#: The largest share of rows beyond Huber's k at which a fit tries Newton's step first (fit_model).
-_NEWTON_OUTLIER_SHARE = 0.25
-#: The least share of a parameter's re-weighted curvature that rows inside k must give for Newton's step.
-_NEWTON_CURVATURE_SHARE = 0.1
+#: An iteration's linearized Huber problem is solved until its step is below this fraction of a sigma (and no
+#: anchor moves 1e-10 rad), in at most _INNER_STEPS steps (linearized_huber_step).
+_INNER_TOLERANCE_SIGMA = 1e-3
+_INNER_STEPS = 24
+#: Newton's curvature keeps this share of the re-weighted one: a parameter seen only by rows beyond k (a HIPO
+#: detector-field shape on a model that lacks the HIPO clock offset) has none of its own.
+_NEWTON_DAMPING = 1e-3
 _IRF_STEP_RAD = 1e-6
 #: A time shift's grid (catalogue family 'timing'): this many defaults either side of zero, 1/20 of a default apart.
 _PROFILE_REACH = 3.0
@@ -128,9 +131,8 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
     prior = anchor_prior.matrix
     weighted_anchors = rows_scaled(anchor_columns, weights)
     weighted_parameters = parameter_columns * weights[:, None]
-    cross = np.asarray(weighted_anchors.T @ parameter_columns)
-    gram = np.block([[(anchor_columns.T @ weighted_anchors).toarray() + anchor_prior.gram, cross],
-                     [cross.T, parameter_columns.T @ weighted_parameters]])
+    gram = _data_gram(anchor_columns, parameter_columns, weighted_anchors, weighted_parameters)
+    gram[:anchor_columns.shape[1], :anchor_columns.shape[1]] += anchor_prior.gram
     if gradient_weights is None:
         gradient = np.concatenate([weighted_anchors.T @ whitened + prior.T @ prior_residual,
                                    weighted_parameters.T @ whitened])
@@ -139,6 +141,13 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
         gradient = np.concatenate([anchor_columns.T @ weighted_residual + prior.T @ prior_residual,
                                    parameter_columns.T @ weighted_residual])
     return gram, gradient, _rss_after(anchor_columns, parameter_columns, prior, whitened, weights, prior_residual)
+
+
+def _data_gram(anchor_columns, parameter_columns, weighted_anchors, weighted_parameters):
+    """J^T W J of the data rows alone from the columns and the same columns weighted (rows_scaled): a new array."""
+    cross = np.asarray(weighted_anchors.T @ parameter_columns)
+    return np.block([[(anchor_columns.T @ weighted_anchors).toarray(), cross],
+                     [cross.T, parameter_columns.T @ weighted_parameters]])
 
 
 def _rss_after(anchor_columns, parameter_columns, prior, whitened, weights, prior_residual):
@@ -577,22 +586,134 @@ def _huber_weights(whitened):
     return np.where(magnitude <= HUBER_K, 1.0, HUBER_K / np.maximum(magnitude, 1e-300))
 
 
-def _huber_curvature(whitened):
-    """psi'(r) of the Huber cost: 1 inside k, 0 beyond, the weights of its Newton step's curvature."""
-    return (np.abs(whitened) <= HUBER_K).astype(float)
+def huber_line_minimum(residual: np.ndarray, change: np.ndarray, prior_residual: np.ndarray,
+                       prior_change: np.ndarray) -> float:
+    """The t >= 0 minimizing sum rho(r - t q) + |p - t q_p|^2 / 2 (Huber's rho, k = HUBER_K, as _robust_cost): the
+    least cost along a step of the linearized problem. The cost is convex and piecewise quadratic in t, its
+    derivative piecewise linear and rising: Newton's steps on the derivative, kept inside a bracket of its sign.
+
+    Args:
+        residual: the whitened data residuals r at t = 0.
+        change: what a whole step (t = 1) takes from them, q.
+        prior_residual: the prior rows' residuals p at t = 0.
+        prior_change: what a whole step takes from them, q_p.
+
+    Returns:
+        The minimizing t (0 where the step does not lower the cost).
+    """
+    prior_curvature = float(prior_change @ prior_change)
+
+    def slope_and_curvature(t):
+        moved = residual - t * change
+        inside = np.abs(moved) <= HUBER_K
+        psi = np.where(inside, moved, np.copysign(HUBER_K, moved))
+        slope = -float(psi @ change) - float((prior_residual - t * prior_change) @ prior_change)
+        return slope, float(np.square(change, where=inside, out=np.zeros_like(change)).sum()) + prior_curvature
+
+    low, high = 0.0, np.inf
+    if slope_and_curvature(0.0)[0] >= 0.0:
+        return 0.0
+    t = 1.0
+    for _ in range(60):
+        slope, curvature = slope_and_curvature(t)
+        if slope == 0.0:
+            return t
+        if slope < 0.0:
+            low = t
+        else:
+            high = t
+        newton = t - slope / curvature if curvature > 0.0 else np.inf
+        if low < newton < high:
+            following = newton
+        else:
+            following = 2.0 * low if np.isinf(high) else 0.5 * (low + high)
+        if abs(following - t) <= 1e-9 * max(abs(t), 1.0) or high - low <= 1e-6 * low:
+            return following
+        t = following
+    return low
 
 
-def _newton_applies(whitened, huber_weights, parameter_columns):
-    """Whether Newton's step can be trusted: few rows beyond k, and each parameter keeps a share of its re-weighted
-    curvature inside k. A parameter measured only by rows beyond k has no Newton curvature (a HIPO clock offset,
-    seen only while the telescope moves, on a model that lacks an effect): Newton's step leaves it where it is."""
-    beyond = np.abs(whitened) > HUBER_K
-    if np.mean(beyond) > _NEWTON_OUTLIER_SHARE:
-        return False
-    squares = parameter_columns**2
-    inside = (~beyond).astype(float) @ squares
-    reweighted = huber_weights @ squares
-    return bool(np.all(inside >= _NEWTON_CURVATURE_SHARE * reweighted))
+def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_columns: np.ndarray,
+                          anchor_prior: AnchorPrior, whitened: np.ndarray, prior_residual: np.ndarray,
+                          names: Sequence[str], rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """The step minimizing the Huber cost of an iteration's linearized problem (its columns held), and the sigmas
+    of its first re-weighted solve.
+
+    One Gauss-Newton step, re-weighted (curvature psi(r)/r) or Newton's (psi'), creeps where many rows lie beyond
+    k: a step-limited fraction of the way an iteration, each iteration predicting every row again and taking
+    every column again (the Waco star hop's HIPO detector-field shapes without the HIPO clock offset: 12
+    iterations, still 2 sigma a step). The linearized problem costs a product of its columns a step: its own
+    minimum, taken by the two steps in turn, each to its least cost along it (huber_line_minimum), is reached
+    in a few such steps, and the iterations are left to the prediction's non-linearity. Newton's curvature keeps
+    _NEWTON_DAMPING of the re-weighted one, for the parameters only rows beyond k see.
+
+    Args:
+        anchor_columns: whitened d data rows / d anchors (2N, 3K), sparse.
+        parameter_columns: whitened d data rows / d free parameters (2N, P).
+        anchor_prior: the anchors' prior.
+        whitened: the data rows' whitened residuals (2N).
+        prior_residual: the prior rows' residuals.
+        names: the 3K + P parameters' names.
+        rows: the number of rows (data and prior).
+
+    Returns:
+        The step (3K + P) and the sigmas of the first solve (3K + P; those of the old single step).
+    """
+    prior = anchor_prior.matrix
+    anchor_count = anchor_columns.shape[1]
+    unit_gram = []
+
+    def gram_of(weights):
+        """The Gram matrix at data weights: where few rows weigh other than 1 (those beyond k: 6 % on a star hop),
+        the Gram matrix of unit weights corrected by those rows alone."""
+        beyond = np.flatnonzero(weights != 1.0)
+        if 2 * beyond.size > weights.size:
+            gram = _data_gram(anchor_columns, parameter_columns, rows_scaled(anchor_columns, weights),
+                              parameter_columns * weights[:, None])
+        else:
+            if not unit_gram:
+                unit_gram.append(_data_gram(anchor_columns, parameter_columns, anchor_columns, parameter_columns))
+            anchors_beyond, parameters_beyond = anchor_columns[beyond], parameter_columns[beyond]
+            correction = weights[beyond] - 1.0
+            gram = unit_gram[0] + _data_gram(anchors_beyond, parameters_beyond,
+                                             rows_scaled(anchors_beyond, correction),
+                                             parameters_beyond * correction[:, None])
+        gram[:anchor_count, :anchor_count] += anchor_prior.gram
+        return gram
+
+    total = np.zeros(anchor_count + parameter_columns.shape[1])
+    residual, after_prior = whitened, prior_residual
+    first_sigma = None
+    for number in range(_INNER_STEPS):
+        huber = _huber_weights(residual)
+        curvature = huber if number % 2 == 0 else np.where(huber == 1.0, 1.0, _NEWTON_DAMPING * huber)
+        weighted_residual = huber * residual
+        gram = gram_of(curvature)
+        gradient = np.concatenate([anchor_columns.T @ weighted_residual + prior.T @ after_prior,
+                                   parameter_columns.T @ weighted_residual])
+        if first_sigma is None:
+            solved = normal_equations_fit(gram, gradient, _rss_after(anchor_columns, parameter_columns, prior, residual,
+                                                                     curvature, after_prior), names, rows)
+            direction, first_sigma = solved.step, solved.sigma
+        else:
+            direction = NormalInverse.of(gram).matrix @ gradient
+        change = anchor_columns @ direction[:anchor_count] + parameter_columns @ direction[anchor_count:]
+        prior_change = prior @ direction[:anchor_count]
+        length = huber_line_minimum(residual, change, after_prior, prior_change)
+        step = length * direction
+        total += step
+        residual, after_prior = residual - length * change, after_prior - length * prior_change
+        if _step_is_small(step[anchor_count:], step[:anchor_count], first_sigma[anchor_count:],
+                          _INNER_TOLERANCE_SIGMA, 1e-10):
+            break
+    return total, first_sigma
+
+
+def _step_is_small(parameter_step, anchor_step, sigma, tolerance_sigma, anchor_tolerance_rad):
+    """Whether no parameter steps beyond ``tolerance_sigma`` of its (finite) sigma and no anchor beyond the tolerance."""
+    bound = tolerance_sigma * np.where(np.isfinite(sigma), sigma, np.inf)
+    return bool(np.all(np.abs(parameter_step) <= bound)
+                and np.max(np.abs(anchor_step), initial=0.0) < anchor_tolerance_rad)
 
 
 def _robust_cost(whitened):
@@ -665,11 +786,11 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     """Robust Gauss-Newton over the anchors (under their gyro-noise prior, compare.prior) and the free parameters.
 
     Starts from the effects' given values, a time shift from the best of a grid (_profiled_values) unless it is
-    one of ``fitted``, the parameters a previous fit already converged at these values. Each iteration tries
-    Newton's step on the Huber cost where it applies (_newton_applies), else or if it raises the cost the
-    re-weighted (IRLS) step; both reach the same minimum, Newton's in fewer iterations. A re-weighted step that
-    raises the cost (or sends a star off its detector) is halved, up to seven times; a fit that cannot improve
-    stops where it is.
+    one of ``fitted``, the parameters a previous fit already converged at these values. Each iteration takes the
+    columns at its point and steps to the least Huber cost of that linearized problem (linearized_huber_step); a
+    step that raises the cost (or sends a star off its detector) is halved, up to seven times, and a fit that
+    cannot improve stops where it is. It has converged when no parameter steps beyond 1 % of its sigma and no
+    anchor beyond 1e-8 rad.
 
     Args:
         predictor: the bag's Predictor.
@@ -709,46 +830,25 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
         columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
         anchor_columns = problem.anchor_columns(current, derivative)
         current_cost = cost(whitened, anchors)
-        huber = _huber_weights(whitened)
-
-        def solved(curvature_weights):
-            return normal_equations_fit(*normal_equations(
-                anchor_columns, columns, anchor_prior, whitened, curvature_weights, -(problem.prior @ anchors.ravel()),
-                gradient_weights=huber), names, rows)
-
-        def accepted(step, halvings):
-            """The step's largest fraction (1, 1/2, ...) that does not raise the cost, and its prediction."""
-            anchor_step, parameter_step = step.step[:anchors.size].reshape(anchors.shape), step.step[anchors.size:]
-            scale = 1.0
-            for _ in range(halvings + 1):
-                trial = _try_predicted(problem, effects, free, values + scale * parameter_step,
-                                       anchors + scale * anchor_step)
-                if trial is not None and cost(problem.whiten(trial), anchors + scale * anchor_step) <= current_cost * (
-                        1.0 + 1e-12):
-                    return scale, trial
-                scale /= 2.0
-            return None, None
-
-        # Newton's step on the Huber cost (curvature psi' = 0 beyond k) converges in a few iterations where the
-        # re-weighted step (curvature psi(r)/r) creeps at a fixed rate: 0.75 an iteration on a star hop with a
-        # missing effect, 12 iterations stopping 2 % of a sigma short. Where it does not apply, or raises the cost,
-        # the re-weighted step is taken.
-        scale = None
-        if _newton_applies(whitened, huber, columns):
-            step = solved(_huber_curvature(whitened))
-            scale, trial = accepted(step, 0)
-        if scale is None:
-            step = solved(huber)
-            scale, trial = accepted(step, 7)
-        if scale is None:
+        step, step_sigma = linearized_huber_step(anchor_columns, columns, anchor_prior, whitened,
+                                                 -(problem.prior @ anchors.ravel()), names, rows)
+        anchor_step, parameter_step = step[:anchors.size].reshape(anchors.shape), step[anchors.size:]
+        # The step's largest fraction (1, 1/2, ...) that does not raise the cost, or sends no star off a detector:
+        # the prediction is not linear.
+        scale, trial = 1.0, None
+        for _ in range(8):
+            trial = _try_predicted(problem, effects, free, values + scale * parameter_step,
+                                   anchors + scale * anchor_step)
+            if trial is not None and cost(problem.whiten(trial), anchors + scale * anchor_step) <= current_cost * (
+                    1.0 + 1e-12):
+                break
+            scale, trial = scale / 2.0, None
+        if trial is None:
             break
-        anchor_step = step.step[:anchors.size].reshape(anchors.shape)
-        parameter_step = step.step[anchors.size:]
         anchors, values, predicted = anchors + scale * anchor_step, values + scale * parameter_step, trial
         whitened = problem.whiten(predicted)
-        sigma = step.sigma[anchors.size:]
-        small = np.all(np.abs(parameter_step) <= _STEP_TOLERANCE_SIGMA * np.where(np.isfinite(sigma), sigma, np.inf))
-        if small and np.max(np.abs(anchor_step), initial=0.0) < 1e-8:
+        if _step_is_small(scale * parameter_step, scale * anchor_step, step_sigma[anchors.size:],
+                          _STEP_TOLERANCE_SIGMA, 1e-8):
             break
     # Converged steps are below 1 % of a sigma: the last Jacobian serves for the covariance.
     current = with_values(effects, free, values)

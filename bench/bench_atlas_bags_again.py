@@ -6,7 +6,7 @@ model, candidates and rounds) and sets each row beside the grid's stored one: th
 rounds, the equivalents and the competing sets stated, and which of them changed. Rows are appended to
 WORK/rows.jsonl as they finish, so a run that is stopped resumes where it stopped. Printed: the success rate per
 campaign and k with the controls (atlas.report.truth_lines), every row that changed, and the CPU-s per search.
-Written: bench/results/multi_effect_atlas_again.json (date, commit, load, every row old and new) and .txt.
+Written: bench/results/multi_effect_atlas_again_COMMIT.json (date, commit, load, every row old and new) and .txt.
 
 Run: .venv/bin/python bench/bench_atlas_bags_again.py [--bags DIR] [--rows JSON] [--work DIR] [--limit N]
      [--workers W]
@@ -84,6 +84,12 @@ def _jobs(args, done: set[str]) -> list:
     return jobs[:args.limit] if args.limit is not None else jobs
 
 
+def _shown(path) -> str:
+    """A path inside the repository as it is named there (bench/results/...), any other as given."""
+    path = Path(path).resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
 def _changes(old: dict, new: dict) -> list[str]:
     return [f'{field} {old[field]!r} -> {new[field]!r}' for field in STATED_FIELDS if old.get(field) != new.get(field)]
 
@@ -114,7 +120,7 @@ def main():
     cpu = [row['cpu_s'] for row in rows]
     lines = [f'bench_atlas_bags_again {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC, commit {_commit()}, '
              f'{args.workers} worker(s), load {load_before[0]:.1f} before, {load_after[0]:.1f} after; '
-             f'{len(rows)} kept bags of {args.rows} (commit {json.loads(Path(args.rows).read_text())["commit"]}) '
+             f'{len(rows)} kept bags of {_shown(args.rows)} (commit {json.loads(Path(args.rows).read_text())["commit"]}) '
              'searched again',
              f'search CPU-s: median {statistics.median(cpu):.0f}, max {max(cpu):.0f}, total {sum(cpu) / 60:.0f} min'
              if cpu else 'no bag searched',
@@ -125,12 +131,13 @@ def main():
     text = '\n'.join(lines) + '\n'
     print(text, end='')
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / 'multi_effect_atlas_again.txt').write_text(text)
-    (RESULTS / 'multi_effect_atlas_again.json').write_text(json.dumps({
+    name = f'multi_effect_atlas_again_{_commit()}'
+    (RESULTS / f'{name}.txt').write_text(text)
+    (RESULTS / f'{name}.json').write_text(json.dumps({
         'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': _commit(),
         'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'workers': args.workers,
         'load_before': load_before, 'load_after': load_after, 'wall_s': round(time.time() - started, 1),
-        'stored_rows': str(args.rows), 'changed': [row['key'] for row, _ in changed],
+        'stored_rows': _shown(args.rows), 'changed': [row['key'] for row, _ in changed],
         'rows': [{'new': row, 'old': stored[row['key']]} for row in rows]}, indent=1) + '\n')
 
 

@@ -12,6 +12,7 @@ import pytest
 import scipy.optimize
 import scipy.sparse
 
+from sofia_ros.analysis.ranking import NormalInverse, normal_solution
 from sofia_ros.compare.fit import HUBER_K, huber_line_minimum, linearized_huber_step
 
 
@@ -113,3 +114,23 @@ def test_the_linearized_step_reaches_the_least_huber_cost(seed):
     # The same minimum: each value within 1e-3 of its sigma (the inner tolerance), the cost to rounding.
     assert np.max(np.abs(step - reference.x) / sigma) < 1e-3
     assert cost_and_gradient(step)[0] == pytest.approx(reference.fun, rel=1e-10)
+
+
+@pytest.mark.parametrize('case', ['full rank', 'two equal columns', 'a column 1e-7 from another'])
+def test_the_normal_solution_is_the_pseudo_inverse_step(case):
+    rng = np.random.default_rng(7)
+    jacobian = rng.normal(size=(60, 5)) * np.array([1.0, 1e3, 1e-3, 1.0, 5.0])
+    if case == 'two equal columns':
+        jacobian[:, 4] = jacobian[:, 3]
+    elif case == 'a column 1e-7 from another':
+        jacobian[:, 4] = jacobian[:, 3] + 1e-7 * rng.normal(size=60)
+    residual = rng.normal(size=60)
+    gram, gradient = jacobian.T @ jacobian, jacobian.T @ residual
+    solution = normal_solution(gram, gradient)
+    assert np.allclose(solution, NormalInverse.of(gram).matrix @ gradient, rtol=1e-9, atol=1e-12)
+    # The minimum-norm least-squares step of the column-scaled problem, singular values below 1e-5 of the largest
+    # cut (KEPT_EIGENVALUE_FRACTION of the Gram matrix's eigenvalues): the combination the data do not determine
+    # gets no step.
+    norms = np.linalg.norm(jacobian, axis=0)
+    reference = np.linalg.lstsq(jacobian / norms, residual, rcond=1e-5)[0] / norms
+    assert np.allclose(solution, reference, rtol=1e-6, atol=1e-9)

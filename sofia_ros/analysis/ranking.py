@@ -29,6 +29,7 @@ __all__ = [
     'SIGNIFICANT_DELTA_BIC',
     'normal_equations_fit',
     'normal_pseudo_inverse',
+    'normal_solution',
     'LinearFit',
     'CandidateTerm',
     'RankedCandidate',
@@ -195,6 +196,33 @@ def normal_pseudo_inverse(gram: np.ndarray) -> np.ndarray:
         (k, k) its pseudo-inverse.
     """
     return NormalInverse.of(gram).matrix
+
+
+def normal_solution(gram: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+    """G^+ g, as NormalInverse.of(G).matrix @ g gives it: by Cholesky of the column-scaled G (LAPACK potrf, potrs)
+    where G is positive definite and its estimated condition (pocon) keeps every eigen-combination, else through
+    NormalInverse. Without the inverse itself: a third of the cost where only the step is asked for.
+
+    Args:
+        gram: (k, k) the symmetric positive semi-definite matrix G = J^T J.
+        gradient: (k,) g = J^T r.
+
+    Returns:
+        (k,) the step.
+    """
+    diagonal = np.diag(gram).copy()
+    norms = np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
+    scaled = gram / np.outer(norms, norms)
+    if len(scaled):
+        factor, info = scipy.linalg.lapack.dpotrf(scaled, lower=True)
+        if info == 0:
+            reciprocal_condition, info = scipy.linalg.lapack.dpocon(factor, np.abs(scaled).sum(axis=0).max(),
+                                                                    uplo='L')
+            if info == 0 and reciprocal_condition > KEPT_EIGENVALUE_FRACTION:
+                solution, info = scipy.linalg.lapack.dpotrs(factor, gradient / norms, lower=True)
+                if info == 0:
+                    return solution / norms
+    return NormalInverse.of(gram).matrix @ gradient
 
 
 def _well_conditioned_inverse(scaled):

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import NormalInverse, bic, normal_equations_fit
+from sofia_ros.analysis.ranking import NormalInverse, bic, normal_equations_fit, normal_solution
 from sofia_ros.compare.predict import inverse_right_jacobians
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
@@ -657,7 +657,7 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
         rows: the number of rows (data and prior).
 
     Returns:
-        The step (3K + P) and the sigmas of the first solve (3K + P; those of the old single step).
+        The step (3K + P) and the sigmas of the re-weighted solve at its start (3K + P), which judge convergence.
     """
     prior = anchor_prior.matrix
     anchor_count = anchor_columns.shape[1]
@@ -681,32 +681,33 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
         gram[:anchor_count, :anchor_count] += anchor_prior.gram
         return gram
 
+    def gradient_of(residual, huber, after_prior):
+        weighted_residual = huber * residual
+        return np.concatenate([anchor_columns.T @ weighted_residual + prior.T @ after_prior,
+                               parameter_columns.T @ weighted_residual])
+
+    # The sigmas the fit's convergence is judged by: the re-weighted step's, where every parameter has a curvature.
+    huber = _huber_weights(whitened)
+    sigma = normal_equations_fit(gram_of(huber), gradient_of(whitened, huber, prior_residual),
+                                 _rss_after(anchor_columns, parameter_columns, prior, whitened, huber, prior_residual),
+                                 names, rows).sigma
     total = np.zeros(anchor_count + parameter_columns.shape[1])
     residual, after_prior = whitened, prior_residual
-    first_sigma = None
     for number in range(_INNER_STEPS):
         huber = _huber_weights(residual)
-        curvature = huber if number % 2 == 0 else np.where(huber == 1.0, 1.0, _NEWTON_DAMPING * huber)
-        weighted_residual = huber * residual
-        gram = gram_of(curvature)
-        gradient = np.concatenate([anchor_columns.T @ weighted_residual + prior.T @ after_prior,
-                                   parameter_columns.T @ weighted_residual])
-        if first_sigma is None:
-            solved = normal_equations_fit(gram, gradient, _rss_after(anchor_columns, parameter_columns, prior, residual,
-                                                                     curvature, after_prior), names, rows)
-            direction, first_sigma = solved.step, solved.sigma
-        else:
-            direction = NormalInverse.of(gram).matrix @ gradient
+        # Newton's step first: where the rows beyond k stay beyond, it is the minimum itself.
+        curvature = np.where(huber == 1.0, 1.0, _NEWTON_DAMPING * huber) if number % 2 == 0 else huber
+        direction = normal_solution(gram_of(curvature), gradient_of(residual, huber, after_prior))
         change = anchor_columns @ direction[:anchor_count] + parameter_columns @ direction[anchor_count:]
         prior_change = prior @ direction[:anchor_count]
         length = huber_line_minimum(residual, change, after_prior, prior_change)
         step = length * direction
         total += step
         residual, after_prior = residual - length * change, after_prior - length * prior_change
-        if _step_is_small(step[anchor_count:], step[:anchor_count], first_sigma[anchor_count:],
-                          _INNER_TOLERANCE_SIGMA, 1e-10):
+        if _step_is_small(step[anchor_count:], step[:anchor_count], sigma[anchor_count:], _INNER_TOLERANCE_SIGMA,
+                          1e-10):
             break
-    return total, first_sigma
+    return total, sigma
 
 
 def _step_is_small(parameter_step, anchor_step, sigma, tolerance_sigma, anchor_tolerance_rad):

@@ -602,13 +602,18 @@ def huber_line_minimum(residual: np.ndarray, change: np.ndarray, prior_residual:
         The minimizing t (0 where the step does not lower the cost).
     """
     prior_curvature = float(prior_change @ prior_change)
+    prior_slope = float(prior_residual @ prior_change)
+    change_squared = change * change
+    # One buffer for every trial: a star hop's 250k rows, each pass over them counts (about 150 searches a compare).
+    moved, psi = np.empty_like(residual), np.empty_like(residual)
 
     def slope_and_curvature(t):
-        moved = residual - t * change
-        inside = np.abs(moved) <= HUBER_K
-        psi = np.where(inside, moved, np.copysign(HUBER_K, moved))
-        slope = -float(psi @ change) - float((prior_residual - t * prior_change) @ prior_change)
-        return slope, float(np.square(change, where=inside, out=np.zeros_like(change)).sum()) + prior_curvature
+        np.multiply(change, -t, out=moved)
+        np.add(moved, residual, out=moved)
+        # psi(r) of the Huber cost is r clipped to k; a row is inside k where clipping leaves it.
+        np.clip(moved, -HUBER_K, HUBER_K, out=psi)
+        slope = -float(psi @ change) - prior_slope + t * prior_curvature
+        return slope, float(np.sum(change_squared, where=psi == moved)) + prior_curvature
 
     low, high = 0.0, np.inf
     if slope_and_curvature(0.0)[0] >= 0.0:

@@ -853,8 +853,8 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
             break
         anchors, values, predicted = anchors + scale * anchor_step, values + scale * parameter_step, trial
         whitened = problem.whiten(predicted)
-        if _step_is_small(scale * parameter_step, scale * anchor_step, step_sigma[anchors.size:],
-                          _STEP_TOLERANCE_SIGMA, 1e-8):
+        # Converged where the linearized problem's minimum is this close, whatever share of the way was taken.
+        if _step_is_small(parameter_step, anchor_step, step_sigma[anchors.size:], _STEP_TOLERANCE_SIGMA, 1e-8):
             break
     # Converged steps are below 1 % of a sigma: the last Jacobian serves for the covariance.
     current = with_values(effects, free, values)

@@ -134,3 +134,22 @@ def test_the_normal_solution_is_the_pseudo_inverse_step(case):
     norms = np.linalg.norm(jacobian, axis=0)
     reference = np.linalg.lstsq(jacobian / norms, residual, rcond=1e-5)[0] / norms
     assert np.allclose(solution, reference, rtol=1e-6, atol=1e-9)
+
+
+def test_the_null_directions_of_one_weighting_serve_another():
+    # Two equal columns: every weighting of the rows leaves their difference undetermined.
+    rng = np.random.default_rng(11)
+    jacobian = rng.normal(size=(80, 6)) * np.array([1.0, 1e3, 1e-3, 1.0, 1.0, 5.0])
+    jacobian[:, 4] = jacobian[:, 3]
+    residual = rng.normal(size=80)
+    first = NormalInverse.of(jacobian.T @ jacobian)
+    assert first.null_directions.shape == (6, 1)
+    weights = rng.uniform(0.05, 1.0, 80)
+    gram, gradient = jacobian.T @ (weights[:, None] * jacobian), jacobian.T @ (weights * residual)
+    solution = normal_solution(gram, gradient, first.null_directions)
+    assert np.allclose(solution, NormalInverse.of(gram).matrix @ gradient, rtol=1e-8, atol=1e-12)
+    # numpy's minimum-norm weighted least squares of the column-scaled problem: the same step.
+    root = np.sqrt(weights)[:, None]
+    norms = np.sqrt(np.diag(gram))
+    reference = np.linalg.lstsq(root * jacobian / norms, root[:, 0] * residual, rcond=1e-5)[0] / norms
+    assert np.allclose(solution, reference, rtol=1e-6, atol=1e-9)

@@ -144,6 +144,8 @@ class NormalInverse:
 
     matrix: np.ndarray
     unconstrained: np.ndarray
+    #: (k, m) the combinations of the parameters (unscaled) that got no step, where there are any
+    null_directions: np.ndarray | None = None
 
     @classmethod
     def of(cls, gram: np.ndarray) -> NormalInverse:
@@ -167,7 +169,7 @@ class NormalInverse:
         keep = eigenvalues > eigenvalues.max(initial=0.0) * KEPT_EIGENVALUE_FRACTION
         inverse = (vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T / np.outer(norms, norms)
         unconstrained = np.any(np.abs(vectors[:, ~keep]) > 1e-6, axis=1)
-        return cls(inverse, unconstrained)
+        return cls(inverse, unconstrained, vectors[:, ~keep] / norms[:, None])
 
     def covariance(self, variance: float) -> np.ndarray:
         """Scaled covariance with infinite variance (and undefined covariance) along unconstrained parameters.
@@ -198,14 +200,22 @@ def normal_pseudo_inverse(gram: np.ndarray) -> np.ndarray:
     return NormalInverse.of(gram).matrix
 
 
-def normal_solution(gram: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+def normal_solution(gram: np.ndarray, gradient: np.ndarray, null_directions: np.ndarray | None = None) -> np.ndarray:
     """G^+ g, as NormalInverse.of(G).matrix @ g gives it: by Cholesky of the column-scaled G (LAPACK potrf, potrs)
     where G is positive definite and its estimated condition (pocon) keeps every eigen-combination, else through
     NormalInverse. Without the inverse itself: a third of the cost where only the step is asked for.
 
+    Where the columns are degenerate (a candidate collinear with the model's terms), the combinations a Gram matrix of
+    the same columns left without a step (NormalInverse.null_directions) get none here either: G + N N^T, N those
+    combinations column-scaled and made orthonormal, is positive definite, and its solution less its part along N is
+    G^+ g where N is G's null space. A further combination near the cut may then be kept where NormalInverse would
+    drop it: the estimate's 1-norm condition may exceed the eigenvalues' ratio by up to the matrix's size, and this
+    path takes that whole margin (the eigendecomposition it saves cost 40 ms a step on a star hop).
+
     Args:
         gram: (k, k) the symmetric positive semi-definite matrix G = J^T J.
         gradient: (k,) g = J^T r.
+        null_directions: (k, m) the combinations a Gram matrix of the same columns did not determine, or None.
 
     Returns:
         (k,) the step.
@@ -213,14 +223,21 @@ def normal_solution(gram: np.ndarray, gradient: np.ndarray) -> np.ndarray:
     diagonal = np.diag(gram).copy()
     norms = np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
     scaled = gram / np.outer(norms, norms)
+    null, least_condition = None, KEPT_EIGENVALUE_FRACTION
+    if null_directions is not None and null_directions.size:
+        null = np.linalg.qr(null_directions * norms[:, None])[0]
+        scaled = scaled + null @ null.T
+        least_condition = KEPT_EIGENVALUE_FRACTION / len(scaled)
     if len(scaled):
         factor, info = scipy.linalg.lapack.dpotrf(scaled, lower=True)
         if info == 0:
             reciprocal_condition, info = scipy.linalg.lapack.dpocon(factor, np.abs(scaled).sum(axis=0).max(),
                                                                     uplo='L')
-            if info == 0 and reciprocal_condition > KEPT_EIGENVALUE_FRACTION:
+            if info == 0 and reciprocal_condition > least_condition:
                 solution, info = scipy.linalg.lapack.dpotrs(factor, gradient / norms, lower=True)
                 if info == 0:
+                    if null is not None:
+                        solution = solution - null @ (null.T @ solution)
                     return solution / norms
     return NormalInverse.of(gram).matrix @ gradient
 
@@ -274,7 +291,7 @@ def linear_fit(residual: npt.ArrayLike, jacobian: npt.ArrayLike | scipy.sparse.s
 
 
 def normal_equations_fit(gram: np.ndarray, gradient: np.ndarray, rss_after: Callable[[np.ndarray], float],
-                         names: Iterable[str], n: int) -> LinearFit:
+                         names: Iterable[str], n: int, *, inverse: NormalInverse | None = None) -> LinearFit:
     """linear_fit from its normal equations G = J^T J, g = J^T r: step G^+ g, covariance s^2 G^+ with s^2 = RSS/(n-k),
     where rss_after(step) is |r - J step|^2 (for problems whose Gram matrix is cheaper assembled from its blocks).
 
@@ -290,7 +307,7 @@ def normal_equations_fit(gram: np.ndarray, gradient: np.ndarray, rss_after: Call
     """
     names = tuple(names)
     k = len(names)
-    inverse = NormalInverse.of(gram)
+    inverse = NormalInverse.of(gram) if inverse is None else inverse
     step = inverse.matrix @ gradient
     rss = rss_after(step)
     covariance = inverse.covariance(rss / max(n - k, 1))

@@ -693,16 +693,20 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
 
     # The sigmas the fit's convergence is judged by: the re-weighted step's, where every parameter has a curvature.
     huber = _huber_weights(whitened)
-    sigma = normal_equations_fit(gram_of(huber), gradient_of(whitened, huber, prior_residual),
+    gram = gram_of(huber)
+    inverse = NormalInverse.of(gram)
+    sigma = normal_equations_fit(gram, gradient_of(whitened, huber, prior_residual),
                                  _rss_after(anchor_columns, parameter_columns, prior, whitened, huber, prior_residual),
-                                 names, rows).sigma
+                                 names, rows, inverse=inverse).sigma
     total = np.zeros(anchor_count + parameter_columns.shape[1])
     residual, after_prior = whitened, prior_residual
     for number in range(_INNER_STEPS):
         huber = _huber_weights(residual)
         # Newton's step first: where the rows beyond k stay beyond, it is the minimum itself.
         curvature = np.where(huber == 1.0, 1.0, _NEWTON_DAMPING * huber) if number % 2 == 0 else huber
-        direction = normal_solution(gram_of(curvature), gradient_of(residual, huber, after_prior))
+        # A candidate degenerate with the model's terms leaves the same combinations undetermined at any weights.
+        direction = normal_solution(gram_of(curvature), gradient_of(residual, huber, after_prior),
+                                    inverse.null_directions)
         change = anchor_columns @ direction[:anchor_count] + parameter_columns @ direction[anchor_count:]
         prior_change = prior @ direction[:anchor_count]
         length = huber_line_minimum(residual, change, after_prior, prior_change)

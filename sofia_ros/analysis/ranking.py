@@ -301,6 +301,7 @@ def normal_equations_fit(gram: np.ndarray, gradient: np.ndarray, rss_after: Call
         rss_after: |r - J step|^2 of a step.
         names: the k parameters' names.
         n: the number of residuals.
+        inverse: NormalInverse.of(gram) where the caller has it, else None (computed here).
 
     Returns:
         The step, its sigmas and correlation, the RSS after it and n.

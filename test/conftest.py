@@ -140,22 +140,30 @@ ALONE = frozenset({
 UNITS = {'test_live_graph': 'dds', 'test_mode_bags': 'dds',
          'test_run_signals': 'dds-runs', 'test_star_hop_processes': 'dds-runs', 'test_full_disk': 'dds-runs'}
 #: seconds of the longest units (a SPREAD module: all its tests, or a 'module::test' entry: each of its
-#: cases), each module run alone with -n 0 on the loaded 2-core machine, wall time (2026-11-27 14:22-15:10,
-#: load 4.5-11 from other jobs; the shared campaign bags recorded where first asked for)
+#: cases, its longest), summed from `--durations=0` of a whole CI run (a fresh clone of 9beae0a, quiet, -n 3 on
+#: 2 cores, 645 s: /tmp/dev/s20/ci20.log), set-up, call and tear-down; the shared campaign bags recorded where
+#: first asked for
 MEASURED_S = {
-    'dds-runs': 459,  # test_run_signals 233, test_full_disk 148, test_star_hop_processes 78
-    'dds': 221,  # test_live_graph 207, test_mode_bags 14
-    'test_atlas_cluster': 207, 'test_search_loop': 105, 'test_star_hop': 104,  # 177 with its two ALONE tests
-    'test_star_hop::test_tracker_drift_sinusoid_is_recovered_from_a_hold_of_one_period': 41,
-    'test_star_hop::test_fpi_internal_flexure_is_named_and_measures_about_1_1_arcsec_over_23_to_60_deg': 32,
-    # each case records its own bag and compares it: 40-73 s
-    'test_compare::test_hidden_effect_is_the_top_candidate_within_three_sigma_and_brings_the_floor': 73,
-    'test_compare::test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scale_factor': 54,
-    'test_perturb': 99, 'test_alignment_campaign': 97, 'test_observation_cache': 96, 'test_noise_report': 95,
-    'test_atlas_multi_effect': 71, 'test_plugin_perturb_refusals': 65, 'test_json_schemas': 64,
-    'test_fuzz_inputs': 63, 'test_effect_plugins': 58, 'test_plan_files': 43, 'test_gyro_noise': 33,
-    'test_input_validation': 31, 'test_gyro_stability_campaign': 29, 'test_cli': 26, 'test_spectra': 26,
-    'test_structure': 13,
+    'dds-runs': 283,  # test_full_disk 136 (its set-up records the shared reduced bag: 73), test_run_signals 108,
+                      # test_star_hop_processes 39
+    'dds': 214,  # test_live_graph 205, test_mode_bags 9
+    'test_atlas_cluster': 111, 'test_search_loop': 63, 'test_alignment_campaign': 61,
+    'test_star_hop': 59,  # 88 with its two ALONE tests
+    'test_perturb': 58, 'test_noise_report': 50,
+    # each case records its own bag and compares it: 23-45 s
+    'test_compare::test_hidden_effect_is_the_top_candidate_within_three_sigma_and_brings_the_floor': 45,
+    'test_csv_import': 33,
+    'test_compare::test_swapped_calibrations_at_constant_temperature_are_degenerate_with_a_scale_factor': 30,
+    'test_effect_plugins': 27, 'test_atlas_multi_effect': 24, 'test_observation_cache': 24,
+    'test_atlas_refusals': 20,
+    'test_compare::test_cli_loop_compare_add_compare_shows_the_error_falling': 20,
+    'test_plan_temperature': 18,
+    'test_star_hop::test_tracker_drift_sinusoid_is_recovered_from_a_hold_of_one_period': 17,
+    'test_gyro_noise': 16, 'test_bag_refusals': 16, 'test_input_validation': 15, 'test_plan_files': 15,
+    'test_noise_loop': 14, 'test_noise_cli': 14, 'test_launch_waits': 14,
+    'test_star_hop::test_fpi_internal_flexure_is_named_and_measures_about_1_1_arcsec_over_23_to_60_deg': 13,
+    'test_spectra': 13, 'test_accuracy': 12,
+    'test_discovery::test_an_out_of_catalogue_shape_is_flagged_named_not_falsely_closed_and_explained_by_a_plugin': 10,
 }
 #: units handed out first, longest first; every other unit follows in collection order
 FIRST = tuple(sorted(MEASURED_S, key=MEASURED_S.get, reverse=True))

@@ -106,7 +106,6 @@ def free_parameters(effect_names: Iterable[str]) -> tuple[FreeParameter, ...]:
 
 def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns: np.ndarray, anchor_prior: AnchorPrior,
                      whitened: np.ndarray, weights: np.ndarray, prior_residual: np.ndarray,
-                     gradient_weights: np.ndarray | None = None,
                      ) -> tuple[np.ndarray, np.ndarray, Callable[[np.ndarray], float]]:
     """Gram matrix J^T W J and gradient J^T W r of the weighted problem (data rows weighted by ``weights``, then the
     anchors' prior rows at weight 1) from its blocks, and a function giving the weighted RSS after a step.
@@ -122,8 +121,6 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
         whitened: the data rows' whitened residuals (2N).
         weights: each data row's weight (2N), e.g. the Huber weights.
         prior_residual: the prior rows' residuals (3(K-1)).
-        gradient_weights: the data rows' weights in the gradient, where they differ from the Gram matrix's (a
-            Newton step on the Huber cost: its gradient weights each row by psi(r)/r, its curvature by psi'(r)).
 
     Returns:
         The Gram matrix (3K + P square), the gradient (3K + P) and rss_after(step), the weighted RSS after a step.
@@ -133,13 +130,8 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
     weighted_parameters = parameter_columns * weights[:, None]
     gram = _data_gram(anchor_columns, parameter_columns, weighted_anchors, weighted_parameters)
     gram[:anchor_columns.shape[1], :anchor_columns.shape[1]] += anchor_prior.gram
-    if gradient_weights is None:
-        gradient = np.concatenate([weighted_anchors.T @ whitened + prior.T @ prior_residual,
-                                   weighted_parameters.T @ whitened])
-    else:
-        weighted_residual = whitened * gradient_weights
-        gradient = np.concatenate([anchor_columns.T @ weighted_residual + prior.T @ prior_residual,
-                                   parameter_columns.T @ weighted_residual])
+    gradient = np.concatenate([weighted_anchors.T @ whitened + prior.T @ prior_residual,
+                               weighted_parameters.T @ whitened])
     return gram, gradient, _rss_after(anchor_columns, parameter_columns, prior, whitened, weights, prior_residual)
 
 

@@ -6,7 +6,8 @@ model, candidates and rounds) and sets each row beside the grid's stored one: th
 rounds, the equivalents and the competing sets stated, and which of them changed. Rows are appended to
 WORK/rows.jsonl as they finish, so a run that is stopped resumes where it stopped. Printed: the success rate per
 campaign and k with the controls (atlas.report.truth_lines), every row that changed, and the CPU-s per search.
-Written: bench/results/multi_effect_atlas_again_COMMIT.json (date, commit, load, every row old and new) and .txt.
+Written: bench/results/multi_effect_atlas_again_COMMIT.json (date, the commit whose code searched the rows, load,
+every row old and new) and .txt.
 
 Run: .venv/bin/python bench/bench_atlas_bags_again.py [--bags DIR] [--rows JSON] [--work DIR] [--limit N]
      [--workers W]
@@ -62,7 +63,7 @@ def _search_again(job):
     """One kept bag searched again: the stored row with the new truth fields, the search's CPU-s and its error."""
     task, setup, bag_path, stored = job
     started = time.process_time()
-    row = dict(stored)
+    row = {**stored, 'run_id': setup.run_id}
     try:
         row.update(search_truth_bag(task, setup, Path(bag_path)), error=None)
     except Exception as err:  # one failed search is a row with its error, as in the atlas
@@ -71,9 +72,8 @@ def _search_again(job):
     return row
 
 
-def _jobs(args, done: set[str]) -> list:
+def _jobs(args, stored: dict, done: set[str]) -> list:
     grid = grid_from_file(GRID)
-    stored = {row['key']: row for row in json.loads(Path(args.rows).read_text())['rows']}
     setup = TaskSetup(grid.truth, grid.model, grid.candidates, None, f'again-{_commit()}')
     jobs = []
     for task in grid.iter_tasks():
@@ -94,14 +94,25 @@ def _changes(old: dict, new: dict) -> list[str]:
     return [f'{field} {old[field]!r} -> {new[field]!r}' for field in STATED_FIELDS if old.get(field) != new.get(field)]
 
 
+def _checked(args):
+    """The arguments, or exit with one line naming what is missing and how to make it."""
+    if not Path(args.rows).is_file():
+        sys.exit(f'bench: no stored rows at {args.rows}; give --rows a bench_multi_effect_atlas.py result JSON')
+    if not Path(args.bags).is_dir():
+        sys.exit(f'bench: no kept bags at {args.bags}; run bench_multi_effect_atlas.py --keep-bags --out DIR '
+                 'and give --bags DIR/bags')
+    return args
+
+
 def main():
-    args = _arguments()
+    args = _checked(_arguments())
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     journal = work / 'rows.jsonl'
     finished = [json.loads(line) for line in journal.read_text().splitlines()] if journal.exists() else []
-    jobs = _jobs(args, {row['key'] for row in finished})
-    stored = {row['key']: row for row in json.loads(Path(args.rows).read_text())['rows']}
+    stored_document = json.loads(Path(args.rows).read_text())
+    stored = {row['key']: row for row in stored_document['rows']}
+    jobs = _jobs(args, stored, {row['key'] for row in finished})
     load_before = os.getloadavg()
     started = time.time()
     print(f'searching {len(jobs)} kept bags again ({len(finished)} already in {journal})', flush=True)
@@ -114,16 +125,19 @@ def main():
             print(f'  {row["key"]}: {row["score"]}, {row["cpu_s"]:.0f} CPU-s: {change}', flush=True)
     load_after = os.getloadavg()
     rows = sorted(finished, key=lambda row: row['key'])
+    if not rows:
+        sys.exit(f'bench: none of the grid\'s bags is under {args.bags}; nothing written')
     summary = summarize([row for row in rows if row['error'] is None])
     changed = [(row, _changes(stored[row['key']], row)) for row in rows]
     changed = [(row, change) for row, change in changed if change]
     cpu = [row['cpu_s'] for row in rows]
-    lines = [f'bench_atlas_bags_again {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC, commit {_commit()}, '
+    # a resumed journal may hold rows searched by earlier code: the results are named by every commit that searched
+    searched_by = '+'.join(sorted({row['run_id'].removeprefix('again-') for row in rows}))
+    lines = [f'bench_atlas_bags_again {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC, '
+             f'searched by commit {searched_by}, '
              f'{args.workers} worker(s), load {load_before[0]:.1f} before, {load_after[0]:.1f} after; '
-             f'{len(rows)} kept bags of {_shown(args.rows)} (commit {json.loads(Path(args.rows).read_text())["commit"]}) '
-             'searched again',
-             f'search CPU-s: median {statistics.median(cpu):.0f}, max {max(cpu):.0f}, total {sum(cpu) / 60:.0f} min'
-             if cpu else 'no bag searched',
+             f'{len(rows)} kept bags of {_shown(args.rows)} (commit {stored_document["commit"]}) searched again',
+             f'search CPU-s: median {statistics.median(cpu):.0f}, max {max(cpu):.0f}, total {sum(cpu) / 60:.0f} min',
              *truth_lines(summary, screen=False),
              f'rows whose stated result changed against the stored grid: {len(changed)} of {len(rows)}',
              *(f'  {row["key"]}: {"; ".join(change)}' for row, change in changed),
@@ -131,10 +145,10 @@ def main():
     text = '\n'.join(lines) + '\n'
     print(text, end='')
     RESULTS.mkdir(exist_ok=True)
-    name = f'multi_effect_atlas_again_{_commit()}'
+    name = f'multi_effect_atlas_again_{searched_by}'
     (RESULTS / f'{name}.txt').write_text(text)
     (RESULTS / f'{name}.json').write_text(json.dumps({
-        'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': _commit(),
+        'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': searched_by,
         'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'workers': args.workers,
         'load_before': load_before, 'load_after': load_after, 'wall_s': round(time.time() - started, 1),
         'stored_rows': _shown(args.rows), 'changed': [row['key'] for row, _ in changed],

@@ -62,7 +62,6 @@ class LockstepNode(Node):
         self._requirements = None  # what the next tick still waits for, once every report is in
         self.expected_outputs = dict(expected_outputs or {})  # topic -> number of subscribers
         self.publishers_by_topic = {}
-        self.subscriptions_by_topic = {}  # DDS subscriptions of the graph's topics (none on a bus)
         self.done_topic = done_topic(name)
         self.done_publisher = self.create_publisher(String, self.done_topic, SYNC_QOS)
         self.create_subscription(String, STOP_TOPIC, self._on_stop, SYNC_QOS)
@@ -81,9 +80,7 @@ class LockstepNode(Node):
         published object (no DDS subscription: the executor would have to take and drop a copy of each message
         a listener outside makes DDS carry). Returns the handle :meth:`unsubscribe_graph_topic` takes."""
         if self.bus is None:
-            subscription = self.create_subscription(message_type, topic, on_cdr, qos, raw=True)
-            self.subscriptions_by_topic[topic] = subscription
-            return subscription, topic, None
+            return self.create_subscription(message_type, topic, on_cdr, qos, raw=True), topic, None
         self.bus.subscribe(topic, on_message, qos)
         return None, topic, on_message
 
@@ -93,7 +90,6 @@ class LockstepNode(Node):
         if subscription is None:
             self.bus.unsubscribe(topic, on_message)
         else:
-            self.subscriptions_by_topic.pop(topic, None)
             self.destroy_subscription(subscription)
 
     def _send(self, publisher, topic, message, wire=None):
@@ -128,7 +124,7 @@ class LockstepNode(Node):
     def _check_ready(self):
         if self.ready:
             return
-        inputs_ok = all(self._matched_publishers(topic) > 0 for topic in self.expected_inputs)
+        inputs_ok = all(self.count_publishers(topic) > 0 for topic in self.expected_inputs)
         # On a bus the subscribers in the process have no DDS subscriptions to match: the bus reaches them.
         outputs_ok = self.bus is not None or all(self._matched_subscriptions(topic) >= count
                                                  for topic, count in self.expected_outputs.items())
@@ -145,14 +141,6 @@ class LockstepNode(Node):
         between never reaches it (a node then waits on tick 1 for good)."""
         publisher = self.publishers_by_topic.get(topic)
         return publisher.get_subscription_count() if publisher is not None else self.count_subscribers(topic)
-
-    def _matched_publishers(self, topic):
-        """Publishers this node's subscription of ``topic`` is matched with, the reader's side of
-        :meth:`_matched_subscriptions`: a volatile reader that matches its writer only after the writer's first
-        heartbeat may take what was sent before it as history it does not want, and wait for it for good (a CI run
-        stopped at tick 1 with gyro_box connected and silent; count_publishers had seen the plant's publisher)."""
-        subscription = self.subscriptions_by_topic.get(topic)
-        return subscription.get_publisher_count() if subscription is not None else self.count_publishers(topic)
 
     def extra_ready(self):
         """Subclasses add conditions (e.g. services available) before the first done(0)."""

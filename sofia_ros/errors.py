@@ -20,6 +20,7 @@ __all__ = [
     'CommandRefusedError',
     'BagError',
     'FitError',
+    'ForkedWorkerError',
     'DomainBusyError',
     'CalibrationAbort',
     'SchedulerUnreachableError',
@@ -79,6 +80,10 @@ class BagError(SofiaError):
 
 class FitError(SofiaError):
     """A model cannot be fitted to a bag's measurements (it sends stars off their detectors)."""
+
+
+class ForkedWorkerError(SofiaError):
+    """A forked worker of ``--jobs`` died before it returned its result, or its result could not be returned."""
 
 
 class DomainBusyError(ConfigError):

@@ -7,10 +7,18 @@ in Fast DDS 3.2 destroying the writers of the temporary node that read its param
 fixes, 36 short `--processes` runs three at a time all started. The retry stays as a guard for
 eleven processes discovering each other on a loaded machine: only a run whose clock reports nodes
 that "did not connect within" is retried, any other failure fails at once.
+
+Two more start-up faults remain below this code, in the DDS layer of the PyPI wheels: three
+`--processes` graphs at once on two cores with a busy loop beside them (2026-11-28) stalled on
+their first tick in 3 of 89 starts (a node connected, then fell silent: py-spy shows it idle in
+the EventsExecutor's wait with none of its DDS events arriving, not even /sim/stop; CI met it in
+two runs in a row), and one node process died of SIGSEGV in its parameter reader in 41. Neither
+depends on what a test asserts, and a new start does not meet them again: they are retried too.
 """
 
 import pytest
 
 __all__ = ['STARTUP_RERUNS']
 
-STARTUP_RERUNS = pytest.mark.flaky(reruns=2, only_rerun=['did not connect within'])
+STARTUP_RERUNS = pytest.mark.flaky(reruns=2, only_rerun=['did not connect within', 'stopped reporting at tick 1 ',
+                                                         'while the graph was starting'])

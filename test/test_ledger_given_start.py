@@ -61,6 +61,9 @@ class _Source:
     def ledger_row(self, term, fit):
         return {'term': term, 'bic': fit.bic}
 
+    def shared_objects(self):
+        return ()
+
 
 @pytest.mark.parametrize(('chain_bic', 'given_bic', 'given', 'kept'), [
     (156595.8, 1023.5, True, 'given'),
@@ -68,8 +71,9 @@ class _Source:
     (156595.8, None, True, 'chain'),
     (156595.8, 1023.5, False, 'chain'),
 ], ids=['the-given-start-is-lower', 'the-chain-is-lower', 'the-given-start-fails', 'no-given-values'])
-def test_the_lower_of_the_chain_and_the_given_start_is_the_fit(chain_bic, given_bic, given, kept):
-    rows, fit = _ledger(_Source(chain_bic, given_bic, given=given), Progress.silent())
+@pytest.mark.parametrize('jobs', [1, 2], ids=['serial', 'given-start-forked'])
+def test_the_lower_of_the_chain_and_the_given_start_is_the_fit(chain_bic, given_bic, given, kept, jobs):
+    rows, fit = _ledger(_Source(chain_bic, given_bic, given=given), Progress.silent(), jobs)
     assert fit.start == kept
     assert rows[-1] == {'term': 'gyro_bias', 'bic': fit.bic}
     assert [row['term'] for row in rows] == [None, 'gyro_misalignment', 'gyro_bias']

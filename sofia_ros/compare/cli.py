@@ -18,6 +18,7 @@ import numpy as np
 
 from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import ConfigError
+from sofia_ros.forked import usable_cores
 from sofia_ros.output_files import current_umask, json_ready, output_target, write_text_atomically
 from sofia_ros.progress import Progress
 
@@ -63,6 +64,10 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
                              '<bag>/.sofia-cache or ~/.cache/sofia_ros; docs/compare.md)')
     parser.add_argument('--quiet', action='store_true',
                         help='no progress lines on stderr (warnings and errors are still written)')
+    parser.add_argument('--jobs', type=integer(1, 64, 'worker processes'), default=usable_cores(),
+                        help='fits that do not depend on each other (refits, judgements, the fit from the given '
+                             'values) run in up to this many forked processes at once (default: the usable cores, '
+                             f'{usable_cores()} here); the results are the same with 1')
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
@@ -294,7 +299,7 @@ def run_compare(args: argparse.Namespace, out: TextIO) -> int:
             result, found = _search(args, model, progress)
             document = json_ready({**result.document, 'search': found})
         else:
-            result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s, progress=progress)
+            result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s, progress=progress, jobs=args.jobs)
             document = json_ready(result.document)
     print_comparison(document, out)
     if args.search:
@@ -326,7 +331,7 @@ def _search(args, model, progress):
     observations = read_observations(args.bag)
     return _searched(args, model, progress, observations,
                      lambda obs, trial: compare_observations(obs, trial, anchor_spacing_s=args.anchor_s,
-                                                             progress=progress))
+                                                             progress=progress, jobs=args.jobs))
 
 
 def _search_set(args, model, out):

@@ -39,6 +39,7 @@ from sofia_ros.compare.verdict import after_member, judge
 from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, resolve_params
 from sofia_ros.effects.empirical import empirical_parts, is_empirical
 from sofia_ros.errors import FitError
+from sofia_ros.forked import ForkedCall, forked_map
 from sofia_ros.progress import Progress
 
 __all__ = ['ABSORBED_FRACTION', 'CHECKED_CHANGES', 'Comparison', 'ComparisonSource', 'Judgement', 'LinearizedCandidate',
@@ -257,6 +258,14 @@ class ComparisonSource(Protocol):
             (the LinearizedCandidates, {name: why this source cannot see it} for the others).
         """
 
+    def shared_objects(self) -> tuple:
+        """The large objects its fits and judgements refer to (a bag's predictor): a forked worker returns them by
+        reference (sofia_ros.forked).
+
+        Returns:
+            The objects.
+        """
+
     def extra_document(self, outcome: Comparison, progress: Progress) -> dict:
         """What only this source adds to the JSON document.
 
@@ -350,30 +359,49 @@ def term_table(fit: SourceFit) -> list[dict]:
             for p, value, sigma in zip(fit.free, fit.values, fit.sigma)]
 
 
-def _ledger(source: ComparisonSource, progress: Progress) -> tuple[list, SourceFit]:
+def _ledger(source: ComparisonSource, progress: Progress, jobs: int = 1) -> tuple[list, SourceFit]:
     """The fixed effects alone, then each fitted term switched on and fitted with those before it."""
     terms = source.ledger_terms()
-    rows, fit, free = [], None, ()
-    for step, term in enumerate([None, *terms]):
-        progress.count('fitting the model, term', step, len(terms))
-        if term is not None:
-            free = free + free_parameters([term])
-        # The last step's whole fit is the comparison's.
-        fit, row = source.chain_step(term, source.ledger_start(fit, term), free, fit, whole=step == len(terms))
-        rows.append(row)
+    free_all = tuple(parameter for term in terms for parameter in free_parameters([term]))
     # The chain's earlier terms absorb what the later ones explain, and the last step can converge from there to
     # another minimum than the values the model was given: a refit's values for a gyro scale factor added last
-    # reached BIC 1023 where the chain ended at 140018 (issue 25, multi-effect atlas). The lower of the two is the fit.
+    # reached BIC 1023 where the chain ended at 140018 (issue 25, multi-effect atlas). The lower of the two is the
+    # fit. The fit from the given values depends on nothing the chain does: with --jobs it runs beside it.
     given = source.given_start()
-    if given is not None:
-        try:
-            from_given = source.fit(given, free, None)
-        except FitError:
-            from_given = None
-        if from_given is not None and from_given.bic < fit.bic:
-            fit = from_given
+    from_given = None if given is None else ForkedCall(lambda: _fit_or_none(source, given, free_all), jobs=jobs,
+                                                       shared=_shared(source, jobs))
+    rows, fit, free = [], None, ()
+    try:
+        for step, term in enumerate([None, *terms]):
+            progress.count('fitting the model, term', step, len(terms))
+            if term is not None:
+                free = free + free_parameters([term])
+            # The last step's whole fit is the comparison's.
+            fit, row = source.chain_step(term, source.ledger_start(fit, term), free, fit, whole=step == len(terms))
+            rows.append(row)
+    except BaseException:
+        if from_given is not None:
+            from_given.cancel()
+        raise
+    if from_given is not None:
+        given_fit = from_given.result()
+        if given_fit is not None and given_fit.bic < fit.bic:
+            fit = given_fit
             rows[-1] = source.ledger_row(terms[-1], fit)
     return rows, fit
+
+
+def _shared(source: ComparisonSource, jobs: int) -> tuple:
+    """What a forked worker returns by reference (ComparisonSource.shared_objects); nothing without workers."""
+    return source.shared_objects() if jobs > 1 else ()
+
+
+def _fit_or_none(source: ComparisonSource, effects: dict, free: tuple) -> SourceFit | None:
+    """source.fit from no start, or None where the values put stars off their detectors (FitError)."""
+    try:
+        return source.fit(effects, free, None)
+    except FitError:
+        return None
 
 
 def _scaled(totals: Mapping, ratio: float) -> dict:
@@ -407,25 +435,34 @@ def _absorbing_terms(jacobian: Any, nuisance: int, free: Sequence[FreeParameter]
 
 def _refits(source: ComparisonSource, final: SourceFit, ranked: list[RankedCandidate],
             starts: Mapping[str, LinearizedCandidate], entries: dict, per_candidate_s: float,
-            progress: Progress) -> dict:
-    """The best few (compare.competing.refit_order) refitted in full from their linearized values; their entries
-    replaced. A refit that fails leaves the linearized entry standing."""
-    refits = {}
+            progress: Progress, jobs: int = 1) -> dict:
+    """The best few (compare.competing.refit_order) refitted in full from their linearized values, ``jobs`` at a
+    time; their entries replaced. A refit that fails leaves the linearized entry standing."""
     order = refit_order(ranked)
-    for done, candidate in enumerate(order):
-        progress.count('refitting the best candidates', done, len(order))
+
+    def refit(candidate: RankedCandidate) -> tuple[SourceFit, float] | None:
         started = time.perf_counter()
         start = starts[candidate.name]
         effects = {**start.effects, candidate.name: {**start.effects[candidate.name], **candidate.params}}
         try:
             trial = source.fit(effects, final.free + start.free, final)
         except FitError:
+            return None
+        return trial, time.perf_counter() - started
+
+    progress.count('refitting the best candidates', 0, len(order))
+    outcomes = forked_map(refit, order, jobs=jobs, shared=_shared(source, jobs),
+                          done=lambda count: progress.count('refitting the best candidates', count, len(order)))
+    refits = {}
+    for candidate, outcome in zip(order, outcomes):
+        if outcome is None:
             continue
+        trial, seconds = outcome
         extra = trial.free[len(final.free):]
         entries[candidate.name] = candidate_entry(
             candidate.name, {p.name: float(v) for p, v in zip(extra, trial.values[len(final.free):])},
             {p.name: float(s) for p, s in zip(extra, trial.sigma[len(final.free):])}, source.rms_after(trial),
-            final.bic - trial.bic, refined=True, seconds=per_candidate_s + time.perf_counter() - started)
+            final.bic - trial.bic, refined=True, seconds=per_candidate_s + seconds)
         refits[candidate.name] = trial
     return refits
 
@@ -453,27 +490,31 @@ def _checked_change(source: ComparisonSource, change: dict, models: LinearizedMo
 
 def _confirmed_change(source: ComparisonSource, changes: Sequence[dict], swaps: Sequence[dict],
                       models: LinearizedModels, final: SourceFit,
-                      starts: Mapping[str, LinearizedCandidate]) -> dict | None:
+                      starts: Mapping[str, LinearizedCandidate], jobs: int = 1) -> dict | None:
     """The changes the linearization calls significant, then the rival swaps (search.rival_swaps), refitted in full
     in that order until one lowers the BIC significantly: that one, else the best refitted (None if none was).
     At most CHECKED_CHANGES refits. A linearized gain is a guess where terms interact or an effect is far from
-    where it was linearized: a one-for-one swap can lose what the two-for-one swap behind it wins."""
+    where it was linearized: a one-for-one swap can lose what the two-for-one swap behind it wins. With ``jobs``
+    above 1 the refits run that many at a time and are read in the same order: the answer is the same, a refit
+    past the one that decides is wasted."""
     significant = [change for change in changes if change['expected_delta_bic'] >= SIGNIFICANT_DELTA_BIC]
     tried = {(change['term'], change['effect']) for change in significant}
-    queue = significant + [swap for swap in swaps if (swap['term'], swap['effect']) not in tried]
+    queue = (significant + [swap for swap in swaps if (swap['term'], swap['effect']) not in tried])[:CHECKED_CHANGES]
     best = None
-    for change in queue[:CHECKED_CHANGES]:
-        checked = _checked_change(source, change, models, final, starts)
-        if checked is not None and (best is None or checked['delta_bic'] > best['delta_bic']):
-            best = checked
-        if best is not None and best['delta_bic'] >= SIGNIFICANT_DELTA_BIC:
-            break
+    for first in range(0, len(queue), max(jobs, 1)):
+        batch = queue[first:first + max(jobs, 1)]
+        for checked in forked_map(lambda change: _checked_change(source, change, models, final, starts), batch,
+                                  jobs=jobs, shared=_shared(source, jobs)):
+            if checked is not None and (best is None or checked['delta_bic'] > best['delta_bic']):
+                best = checked
+            if best is not None and best['delta_bic'] >= SIGNIFICANT_DELTA_BIC:
+                return best
     return best
 
 
 def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
                    candidate_names: Sequence[str] | None = None, started: float | None = None,
-                   progress: Progress | None = None) -> Comparison:
+                   progress: Progress | None = None, jobs: int = 1) -> Comparison:
     """Compare a source's model with its data: ledger, ranking, refits, competing sets, model terms, verdict.
 
     Args:
@@ -482,6 +523,9 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
         candidate_names: the candidates to try, or None for the catalogue (effects.CATALOGUE, plug-ins included).
         started: perf_counter at which the comparison began (the bag's reading counts), or None for now.
         progress: where the phases go (Progress), or None for nowhere.
+        jobs: the most forked workers at a time for the fits that do not depend on each other (sofia_ros.forked):
+            the fit from the model's given values beside the ledger's chain, the refits, the judgements of the
+            contenders and the checked changes. The results are the same as with 1.
 
     Returns:
         The Comparison, its document complete with the source's own keys.
@@ -491,7 +535,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     """
     started = time.perf_counter() if started is None else started
     progress = progress or Progress.silent()
-    ledger, final = _ledger(source, progress)
+    ledger, final = _ledger(source, progress, jobs)
     rms = source.residual_rms(final)
     totals = source.rms_after(final)
 
@@ -530,7 +574,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     every_model = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance, terms)
     starts = {candidate.term.name: dataclasses.replace(candidate, term=None) for candidate in linearized}
     del linearized, terms, jacobian
-    refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress)
+    refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress, jobs)
     scores = {candidate.name: entries[candidate.name]['delta_bic'] for candidate in ranked}
     for name, reason in unseen.items():
         entries[name] = candidate_entry(name, {}, {}, {}, 0.0, detectable=False, reason=reason)
@@ -550,12 +594,13 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     del every_model
     own_terms = model_terms(models, fitted_now)
     change = _confirmed_change(source, structural_changes(models, fitted_now, CHECKED_CHANGES),
-                               rival_swaps(models, fitted_now, own_terms), models, final, starts)
+                               rival_swaps(models, fitted_now, own_terms), models, final, starts, jobs)
     alternatives_s = time.perf_counter() - alternatives_started
 
     progress.phase('diagnostics after the contenders')
     diagnostics_started = time.perf_counter()
-    after = {name: source.judge_fit(fit) for name, fit in refits.items()}
+    after = dict(zip(refits, forked_map(source.judge_fit, list(refits.values()), jobs=jobs,
+                                        shared=_shared(source, jobs))))
     diagnostics_s += time.perf_counter() - diagnostics_started
     members = {name: after_member(judged.diagnostics, judged.consistency) for name, judged in after.items()}
     best_name = preferred_best(after, scores, members, competing)

@@ -92,6 +92,7 @@ class BagSource:
             model: the model compared (EffectConfig).
             anchor_spacing_s: seconds between attitude anchors.
             steps: where the ledger's steps are kept (compare.steps), or None for this process's memory.
+        jobs: the most forked workers at a time (compare.pipeline.run_comparison).
         """
         self.observations = observations
         self.steps = steps or StepStore()
@@ -347,6 +348,14 @@ class BagSource:
             out.append(LinearizedCandidate(term, free, switched))
         return out, {}
 
+    def shared_objects(self) -> tuple:
+        """The predictor, the anchors' prior and the noise floors a fit refers to (ComparisonSource.shared_objects).
+
+        Returns:
+            The objects.
+        """
+        return self.predictor, self.prior, self.noise_arcsec, self.observations
+
     def extra_document(self, outcome: Comparison, progress: Progress) -> dict:
         """The bag's own keys: cameras, noise, outliers, consistency, anchors, and a star hop's holds.
 
@@ -383,7 +392,8 @@ class BagSource:
 
 
 def compare_bag(bag_path: Any, model: EffectConfig, *, anchor_spacing_s: float = 30.0,
-                candidate_names: Sequence[str] | None = None, progress: Progress | None = None) -> CompareResult:
+                candidate_names: Sequence[str] | None = None, progress: Progress | None = None,
+                jobs: int = 1) -> CompareResult:
     """Compare ``model`` with the bag.
 
     Args:
@@ -392,6 +402,7 @@ def compare_bag(bag_path: Any, model: EffectConfig, *, anchor_spacing_s: float =
         anchor_spacing_s: seconds between attitude anchors.
         candidate_names: the candidates to try, or None for the catalogue.
         progress: where the phases go, or None for nowhere.
+        jobs: the most forked workers at a time (compare.pipeline.run_comparison).
 
     Returns:
         The CompareResult.
@@ -402,12 +413,13 @@ def compare_bag(bag_path: Any, model: EffectConfig, *, anchor_spacing_s: float =
     observations = read_observations(bag_path)
     return compare_observations(observations, model, anchor_spacing_s=anchor_spacing_s,
                                 candidate_names=candidate_names, started=started, progress=progress,
-                                steps=step_store(bag_path))
+                                steps=step_store(bag_path), jobs=jobs)
 
 
 def compare_observations(observations: Any, model: EffectConfig, *, anchor_spacing_s: float = 30.0,
                          candidate_names: Sequence[str] | None = None, started: float | None = None,
-                         progress: Progress | None = None, steps: StepStore | None = None) -> CompareResult:
+                         progress: Progress | None = None, steps: StepStore | None = None,
+                         jobs: int = 1) -> CompareResult:
     """Compare ``model`` with observations already read (compare.observations) through compare.pipeline.
 
     Args:
@@ -418,12 +430,13 @@ def compare_observations(observations: Any, model: EffectConfig, *, anchor_spaci
         started: perf_counter at which the comparison began, or None for now.
         progress: where the phases go, or None for nowhere.
         steps: where the ledger's steps are kept (compare.steps), or None for this process's memory.
+        jobs: the most forked workers at a time (compare.pipeline.run_comparison).
 
     Returns:
         The CompareResult.
     """
     source = BagSource(observations, model, anchor_spacing_s=anchor_spacing_s, steps=steps)
     outcome = run_comparison(source, model.effects, candidate_names=candidate_names, started=started,
-                             progress=progress)
+                             progress=progress, jobs=jobs)
     return CompareResult(outcome.document, observations, outcome.final_fit, outcome.best_fit, outcome.best_name,
                          source.predictor)

@@ -428,6 +428,14 @@ class SetSource:
             out.append(LinearizedCandidate(term, kept, switched))
         return out, {**blind, **vanished}
 
+    def shared_objects(self) -> tuple:
+        """Nothing: a set is compared in one process, its fits take milliseconds (ComparisonSource.shared_objects).
+
+        Returns:
+            ().
+        """
+        return ()
+
     def extra_document(self, outcome: Comparison, progress: Progress) -> dict:
         """The set's own keys: its tables, floors, blind fitted terms, rows, Earth-rate tables.
 

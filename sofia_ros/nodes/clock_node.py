@@ -110,6 +110,11 @@ class ClockNode(LockstepNode):
             state = 'the node is gone' if gone else 'the node is gone or stuck'
             others = ', '.join(name for name in silent if name != culprit)
             waiting_note = f'; waiting on it: {others}' if others else ''
+            # A node connected and then silent on the first tick: its process's DDS events stopped arriving (it
+            # waits in the executor, /sim/stop unheard too), about 1 start in 30 with three graphs at once on two
+            # cores; a new start does not meet it again.
+            first_tick_note = '; a graph stalled on its first tick starts cleanly again: run it again' if waiting == 1 \
+                else ''
             self._stop(waiting, f'{culprit} stopped reporting at tick {waiting} '
                                 f'(sim {waiting * self.tick_ns / m.NS_PER_S:.1f} s) for {self.stall_timeout_s:g} s: '
-                                f'{state}{waiting_note}', complete=False)
+                                f'{state}{waiting_note}{first_tick_note}', complete=False)

@@ -292,6 +292,9 @@ def wait_for_graph(graph, *, timeout_s=3600.0, progress=None, max_sim_s=None):
             while (_bag_is_closed(graph) and clock.poll() is None and interrupts.requested() is None
                    and time.monotonic() < deadline):
                 time.sleep(0.1)
+            if clock.returncode == STALLED_EXIT_CODE:
+                # A node fell silent: the one that is stuck rather than gone leaves where it hangs in its log.
+                _dump_stacks(graph)
     finally:
         stop_graph(graph)
     recorder = graph.processes['recorder']

@@ -1,0 +1,212 @@
+"""Independent pieces of one command run side by side in forked worker processes (`sofia compare --jobs`).
+
+A comparison's refits, the judgements of its contenders and the fit from a model's given values
+do not depend on each other. Each needs the bag's observations and the predictor's caches (about
+700 MB on a star hop), which a forked worker shares with its parent page by page instead of
+receiving them pickled: the worker calls the function it was forked with, and only its result
+travels back, pickled through a file. It computes with the same code on the same arrays as the
+parent would, so the results are those of a serial run (test/test_compare_jobs.py). A result
+that refers to objects the worker was forked with (a fit refers to the bag's predictor) names
+them in its pickle by reference (``shared``): the parent puts its own back instead of a copy.
+
+Each worker is forked from the thread that asks for it, with no other thread of this module
+running: concurrent.futures.ProcessPoolExecutor forks its later workers while its manager thread
+runs, which can deadlock a child (cpython issue 90622).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import select
+import shutil
+import signal
+import tempfile
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any, BinaryIO, Generic, TypeVar
+
+from sofia_ros.errors import ForkedWorkerError
+
+__all__ = ['ForkedCall', 'forked_map', 'usable_cores']
+
+_T = TypeVar('_T')
+_R = TypeVar('_R')
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask), at least 1."""
+    return max(len(os.sched_getaffinity(0)), 1)
+
+
+class _SharedPickler(pickle.Pickler):
+    """Pickles the objects of ``shared`` by reference: their id, the same in a forked child as in its parent."""
+
+    def __init__(self, file: BinaryIO, shared: Mapping[int, object]) -> None:
+        super().__init__(file, protocol=pickle.HIGHEST_PROTOCOL)
+        self.shared = shared
+
+    def persistent_id(self, obj: object) -> int | None:
+        return id(obj) if id(obj) in self.shared else None
+
+
+class _SharedUnpickler(pickle.Unpickler):
+    """Reads what _SharedPickler wrote, the parent's own objects in place of the references."""
+
+    def __init__(self, file: BinaryIO, shared: Mapping[int, object]) -> None:
+        super().__init__(file)
+        self.shared = shared
+
+    def persistent_load(self, pid: Any) -> object:
+        return self.shared[pid]
+
+
+class _Worker:
+    """``function()`` in a child forked now; its outcome pickled to ``path``, ``shared`` by reference."""
+
+    def __init__(self, function: Callable[[], Any], path: Path, shared: Mapping[int, object]) -> None:
+        self.path = path
+        self.shared = shared
+        self.pid = os.fork()
+        if self.pid == 0:
+            self._run_child(function)
+        self.pidfd = os.pidfd_open(self.pid)
+
+    def _run_child(self, function: Callable[[], Any]) -> None:
+        try:
+            # Ctrl-C reaches the whole process group: the parent stops, the workers just end.
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
+            try:
+                outcome = (True, function())
+            except Exception as err:  # noqa: BLE001  (raised again in the parent)
+                outcome = (False, err)
+            partial = self.path.with_suffix('.partial')
+            try:
+                with partial.open('wb') as file:
+                    _SharedPickler(file, self.shared).dump(outcome)
+            except Exception as err:  # noqa: BLE001  (an outcome that does not pickle: say so)
+                partial.write_bytes(pickle.dumps((False, ForkedWorkerError(
+                    f'a --jobs worker could not return its result ({type(err).__name__}: {err}); rerun with '
+                    f'--jobs 1'))))
+            os.replace(partial, self.path)
+        finally:
+            os._exit(0)
+
+    def wait(self) -> Any:
+        """The function's value, or its exception raised here."""
+        _, status = os.waitpid(self.pid, 0)
+        os.close(self.pidfd)
+        code = os.waitstatus_to_exitcode(status)
+        if code != 0 or not self.path.exists():
+            how = f'was killed by {signal.Signals(-code).name}' if code < 0 else f'exited with code {code}'
+            raise ForkedWorkerError(f'a --jobs worker {how} before it returned (out of memory?); rerun with '
+                                    f'--jobs 1')
+        with self.path.open('rb') as file:
+            succeeded, value = _SharedUnpickler(file, self.shared).load()
+        self.path.unlink()
+        if not succeeded:
+            raise value
+        return value
+
+    def kill(self) -> None:
+        """End the worker at once and reap it."""
+        try:
+            os.kill(self.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        os.waitpid(self.pid, 0)
+        os.close(self.pidfd)
+
+
+def _by_id(shared: Iterable[object]) -> dict[int, object]:
+    return {id(obj): obj for obj in shared}
+
+
+def forked_map(function: Callable[[_T], _R], items: Sequence[_T], *, jobs: int, shared: Iterable[object] = (),
+               done: Callable[[int], None] = lambda count: None) -> list[_R]:
+    """``[function(item) for item in items]``, at most ``jobs`` at a time in forked workers; in this process when
+    ``jobs`` is 1 or there is one item. The first exception ``function`` raises, in item order, is raised here
+    once every item has run.
+
+    Args:
+        function: any callable, a closure too: each worker is forked with it.
+        items: what it is called with, one worker each.
+        jobs: the most workers at a time.
+        shared: objects a result may refer to that the workers were forked with: returned by reference.
+        done: called with the number of results in so far, after each one (progress).
+
+    Returns:
+        The results in the order of ``items``.
+
+    Raises:
+        ForkedWorkerError: a worker died before it returned.
+    """
+    if jobs <= 1 or len(items) <= 1:
+        results = []
+        for item in items:
+            results.append(function(item))
+            done(len(results))
+        return results
+    directory = Path(tempfile.mkdtemp(prefix='sofia-jobs-'))
+    shared_by_id = _by_id(shared)
+    running: dict[int, tuple[int, _Worker]] = {}  # pidfd -> (index, worker)
+    outcomes: dict[int, tuple[bool, Any]] = {}
+    started = 0
+    try:
+        while len(outcomes) < len(items):
+            while started < len(items) and len(running) < jobs:
+                item = items[started]
+                worker = _Worker(lambda: function(item), directory / f'{started}.pickle', shared_by_id)
+                running[worker.pidfd] = (started, worker)
+                started += 1
+            ready, _, _ = select.select(list(running), [], [])
+            for pidfd in ready:
+                index, worker = running.pop(pidfd)
+                try:
+                    outcomes[index] = (True, worker.wait())
+                except ForkedWorkerError:
+                    raise
+                except Exception as err:  # noqa: BLE001  (raised in item order below)
+                    outcomes[index] = (False, err)
+                done(len(outcomes))
+    except BaseException:
+        # Ctrl-C, or a worker that died: the others are stopped, nothing of theirs is kept.
+        for _, worker in running.values():
+            worker.kill()
+        raise
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
+    for index in range(len(items)):
+        succeeded, value = outcomes[index]
+        if not succeeded:
+            raise value
+    return [outcomes[index][1] for index in range(len(items))]
+
+
+class ForkedCall(Generic[_R]):
+    """``function()`` started now in a forked worker, or run by :meth:`result` in this process when ``jobs`` is 1."""
+
+    def __init__(self, function: Callable[[], _R], *, jobs: int, shared: Iterable[object] = ()) -> None:
+        self._function = function
+        self._directory = None
+        self._worker = None
+        if jobs > 1:
+            self._directory = Path(tempfile.mkdtemp(prefix='sofia-jobs-'))
+            self._worker = _Worker(function, self._directory / 'result.pickle', _by_id(shared))
+
+    def result(self) -> _R:
+        """The function's value, or the exception it raised, raised here."""
+        if self._worker is None:
+            return self._function()
+        try:
+            return self._worker.wait()
+        finally:
+            self._worker = None
+            shutil.rmtree(self._directory, ignore_errors=True)
+
+    def cancel(self) -> None:
+        """Stop the worker: its result is not wanted (a failure or Ctrl-C while it ran)."""
+        if self._worker is not None:
+            self._worker.kill()
+            self._worker = None
+            shutil.rmtree(self._directory, ignore_errors=True)

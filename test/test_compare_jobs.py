@@ -1,0 +1,121 @@
+"""`sofia compare --jobs`: independent fits in forked workers, the same answers as one process (issue 27)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sofia_ros.compare.run import compare_bag
+from sofia_ros.config import parse_effect_config
+from sofia_ros.errors import ForkedWorkerError
+from sofia_ros.forked import ForkedCall, forked_map
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_results_come_back_in_item_order_from_other_processes_and_leave_no_file(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, 'tempdir', str(tmp_path))
+    results = forked_map(lambda n: (n * n, os.getpid()), list(range(5)), jobs=2)
+    assert [square for square, _ in results] == [0, 1, 4, 9, 16]
+    assert os.getpid() not in {pid for _, pid in results} and len({pid for _, pid in results}) == 5
+    assert not list(tmp_path.iterdir())
+
+
+def test_one_job_runs_in_this_process():
+    assert forked_map(lambda n: os.getpid(), [1, 2, 3], jobs=1) == [os.getpid()] * 3
+
+
+def test_the_first_error_in_item_order_is_raised_here():
+    def fail_on_odd(n):
+        if n % 2:
+            raise ValueError(f'item {n} is odd')
+        return n
+
+    with pytest.raises(ValueError, match='item 1 is odd'):
+        forked_map(fail_on_odd, [0, 1, 2, 3], jobs=2)
+
+
+def test_a_worker_that_is_killed_is_one_clear_error():
+    def die(n):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    with pytest.raises(ForkedWorkerError, match=r'a --jobs worker was killed by SIGKILL .*rerun with --jobs 1'):
+        forked_map(die, [0, 1], jobs=2)
+
+
+def test_a_result_that_does_not_pickle_is_one_clear_error():
+    with pytest.raises(ForkedWorkerError, match=r'could not return its result .*rerun with --jobs 1'):
+        forked_map(lambda n: (lambda: n), [0, 1], jobs=2)
+
+
+def test_shared_objects_come_back_as_the_parents_own_not_copies():
+    table = np.arange(1_000_000.0)
+    results = forked_map(lambda n: {'n': n, 'table': table}, [0, 1], jobs=2, shared=[table])
+    assert all(result['table'] is table for result in results)
+
+
+def _children():
+    return Path(f'/proc/{os.getpid()}/task/{os.getpid()}/children').read_text().split()
+
+
+def test_an_interruption_stops_every_worker_and_leaves_no_process():
+    def interrupt(count):
+        raise KeyboardInterrupt
+
+    before = _children()
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        # The first item returns at once; Ctrl-C then (here raised by the progress callback) stops the two asleep.
+        forked_map(lambda n: time.sleep(30.0 * n), [0, 1, 2], jobs=3, done=interrupt)
+    assert time.monotonic() - started < 20.0
+    assert _children() == before
+
+
+def test_a_forked_call_runs_beside_this_process_and_can_be_cancelled():
+    call = ForkedCall(lambda: os.getpid(), jobs=2)
+    assert call.result() != os.getpid()
+    assert ForkedCall(lambda: os.getpid(), jobs=1).result() == os.getpid()
+    sleeper = ForkedCall(lambda: time.sleep(30.0), jobs=2)
+    started = time.monotonic()
+    sleeper.cancel()
+    assert time.monotonic() - started < 5.0
+
+
+def _without_timings(document):
+    if isinstance(document, dict):
+        return {key: _without_timings(value) for key, value in document.items() if key != 'seconds'}
+    if isinstance(document, list):
+        return [_without_timings(value) for value in document]
+    return document
+
+
+@pytest.mark.timeout(300)
+def test_a_comparison_with_two_jobs_is_the_comparison_with_one(campaign_bags):
+    # A hidden scale factor: refits, contenders judged again and checked changes; a timestamp offset the model gives
+    # a value of its own: the fit from the given values runs beside the ledger's chain.
+    bag = campaign_bags.reduced_alignment(effect='gyro_scale_factor')
+    given = '  timestamp_offset: {offset_s: 0.002, fit: true}\n'
+    text = (ROOT / 'config' / 'model' / 'nominal.yaml').read_text() + given
+    model = parse_effect_config(text, 'model')
+    serial = compare_bag(bag, model, jobs=1)
+    forked = compare_bag(bag, model, jobs=2)
+    assert any(entry.get('refined') for entry in serial.document['candidates'])
+    assert _without_timings(forked.document) == _without_timings(serial.document)
+    assert forked.best_name == serial.best_name
+    assert forked.best_fit is None or forked.best_fit.jacobian_point.predictor is forked.predictor
+
+
+@pytest.mark.parametrize('jobs', ['0', '65', 'two'])
+def test_a_jobs_count_out_of_range_is_one_line_and_exit_2(jobs, tmp_path, capsys):
+    from sofia_ros.cli import main
+
+    code = main(['compare', str(tmp_path), '--model', str(ROOT / 'config' / 'model' / 'nominal.yaml'), '--jobs', jobs])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count('\n') == 1 and 'argument --jobs:' in err and '(worker processes)' in err

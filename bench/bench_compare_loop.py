@@ -5,9 +5,10 @@ The Waco 2004 truth (config/truth/waco-2004.yaml: five hidden effects) is flown 
 the user's loop is followed as the README teaches it: `sofia compare BAG --model M --json J`,
 then the command the verdict names (`verdict.next.command`: `sofia model add|remove|replace`),
 up to --rounds rounds or until the verdict has nothing to do. Each compare runs in its own process
-as a user runs it; printed per round: its wall time, its peak memory (the child's maxrss from
-wait4), its status, RMS and next step, and whether it read the bag or the observation cache (the
-first compare of a bag decodes it, the later ones read the cache). Beside the loop, the same bag
+as a user runs it; printed per round: its wall time, its peak memory (the proportional set size of
+the command and its --jobs workers together, sampled every 0.25 s), its status, RMS and next step,
+and whether it read the bag or the observation cache (the first compare of a bag decodes it, the
+later ones read the cache). Beside the loop, the same bag
 with the nominal model once more with --no-cache: the decode's share of a compare.
 
 With ``--baseline CHECKOUT`` (another checkout, e.g. ``git worktree add /tmp/base <commit>``) every
@@ -38,6 +39,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -63,26 +65,66 @@ def _say(line: str) -> None:
 
 
 def _sofia(checkout: Path, *arguments: str) -> tuple[subprocess.CompletedProcess, float, float]:
-    """`python -m sofia_ros.cli ARGUMENTS` from a checkout: the completed process, its wall s and its own peak MB."""
+    """`python -m sofia_ros.cli ARGUMENTS` from a checkout: the completed process, its wall s and its peak MB (of all
+    its processes together, _tree_pss_mb)."""
     process, wall_s, peak_mb, _ = _sofia_timed(checkout, *arguments)
     return process, wall_s, peak_mb
 
 
+def _descendants(pid: int) -> list[int]:
+    """``pid`` and every process below it (from /proc/<pid>/task/*/children)."""
+    found, queue = [], [pid]
+    while queue:
+        parent = queue.pop()
+        found.append(parent)
+        for task in Path(f'/proc/{parent}/task').glob('*'):
+            try:
+                queue += [int(child) for child in (task / 'children').read_text().split()]
+            except OSError:
+                continue
+    return found
+
+
+def _tree_pss_mb(pid: int) -> float:
+    """The proportional set size of ``pid`` and its descendants together, MB: `sofia compare --jobs` forks workers
+    that share the parent's pages; their maxrss each counts the shared pages again, their PSS shares them out."""
+    total_kb = 0
+    for each in _descendants(pid):
+        try:
+            rollup = Path(f'/proc/{each}/smaps_rollup').read_text()
+        except OSError:
+            continue
+        total_kb += next((int(line.split()[1]) for line in rollup.splitlines() if line.startswith('Pss:')), 0)
+    return total_kb / 1024.0
+
+
 def _sofia_timed(checkout: Path, *arguments: str) -> tuple[subprocess.CompletedProcess, float, float, float]:
-    """_sofia, and the child's own CPU seconds (user + system)."""
+    """_sofia, and the child's CPU seconds (user + system, its workers' included)."""
     environment = {**os.environ, 'PYTHONPATH': str(checkout)}
     with tempfile.TemporaryFile('w+') as stdout, tempfile.TemporaryFile('w+') as stderr:
         started = time.perf_counter()
         process = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', *arguments], cwd=checkout,
                                    env=environment, stdout=stdout, stderr=stderr, text=True)
-        # wait4 reaps this child alone and gives its own resource usage (maxrss in KiB on Linux).
+        peak_mb = [0.0]
+        finished = threading.Event()
+
+        def sample() -> None:
+            while not finished.wait(0.25):
+                peak_mb[0] = max(peak_mb[0], _tree_pss_mb(process.pid))
+
+        sampler = threading.Thread(target=sample, daemon=True)
+        sampler.start()
+        # wait4 reaps this child alone and gives its resource usage with that of the children it waited for.
         _, status, usage = os.wait4(process.pid, 0)
+        finished.set()
+        sampler.join()
         wall_s = time.perf_counter() - started
         process.returncode = os.waitstatus_to_exitcode(status)
         stdout.seek(0)
         stderr.seek(0)
         completed = subprocess.CompletedProcess(process.args, process.returncode, stdout.read(), stderr.read())
-    return completed, wall_s, usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
+    # A command too short for a sample: its own maxrss (KiB on Linux).
+    return completed, wall_s, peak_mb[0] or usage.ru_maxrss / 1024.0, usage.ru_utime + usage.ru_stime
 
 
 def _checked(process: subprocess.CompletedProcess, what: str) -> subprocess.CompletedProcess:
@@ -161,14 +203,17 @@ def run_loop(campaign: str, seed: int, rounds: int, work: Path, baseline: Path |
                'next': next_step.get('command') or next_step.get('action')}
         if baseline is not None:
             old_output = work / f'{campaign}-{number}-baseline.json'
-            old, old_wall_s, _ = _sofia(baseline, 'compare', str(bag), '--model', str(model), '--json', str(old_output))
+            old, old_wall_s, old_peak_mb = _sofia(baseline, 'compare', str(bag), '--model', str(model), '--json',
+                                                  str(old_output))
             _checked(old, f'baseline compare round {number}')
             same, worst = _agreement(document, json.loads(old_output.read_text()))
-            row.update(baseline_wall_s=round(old_wall_s, 2), same_verdict=same, worst_sigma=worst)
+            row.update(baseline_wall_s=round(old_wall_s, 2), baseline_peak_mb=round(old_peak_mb), same_verdict=same,
+                       worst_sigma=worst)
         rows.append(row)
         _say(f'  {campaign} round {number}: {wall_s:6.1f} s {peak_mb:6.0f} MB ({row["cache"]} cache) '
               f'{row["status"]:<15} RMS {row["rms_arcsec"]:.3f}"  next: {row["next"]}'
-              + (f'  | baseline {row["baseline_wall_s"]:.1f} s, same verdict {row["same_verdict"]}, '
+              + (f'  | baseline {row["baseline_wall_s"]:.1f} s {row["baseline_peak_mb"]} MB, '
+                 f'same verdict {row["same_verdict"]}, '
                  f'worst {row["worst_sigma"]:.2g} sigma' if baseline is not None else ''))
         command = next_step.get('command') or ''
         if next_step.get('action') not in ('add', 'remove', 'replace') or not command.startswith('sofia model '):

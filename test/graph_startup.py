@@ -14,6 +14,8 @@ their first tick in 3 of 89 starts (a node connected, then fell silent: py-spy s
 the EventsExecutor's wait with none of its DDS events arriving, not even /sim/stop; CI met it in
 two runs in a row), and one node process died of SIGSEGV in its parameter reader in 41. Neither
 depends on what a test asserts, and a new start does not meet them again: they are retried too.
+`sofia run --processes` itself starts a graph stalled on its first tick once more (campaigns.recording);
+what reaches a test is two such stalls in a row, or the SIGSEGV.
 """
 
 import pytest

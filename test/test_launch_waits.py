@@ -6,11 +6,14 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
 from sofia_ros.errors import GraphRunError
 from sofia_ros.nodes import launch
+
+NOMINAL_TRUTH = Path(__file__).resolve().parents[1] / 'config' / 'truth' / 'nominal.yaml'
 
 #: A node process as the launcher sees it: its log lines (nodes.executables, nodes.shell), then waiting; SIGUSR1
 #: writes its stack to its log, as the real nodes' faulthandler does.
@@ -127,3 +130,65 @@ def test_a_node_process_ends_without_the_interpreters_teardown_and_keeps_its_log
     assert code.returncode == 3
     assert sorted((tmp_path / 'recorder.log').read_text().splitlines()) == [
         '[INFO] [recorder]: from C', '[INFO] [recorder]: stop after tick 7: done']
+
+
+def _fake_graph_runs(tmp_path, reasons):
+    """A run_graph_in_processes that writes a bag stopped for each reason in turn (a stall: the clock's exit 3), and
+    the starts it was asked for."""
+    from types import SimpleNamespace
+
+    from sofia_ros.bag import BagWriter
+    from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
+    from sofia_ros.topics import STOP_DOCUMENT
+
+    starts = []
+
+    def run(parameters, bag_path, *, timeout_s, progress):
+        reason = reasons[len(starts)]
+        starts.append(parameters['bag_path'])
+        workdir = tmp_path / f'logs{len(starts)}'
+        workdir.mkdir()
+        (workdir / 'clock.log').write_text('[INFO] [1795798817.4] [clock]: started\n')
+        bag = BagWriter(bag_path, epoch_ns=0)
+        bag.open()
+        bag.write_document(STOP_DOCUMENT.name, reason or 'calibration finished', 0)
+        bag.close()
+        clock = SimpleNamespace(returncode=STALLED_EXIT_CODE if reason else 0)
+        return SimpleNamespace(processes={'clock': clock}, workdir=workdir)
+    return run, starts
+
+
+@pytest.mark.parametrize('second', [None, 'again'], ids=['then-runs', 'stalls-again'])
+def test_a_graph_stalled_on_its_first_tick_is_started_once_more_on_a_new_bag(second, tmp_path, monkeypatch, capsys):
+    from sofia_ros.campaigns.alignment import graph_config
+    from sofia_ros.campaigns.recording import _run_processes
+    from sofia_ros.config import load_effect_config
+    from sofia_ros.nodes.clock_node import FIRST_TICK_STALL
+
+    stall = f'gyro_box stopped reporting at tick 1 (sim 0.2 s) for 15 s: the node is gone or stuck{FIRST_TICK_STALL}'
+    run, starts = _fake_graph_runs(tmp_path, [stall, stall if second else None])
+    monkeypatch.setattr(launch, 'run_graph_in_processes', run)
+    config = graph_config(load_effect_config(str(NOMINAL_TRUTH)), seed=0)
+    reason = _run_processes(config, tmp_path / 'bag', 'effects: {}\n', 10.0, 60.0, None)
+    assert len(starts) == 2 and starts[0] == starts[1]
+    assert not (tmp_path / 'logs1').exists(), 'the first start\'s logs go with its bag'
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'the graph stalled on its first tick' in err and 'starting it again' in err
+    if second:
+        assert reason.startswith('gyro_box stopped reporting at tick 1') and str(tmp_path / 'logs2') in reason
+    else:
+        assert reason is None
+
+
+def test_a_stall_after_the_first_tick_is_not_started_again(tmp_path, monkeypatch, capsys):
+    from sofia_ros.campaigns.alignment import graph_config
+    from sofia_ros.campaigns.recording import _run_processes
+    from sofia_ros.config import load_effect_config
+
+    run, starts = _fake_graph_runs(tmp_path, ['gyro_box stopped reporting at tick 9 (sim 1.8 s) for 15 s: the node is '
+                                              'gone'])
+    monkeypatch.setattr(launch, 'run_graph_in_processes', run)
+    config = graph_config(load_effect_config(str(NOMINAL_TRUTH)), seed=0)
+    reason = _run_processes(config, tmp_path / 'bag', 'effects: {}\n', 10.0, 60.0, None)
+    assert len(starts) == 1 and reason.startswith('gyro_box stopped reporting at tick 9')
+    assert capsys.readouterr().err == ''

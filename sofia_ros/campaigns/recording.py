@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
+import sys
 import tempfile
 import time
 from os import PathLike
@@ -169,7 +171,24 @@ def record_graph(config: GraphConfig, bag_path: Path, *, model_text: str | None,
 
 def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress):
     """Each node its own process, reading truth and model from files beside its params file; returns why the
-    run stopped early (the clock's stall reason, as the recorder kept it; a signal) or None."""
+    run stopped early (the clock's stall reason, as the recorder kept it; a signal) or None. A graph that stalls on
+    its first tick (nodes.clock_node.FIRST_TICK_STALL: a fault below this code, nothing recorded yet) is started
+    once more on a new bag, with one line on stderr; a second such stall is the run's reason."""
+    from sofia_ros.nodes.clock_node import FIRST_TICK_STALL
+
+    reason, logs = _run_processes_once(config, bag_path, model_text, max_sim_s, timeout_s, progress)
+    if reason is None or FIRST_TICK_STALL not in reason or interrupts.requested() is not None:
+        return reason
+    shutil.rmtree(logs, ignore_errors=True)
+    shutil.rmtree(bag_path)
+    print(f'running: {reason.split(";", 1)[0]}: the graph stalled on its first tick (a fault of the DDS layer, '
+          f'about 1 start in 30 on a loaded machine); starting it again', file=sys.stderr, flush=True)
+    return _run_processes_once(config, bag_path, model_text, max_sim_s, timeout_s, progress)[0]
+
+
+def _run_processes_once(config, bag_path, model_text, max_sim_s, timeout_s, progress):
+    """One start of the graph in processes (_run_processes): why it stopped early, or None, and the folder of its
+    node logs (kept after a fault)."""
     from sofia_ros.bag import BagReader
     from sofia_ros.campaigns.run_parameters import graph_parameters
     from sofia_ros.nodes.clock_node import STALLED_EXIT_CODE
@@ -183,13 +202,14 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
                                       max_sim_s=max_sim_s, bag_path=bag_path, model_file=model_file)
         graph = run_graph_in_processes(parameters, bag_path, timeout_s=timeout_s, progress=progress)
     if interrupts.requested() is not None:
-        return f'interrupted by {signal.Signals(interrupts.requested()).name}'
+        return f'interrupted by {signal.Signals(interrupts.requested()).name}', graph.workdir
     if graph.processes['clock'].returncode != STALLED_EXIT_CODE:
-        return None
+        return None, graph.workdir
     with BagReader(bag_path) as bag:
         reason = bag.document(STOP_DOCUMENT.name)
     silent = silent_nodes(graph)
-    return f'{reason}; node logs in {graph.workdir}' + (f' (nothing logged: {", ".join(silent)})' if silent else '')
+    return (f'{reason}; node logs in {graph.workdir}' + (f' (nothing logged: {", ".join(silent)})' if silent else ''),
+            graph.workdir)
 
 
 def _run_direct(config, bag_path, documents, max_sim_s, progress):

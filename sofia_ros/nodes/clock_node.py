@@ -14,10 +14,15 @@ from sofia_ros.nodes.sync import STOP_TOPIC, SYNC_QOS, UpstreamState, done_topic
 from sofia_ros.topics import CLOCK
 from rosgraph_msgs.msg import Clock
 
-__all__ = ['ClockNode', 'STALLED_EXIT_CODE']
+__all__ = ['ClockNode', 'FIRST_TICK_STALL', 'STALLED_EXIT_CODE']
 
 #: Exit code of the clock node's process when it stopped the run because a node fell silent (a fault).
 STALLED_EXIT_CODE = 3
+#: The end of the stop reason of a graph whose node connected and then fell silent on the first tick: its process's
+#: DDS events stopped arriving (it waits in the executor, /sim/stop unheard too), about 1 start in 30 with three
+#: graphs at once on two cores (test/graph_startup.py). A new start does not meet it again; `sofia run` starts once
+#: more (campaigns.recording).
+FIRST_TICK_STALL = '; a graph stalled on its first tick starts cleanly again'
 
 _STARTUP_TIMEOUT_S = 120.0
 
@@ -110,11 +115,7 @@ class ClockNode(LockstepNode):
             state = 'the node is gone' if gone else 'the node is gone or stuck'
             others = ', '.join(name for name in silent if name != culprit)
             waiting_note = f'; waiting on it: {others}' if others else ''
-            # A node connected and then silent on the first tick: its process's DDS events stopped arriving (it
-            # waits in the executor, /sim/stop unheard too), about 1 start in 30 with three graphs at once on two
-            # cores; a new start does not meet it again.
-            first_tick_note = '; a graph stalled on its first tick starts cleanly again: run it again' if waiting == 1 \
-                else ''
+            first_tick_note = FIRST_TICK_STALL if waiting == 1 else ''
             self._stop(waiting, f'{culprit} stopped reporting at tick {waiting} '
                                 f'(sim {waiting * self.tick_ns / m.NS_PER_S:.1f} s) for {self.stall_timeout_s:g} s: '
                                 f'{state}{waiting_note}{first_tick_note}', complete=False)

@@ -73,6 +73,7 @@ class _Worker:
         self.pidfd = os.pidfd_open(self.pid)
 
     def _run_child(self, function: Callable[[], Any]) -> None:
+        written = False
         try:
             # Ctrl-C reaches the whole process group: the parent stops, the workers just end.
             signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -84,23 +85,26 @@ class _Worker:
             try:
                 with partial.open('wb') as file:
                     _SharedPickler(file, self.shared).dump(outcome)
-            except Exception as err:  # noqa: BLE001  (an outcome that does not pickle: say so)
+            except (pickle.PicklingError, TypeError, AttributeError) as err:  # a lock, a local function, ...
                 partial.write_bytes(pickle.dumps((False, ForkedWorkerError(
-                    f'a --jobs worker could not return its result ({type(err).__name__}: {err}); rerun with '
-                    f'--jobs 1'))))
+                    f'a --jobs worker could not return its result ({err}); rerun with --jobs 1'))))
             os.replace(partial, self.path)
+            written = True
         finally:
-            os._exit(0)
+            # Never back into the parent's code; 1: nothing written (the parent says so).
+            os._exit(0 if written else 1)
 
     def wait(self) -> Any:
         """The function's value, or its exception raised here."""
         _, status = os.waitpid(self.pid, 0)
         os.close(self.pidfd)
         code = os.waitstatus_to_exitcode(status)
+        if code < 0:
+            raise ForkedWorkerError(f'a --jobs worker was killed by {signal.Signals(-code).name} before it returned '
+                                    f'(out of memory?); rerun with --jobs 1')
         if code != 0 or not self.path.exists():
-            how = f'was killed by {signal.Signals(-code).name}' if code < 0 else f'exited with code {code}'
-            raise ForkedWorkerError(f'a --jobs worker {how} before it returned (out of memory?); rerun with '
-                                    f'--jobs 1')
+            raise ForkedWorkerError(f'a --jobs worker could not write its result into {self.path.parent} (a full '
+                                    f'disk?); rerun with --jobs 1')
         with self.path.open('rb') as file:
             succeeded, value = _SharedUnpickler(file, self.shared).load()
         self.path.unlink()

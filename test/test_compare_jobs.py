@@ -54,6 +54,20 @@ def test_a_result_that_does_not_pickle_is_one_clear_error():
         forked_map(lambda n: (lambda: n), [0, 1], jobs=2)
 
 
+def test_a_worker_that_cannot_write_its_result_is_one_clear_error(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, 'tempdir', str(tmp_path))
+
+    def fill_the_disk(n):
+        # The result's file cannot be written, as on a full disk (a directory in its place: root ignores modes).
+        for folder in tmp_path.glob('sofia-jobs-*'):
+            (folder / f'{n}.partial').mkdir(exist_ok=True)
+        return n
+
+    with pytest.raises(ForkedWorkerError, match=r'could not write its result into .*\(a full disk\?\); rerun with '
+                                                r'--jobs 1'):
+        forked_map(fill_the_disk, [0, 1], jobs=2)
+
+
 def test_shared_objects_come_back_as_the_parents_own_not_copies():
     table = np.arange(1_000_000.0)
     results = forked_map(lambda n: {'n': n, 'table': table}, [0, 1], jobs=2, shared=[table])

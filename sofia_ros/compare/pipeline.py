@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -244,7 +244,7 @@ class ComparisonSource(Protocol):
             judgement: the judgement of the model's fit.
 
         Returns:
-            Effect names.
+            Effect names, ``names`` first and in their order (they are linearized before the judgement is in).
         """
 
     def linearize(self, fit: SourceFit, names: list[str]) -> tuple[list[LinearizedCandidate], dict[str, str]]:
@@ -396,6 +396,12 @@ def _shared(source: ComparisonSource, jobs: int) -> tuple:
     return source.shared_objects() if jobs > 1 else ()
 
 
+def _timed(function: Callable[[Any], Any], argument: Any) -> tuple[Any, float]:
+    """function(argument) and the seconds it took."""
+    started = time.perf_counter()
+    return function(argument), time.perf_counter() - started
+
+
 def _fit_or_none(source: ComparisonSource, effects: dict, free: tuple) -> SourceFit | None:
     """source.fit from no start, or None where the values put stars off their detectors (FitError)."""
     try:
@@ -540,19 +546,29 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     totals = source.rms_after(final)
 
     progress.phase('residual diagnostics')
-    diagnostics_started = time.perf_counter()
-    judgement = source.judge_fit(final)
-    diagnostics_s = time.perf_counter() - diagnostics_started
-    names = source.candidate_names(_missing_names(model_effects, candidate_names), judgement)
+    catalogue = _missing_names(model_effects, candidate_names)
+    # The judgement names the empirical shapes to try; the catalogue's candidates do not wait for it: with --jobs
+    # they are linearized while a worker judges.
+    judging = ForkedCall(lambda: _timed(source.judge_fit, final), jobs=jobs, shared=_shared(source, jobs))
+    linear_started = time.perf_counter()
+    try:
+        linearized, unseen = source.linearize(final, catalogue) if jobs > 1 else ([], {})
+        linear_s = time.perf_counter() - linear_started
+        judgement, diagnostics_s = judging.result()
+    except BaseException:
+        judging.cancel()
+        raise
+    names = source.candidate_names(catalogue, judgement)
     progress.phase(f'linearizing {len(names)} candidate effects')
     linear_started = time.perf_counter()
-    linearized, unseen = source.linearize(final, names)
+    more, more_unseen = source.linearize(final, names[len(catalogue):] if jobs > 1 else names)
+    linearized, unseen = linearized + more, {**unseen, **more_unseen}
     terms = [candidate.term for candidate in linearized]
     residual, jacobian, nuisance = source.ranking_problem(final)
     # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
     # "outliers", and the Huber weights that protect a bag's fit would hide that failure from the ranking.
     ranked = rank_candidates(residual, jacobian, terms)
-    per_candidate_s = (time.perf_counter() - linear_started) / max(len(terms), 1)
+    per_candidate_s = (linear_s + time.perf_counter() - linear_started) / max(len(terms), 1)
     rss_base = float(residual @ residual)
     hidden = [candidate for candidate in ranked if not candidate.observable]
     absorbed = _absorbing_terms(jacobian, nuisance, final.free,

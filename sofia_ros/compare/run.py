@@ -92,7 +92,6 @@ class BagSource:
             model: the model compared (EffectConfig).
             anchor_spacing_s: seconds between attitude anchors.
             steps: where the ledger's steps are kept (compare.steps), or None for this process's memory.
-        jobs: the most forked workers at a time (compare.pipeline.run_comparison).
         """
         self.observations = observations
         self.steps = steps or StepStore()

@@ -58,6 +58,34 @@ def test_only_the_final_fit_and_the_preferred_refit_outlive_the_comparison():
     assert not hasattr(outcome, 'refits') and not hasattr(outcome, 'linearized')
 
 
+class WatchedTerms(FakeSource):
+    """The fake source, the candidates' linearized terms it returns watched; at each fit, how many are alive."""
+
+    def __init__(self, model):
+        super().__init__(model)
+        self.terms = []
+        self.alive_at_fits = []
+
+    def linearize(self, fit, names):
+        linearized, unseen = super().linearize(fit, names)
+        self.terms += [weakref.ref(candidate.term) for candidate in linearized]
+        return linearized, unseen
+
+    def fit(self, effects, free, start):
+        gc.collect()
+        self.alive_at_fits.append(sum(reference() is not None for reference in self.terms))
+        return super().fit(effects, free, start)
+
+
+def test_the_candidates_columns_are_let_go_before_the_refits():
+    # Their columns (about 190 MB on a star hop) serve the ranking and the linearized models; a refit holds its own.
+    model = parse_effect_config('effects: {accelerometer_bias: {fit: true}}', 'fake-model.yaml')
+    source = WatchedTerms(model)
+    outcome = run_comparison(source, model.effects, candidate_names=('gyro_bias', 'gyro_scale_factor'))
+    assert any(c['refined'] for c in outcome.document['candidates']) and source.terms
+    assert source.alive_at_fits and max(source.alive_at_fits) == 0
+
+
 @pytest.fixture(scope='module')
 def decoded(campaign_bags):
     return decode_observations(campaign_bags.reduced_alignment())

@@ -589,7 +589,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     # judgements fit and hold more. Where each candidate starts is what those need of it.
     every_model = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance, terms)
     starts = {candidate.term.name: dataclasses.replace(candidate, term=None) for candidate in linearized}
-    del linearized, terms, jacobian
+    del linearized, more, terms, jacobian
     refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress, jobs)
     scores = {candidate.name: entries[candidate.name]['delta_bic'] for candidate in ranked}
     for name, reason in unseen.items():

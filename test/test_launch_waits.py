@@ -176,6 +176,9 @@ def test_a_graph_stalled_on_its_first_tick_is_started_once_more_on_a_new_bag(sec
     assert err.count('\n') == 1 and 'the graph stalled on its first tick' in err and 'starting it again' in err
     if second:
         assert reason.startswith('gyro_box stopped reporting at tick 1') and str(tmp_path / 'logs2') in reason
+        # Not "starts cleanly again": it just did not.
+        assert FIRST_TICK_STALL not in reason
+        assert 'on a second start as well: run it again, or without --processes' in reason
     else:
         assert reason is None
 

@@ -169,11 +169,17 @@ def record_graph(config: GraphConfig, bag_path: Path, *, model_text: str | None,
     raise ConfigError(f'mode must be one of {", ".join(MODES)}, got {mode!r}')
 
 
+#: What a graph stalled on its first tick on its second start too is told (in place of clock_node.FIRST_TICK_STALL).
+_SECOND_FIRST_TICK_STALL = ('; it stalled on its first tick on a second start as well: run it again, or without '
+                            '--processes (one process, no DDS between the nodes)')
+
+
 def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress):
     """Each node its own process, reading truth and model from files beside its params file; returns why the
     run stopped early (the clock's stall reason, as the recorder kept it; a signal) or None. A graph that stalls on
     its first tick (nodes.clock_node.FIRST_TICK_STALL: a fault below this code, nothing recorded yet) is started
-    once more on a new bag, with one line on stderr; a second such stall is the run's reason."""
+    once more on a new bag, with one line on stderr; a second such stall is the run's reason, its note that a new
+    start runs cleanly replaced (this was the new start)."""
     from sofia_ros.nodes.clock_node import FIRST_TICK_STALL
 
     reason, logs = _run_processes_once(config, bag_path, model_text, max_sim_s, timeout_s, progress)
@@ -183,7 +189,8 @@ def _run_processes(config, bag_path, model_text, max_sim_s, timeout_s, progress)
     shutil.rmtree(bag_path)
     print(f'running: {reason.split(";", 1)[0]}: the graph stalled on its first tick (a fault of the DDS layer, '
           f'about 1 start in 30 on a loaded machine); starting it again', file=sys.stderr, flush=True)
-    return _run_processes_once(config, bag_path, model_text, max_sim_s, timeout_s, progress)[0]
+    again = _run_processes_once(config, bag_path, model_text, max_sim_s, timeout_s, progress)[0]
+    return None if again is None else again.replace(FIRST_TICK_STALL, _SECOND_FIRST_TICK_STALL)
 
 
 def _run_processes_once(config, bag_path, model_text, max_sim_s, timeout_s, progress):

@@ -362,7 +362,8 @@ def term_table(fit: SourceFit) -> list[dict]:
 def _ledger(source: ComparisonSource, progress: Progress, jobs: int = 1) -> tuple[list, SourceFit]:
     """The fixed effects alone, then each fitted term switched on and fitted with those before it."""
     terms = source.ledger_terms()
-    free_all = tuple(parameter for term in terms for parameter in free_parameters([term]))
+    free_of = [free_parameters([term]) for term in terms]
+    free_all = tuple(parameter for free in free_of for parameter in free)
     # The chain's earlier terms absorb what the later ones explain, and the last step can converge from there to
     # another minimum than the values the model was given: a refit's values for a gyro scale factor added last
     # reached BIC 1023 where the chain ended at 140018 (issue 25, multi-effect atlas). The lower of the two is the
@@ -375,7 +376,7 @@ def _ledger(source: ComparisonSource, progress: Progress, jobs: int = 1) -> tupl
         for step, term in enumerate([None, *terms]):
             progress.count('fitting the model, term', step, len(terms))
             if term is not None:
-                free = free + free_parameters([term])
+                free = free + free_of[step - 1]
             # The last step's whole fit is the comparison's.
             fit, row = source.chain_step(term, source.ledger_start(fit, term), free, fit, whole=step == len(terms))
             rows.append(row)

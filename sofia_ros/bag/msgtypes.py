@@ -14,7 +14,6 @@ from functools import cache
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from rclpy.serialization import serialize_message
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_typestore
 
@@ -244,6 +243,9 @@ def wire_cdr(message: object) -> memoryview:
             return TYPESTORE.serialize_cdr(_typestore_value(message, msgtype), msgtype, little_endian=True)
         except _NulInString:
             pass
+    # Imported here: reading a bag (sofia compare) needs no rclpy, whose import costs about 60 MB.
+    from rclpy.serialization import serialize_message
+
     # The rest (a type _field_plan refuses, a string holding NUL) round trip through rclpy: with rmw_fastrtps,
     # serialize_message sizes its buffer by an upper estimate and leaves padding uninitialised, so its bytes
     # can end in junk (e.g. a JointState with an empty float64[]) and differ from run to run; decoding and

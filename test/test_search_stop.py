@@ -127,3 +127,19 @@ def test_a_rival_out_of_reach_of_the_answers_path_is_not_compared():
     _, found, rounds, equivalents = _branch_search(BIC_FIRST + EQUIVALENT_DELTA_BIC + 400.0)
     assert found.fitted >= {FIRST, THIRD} and len(rounds) == 3 and equivalents == []
     assert rounds[-1]['ends'].startswith('explained at BIC 100.0; nothing queued can reach within 10 of it')
+
+
+def test_the_verdicts_choice_in_a_competing_set_is_compared_before_a_rival_expected_lower():
+    # The data cannot choose between the members (the rival is expected 8 lower, within the competing margin); the
+    # verdict chose FIRST (physics, fewer numbers): FIRST is compared first and is the answer, the rival its
+    # equivalent, as in the user's loop.
+    nominal, compare = _fake_compare({
+        frozenset(): ('missing_effect', BIC_GIVEN, [(FIRST, BIC_FIRST), (RIVAL, BIC_FIRST - 8.0)]),
+        frozenset({FIRST}): ('explained', BIC_FIRST, []),
+        frozenset({RIVAL}): ('explained', BIC_FIRST - 5.0, [])})
+    _, found, rounds, equivalents = search_model(None, nominal, compare, rounds=12)
+    assert [sorted(entry['fitted']) for entry in rounds][1:] == [sorted(nominal.fitted | {FIRST}),
+                                                                sorted(nominal.fitted | {RIVAL})]
+    assert rounds[2]['expected_bic'] == BIC_FIRST - 8.0
+    assert found.fitted >= {FIRST}
+    assert [entry['model'] for entry in equivalents] == [f'{RIVAL} instead of {FIRST} (compared in full)']

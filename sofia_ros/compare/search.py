@@ -10,8 +10,8 @@ it (model_terms, structural_changes, rival_swaps, equivalent_models; an empirica
 EMPIRICAL_PENALTY more than physics, so a shape that only mimics an effect does not take its
 place). search_model is best-first over whole comparisons: each queues the steps its verdict
 suggests with the BIC they are expected to reach, and the most promising model not yet compared is
-compared next. The models within EQUIVALENT_DELTA_BIC of the end are the equivalence class the
-data allow.
+compared next (of the members of a competing set, the verdict's choice first: _steps). The models within
+EQUIVALENT_DELTA_BIC of the end are the equivalence class the data allow.
 
 A comparison fits its model along a path (the ledger: the fixed effects, then each fitted term in
 the model's order, each step from the one before), and a path can end in another minimum than the
@@ -521,8 +521,13 @@ def _next_model(model, outcome, step):
 
 
 def _steps(outcome):
-    """The steps worth trying from a comparison, each with the BIC it is expected to reach: the verdict's next step,
-    and adding each other refitted physical member of the best candidate's competing set instead."""
+    """The steps worth trying from a comparison, each with the BIC it is expected to reach and the BIC it is compared
+    in the order of: the verdict's next step, and adding each other refitted physical member of the best candidate's
+    competing set instead. The data cannot choose between the members of a competing set; the verdict's choice among
+    them (physics, then the fewer free numbers: compare.competing) goes first, as in the user's loop: a rival member
+    is compared in the order of the verdict's step at the earliest (the Waco 2004 star hop took the imagers'
+    boresight offsets, 4000 BIC ahead of the HIPO fiducial error it stood in for, and needed four more rounds to
+    come back)."""
     document = outcome.document
     bic_now = outcome.bic
     scores = {c['effect']: c['delta_bic'] for c in document['candidates']}
@@ -534,12 +539,14 @@ def _steps(outcome):
     elif step['action'] in ('remove', 'replace'):
         # model_change's delta_bic is that of its full refit (compare.pipeline)
         steps.append((bic_now - document['model_change']['delta_bic'], step))
+    steps = [(expected, expected, chosen) for expected, chosen in steps]
     for entry in document['competing']:
         if step['effect'] not in entry['effects']:
             continue
         for name in entry['effects']:
             if name != step['effect'] and name in refined and not is_empirical(name):
-                steps.append((bic_now - scores[name], {'action': 'add', 'effect': name, 'term': None}))
+                expected = bic_now - scores[name]
+                steps.append((expected, max(expected, steps[0][0]), {'action': 'add', 'effect': name, 'term': None}))
     return steps
 
 
@@ -549,10 +556,12 @@ def _step_label(step):
 
 @dataclass(frozen=True)
 class _Queued:
-    """A model the search may compare: the BIC it is expected to reach, when it was queued (ties: first queued
-    first), how it was reached and the BIC of the comparison that queued it (None: the model given)."""
+    """A model the search may compare: the BIC it is expected to reach, the BIC it is compared in the order of (_steps),
+    when it was queued (ties: first queued first), how it was reached and the BIC of the comparison that queued it
+    (None: the model given)."""
 
     expected_bic: float
+    order_bic: float
     order: int
     model: EffectConfig
     how: str
@@ -668,7 +677,7 @@ def search_model(observations: Observations, model: EffectConfig,
     if not low <= rounds <= high:
         raise ConfigError(f'--search-rounds {rounds} is outside {low}..{high}; each round is one whole comparison')
     history, compared, parents, order, answer = [], {}, {}, 0, None
-    waiting = [_Queued(0.0, 0, model, 'the model given')]
+    waiting = [_Queued(0.0, 0.0, 0, model, 'the model given')]
     while True:
         waiting = [item for item in waiting if item.model.fitted not in compared]
         queue, out_of_reach = waiting, []
@@ -682,7 +691,7 @@ def search_model(observations: Observations, model: EffectConfig,
             out_of_reach = [item for item, counted in zip(waiting, counts) if not counted]
         if not queue or len(history) >= rounds:
             break
-        item = min(queue, key=lambda queued: (queued.expected_bic, queued.order))
+        item = min(queue, key=lambda queued: (queued.order_bic, queued.order))
         waiting.remove(item)
         progress(f'search: round {len(history) + 1}/{rounds}, {item.how}')
         compared_now = compare(observations, item.model)
@@ -697,13 +706,14 @@ def search_model(observations: Observations, model: EffectConfig,
                                    status=outcome.document['verdict']['status'],
                                    rms_arcsec=outcome.document['residual_rms_arcsec'].get('total'),
                                    bic=outcome.bic, expected_bic=None if item.parent_bic is None else item.expected_bic,
-                                   moves=[_step_label(step) for _, step in steps], ends=None))
-        for expected_bic, step in steps:
+                                   moves=[_step_label(step) for _, _, step in steps], ends=None))
+        for expected_bic, order_bic, step in steps:
             order += 1
             following = _next_model(item.model, outcome, step)
             if following.fitted not in compared:
                 how = f'after round {len(history)}: {_step_label(step)}'
-                waiting.append(_Queued(expected_bic, order, following, how, outcome.bic, item.model.fitted))
+                waiting.append(_Queued(expected_bic, order_bic, order, following, how, outcome.bic,
+                                       item.model.fitted))
     history[-1]['ends'] = _why_the_search_ends(queue, out_of_reach, compared, compared[answer[1].fitted],
                                                 rounds)
     progress(f'search: ends after round {len(history)}: {history[-1]["ends"]}')

@@ -549,11 +549,12 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     progress.phase('residual diagnostics')
     catalogue = _missing_names(model_effects, candidate_names)
     # The judgement names the empirical shapes to try; the catalogue's candidates do not wait for it: with --jobs
-    # they are linearized while a worker judges.
+    # they are linearized while a worker judges (in one process after it, their columns not held through it).
+    early = catalogue if jobs > 1 else []
     judging = ForkedCall(lambda: _timed(source.judge_fit, final), jobs=jobs, shared=_shared(source, jobs))
     linear_started = time.perf_counter()
     try:
-        linearized, unseen = source.linearize(final, catalogue) if jobs > 1 else ([], {})
+        linearized, unseen = source.linearize(final, early) if early else ([], {})
         linear_s = time.perf_counter() - linear_started
         judgement, diagnostics_s = judging.result()
     except BaseException:
@@ -562,7 +563,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     names = source.candidate_names(catalogue, judgement)
     progress.phase(f'linearizing {len(names)} candidate effects')
     linear_started = time.perf_counter()
-    more, more_unseen = source.linearize(final, names[len(catalogue):] if jobs > 1 else names)
+    more, more_unseen = source.linearize(final, names[len(early):])
     linearized, unseen = linearized + more, {**unseen, **more_unseen}
     terms = [candidate.term for candidate in linearized]
     residual, jacobian, nuisance = source.ranking_problem(final)

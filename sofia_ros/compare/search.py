@@ -535,11 +535,12 @@ def _steps(outcome):
     step = document['verdict']['next']
     steps = []
     if step['action'] == 'add':
-        steps.append((bic_now - scores[step['effect']], step))
+        expected = bic_now - scores[step['effect']]
+        steps.append((expected, expected, step))
     elif step['action'] in ('remove', 'replace'):
         # model_change's delta_bic is that of its full refit (compare.pipeline)
-        steps.append((bic_now - document['model_change']['delta_bic'], step))
-    steps = [(expected, expected, chosen) for expected, chosen in steps]
+        expected = bic_now - document['model_change']['delta_bic']
+        steps.append((expected, expected, step))
     for entry in document['competing']:
         if step['effect'] not in entry['effects']:
             continue

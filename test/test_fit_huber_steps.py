@@ -94,7 +94,7 @@ def test_the_linearized_step_reaches_the_least_huber_cost(seed):
     size = anchor_columns.shape[1] + parameter_columns.shape[1]
     names = [''] * size
     rows = residual.size + prior_residual.size
-    step, sigma = linearized_huber_step(anchor_columns, parameter_columns, prior, residual, prior_residual, names,
+    step, sigma, _ = linearized_huber_step(anchor_columns, parameter_columns, prior, residual, prior_residual, names,
                                         rows)
     anchors = anchor_columns.shape[1]
     jacobian = scipy.sparse.hstack([anchor_columns, scipy.sparse.csr_matrix(parameter_columns)]).tocsr()

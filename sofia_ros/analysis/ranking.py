@@ -22,6 +22,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.linalg
 import scipy.sparse
+import scipy.sparse.linalg
 
 from sofia_ros.errors import InvalidArgumentError
 
@@ -148,11 +149,20 @@ class NormalInverse:
     null_directions: np.ndarray | None = None
 
     @classmethod
-    def of(cls, gram: np.ndarray) -> NormalInverse:
+    def of(cls, gram: np.ndarray, null_directions: np.ndarray | None = None) -> NormalInverse:
         """The pseudo-inverse of a Gram matrix J^T J and the parameters its null space touches.
+
+        Where ``null_directions`` are known to lie in the null space (a Gram matrix of the same columns over more
+        rows left them without a step: every row's part is positive semi-definite, so a part of the rows leaves
+        them null too), the scaled Gram matrix with them added, S + Q Q^T (Q those directions made orthonormal),
+        is inverted by Cholesky where every other eigen-combination is kept, and S^+ is that inverse less Q Q^T:
+        the eigendecomposition's answer without it (on a star hop's split halves, 600 anchors and terms, 50 ms
+        against 8 ms). Where the part has null directions of its own, the eigendecomposition decides.
 
         Args:
             gram: (k, k) the symmetric positive semi-definite matrix.
+            null_directions: (k, m) combinations of the parameters (unscaled, as ``null_directions`` holds them)
+                in the Gram matrix's null space, or None.
 
         Returns:
             The NormalInverse.
@@ -160,6 +170,11 @@ class NormalInverse:
         diagonal = np.diag(gram).copy()
         norms = np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
         scaled = gram / np.outer(norms, norms)
+        if null_directions is not None and null_directions.size:
+            known = _known_null_inverse(scaled, null_directions * norms[:, None])
+            if known is not None:
+                inverse, null = known
+                return cls(inverse / np.outer(norms, norms), np.any(np.abs(null) > 1e-6, axis=1), null / norms[:, None])
         inverse = _well_conditioned_inverse(scaled)
         if inverse is not None:
             return cls(inverse / np.outer(norms, norms), np.zeros(len(gram), dtype=bool))
@@ -242,6 +257,18 @@ def normal_solution(gram: np.ndarray, gradient: np.ndarray, null_directions: np.
     return NormalInverse.of(gram).matrix @ gradient
 
 
+def _known_null_inverse(scaled, null_scaled):
+    """(S^+, Q) by Cholesky of S + Q Q^T (NormalInverse.of), Q the scaled null directions made orthonormal; None
+    where Q is not null in S to KEPT_EIGENVALUE_FRACTION or another eigen-combination falls below it."""
+    null = np.linalg.qr(null_scaled)[0]
+    # q^T S q is a direction's eigenvalue where it is an eigenvector; the largest eigenvalue is at least the largest
+    # diagonal entry: a direction below the fraction of that is one the eigendecomposition leaves without a step.
+    if np.any(np.einsum('ij,ij->j', null, scaled @ null) > KEPT_EIGENVALUE_FRACTION * np.diag(scaled).max()):
+        return None
+    inverse = _well_conditioned_inverse(scaled + null @ null.T)
+    return None if inverse is None else (inverse - null @ null.T, null)
+
+
 def _well_conditioned_inverse(scaled):
     """Inverse of a positive definite scaled Gram matrix by Cholesky (LAPACK potrf, potri), or None unless every
     eigenvalue is above KEPT_EIGENVALUE_FRACTION of the largest (then the pseudo-inverse is this inverse)."""
@@ -256,8 +283,14 @@ def _well_conditioned_inverse(scaled):
     inverse = np.tril(inverse) + np.tril(inverse, -1).T
     # lambda_max / lambda_min <= ||S||_1 ||S^-1||_1 (the 2-norm is below the 1-norm for symmetric matrices): a
     # bound computed from the inverse itself, so that the cheaper path is taken only where the eigen path keeps all.
-    condition_bound = np.abs(scaled).sum(axis=0).max() * np.abs(inverse).sum(axis=0).max()
-    return inverse if condition_bound * KEPT_EIGENVALUE_FRACTION < 1.0 else None
+    largest_bound = np.abs(scaled).sum(axis=0).max()
+    if largest_bound * np.abs(inverse).sum(axis=0).max() * KEPT_EIGENVALUE_FRACTION < 1.0:
+        return inverse
+    # The inverse's 1-norm can exceed its largest eigenvalue, 1 / lambda_min, by up to the matrix's size (a star
+    # hop's split halves: conditions of 1e8 bounded past 1e10): that eigenvalue itself, by Lanczos (a few ms
+    # where the eigendecomposition costs 30-50).
+    smallest_reciprocal = scipy.sparse.linalg.eigsh(inverse, k=1, which='LA', return_eigenvectors=False)[0]
+    return inverse if largest_bound * smallest_reciprocal * KEPT_EIGENVALUE_FRACTION < 1.0 else None
 
 
 def linear_fit(residual: npt.ArrayLike, jacobian: npt.ArrayLike | scipy.sparse.spmatrix,

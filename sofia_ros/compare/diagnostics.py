@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2, norm
 
-from sofia_ros.analysis.ranking import normal_pseudo_inverse
+from sofia_ros.analysis.ranking import NormalInverse
 from sofia_ros.analysis.structure import PeriodTest, TrendTest, category_test, field_test, period_test, sigma_of_probability, trend_test
 from sofia_ros.compare.observations import Observations
 from sofia_ros.compare.prior import AnchorPrior
@@ -461,7 +461,8 @@ def _split_step(fit, keep_rows, equations):
     # A parameter the subset does not touch (another camera's term) is decoupled and gets no comparison.
     determined = np.diag(gram) > 0
     gram[~determined, ~determined] = 1.0
-    inverse = normal_pseudo_inverse(gram)
+    # The whole fit's null directions are null in either half (its Gram is the halves' sum).
+    inverse = NormalInverse.of(gram, fit.weighted_inverse.null_directions).matrix
     step = inverse @ gradient
     used = 2 * int(np.sum(keep_rows)) + len(fit.prior_residual)
     variance = rss_after(step) / max(used - gram.shape[0], 1)

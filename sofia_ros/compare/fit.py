@@ -632,7 +632,8 @@ def huber_line_minimum(residual: np.ndarray, change: np.ndarray, prior_residual:
 
 def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_columns: np.ndarray,
                           anchor_prior: AnchorPrior, whitened: np.ndarray, prior_residual: np.ndarray,
-                          names: Sequence[str], rows: int) -> tuple[np.ndarray, np.ndarray]:
+                          names: Sequence[str], rows: int, null_directions: np.ndarray | None = None,
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The step minimizing the Huber cost of an iteration's linearized problem (its columns held), and the sigmas
     of its first re-weighted solve.
 
@@ -652,9 +653,12 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
         prior_residual: the prior rows' residuals.
         names: the 3K + P parameters' names.
         rows: the number of rows (data and prior).
+        null_directions: the combinations the previous iteration's columns left undetermined (NormalInverse.of), or
+            None.
 
     Returns:
-        The step (3K + P) and the sigmas of the re-weighted solve at its start (3K + P), which judge convergence.
+        The step (3K + P), the sigmas of the re-weighted solve at its start (3K + P), which judge convergence, and
+        the combinations these columns leave undetermined (None: none).
     """
     prior = anchor_prior.matrix
     anchor_count = anchor_columns.shape[1]
@@ -686,7 +690,8 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
     # The sigmas the fit's convergence is judged by: the re-weighted step's, where every parameter has a curvature.
     huber = _huber_weights(whitened)
     gram = gram_of(huber)
-    inverse = NormalInverse.of(gram)
+    # A degeneracy of the model's terms (gyro_bias.el with the anchors) is one of the columns, at every iteration.
+    inverse = NormalInverse.of(gram, null_directions)
     sigma = normal_equations_fit(gram, gradient_of(whitened, huber, prior_residual),
                                  _rss_after(anchor_columns, parameter_columns, prior, whitened, huber, prior_residual),
                                  names, rows, inverse=inverse).sigma
@@ -708,7 +713,7 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
         if _step_is_small(step[anchor_count:], step[:anchor_count], sigma[anchor_count:], _INNER_TOLERANCE_SIGMA,
                           1e-10):
             break
-    return total, sigma
+    return total, sigma, inverse.null_directions
 
 
 def _step_is_small(parameter_step, anchor_step, sigma, tolerance_sigma, anchor_tolerance_rad):
@@ -825,6 +830,7 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     whitened = problem.whiten(predicted)
     names = [''] * (anchors.size + len(free))
     rows = whitened.size + problem.prior.shape[0]
+    null_directions = None
     for iteration in range(1, _MAX_ITERATIONS + 1):
         current = with_values(effects, free, values)
         jacobian_at = (current, free, values, anchors)
@@ -832,8 +838,9 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
         columns = problem.parameter_columns(current, free, values, anchors, predicted, derivative)
         anchor_columns = problem.anchor_columns(current, derivative)
         current_cost = cost(whitened, anchors)
-        step, step_sigma = linearized_huber_step(anchor_columns, columns, anchor_prior, whitened,
-                                                 -(problem.prior @ anchors.ravel()), names, rows)
+        step, step_sigma, null_directions = linearized_huber_step(
+            anchor_columns, columns, anchor_prior, whitened, -(problem.prior @ anchors.ravel()), names, rows,
+            null_directions)
         anchor_step, parameter_step = step[:anchors.size].reshape(anchors.shape), step[anchors.size:]
         # The step's largest fraction (1, 1/2, ...) that does not raise the cost, or sends no star off a detector:
         # the prediction is not linear.
@@ -858,7 +865,7 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     prior_residual = -(problem.prior @ anchors.ravel())
     centroids = predictor.observations.centroids
     equations = normal_equations(anchor_columns, columns, anchor_prior, whitened, weights, prior_residual)
-    inverse = NormalInverse.of(equations[0])
+    inverse = NormalInverse.of(equations[0], null_directions)
     sigma, correlation = camera_sandwich_covariance(anchor_columns, columns, anchor_prior, whitened, weights,
                                                     prior_residual, np.repeat(centroids.camera_index, 2),
                                                     len(centroids.cameras), inverse=inverse)

@@ -258,12 +258,17 @@ def normal_solution(gram: np.ndarray, gradient: np.ndarray, null_directions: np.
 
 
 def _known_null_inverse(scaled, null_scaled):
-    """(S^+, Q) by Cholesky of S + Q Q^T (NormalInverse.of), Q the scaled null directions made orthonormal; None
-    where Q is not null in S to KEPT_EIGENVALUE_FRACTION or another eigen-combination falls below it."""
-    null = np.linalg.qr(null_scaled)[0]
-    # q^T S q is a direction's eigenvalue where it is an eigenvector; the largest eigenvalue is at least the largest
-    # diagonal entry: a direction below the fraction of that is one the eigendecomposition leaves without a step.
-    if np.any(np.einsum('ij,ij->j', null, scaled @ null) > KEPT_EIGENVALUE_FRACTION * np.diag(scaled).max()):
+    """(S^+, Q) by Cholesky of S + Q Q^T (NormalInverse.of), Q the combinations of the known directions that S
+    leaves null to rounding, orthonormal; None where there is none, or where another eigen-combination falls below
+    KEPT_EIGENVALUE_FRACTION (the eigendecomposition decides those)."""
+    basis = np.linalg.qr(null_scaled)[0]
+    # Rotated to their own eigen-combinations in S (Rayleigh-Ritz), the known directions split into those null to
+    # rounding (a degeneracy of the columns: gyro_bias.el with the anchors) and those merely weak in the rows that
+    # found them (1e-11 of the largest in a whole star hop), which are no null directions of a part: taken for one,
+    # they moved a split half's sigmas by 1e-3.
+    rayleigh, rotation = np.linalg.eigh(basis.T @ scaled @ basis)
+    null = basis @ rotation[:, rayleigh <= len(scaled) * np.finfo(float).eps * np.diag(scaled).max()]
+    if null.shape[1] == 0:
         return None
     inverse = _well_conditioned_inverse(scaled + null @ null.T)
     return None if inverse is None else (inverse - null @ null.T, null)

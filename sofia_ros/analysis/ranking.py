@@ -176,8 +176,7 @@ class NormalInverse:
         if null_directions is not None and null_directions.size:
             known = _known_null_inverse(scaled, null_directions * norms[:, None])
             if known is not None:
-                inverse, null = known
-                return cls(inverse / np.outer(norms, norms), np.any(np.abs(null) > 1e-6, axis=1), null / norms[:, None])
+                return cls._scaled_back(*known, norms)
         inverse = _well_conditioned_inverse(scaled)
         if inverse is not None:
             return cls(inverse / np.outer(norms, norms), np.zeros(len(gram), dtype=bool))
@@ -185,9 +184,13 @@ class NormalInverse:
         # Eigenvalues are squared singular values: a combination whose singular value is below 1e-5 of
         # the largest (columns collinear to 5e-11) is not determined by the data; it gets no step.
         keep = eigenvalues > eigenvalues.max(initial=0.0) * KEPT_EIGENVALUE_FRACTION
-        inverse = (vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T / np.outer(norms, norms)
-        unconstrained = np.any(np.abs(vectors[:, ~keep]) > 1e-6, axis=1)
-        return cls(inverse, unconstrained, vectors[:, ~keep] / norms[:, None])
+        return cls._scaled_back((vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T, vectors[:, ~keep], norms)
+
+    @classmethod
+    def _scaled_back(cls, inverse: np.ndarray, null: np.ndarray, norms: np.ndarray) -> NormalInverse:
+        """From the column-scaled Gram matrix's pseudo-inverse and its null directions (scaled, orthonormal): a
+        parameter a null direction touches is unconstrained."""
+        return cls(inverse / np.outer(norms, norms), np.any(np.abs(null) > 1e-6, axis=1), null / norms[:, None])
 
     def covariance(self, variance: float) -> np.ndarray:
         """Scaled covariance with infinite variance (and undefined covariance) along unconstrained parameters.

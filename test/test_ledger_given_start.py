@@ -45,7 +45,7 @@ class _Source:
         return {'from': 'chain'}
 
     def given_start(self):
-        return {'from': 'given'} if self.given else None
+        return ({'from': 'given'}, None) if self.given else None
 
     def fit(self, effects, free, start):
         if effects['from'] == 'given':
@@ -87,5 +87,6 @@ def _source(campaign_bags, extra: str) -> BagSource:
 
 def test_a_bag_source_restarts_only_from_values_it_was_given(campaign_bags):
     assert _source(campaign_bags, '').given_start() is None, 'the nominal model fits its terms from their defaults'
-    assert _source(campaign_bags, '  timestamp_offset: {offset_s: 0.1, fit: true}\n').given_start()[
-        'timestamp_offset'] == {'offset_s': 0.1}
+    effects, start = _source(campaign_bags, '  timestamp_offset: {offset_s: 0.1, fit: true}\n').given_start()
+    assert effects['timestamp_offset'] == {'offset_s': 0.1}
+    assert start is None, 'a model the user gave starts from no fit'

@@ -71,6 +71,9 @@ class FakeSource:
         # the fake's fit is linear: one minimum, whatever it starts from
         return None
 
+    def start_of(self, fit):
+        return None
+
     def fit(self, effects, free, start):
         values = np.array([effects[p.effect][p.name] for p in free], dtype=float)
         residual = MEASURED - _predicted(effects)

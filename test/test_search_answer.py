@@ -8,7 +8,7 @@ choose between the two, and which one the lowest BIC took turned on the fits' la
 (no bag: the test takes milliseconds) holds the search to the rule.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
@@ -37,6 +37,7 @@ class FakeComparison:
 
     document: dict
     final_fit: FakeFit
+    refit_starts: dict = field(default_factory=dict)
 
 
 def _fake_compare(later_bic, linearized_equivalent=None):

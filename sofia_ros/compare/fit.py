@@ -35,8 +35,8 @@ if TYPE_CHECKING:
     from sofia_ros.compare.predict import Predictor
     from sofia_ros.compare.prior import AnchorPrior
 
-__all__ = ['FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model', 'normal_equations',
-           'rows_scaled', 'vanishing_values', 'with_values', 'OUTLIER_SIGMA']
+__all__ = ['FitStart', 'FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model',
+           'normal_equations', 'rows_scaled', 'vanishing_values', 'with_values', 'OUTLIER_SIGMA']
 
 HUBER_K = 3.0
 OUTLIER_SIGMA = 5.0
@@ -377,6 +377,26 @@ class ModelFit:
         """BIC of the whitened residual and the anchor prior, every row at full weight (analysis.ranking)."""
         residual = self.augmented_residual
         return bic(float(residual @ residual), len(residual), self.parameter_count)
+
+    def start(self) -> FitStart:
+        """Where this fit ended, as a later fit of the same parameters may start from it (a few kB).
+
+        Returns:
+            The FitStart.
+        """
+        return FitStart({name: dict(params) for name, params in self.effects.items()}, self.free,
+                        np.array(self.anchors_rad))
+
+
+@dataclass(frozen=True, eq=False)
+class FitStart:
+    """Where a converged fit ended: its effects at the fitted values, the parameters it fitted and its anchors (K, 3)
+    [rad]. fit_model started there (``anchors_rad``, ``fitted`` = ``free``) is already converged: it confirms the
+    point in an iteration, where a start from the given values alone takes several and a time shift's grid."""
+
+    effects: dict
+    free: tuple
+    anchors_rad: np.ndarray
 
 
 def with_values(effects: Mapping[str, Mapping[str, Any]], free: Sequence[FreeParameter],

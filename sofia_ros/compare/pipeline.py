@@ -137,12 +137,24 @@ class ComparisonSource(Protocol):
             {effect: params} to fit from.
         """
 
-    def given_start(self) -> dict | None:
+    def given_start(self) -> tuple[dict, Any] | None:
         """The whole model at the values it was given, where the ledger's chain did not start its last step there
-        (fitted terms given values of their own, e.g. a refit's written by `sofia model add`), else None.
+        (fitted terms given values of their own, e.g. a refit's written by `sofia model add`), with what fit() starts
+        from there (a model the search reached: where the refit that proposed it ended); else None.
 
         Returns:
-            {effect: params}, or None.
+            ({effect: params}, fit()'s ``start`` or None), or None.
+        """
+
+    def start_of(self, fit: SourceFit) -> Any:
+        """Where a fit ended, as a later fit of the same parameters starts from it (fit()'s ``start``): what the
+        search's next model takes of a refit (compare.search.ReachedModel). None where fits take no start.
+
+        Args:
+            fit: a converged fit.
+
+        Returns:
+            The start, a few kB, or None.
         """
 
     def fit(self, effects: dict, free: tuple, start: SourceFit | None) -> SourceFit:
@@ -287,6 +299,9 @@ class Comparison:
     best_fit: Any
     best_name: str | None
     judgement: Judgement
+    #: where each refitted candidate's fit ended (ComparisonSource.start_of): a model the search reaches by adding
+    #: it starts its whole fit there
+    refit_starts: dict = dataclasses.field(default_factory=dict)
 
 
 def switched_on(effects: Mapping, name: str) -> tuple[tuple, np.ndarray, dict]:
@@ -369,7 +384,7 @@ def _ledger(source: ComparisonSource, progress: Progress, jobs: int = 1) -> tupl
     # reached BIC 1023 where the chain ended at 140018 (issue 25, multi-effect atlas). The lower of the two is the
     # fit. The fit from the given values depends on nothing the chain does: with --jobs it runs beside it.
     given = source.given_start()
-    from_given = None if given is None else ForkedCall(lambda: _fit_or_none(source, given, free_all), jobs=jobs,
+    from_given = None if given is None else ForkedCall(lambda: _fit_or_none(source, *given, free_all), jobs=jobs,
                                                        shared=_shared(source, jobs))
     rows, fit, free = [], None, ()
     try:
@@ -403,10 +418,10 @@ def _timed(function: Callable[[Any], Any], argument: Any) -> tuple[Any, float]:
     return function(argument), time.perf_counter() - started
 
 
-def _fit_or_none(source: ComparisonSource, effects: dict, free: tuple) -> SourceFit | None:
-    """source.fit from no start, or None where the values put stars off their detectors (FitError)."""
+def _fit_or_none(source: ComparisonSource, effects: dict, start: Any, free: tuple) -> SourceFit | None:
+    """source.fit from ``start``, or None where the values put stars off their detectors (FitError)."""
     try:
-        return source.fit(effects, free, None)
+        return source.fit(effects, free, start)
     except FitError:
         return None
 
@@ -593,6 +608,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     starts = {candidate.term.name: dataclasses.replace(candidate, term=None) for candidate in linearized}
     del linearized, more, terms, jacobian
     refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress, jobs)
+    refit_starts = {name: start for name, fit in refits.items() if (start := source.start_of(fit)) is not None}
     scores = {candidate.name: entries[candidate.name]['delta_bic'] for candidate in ranked}
     for name, reason in unseen.items():
         entries[name] = candidate_entry(name, {}, {}, {}, 0.0, detectable=False, reason=reason)
@@ -648,7 +664,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
         'seconds': {'total': 0.0, 'per_candidate': round(per_candidate_s, 4), 'diagnostics': round(diagnostics_s, 3),
                     'model_terms': round(alternatives_s, 3)},
     }
-    outcome = Comparison(document, final, refits.get(best_name), best_name, judgement)
+    outcome = Comparison(document, final, refits.get(best_name), best_name, judgement, refit_starts)
     document.update(source.extra_document(outcome, progress))
     document['seconds']['total'] = round(time.perf_counter() - started, 3)
     return outcome

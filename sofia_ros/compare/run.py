@@ -19,7 +19,7 @@ import copy
 import hashlib
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
@@ -27,7 +27,7 @@ import numpy as np
 
 from sofia_ros.analysis.ranking import CandidateTerm
 from sofia_ros.compare.diagnostics import residual_diagnostics, row_variables, split_consistency
-from sofia_ros.compare.fit import ModelFit, WhitenedProblem, fit_model
+from sofia_ros.compare.fit import FitStart, ModelFit, WhitenedProblem, fit_model
 from sofia_ros.compare.floor import angle_random_walk_rad_per_sqrt_s, centroid_noise_arcsec
 from sofia_ros.compare.observations import content_key, read_observations, record_fields, step_store
 from sofia_ros.compare.pipeline import Comparison, Judgement, LinearizedCandidate, run_comparison, switched_on
@@ -57,6 +57,8 @@ class CompareResult:
     best_fit: Any
     best_name: str | None
     predictor: Any
+    #: where each refitted candidate's fit ended (compare.pipeline.Comparison)
+    refit_starts: dict = field(default_factory=dict)
 
 
 def _hash_arrays(digest: Any, observations: Any) -> None:
@@ -193,16 +195,34 @@ class BagSource:
                                       float(fit.bic), copy.deepcopy(row)))
         return fit, row
 
-    def given_start(self) -> dict | None:
+    def given_start(self) -> tuple[dict, FitStart | None] | None:
         """The model at its given values where fitted terms carry values of their own and there are several (with
-        one, the chain's last step starts there already); else None (ComparisonSource.given_start).
+        one, the chain's last step starts there already); else None (ComparisonSource.given_start). A model the
+        search reached starts where the refit that proposed it ended, its anchors too (compare.search.ReachedModel):
+        the same parameters, already converged.
 
         Returns:
-            {effect: params}, or None.
+            ({effect: params}, the FitStart or None), or None.
         """
         terms = self.ledger_terms()
+        if len(terms) < 2:
+            return None
+        refit = getattr(self.model, 'refit_start', None)
+        if refit is not None:
+            return refit.effects, refit
         given = any(self.effects[name] != resolve_params(name, {}) for name in terms)
-        return dict(self.effects) if given and len(terms) > 1 else None
+        return (dict(self.effects), None) if given else None
+
+    def start_of(self, fit: ModelFit) -> FitStart:
+        """Where a fit ended, its anchors too (ComparisonSource.start_of).
+
+        Args:
+            fit: a converged fit.
+
+        Returns:
+            The FitStart.
+        """
+        return fit.start()
 
     def fit(self, effects: dict, free: tuple, start: ModelFit | None) -> ModelFit:
         """compare.fit.fit_model, its anchors (and the parameters it fitted) starting from ``start``'s; the fit
@@ -438,4 +458,4 @@ def compare_observations(observations: Any, model: EffectConfig, *, anchor_spaci
     outcome = run_comparison(source, model.effects, candidate_names=candidate_names, started=started,
                              progress=progress, jobs=jobs)
     return CompareResult(outcome.document, observations, outcome.final_fit, outcome.best_fit, outcome.best_name,
-                         source.predictor)
+                         source.predictor, outcome.refit_starts)

@@ -445,6 +445,8 @@ class _Outcome:
     document: dict
     bic: float
     effects: dict
+    #: where each refitted candidate's fit ended (compare.pipeline.Comparison.refit_starts)
+    refit_starts: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
     def of(cls, result: _Comparison) -> _Outcome:
@@ -456,7 +458,7 @@ class _Outcome:
         Returns:
             Its _Outcome.
         """
-        return cls(result.document, float(result.final_fit.bic), result.final_fit.effects)
+        return cls(result.document, float(result.final_fit.bic), result.final_fit.effects, result.refit_starts)
 
     @property
     def explained(self) -> bool:
@@ -481,13 +483,16 @@ class _Outcome:
 
 @dataclass(frozen=True)
 class ReachedModel(EffectConfig):
-    """A model the search reaches (_next_model). Its ``effects`` are where its whole fit starts: the fitted values of
-    the model it came from and the refit's values of the term it added. ``chain_effects`` are where its ledger's
-    chain starts each term (compare.run.BagSource.ledger_start): the values the model it came from was given, the
-    term added at the refit's, as `sofia model add` writes them; its chain then shares every step but the last
-    with that model's and reads them back (compare.steps) instead of fitting them again from other starts."""
+    """A model the search reaches (_next_model). Its ``effects`` are the fitted values of the model it came from and
+    the refit's values of the term it added. ``chain_effects`` are where its ledger's chain starts each term
+    (compare.run.BagSource.ledger_start): the values the model it came from was given, the term added at the
+    refit's, as `sofia model add` writes them; its chain then shares every step but the last with that model's and
+    reads them back (compare.steps) instead of fitting them again from other starts. Its whole fit starts at
+    ``refit_start``, where the refit that proposed it ended (the same parameters, already converged), or at its
+    ``effects`` where there was none (a term removed or replaced)."""
 
     chain_effects: dict = dataclasses.field(default_factory=dict)
+    refit_start: Any = None
 
 
 def chain_effects(model: EffectConfig) -> dict:
@@ -517,7 +522,8 @@ def _next_model(model, outcome, step):
         effects[step['effect']] = resolve_params(step['effect'], start)
         chain[step['effect']] = dict(effects[step['effect']])
         fitted.add(step['effect'])
-    return ReachedModel(effects, frozenset(fitted), model.scenario, model.text, model.source, chain)
+    refit = outcome.refit_starts.get(step['effect']) if step['action'] == 'add' else None
+    return ReachedModel(effects, frozenset(fitted), model.scenario, model.text, model.source, chain, refit)
 
 
 def _steps(outcome):
@@ -641,6 +647,7 @@ class _Comparison(Protocol):
 
     document: dict[str, Any]
     final_fit: ModelFit
+    refit_starts: dict
 
 
 _ComparisonT = TypeVar('_ComparisonT', bound=_Comparison)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -59,6 +59,8 @@ class SetCompareResult:
     predicted_best: dict | None
     best_name: str | None
     final_fit: Any = None
+    #: a set's fits take no start (compare.pipeline.ComparisonSource.start_of): none is kept
+    refit_starts: dict = field(default_factory=dict)
 
 
 class _Problem:
@@ -276,6 +278,17 @@ class SetSource:
 
     def given_start(self) -> None:
         """None: every step of a set's ledger starts from the model's start values already.
+
+        Returns:
+            None.
+        """
+        return None
+
+    def start_of(self, fit: Any) -> None:
+        """None: a set's fits take no start (ComparisonSource.start_of).
+
+        Args:
+            fit: a converged fit.
 
         Returns:
             None.

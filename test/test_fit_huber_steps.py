@@ -12,7 +12,7 @@ import pytest
 import scipy.optimize
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import NormalInverse, normal_solution
+from sofia_ros.analysis.ranking import KEPT_EIGENVALUE_FRACTION, NormalInverse, normal_solution
 from sofia_ros.compare.fit import HUBER_K, huber_line_minimum, linearized_huber_step
 
 
@@ -128,11 +128,11 @@ def test_the_normal_solution_is_the_pseudo_inverse_step(case):
     gram, gradient = jacobian.T @ jacobian, jacobian.T @ residual
     solution = normal_solution(gram, gradient)
     assert np.allclose(solution, NormalInverse.of(gram).matrix @ gradient, rtol=1e-9, atol=1e-12)
-    # The minimum-norm least-squares step of the column-scaled problem, singular values below 1e-5 of the largest
-    # cut (KEPT_EIGENVALUE_FRACTION of the Gram matrix's eigenvalues): the combination the data do not determine
-    # gets no step.
+    # The minimum-norm least-squares step of the column-scaled problem, singular values below the square root of
+    # KEPT_EIGENVALUE_FRACTION of the largest cut (that fraction of the Gram matrix's eigenvalues): the combination
+    # the data do not determine gets no step.
     norms = np.linalg.norm(jacobian, axis=0)
-    reference = np.linalg.lstsq(jacobian / norms, residual, rcond=1e-5)[0] / norms
+    reference = np.linalg.lstsq(jacobian / norms, residual, rcond=np.sqrt(KEPT_EIGENVALUE_FRACTION))[0] / norms
     assert np.allclose(solution, reference, rtol=1e-6, atol=1e-9)
 
 

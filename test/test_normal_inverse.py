@@ -96,7 +96,8 @@ def _gram_of_condition(condition, size=200, seed=1, smallest=None):
 
 
 def test_a_condition_the_one_norm_bound_overstates_keeps_every_combination_by_cholesky():
-    gram = _gram_of_condition(2e9)
+    condition = 0.2 / KEPT_EIGENVALUE_FRACTION
+    gram = _gram_of_condition(condition)
     eigenvalues = np.linalg.eigvalsh(gram)
     assert eigenvalues[0] > KEPT_EIGENVALUE_FRACTION * eigenvalues[-1]
     # The bound the cheap path checks first says otherwise: the condition's true size decides.
@@ -105,7 +106,7 @@ def test_a_condition_the_one_norm_bound_overstates_keeps_every_combination_by_ch
     inverse = NormalInverse.of(gram)
     assert inverse.null_directions is None
     assert not np.any(inverse.unconstrained)
-    assert _close(inverse.matrix, _reference_inverse(gram), 1e-6)
+    assert _close(inverse.matrix, _reference_inverse(gram), 10 * condition * np.finfo(float).eps)
 
 
 def test_a_combination_below_the_kept_fraction_is_cut():
@@ -129,9 +130,10 @@ def test_a_direction_merely_weak_in_all_rows_is_not_taken_for_null_in_a_part():
     rng = np.random.default_rng(0)
     jacobian = rng.normal(size=(200, 6)) * np.array([1.0, 1e3, 1e-3, 1.0, 1.0, 5.0])
     jacobian[:, 4] = jacobian[:, 3]  # null in any rows
-    # 1.5e-5 from the second column: an eigenvalue near 2e-12 of the largest, cut in all rows and in a part, but
-    # along another combination in each; and a kept one near 2e-9 that a wrong null direction leaks into.
-    jacobian[:, 5] = jacobian[:, 1] * 5e-3 + 1.5e-5 * rng.normal(size=200)
+    # 1.5e-6 from the second column: an eigenvalue near 2e-14 of the largest, cut in all rows and in a part (below
+    # KEPT_EIGENVALUE_FRACTION), but along another combination in each, and ten times the rounding (n eps); and a kept
+    # one near 2e-9 that a wrong null direction leaks into.
+    jacobian[:, 5] = jacobian[:, 1] * 5e-3 + 1.5e-6 * rng.normal(size=200)
     jacobian[:, 2] = jacobian[:, 0] * 1e-3 + 1e-7 * rng.normal(size=200)
     whole = NormalInverse.of(jacobian.T @ jacobian)
     assert whole.null_directions.shape == (6, 2)
@@ -140,3 +142,26 @@ def test_a_direction_merely_weak_in_all_rows_is_not_taken_for_null_in_a_part():
     # Both known directions taken for null, the part's inverse was 2e-4 off.
     assert _close(inverse.matrix, _reference_inverse(part), 1e-10)
     assert inverse.null_directions.shape == (6, 2)
+
+
+def test_a_weakly_determined_combination_gets_its_step_and_a_null_one_none():
+    # The eigenvalues of the Waco 2004 star hop's model with the imagers' boresight offsets: two combinations at
+    # 1.7e-11 and 2.1e-11 of the largest (the gyro box's misalignment with the offsets and the anchors), one at
+    # 1.2e-16 (rounding: the EL gyro bias with the anchors), on random orthonormal directions.
+    rng = np.random.default_rng(13)
+    vectors, _ = np.linalg.qr(rng.normal(size=(8, 8)))
+    eigenvalues = np.array([1.2e-16, 1.7e-11, 2.1e-11, 1e-4, 1e-2, 0.3, 1.0, 4.0])
+    gram = (vectors * eigenvalues) @ vectors.T
+    gradient = vectors @ np.ones(8)
+    inverse = NormalInverse.of(gram)
+    step = inverse.matrix @ gradient
+    assert np.allclose(step, _reference_inverse(gram) @ gradient, rtol=1e-6)
+    along = vectors.T @ step
+    assert np.all(np.abs(along[1:3]) > 1e9), 'the weakly determined combinations get their step (1/eigenvalue)'
+    # The null one gets none, in the column-scaled coordinates the minimum-norm step is taken in: to the rounding of
+    # the constructed matrix's null vector, eps |G| / 1.7e-11 = 5e-5 (taken, its step would be 1e5 times the others).
+    norms = np.sqrt(np.diag(gram))
+    null = norms * vectors[:, 0]
+    assert abs(null @ (norms * step)) <= 1e-4 * np.linalg.norm(null) * np.linalg.norm(norms * step)
+    assert inverse.null_directions.shape == (8, 1)
+    assert _same_space(inverse.null_directions, vectors[:, :1])

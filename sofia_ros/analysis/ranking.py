@@ -58,8 +58,8 @@ DEGENERATE_COSINE = 0.98
 #: against the gyro biases; what is left outside is rounding, and a fit to it gives any value).
 IN_BASE_SPAN_FRACTION = 1e-6
 #: The pseudo-inverse keeps the eigen-combinations of a column-scaled Gram matrix above this fraction of the largest:
-#: below it an eigenvalue may be rounding (n eps of the largest: 1.3e-13 at 600 columns), above it the data determine
-#: the combination, however weakly. At 1e-10 (until 2026-11-28) the Waco 2004 star hop's model with the imagers'
+#: the order of a Gram matrix's rounding (n eps of the largest is a bound: 1.3e-13 at 600 columns; measured null
+#: combinations lie near 1e-16), so that what the data determine, however weakly, is kept. At 1e-10 (until 2026-11-28) the Waco 2004 star hop's model with the imagers'
 #: boresight offsets beside the HIPO clock offset and the axis swap had two combinations at 1.7e-11 and 2.1e-11 of
 #: the largest (the gyro box's misalignment with the offsets and the anchors) cut with its null one (1.2e-16, the EL
 #: gyro bias with the anchors): its fit took no step along them and ended where it started, BIC 14885.7 from zero
@@ -187,8 +187,8 @@ class NormalInverse:
         if inverse is not None:
             return cls(inverse / np.outer(norms, norms), np.zeros(len(gram), dtype=bool))
         eigenvalues, vectors = np.linalg.eigh(scaled)
-        # Eigenvalues are squared singular values: a combination whose singular value is below 1e-5 of
-        # the largest (columns collinear to 5e-11) is not determined by the data; it gets no step.
+        # Eigenvalues are squared singular values: a combination whose singular value is below the square root of
+        # KEPT_EIGENVALUE_FRACTION of the largest (3e-7) is not determined by the data; it gets no step.
         keep = eigenvalues > eigenvalues.max(initial=0.0) * KEPT_EIGENVALUE_FRACTION
         return cls._scaled_back((vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T, vectors[:, ~keep], norms)
 

@@ -487,9 +487,9 @@ class ReachedModel(EffectConfig):
     the refit's values of the term it added. ``chain_effects`` are where its ledger's chain starts each term
     (compare.run.BagSource.ledger_start): the values the model it came from was given, the term added at the
     refit's, as `sofia model add` writes them; its chain then shares every step but the last with that model's and
-    reads them back (compare.steps) instead of fitting them again from other starts. Its whole fit starts at
-    ``refit_start``, where the refit that proposed it ended (the same parameters, already converged), or at its
-    ``effects`` where there was none (a term removed or replaced)."""
+    reads them back (compare.steps) instead of fitting them again from other starts. Where it has several fitted
+    terms, its whole fit (beside the chain) starts at ``refit_start``, where the refit that proposed it ended (the
+    same parameters, already converged), or at its ``effects`` where there was none (a term removed or replaced)."""
 
     chain_effects: dict = dataclasses.field(default_factory=dict)
     refit_start: Any = None

@@ -151,5 +151,25 @@ def test_the_null_directions_of_one_weighting_serve_another():
     # numpy's minimum-norm weighted least squares of the column-scaled problem: the same step.
     root = np.sqrt(weights)[:, None]
     norms = np.sqrt(np.diag(gram))
-    reference = np.linalg.lstsq(root * jacobian / norms, root[:, 0] * residual, rcond=1e-5)[0] / norms
+    reference = np.linalg.lstsq(root * jacobian / norms, root[:, 0] * residual,
+                                rcond=np.sqrt(KEPT_EIGENVALUE_FRACTION))[0] / norms
     assert np.allclose(solution, reference, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize('size', [20, 100, 600])
+@pytest.mark.parametrize('weak', [1e-15, 5e-14, 3e-13, 1.7e-11, 1e-10])
+def test_a_combination_the_known_null_directions_miss_is_cut_or_kept_as_the_pseudo_inverse_does(size, weak):
+    # A known null direction (a degeneracy of the columns) and another combination at ``weak`` of the largest
+    # eigenvalue that the known ones miss: on either side of KEPT_EIGENVALUE_FRACTION, normal_solution's Cholesky path
+    # must keep exactly what the eigendecomposition keeps. (With the acceptance divided by the size, a combination at
+    # 5e-14 was kept at 20 columns and one at 1e-14 at 100: steps 1e9-1e10 times too long.)
+    rng = np.random.default_rng(size)
+    vectors = np.linalg.qr(rng.normal(size=(size, size)))[0]
+    eigenvalues = np.concatenate([[0.0, weak], np.geomspace(1e-3, 1.0, size - 2)])
+    gram = (vectors * eigenvalues) @ vectors.T
+    gradient = rng.normal(size=size)
+    reference = NormalInverse.of(gram).matrix @ gradient
+    solution = normal_solution(gram, gradient, vectors[:, :1])
+    # A kept combination at 1.7e-11 is solved to about eps / 1.7e-11 of its own part by either path, no better.
+    tolerance = 1e-9 if weak < KEPT_EIGENVALUE_FRACTION else 10 * np.finfo(float).eps / weak
+    assert np.abs(solution - reference).max() <= tolerance * np.abs(reference).max()

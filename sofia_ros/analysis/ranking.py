@@ -58,13 +58,14 @@ DEGENERATE_COSINE = 0.98
 #: against the gyro biases; what is left outside is rounding, and a fit to it gives any value).
 IN_BASE_SPAN_FRACTION = 1e-6
 #: The pseudo-inverse keeps the eigen-combinations of a column-scaled Gram matrix above this fraction of the largest:
-#: the order of a Gram matrix's rounding (n eps of the largest is a bound: 1.3e-13 at 600 columns; measured null
-#: combinations lie near 1e-16), so that what the data determine, however weakly, is kept. At 1e-10 (until 2026-11-28) the Waco 2004 star hop's model with the imagers'
-#: boresight offsets beside the HIPO clock offset and the axis swap had two combinations at 1.7e-11 and 2.1e-11 of
-#: the largest (the gyro box's misalignment with the offsets and the anchors) cut with its null one (1.2e-16, the EL
-#: gyro bias with the anchors): its fit took no step along them and ended where it started, BIC 14885.7 from zero
-#: anchors and 14920.1 from a refit's anchors; both starts now reach 14745.0 (docs/compare.md, "Weakly determined").
-KEPT_EIGENVALUE_FRACTION = 1e-13
+#: ten times the bound of a Gram matrix's rounding at 600 columns (n eps of the largest, 1.3e-13; measured null
+#: combinations lie near 1e-16, a few near 2e-15), so that what the data determine, however weakly, is kept. At 1e-10
+#: (until 2026-11-28) the Waco 2004 star hop's model with the imagers' boresight offsets beside the HIPO clock offset
+#: and the axis swap had two combinations at 1.7e-11 and 2.1e-11 of the largest (the gyro box's misalignment with the
+#: offsets and the anchors) cut with its null one (1.2e-16, the EL gyro bias with the anchors): its fit took no step
+#: along them and ended where it started, BIC 14885.7 from zero anchors and 14920.1 from a refit's anchors; both
+#: starts now reach 14745.0 (docs/compare.md, "Weakly determined").
+KEPT_EIGENVALUE_FRACTION = 1e-12
 #: Rows of a sparse Jacobian with more than this fraction of non-zeros are multiplied as dense ones.
 _DENSE_FRACTION = 0.125
 #: The smallest Gram matrix whose condition the Lanczos method measures where the 1-norm bound fails: below it the
@@ -188,7 +189,7 @@ class NormalInverse:
             return cls(inverse / np.outer(norms, norms), np.zeros(len(gram), dtype=bool))
         eigenvalues, vectors = np.linalg.eigh(scaled)
         # Eigenvalues are squared singular values: a combination whose singular value is below the square root of
-        # KEPT_EIGENVALUE_FRACTION of the largest (3e-7) is not determined by the data; it gets no step.
+        # KEPT_EIGENVALUE_FRACTION of the largest (1e-6) is not determined by the data; it gets no step.
         keep = eigenvalues > eigenvalues.max(initial=0.0) * KEPT_EIGENVALUE_FRACTION
         return cls._scaled_back((vectors[:, keep] / eigenvalues[keep]) @ vectors[:, keep].T, vectors[:, ~keep], norms)
 
@@ -235,9 +236,12 @@ def normal_solution(gram: np.ndarray, gradient: np.ndarray, null_directions: np.
     Where the columns are degenerate (a candidate collinear with the model's terms), the combinations a Gram matrix of
     the same columns left without a step (NormalInverse.null_directions) get none here either: G + N N^T, N those
     combinations column-scaled and made orthonormal, is positive definite, and its solution less its part along N is
-    G^+ g where N is G's null space. A further combination near the cut may then be kept where NormalInverse would
-    drop it: the estimate's 1-norm condition may exceed the eigenvalues' ratio by up to the matrix's size, and this
-    path takes that whole margin (the eigendecomposition it saves cost 40 ms a step on a star hop).
+    G^+ g where N is G's null space. The estimated reciprocal condition must exceed KEPT_EIGENVALUE_FRACTION with or
+    without them: the 1-norm reciprocal condition is at most the eigenvalues' ratio (pocon estimates it to a small
+    factor), so a step taken here keeps only combinations NormalInverse keeps. (Until 2026-11-28 it had to exceed
+    that fraction divided by the matrix's size where N was given, up to which the 1-norm may understate the ratio; at
+    the interim cut of 1e-13 that was 1.7e-16 at 600 columns, below the rounding, and a combination NormalInverse
+    cuts got a step up to 1e10 times too long.)
 
     Args:
         gram: (k, k) the symmetric positive semi-definite matrix G = J^T J.
@@ -250,17 +254,16 @@ def normal_solution(gram: np.ndarray, gradient: np.ndarray, null_directions: np.
     diagonal = np.diag(gram).copy()
     norms = np.sqrt(np.where(diagonal > 0.0, diagonal, 1.0))
     scaled = gram / np.outer(norms, norms)
-    null, least_condition = None, KEPT_EIGENVALUE_FRACTION
+    null = None
     if null_directions is not None and null_directions.size:
         null = np.linalg.qr(null_directions * norms[:, None])[0]
         scaled = scaled + null @ null.T
-        least_condition = KEPT_EIGENVALUE_FRACTION / len(scaled)
     if len(scaled):
         factor, info = scipy.linalg.lapack.dpotrf(scaled, lower=True)
         if info == 0:
             reciprocal_condition, info = scipy.linalg.lapack.dpocon(factor, np.abs(scaled).sum(axis=0).max(),
                                                                     uplo='L')
-            if info == 0 and reciprocal_condition > least_condition:
+            if info == 0 and reciprocal_condition > KEPT_EIGENVALUE_FRACTION:
                 solution, info = scipy.linalg.lapack.dpotrs(factor, gradient / norms, lower=True)
                 if info == 0:
                     if null is not None:

@@ -261,9 +261,10 @@ def normal_solution(gram: np.ndarray, gradient: np.ndarray, null_directions: np.
     if len(scaled):
         factor, info = scipy.linalg.lapack.dpotrf(scaled, lower=True)
         if info == 0:
-            reciprocal_condition, info = scipy.linalg.lapack.dpocon(factor, np.abs(scaled).sum(axis=0).max(),
-                                                                    uplo='L')
-            if info == 0 and reciprocal_condition > KEPT_EIGENVALUE_FRACTION:
+            largest_bound = np.abs(scaled).sum(axis=0).max()
+            reciprocal_condition, info = scipy.linalg.lapack.dpocon(factor, largest_bound, uplo='L')
+            if info == 0 and (reciprocal_condition > KEPT_EIGENVALUE_FRACTION
+                              or _lanczos_keeps_every_combination(largest_bound, _cholesky_solver(factor))):
                 solution, info = scipy.linalg.lapack.dpotrs(factor, gradient / norms, lower=True)
                 if info == 0:
                     if null is not None:
@@ -306,14 +307,29 @@ def _well_conditioned_inverse(scaled):
     largest_bound = np.abs(scaled).sum(axis=0).max()
     if largest_bound * np.abs(inverse).sum(axis=0).max() * KEPT_EIGENVALUE_FRACTION < 1.0:
         return inverse
-    if len(scaled) < _LANCZOS_MIN_SIZE:
-        return None
-    # The inverse's 1-norm can exceed its largest eigenvalue, 1 / lambda_min, by up to the matrix's size (a star
-    # hop's split halves: conditions of 1e8 bounded past 1e10): that eigenvalue itself, by Lanczos (a few ms
-    # where the eigendecomposition costs 30-50), from a fixed start so that the same matrix decides alike.
-    start = np.random.default_rng(0).standard_normal(len(inverse))
+    return inverse if _lanczos_keeps_every_combination(largest_bound, inverse) else None
+
+
+def _cholesky_solver(factor):
+    """S^-1 as a linear operator, from S's lower Cholesky factor (LAPACK potrs)."""
+    return scipy.sparse.linalg.LinearOperator(
+        factor.shape, matvec=lambda vector: scipy.linalg.lapack.dpotrs(factor, vector, lower=True)[0],
+        dtype=factor.dtype)
+
+
+def _lanczos_keeps_every_combination(largest_bound, inverse):
+    """Whether a positive definite scaled Gram matrix of largest eigenvalue at most ``largest_bound`` has every
+    eigenvalue above KEPT_EIGENVALUE_FRACTION of it, its smallest measured by Lanczos on ``inverse`` (a matrix or an
+    operator); False below _LANCZOS_MIN_SIZE, where the eigendecomposition costs less."""
+    if inverse.shape[0] < _LANCZOS_MIN_SIZE:
+        return False
+    # A 1-norm condition can exceed the eigenvalues' ratio by up to the matrix's size (a star hop's split halves:
+    # conditions of 1e8 bounded past 1e10; a model whose gyro misalignment is weak beside the imagers' offsets: 2e-11
+    # estimated below 1e-12): the inverse's largest eigenvalue, 1 / lambda_min, itself, by Lanczos (a few ms where
+    # the eigendecomposition costs 30-50), from a fixed start so that the same matrix decides alike.
+    start = np.random.default_rng(0).standard_normal(inverse.shape[0])
     smallest_reciprocal = scipy.sparse.linalg.eigsh(inverse, k=1, which='LA', v0=start, return_eigenvectors=False)[0]
-    return inverse if largest_bound * smallest_reciprocal * KEPT_EIGENVALUE_FRACTION < 1.0 else None
+    return largest_bound * smallest_reciprocal * KEPT_EIGENVALUE_FRACTION < 1.0
 
 
 def linear_fit(residual: npt.ArrayLike, jacobian: npt.ArrayLike | scipy.sparse.spmatrix,

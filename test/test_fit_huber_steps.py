@@ -157,6 +157,15 @@ def test_the_null_directions_of_one_weighting_serve_another():
     assert np.allclose(solution, reference, rtol=1e-6, atol=1e-9)
 
 
+def _gram_with_a_known_null_and_a_weak_combination(size, weak):
+    """(the null direction, G, g): G of ``size`` columns on random orthonormal directions, one eigenvalue 0 (the
+    known null direction), one ``weak``, the rest 1e-3 to 1; g random."""
+    rng = np.random.default_rng(size)
+    vectors = np.linalg.qr(rng.normal(size=(size, size)))[0]
+    eigenvalues = np.concatenate([[0.0, weak], np.geomspace(1e-3, 1.0, size - 2)])
+    return vectors[:, :1], (vectors * eigenvalues) @ vectors.T, rng.normal(size=size)
+
+
 @pytest.mark.parametrize('size', [20, 100, 600])
 @pytest.mark.parametrize('weak', [1e-15, 5e-14, 3e-13, 1.7e-11, 1e-10])
 def test_a_combination_the_known_null_directions_miss_is_cut_or_kept_as_the_pseudo_inverse_does(size, weak):
@@ -164,13 +173,9 @@ def test_a_combination_the_known_null_directions_miss_is_cut_or_kept_as_the_pseu
     # eigenvalue that the known ones miss: on either side of KEPT_EIGENVALUE_FRACTION, normal_solution's Cholesky path
     # must keep exactly what the eigendecomposition keeps. (With the acceptance divided by the size, a combination at
     # 5e-14 was kept at 20 columns and one at 1e-14 at 100: steps 1e9-1e10 times too long.)
-    rng = np.random.default_rng(size)
-    vectors = np.linalg.qr(rng.normal(size=(size, size)))[0]
-    eigenvalues = np.concatenate([[0.0, weak], np.geomspace(1e-3, 1.0, size - 2)])
-    gram = (vectors * eigenvalues) @ vectors.T
-    gradient = rng.normal(size=size)
+    known_null, gram, gradient = _gram_with_a_known_null_and_a_weak_combination(size, weak)
     reference = NormalInverse.of(gram).matrix @ gradient
-    solution = normal_solution(gram, gradient, vectors[:, :1])
+    solution = normal_solution(gram, gradient, known_null)
     # A kept combination at 1.7e-11 is solved to about eps / 1.7e-11 of its own part by either path, no better.
     tolerance = 1e-9 if weak < KEPT_EIGENVALUE_FRACTION else 10 * np.finfo(float).eps / weak
     assert np.abs(solution - reference).max() <= tolerance * np.abs(reference).max()
@@ -181,15 +186,11 @@ def test_a_kept_combination_the_condition_estimate_understates_is_solved_without
     # below KEPT_EIGENVALUE_FRACTION (7.6e-13): Lanczos measures the smallest eigenvalue itself, and the step is the
     # pseudo-inverse's without an eigendecomposition (30-50 ms a step at this size).
     size, weak = 600, 1e-11
-    rng = np.random.default_rng(size)
-    vectors = np.linalg.qr(rng.normal(size=(size, size)))[0]
-    eigenvalues = np.concatenate([[0.0, weak], np.geomspace(1e-3, 1.0, size - 2)])
-    gram = (vectors * eigenvalues) @ vectors.T
-    gradient = rng.normal(size=size)
+    known_null, gram, gradient = _gram_with_a_known_null_and_a_weak_combination(size, weak)
     reference = NormalInverse.of(gram).matrix @ gradient
     norms = np.sqrt(np.diag(gram))
     scaled = gram / np.outer(norms, norms)
-    null = np.linalg.qr(vectors[:, :1] * norms[:, None])[0]
+    null = np.linalg.qr(known_null * norms[:, None])[0]
     factor = scipy.linalg.lapack.dpotrf(scaled + null @ null.T, lower=True)[0]
     estimate = scipy.linalg.lapack.dpocon(factor, np.abs(scaled + null @ null.T).sum(axis=0).max(), uplo='L')[0]
     assert estimate < KEPT_EIGENVALUE_FRACTION
@@ -198,5 +199,5 @@ def test_a_kept_combination_the_condition_estimate_understates_is_solved_without
         raise AssertionError('Lanczos should decide this one')
 
     monkeypatch.setattr(np.linalg, 'eigh', no_eigendecomposition)
-    solution = normal_solution(gram, gradient, vectors[:, :1])
+    solution = normal_solution(gram, gradient, known_null)
     assert np.abs(solution - reference).max() <= 10 * np.finfo(float).eps / weak * np.abs(reference).max()

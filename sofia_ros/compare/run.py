@@ -35,7 +35,7 @@ from sofia_ros.compare.predict import Predictor
 from sofia_ros.compare.prior import anchor_prior
 from sofia_ros.compare.star_hop import hold_windows, star_hop_analysis
 from sofia_ros.compare.records import LedgerRow
-from sofia_ros.compare.search import chain_effects
+from sofia_ros.compare.search import chain_effects, refit_start
 from sofia_ros.compare.steps import ChainStep, StepStore, step_key
 from sofia_ros.compare.verdict import BAG_OBSERVABLE_KEYS, beyond_bag_floor, empirical_candidate_names
 from sofia_ros.config import EffectConfig
@@ -207,7 +207,7 @@ class BagSource:
         terms = self.ledger_terms()
         if len(terms) < 2:
             return None
-        refit = getattr(self.model, 'refit_start', None)
+        refit = refit_start(self.model)
         if refit is not None:
             return refit.effects, refit
         given = any(self.effects[name] != resolve_params(name, {}) for name in terms)

@@ -50,7 +50,7 @@ import scipy.sparse
 
 from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin, normal_pseudo_inverse,
                                         shared_share)
-from sofia_ros.compare.fit import ModelFit, vanishing_values
+from sofia_ros.compare.fit import FitStart, ModelFit, vanishing_values
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import get_effect, resolve_params
 from sofia_ros.effects.empirical import is_empirical
@@ -492,7 +492,7 @@ class ReachedModel(EffectConfig):
     same parameters, already converged), or at its ``effects`` where there was none (a term removed or replaced)."""
 
     chain_effects: dict = dataclasses.field(default_factory=dict)
-    refit_start: Any = None
+    refit_start: FitStart | None = None
 
 
 def chain_effects(model: EffectConfig) -> dict:
@@ -505,6 +505,18 @@ def chain_effects(model: EffectConfig) -> dict:
         {effect: params}.
     """
     return model.chain_effects if isinstance(model, ReachedModel) else model.effects
+
+
+def refit_start(model: EffectConfig) -> FitStart | None:
+    """Where a model's whole fit starts: a ReachedModel's refit_start (None where it has none), else None.
+
+    Args:
+        model: the model compared.
+
+    Returns:
+        The FitStart or None.
+    """
+    return model.refit_start if isinstance(model, ReachedModel) else None
 
 
 def _next_model(model, outcome, step):

@@ -58,8 +58,8 @@ DEGENERATE_COSINE = 0.98
 #: against the gyro biases; what is left outside is rounding, and a fit to it gives any value).
 IN_BASE_SPAN_FRACTION = 1e-6
 #: The pseudo-inverse keeps the eigen-combinations of a column-scaled Gram matrix above this fraction of the largest:
-#: ten times the bound of a Gram matrix's rounding at 600 columns (n eps of the largest, 1.3e-13; measured null
-#: combinations lie near 1e-16, a few near 2e-15), so that what the data determine, however weakly, is kept. At 1e-10
+#: ten times the bound of a Gram matrix's rounding at 600 columns (n eps of the largest, 1.3e-13; the null
+#: combinations measured on star hops lie near 1e-16, a constructed 600-column one came out at 2e-15), so that what the data determine, however weakly, is kept. At 1e-10
 #: (until 2026-11-28) the Waco 2004 star hop's model with the imagers' boresight offsets beside the HIPO clock offset
 #: and the axis swap had two combinations at 1.7e-11 and 2.1e-11 of the largest (the gyro box's misalignment with the
 #: offsets and the anchors) cut with its null one (1.2e-16, the EL gyro bias with the anchors): its fit took no step
@@ -238,10 +238,10 @@ def normal_solution(gram: np.ndarray, gradient: np.ndarray, null_directions: np.
     combinations column-scaled and made orthonormal, is positive definite, and its solution less its part along N is
     G^+ g where N is G's null space. The estimated reciprocal condition must exceed KEPT_EIGENVALUE_FRACTION with or
     without them: the 1-norm reciprocal condition is at most the eigenvalues' ratio (pocon estimates it to a small
-    factor), so a step taken here keeps only combinations NormalInverse keeps. (Until 2026-11-28 it had to exceed
-    that fraction divided by the matrix's size where N was given, up to which the 1-norm may understate the ratio; at
-    the interim cut of 1e-13 that was 1.7e-16 at 600 columns, below the rounding, and a combination NormalInverse
-    cuts got a step up to 1e10 times too long.)
+    factor), so a step taken here keeps only combinations NormalInverse keeps. Where the estimate falls short on
+    _LANCZOS_MIN_SIZE columns or more, Lanczos measures the smallest eigenvalue itself, as NormalInverse.of does
+    (docs/compare.md, "The cut above the rounding": with the cut divided by the size, 1.7e-16 at 600 columns, this
+    path gave a combination NormalInverse cuts a step up to 1e10 times too long).
 
     Args:
         gram: (k, k) the symmetric positive semi-definite matrix G = J^T J.

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.sparse
 
 from sofia_ros.compare import fit
 from sofia_ros.compare.observations import read_observations
@@ -55,3 +56,33 @@ def test_each_gyro_column_is_the_central_difference_of_the_prediction(source, an
             2.0 * parameter.step)
         error = np.linalg.norm(columns[:, index] - central) / np.linalg.norm(central)
         assert error < COLUMN_TOLERANCE, f'{parameter.label}: column off by {error:.1e} of its norm'
+
+
+def _general_gram(columns, weights):
+    """A^T diag(w) A by scipy's general sparse product: the independent computation."""
+    return (columns.T @ scipy.sparse.diags(weights) @ columns).toarray()
+
+
+def test_the_anchor_gram_knot_by_knot_is_scipys_sparse_product(source):
+    predictor = source.predictor
+    problem = fit.WhitenedProblem(predictor, source.noise_arcsec, source.prior)
+    effects = {name: dict(params) for name, params in source.effects.items()}
+    anchors = np.zeros((predictor.anchor_count, 3))
+    predicted = predictor.predict_px(effects, anchors)
+    columns = problem.anchor_columns(effects, problem.irf_derivative(effects, anchors, predicted))
+    rng = np.random.default_rng(5)
+    # Huber weights in (0, 1] and their corrections w - 1 on the rows beyond k (negative), as gram_of takes them.
+    weights = rng.uniform(0.0, 1.0, columns.shape[0])
+    beyond = np.flatnonzero(weights < 0.1)
+    for rows, row_weights in ((slice(None), weights), (beyond, weights[beyond] - 1.0)):
+        expected = _general_gram(columns[rows], row_weights)
+        gram = fit.anchor_gram(columns[rows], row_weights)
+        assert np.max(np.abs(gram - expected)) <= 1e-12 * np.max(np.abs(expected))
+
+
+def test_columns_of_another_sparsity_take_the_general_product():
+    rng = np.random.default_rng(6)
+    columns = scipy.sparse.random(400, 12, density=0.3, format='csr', random_state=rng)
+    weights = rng.uniform(0.5, 1.5, 400)
+    np.testing.assert_allclose(fit.anchor_gram(columns, weights), _general_gram(columns, weights), rtol=1e-12,
+                               atol=0.0)

@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from sofia_ros.compare.prior import AnchorPrior
 
 __all__ = ['FitStart', 'FreeParameter', 'ModelFit', 'WhitenedProblem', 'free_parameters', 'fit_model',
-           'normal_equations', 'rows_scaled', 'vanishing_values', 'with_values', 'OUTLIER_SIGMA']
+           'anchor_gram', 'normal_equations', 'vanishing_values', 'with_values', 'OUTLIER_SIGMA']
 
 HUBER_K = 3.0
 OUTLIER_SIGMA = 5.0
@@ -126,20 +126,61 @@ def normal_equations(anchor_columns: scipy.sparse.csr_matrix, parameter_columns:
         The Gram matrix (3K + P square), the gradient (3K + P) and rss_after(step), the weighted RSS after a step.
     """
     prior = anchor_prior.matrix
-    weighted_anchors = rows_scaled(anchor_columns, weights)
-    weighted_parameters = parameter_columns * weights[:, None]
-    gram = _data_gram(anchor_columns, parameter_columns, weighted_anchors, weighted_parameters)
+    gram = _data_gram(anchor_columns, parameter_columns, weights)
     gram[:anchor_columns.shape[1], :anchor_columns.shape[1]] += anchor_prior.gram
-    gradient = np.concatenate([weighted_anchors.T @ whitened + prior.T @ prior_residual,
-                               weighted_parameters.T @ whitened])
+    weighted = weights * whitened
+    gradient = np.concatenate([anchor_columns.T @ weighted + prior.T @ prior_residual,
+                               parameter_columns.T @ weighted])
     return gram, gradient, _rss_after(anchor_columns, parameter_columns, prior, whitened, weights, prior_residual)
 
 
-def _data_gram(anchor_columns, parameter_columns, weighted_anchors, weighted_parameters):
-    """J^T W J of the data rows alone from the columns and the same columns weighted (rows_scaled): a new array."""
-    cross = np.asarray(weighted_anchors.T @ parameter_columns)
-    return np.block([[(anchor_columns.T @ weighted_anchors).toarray(), cross],
+def _data_gram(anchor_columns, parameter_columns, weights):
+    """J^T W J of the data rows alone, W the rows' ``weights``: a new array."""
+    weighted_parameters = parameter_columns * weights[:, None]
+    cross = np.asarray(anchor_columns.T @ weighted_parameters)
+    return np.block([[anchor_gram(anchor_columns, weights), cross],
                      [cross.T, parameter_columns.T @ weighted_parameters]])
+
+
+def anchor_gram(anchor_columns: scipy.sparse.csr_matrix, weights: np.ndarray) -> np.ndarray:
+    """A^T diag(weights) A of anchor columns (WhitenedProblem.anchor_columns: each row's six non-zeros are the
+    columns of its two knots, 3k to 3k + 5), dense.
+
+    Each row adds its 6 x 6 outer product at its first knot k, so the Gram matrix is block tridiagonal: the rows
+    are grouped by k (a stable counting sort) and each group's block is one small product. A general sparse
+    product took 20-40 ms for a star hop's 247k rows and 195 knots, this 8-9 ms; it serves every Gram matrix of a
+    fit. Any other sparsity goes through the general product.
+
+    Args:
+        anchor_columns: (2N, 3K) CSR.
+        weights: (2N,) each row's weight.
+
+    Returns:
+        The (3K, 3K) Gram matrix.
+    """
+    rows, width = anchor_columns.shape
+    if not _two_knots_a_row(anchor_columns):
+        return (anchor_columns.T @ scipy.sparse.diags(weights) @ anchor_columns).toarray()
+    first_knot = anchor_columns.indices[::6] // 3
+    order = np.argsort(first_knot.astype(np.uint16 if width // 3 <= np.iinfo(np.uint16).max else np.int64),
+                       kind='stable')
+    bounds = np.concatenate([[0], np.cumsum(np.bincount(first_knot, minlength=width // 3))])
+    values = anchor_columns.data.reshape(rows, 6)[order].T  # (6, 2N): each knot's rows side by side
+    sorted_weights = weights[order]
+    gram = np.zeros((width, width))
+    for knot in np.flatnonzero(np.diff(bounds)):
+        own = slice(bounds[knot], bounds[knot + 1])
+        gram[3 * knot:3 * knot + 6, 3 * knot:3 * knot + 6] += values[:, own] @ (values[:, own] * sorted_weights[own]).T
+    return gram
+
+
+def _two_knots_a_row(columns):
+    """Whether each row of a CSR matrix has six non-zeros in columns 3k to 3k + 5 (sorted, no duplicates: canonical)."""
+    rows = columns.shape[0]
+    if columns.nnz != 6 * rows or not np.array_equal(columns.indptr, np.arange(0, 6 * rows + 1, 6)):
+        return False
+    first, last = columns.indices[::6], columns.indices[5::6]
+    return bool(columns.has_canonical_format and np.all(last - first == 5) and np.all(first % 3 == 0))
 
 
 def _rss_after(anchor_columns, parameter_columns, prior, whitened, weights, prior_residual):
@@ -578,21 +619,6 @@ class WhitenedProblem:
         return change
 
 
-def rows_scaled(matrix: scipy.sparse.spmatrix, scale: np.ndarray) -> scipy.sparse.csr_matrix:
-    """A CSR matrix with row i multiplied by scale[i]: its data scaled in place of a product with a diagonal matrix.
-
-    Args:
-        matrix: any sparse matrix.
-        scale: one factor per row.
-
-    Returns:
-        A scaled copy.
-    """
-    scaled = scipy.sparse.csr_matrix(matrix, copy=True)
-    scaled.data *= np.repeat(scale, np.diff(scaled.indptr))
-    return scaled
-
-
 def _huber_weights(whitened):
     magnitude = np.abs(whitened)
     return np.where(magnitude <= HUBER_K, 1.0, HUBER_K / np.maximum(magnitude, 1e-300))
@@ -689,16 +715,12 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
         the Gram matrix of unit weights corrected by those rows alone."""
         beyond = np.flatnonzero(weights != 1.0)
         if 2 * beyond.size > weights.size:
-            gram = _data_gram(anchor_columns, parameter_columns, rows_scaled(anchor_columns, weights),
-                              parameter_columns * weights[:, None])
+            gram = _data_gram(anchor_columns, parameter_columns, weights)
         else:
             if not unit_gram:
-                unit_gram.append(_data_gram(anchor_columns, parameter_columns, anchor_columns, parameter_columns))
-            anchors_beyond, parameters_beyond = anchor_columns[beyond], parameter_columns[beyond]
-            correction = weights[beyond] - 1.0
-            gram = unit_gram[0] + _data_gram(anchors_beyond, parameters_beyond,
-                                             rows_scaled(anchors_beyond, correction),
-                                             parameters_beyond * correction[:, None])
+                unit_gram.append(_data_gram(anchor_columns, parameter_columns, np.ones(weights.size)))
+            gram = unit_gram[0] + _data_gram(anchor_columns[beyond], parameter_columns[beyond],
+                                             weights[beyond] - 1.0)
         gram[:anchor_count, :anchor_count] += anchor_prior.gram
         return gram
 

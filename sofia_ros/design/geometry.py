@@ -14,7 +14,7 @@ from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from sofia_ros.compare.fit import FreeParameter, ModelFit, WhitenedProblem, free_parameters
+from sofia_ros.compare.fit import FreeParameter, ModelFit, WhitenedProblem, anchor_gram, free_parameters
 from sofia_ros.compare.pipeline import switched_on
 from sofia_ros.compare.run import BagSource
 from sofia_ros.config import EffectConfig
@@ -65,7 +65,7 @@ class BagColumns:
         anchors = self.anchor_columns
         weighted_anchors = anchors.multiply(weights[:, None]).tocsr()
         weighted_columns = self.parameter_columns * weights[:, None]
-        nuisance_gram = (anchors.T @ weighted_anchors).toarray() + self.prior_gram
+        nuisance_gram = anchor_gram(anchors, weights) + self.prior_gram
         cross = np.asarray(weighted_anchors.T @ self.parameter_columns)
         gram = profiled_gram(nuisance_gram, cross, self.parameter_columns.T @ weighted_columns)
         nuisance_gradient = weighted_anchors.T @ self.residual + self.prior_gradient

@@ -105,3 +105,26 @@ def test_fitted_values_stay_within_a_hundredth_of_a_sigma_of_the_old_steps(obser
     shift_sigma = {p.label: abs(value - old[p.label][0]) / old[p.label][1] for p, value in zip(fit.free, fit.values)}
     assert set(shift_sigma) == set(old)
     assert max(shift_sigma.values()) < 0.01, shift_sigma
+
+
+def test_an_overshooting_step_is_tried_again_from_the_share_the_last_iteration_took(observations, monkeypatch):
+    # Every linearized step made 64 times too long, as a nearly shared combination of the model's terms makes it
+    # overshoot alike at each iteration: the first iteration halves its way down to a share that lowers the cost,
+    # the next ones start from twice that share (two predictions each, not seven).
+    exact = _fit(observations, FITTED['clock offset only'])
+    real_step = fit_module.linearized_huber_step
+
+    def overshooting_step(*args):
+        step, sigma, null_directions = real_step(*args)
+        return 64.0 * step, sigma, null_directions
+
+    monkeypatch.setattr(fit_module, 'linearized_huber_step', overshooting_step)
+    real_trial = fit_module._try_predicted
+    trials = []
+    monkeypatch.setattr(fit_module, '_try_predicted', lambda *args: trials.append(args) or real_trial(*args))
+    overshot = _fit(observations, FITTED['clock offset only'])
+    # One more prediction than the iterations' halvings: the trial that starts the fit.
+    assert len(trials) - 1 <= 7 + 2 * (overshot.iterations - 1), (len(trials), overshot.iterations)
+    assert overshot.iterations < fit_module._MAX_ITERATIONS
+    shift_sigma = np.abs(overshot.values - exact.values) / exact.sigma
+    assert np.max(shift_sigma) < 0.01, dict(zip((p.label for p in exact.free), shift_sigma))

@@ -6,6 +6,7 @@ says what was expected, so callers never need an ``assert``.
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -26,6 +27,7 @@ __all__ = [
 DCM_REJECT_TOLERANCE = 1e-3
 #: Below this a DCM is taken as it is; between the two it is re-orthonormalized with a warning.
 DCM_EXACT_TOLERANCE = 1e-9
+_IDENTITY = np.eye(3)
 
 
 def finite_array(name, value, shape=None):
@@ -44,13 +46,20 @@ def finite_array(name, value, shape=None):
         if not ok:
             want = 'x'.join('N' if s is None else str(s) for s in shape) or 'scalar'
             raise InvalidArgumentError(f'{name} must have shape {want}, got {array.shape}')
-    if not np.all(np.isfinite(array)):
+    # The method, not np.all: the per-tick callers pass 3-vectors and 3x3 matrices, where np.all's dispatch costs
+    # more than the test.
+    if not np.isfinite(array).all():
         raise InvalidArgumentError(f'{name} contains NaN or infinite values')
     return array
 
 
 def finite_scalar(name, value):
     """Return ``value`` as a finite float; raise otherwise."""
+    if type(value) is float:
+        # What the per-tick callers pass: checked without making an array (the same float comes back).
+        if not math.isfinite(value):
+            raise InvalidArgumentError(f'{name} contains NaN or infinite values')
+        return value
     return float(finite_array(name, value, shape=()))
 
 
@@ -77,13 +86,13 @@ def orthonormal_dcm(name, value):
     Published matrices (Table D.2, eq. 6.1) are orthonormal to about 1e-5 only.
     """
     matrix = finite_array(name, value, shape=(3, 3))
-    departure = float(np.max(np.abs(matrix @ matrix.T - np.eye(3))))
+    departure = float(np.abs(matrix @ matrix.T - _IDENTITY).max())
     if departure > DCM_REJECT_TOLERANCE:
         raise NotOrthonormalError(
             f'{name} is not orthonormal: max |A A^T - I| = {departure:.3g} '
             f'(limit {DCM_REJECT_TOLERANCE:g}); pass a rotation matrix'
         )
-    if np.linalg.det(matrix) < 0.0:
+    if _determinant(matrix) < 0.0:
         raise NotOrthonormalError(f'{name} is a reflection (det < 0), not a rotation')
     if departure > DCM_EXACT_TOLERANCE:
         warnings.warn(
@@ -93,3 +102,10 @@ def orthonormal_dcm(name, value):
         u, _, vt = np.linalg.svd(matrix)
         matrix = u @ vt
     return matrix
+
+
+def _determinant(matrix):
+    """det of a 3x3 matrix by cofactors: near a rotation or reflection (|A A^T - I| <= 1e-3, so |det| within 5e-3
+    of 1) its sign is np.linalg.det's, without LAPACK's call overhead."""
+    (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)

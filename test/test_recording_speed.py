@@ -64,3 +64,24 @@ def test_the_plants_kept_matrices_are_those_computed_afresh(monkeypatch):
         fresh = mount.icrf_from_abrf_dcm(plant.elevation_deg) @ mount.abrf_from_hrf_dcm(plant.heading_deg)
         assert plant._cradle_from_hrf().tobytes() == fresh.tobytes()
     assert len(calls) == 3
+
+
+def test_a_camera_without_hooks_keeps_its_mounting_while_the_elevation_holds(monkeypatch):
+    """An imager without plug-in hooks computes A_CAM,TARF again only when the elevation changes, and its frames are
+    those of a camera that computes it for each one."""
+    import datetime as dt
+
+    from sofia_ros.sensors import imager_model
+    from sofia_ros.sky import WACO_2004_SITE
+
+    scene = imager_model.Scene(WACO_2004_SITE, dt.datetime(2004, 9, 3, 4, 32, 51, tzinfo=dt.timezone.utc))
+    effects = {'focal_plane_flexure': {}, 'imager_boresight_offset': {}}
+    kept, fresh = (imager_model.ImagerTruth('ffi', effects, scene, exposure_s=2.0) for _ in range(2))
+    calls, camera_from_tarf_dcm = [], imager_model.camera_from_tarf_dcm
+    monkeypatch.setattr(imager_model, 'camera_from_tarf_dcm',
+                        lambda *args: calls.append(args) or camera_from_tarf_dcm(*args))
+    for elapsed_s, elevation_deg in ((0.0, 31.7), (2.0, 31.7), (4.0, 35.0), (6.0, 35.0)):
+        frame = kept.centroids(elapsed_s, np.eye(3), elevation_deg)
+        fresh._mounting_at = (None, None)
+        assert frame and frame == fresh.centroids(elapsed_s, np.eye(3), elevation_deg)  # stars near the zenith
+    assert len(calls) == 2 + 4  # the kept camera's two elevations, the fresh one's four frames

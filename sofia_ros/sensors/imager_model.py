@@ -455,6 +455,7 @@ class ImagerTruth:
         self._selection_axis_irf = None
         self._directions_irf = np.empty((0, 3))
         self._places_elapsed_s = None
+        self._mounting_at = (None, None)  # (elevation deg, camera_from_tarf_dcm there) without hooks
 
     def centroids(self, elapsed_s, tarf_from_irf, elevation_deg, *, temperature_c=np.nan,
                   specific_force_tarf_m_per_s2=None, los_angle_deg=0.0):
@@ -467,12 +468,8 @@ class ImagerTruth:
         attitude = orthonormal_dcm('tarf_from_irf', tarf_from_irf)
         elevation = _checked_elevation_deg(elevation_deg)
         mid_s = start_s + self.exposure_s / 2.0
-        context = CameraContext.at_rest(self.errors.camera, elevation, time_s=mid_s, temperature_c=temperature_c,
-                                        los_angle_deg=los_angle_deg)
-        if specific_force_tarf_m_per_s2 is not None:
-            context = dataclasses.replace(context, specific_force_m_per_s2=np.reshape(
-                np.asarray(specific_force_tarf_m_per_s2, dtype=float), (1, 3)))
-        camera_from_irf = camera_from_tarf_dcm(self.errors, elevation, context) @ attitude
+        context = self._hook_context(elevation, mid_s, temperature_c, specific_force_tarf_m_per_s2, los_angle_deg)
+        camera_from_irf = self._camera_from_tarf(elevation, context) @ attitude
         self._update_candidates(mid_s, camera_from_irf[2])
         directions_irf, hips = self._directions_irf, self._candidate_hip
         weather = self.errors.weather
@@ -497,6 +494,28 @@ class ImagerTruth:
         stamp_s = mid_s + self.errors.clock_offset_s
         return tuple(Centroid(int(hip), float(x), float(y), stamp_s)
                      for hip, x, y in zip(hips[in_front][on_chip], x_px[on_chip], y_px[on_chip]))
+
+    def _hook_context(self, elevation, mid_s, temperature_c, specific_force_tarf_m_per_s2, los_angle_deg):
+        """The CameraContext of a frame for the camera's plug-in hooks; None for a camera without hooks."""
+        if not (self.errors.plugins or self.errors.shift_plugins):
+            return None
+        context = CameraContext.at_rest(self.errors.camera, elevation, time_s=mid_s, temperature_c=temperature_c,
+                                        los_angle_deg=los_angle_deg)
+        if specific_force_tarf_m_per_s2 is not None:
+            context = dataclasses.replace(context, specific_force_m_per_s2=np.reshape(
+                np.asarray(specific_force_tarf_m_per_s2, dtype=float), (1, 3)))
+        return context
+
+    def _camera_from_tarf(self, elevation, context):
+        """camera_from_tarf_dcm of a frame. Without hooks (no context) it depends on the elevation alone, which the
+        coarse drive holds for most frames: then it is kept from the last frame at the same elevation."""
+        if context is not None:
+            return camera_from_tarf_dcm(self.errors, elevation, context)
+        if self._mounting_at[0] != elevation:
+            mounting = camera_from_tarf_dcm(self.errors, elevation)
+            mounting.flags.writeable = False  # kept for the next frames
+            self._mounting_at = (elevation, mounting)
+        return self._mounting_at[1]
 
     def _update_candidates(self, mid_s, axis_irf):
         """Reselect stars when the camera axis leaves the selection margin; re-place them when stale."""

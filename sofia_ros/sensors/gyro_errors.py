@@ -95,7 +95,7 @@ def _swap_axes(axis_swap):
 def scale_factors(model, temperature_c):
     """Diagonal of D(T): 1 + scale error + the swapped calibrations' scale error at T (2.4.1, 6.3), (N, 3)."""
     temperature = np.atleast_1d(np.asarray(temperature_c, dtype=float))
-    factors = np.tile(1.0 + model.scale_error, (len(temperature), 1))
+    factors = np.full((len(temperature), 3), 1.0 + model.scale_error)
     if model.axis_swap:
         params = model.axis_swap
         first, second = _swap_axes(params)
@@ -113,7 +113,7 @@ def rate_offsets_rad_per_s(model, times_s, temperature_c, *, specific_force_tarf
     GYRF rates (zeros when not given).
     """
     times = np.atleast_1d(np.asarray(times_s, dtype=float))
-    offsets = np.tile(model.bias_rad_per_s, (len(times), 1)) + np.outer(times, model.ramp_rad_per_s2)
+    offsets = model.bias_rad_per_s + np.outer(times, model.ramp_rad_per_s2)
     if model.los_oscillation:
         params = model.los_oscillation
         omega = 2.0 * np.pi / params['period_s']

@@ -274,7 +274,7 @@ class GyroNoiseStream:
         if true_rate_arcsec_per_s is not None:
             truth = finite_array('true_rate_arcsec_per_s', true_rate_arcsec_per_s)
             try:
-                rate += np.broadcast_to(truth, shape)
+                rate += truth  # broadcast to the output's shape, or ValueError
             except ValueError as err:
                 raise InvalidArgumentError(
                     f'true_rate_arcsec_per_s must broadcast to {shape}, got shape {truth.shape}'
@@ -311,8 +311,7 @@ class GyroNoiseStream:
         """Counts of SF in the accumulated angle, differenced, as rate (eq. 2.11)."""
         counts = rate_arcsec_per_s * self._counts_per_arcsec
         start, size = self._samples_done, counts.shape[0]
-        anchors = np.arange(-start % _ANCHOR_SAMPLES, size, _ANCHOR_SAMPLES)
-        bounds = np.unique(np.concatenate([[0], anchors, [size]]))
+        bounds = sorted({0, *range(-start % _ANCHOR_SAMPLES, size, _ANCHOR_SAMPLES), size})
         for first, stop in zip(bounds[:-1], bounds[1:]):
             if (start + first) % _ANCHOR_SAMPLES == 0:
                 # Exact (Sterbenz): the angle is within half a count of the last count.

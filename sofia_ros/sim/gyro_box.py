@@ -91,7 +91,7 @@ class GyroBoxCore(NodeCore):
         if self.noise is not None:
             rates = self.noise.next_rad_per_s(len(stamps_ns), rates)
         force = self.accrf_from_tarf @ m.vector_of(truth.linear_acceleration) + self.accelerometer_bias_m_per_s2
-        block = m.ImuBlock('gyrf', stamps_ns, rates, np.tile(force, (len(stamps_ns), 1)))
+        block = m.ImuBlock('gyrf', stamps_ns, rates, np.full((len(stamps_ns), 3), force))
         outputs = [(IMU_TOPIC.name, block)]
         if self.temperature_c is not None:
             outputs.append((TEMPERATURE_TOPIC.name, m.temperature_msg(stamp_ns, 'gyrf', self.temperature_c)))

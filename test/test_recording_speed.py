@@ -28,7 +28,8 @@ def stacked_matrices(quaternions):
                      2 * (yz - xw), 2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2], axis=-1).reshape(*x.shape, 3, 3)
 
 
-@pytest.mark.parametrize('p_shape, q_shape', [((4,), (4,)), ((5, 4), (5, 4)), ((3, 4), (4,)), ((4,), (2, 3, 4))])
+@pytest.mark.parametrize('p_shape, q_shape', [((4,), (4,)), ((5, 4), (5, 4)), ((12, 4), (12, 4)), ((3, 4), (4,)),
+                                              ((4,), (2, 3, 4))])
 def test_kernels_give_the_bits_of_the_stacked_expressions(p_shape, q_shape):
     rng = np.random.default_rng(27)
     # Magnitudes over 16 decades, where a reordered sum would round differently.

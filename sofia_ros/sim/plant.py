@@ -112,9 +112,9 @@ class PlantCore(NodeCore):
         return self._messages(stamp_ns, elapsed_s, rate)
 
     def _move_coarse_drive(self, interval_s):
-        step_deg = np.clip(self.cd_target_deg - self.elevation_deg, -self.cd_slew_rate_deg_per_s * interval_s,
-                           self.cd_slew_rate_deg_per_s * interval_s)
-        self.elevation_deg += float(step_deg)
+        largest_step_deg = self.cd_slew_rate_deg_per_s * interval_s
+        # np.clip's result without its dispatch: the difference first, so that a NaN stays NaN as there.
+        self.elevation_deg += min(max(self.cd_target_deg - self.elevation_deg, -largest_step_deg), largest_step_deg)
 
     def _move_telescope(self, interval_s, elapsed_s):
         cradle_from_irf = self._cradle_from_hrf() @ self._hrf_from_irf(elapsed_s)
@@ -124,7 +124,7 @@ class PlantCore(NodeCore):
         moved = propagate_dcm(self.tarf_from_irf, self.rate_command_rad_per_s, interval_s)
         angles = mount.fine_drive_angles_from_dcm(moved @ cradle_from_irf.T)
         limit = mount.FINE_DRIVE_LIMIT_DEG * RAD_PER_DEG
-        if np.any(np.abs(angles) > limit):
+        if any(abs(angle) > limit for angle in angles.tolist()):
             # End stop: the fine drive cannot turn further; the telescope rides with the cradle there.
             angles = np.clip(angles, -limit, limit)
             moved = mount.tarf_from_icrf_dcm(angles) @ cradle_from_irf
@@ -145,10 +145,12 @@ class PlantCore(NodeCore):
         w.x, w.y, w.z = (float(v) for v in rate_rad_per_s)
         a.x, a.y, a.z = (float(v) for v in self.specific_force_tarf_m_per_s2(elapsed_s))
         positions = {CD_JOINT: self.elevation_deg * RAD_PER_DEG, **dict(zip(FD_JOINTS, self.fine_drive_rad))}
+        # The encoders read the true angles: one message for both topics (its receivers only read it).
+        joints = m.joint_state(stamp_ns, positions)
         temperature_c = self.thermal.temperature_c_at(elapsed_s)
         return [
             (TOPICS['truth_imu'].name, imu),
-            (TOPICS['truth_joints'].name, m.joint_state(stamp_ns, positions)),
+            (TOPICS['truth_joints'].name, joints),
             (TOPICS['truth_temperature'].name, m.temperature_msg(stamp_ns, 'tarf', temperature_c)),
-            (TOPICS['joint_states'].name, m.joint_state(stamp_ns, positions)),
+            (TOPICS['joint_states'].name, joints),
         ]

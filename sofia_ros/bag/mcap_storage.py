@@ -26,6 +26,7 @@ from collections import defaultdict
 from importlib.metadata import version
 from typing import TYPE_CHECKING
 
+import numpy as np
 from rosbags.interfaces import MessageDefinitionFormat
 
 if sys.version_info >= (3, 14):
@@ -51,6 +52,9 @@ _RECORD_HEAD = struct.Struct('<BQ')
 # Message record: opcode, length, channel id, sequence, log time, publish time; the data follows.
 _MESSAGE_HEAD = struct.Struct('<BQHIQQ')
 _MESSAGE_FIELDS_BYTES = _MESSAGE_HEAD.size - _RECORD_HEAD.size
+#: The same fields as a numpy record: the heads of a block of messages packed at once.
+_MESSAGE_HEADS = np.dtype([('opcode', 'u1'), ('length', '<u8'), ('channel', '<u2'), ('sequence', '<u4'),
+                           ('log_time', '<u8'), ('publish_time', '<u8')])
 _U16, _U32, _U64 = struct.Struct('<H'), struct.Struct('<I'), struct.Struct('<Q')
 
 
@@ -77,7 +81,7 @@ class CheckedMcapStorage:
         self._compression = 'zstd' if compression.name == 'STORAGE' else ''
         self._file = self.path.open('xb')
         self._data_crc = 0
-        self._pending: list[tuple[int, int, bytes]] = []  # (log time, channel id, CDR), in write order
+        self._pending: list[tuple[int, int, bytes]] = []  # (log time, channel id, message record), in write order
         self._pending_records: list[bytes] = []  # schemas and channels for the head of the next chunk
         self._schemas: list[bytes] = []
         self._channels: list[bytes] = []
@@ -110,14 +114,25 @@ class CheckedMcapStorage:
         self._counts[connection.id] = 0
 
     def write(self, connection: Connection, timestamp: int, data: bytes | memoryview) -> None:
-        """Buffer one message logged at ``timestamp`` ns."""
-        self._pending.append((timestamp, connection.id, data if isinstance(data, bytes) else bytes(data)))
+        """Buffer one message logged at ``timestamp`` ns, its record packed now."""
+        head = _MESSAGE_HEAD.pack(_MESSAGE, _MESSAGE_FIELDS_BYTES + len(data), connection.id, 0, timestamp, timestamp)
+        self._pending.append((timestamp, connection.id, head + data))
         self._counts[connection.id] += 1
 
-    def write_block(self, connection: Connection, timestamps: list[int], payloads: list[bytes]) -> None:
-        """Buffer messages logged at ``timestamps`` ns: write() of each in turn."""
-        self._pending.extend(zip(timestamps, itertools.repeat(connection.id), payloads))
-        self._counts[connection.id] += len(payloads)
+    def write_block(self, connection: Connection, timestamps: np.ndarray, rows: np.ndarray) -> None:
+        """Buffer messages logged at ``timestamps`` ns (int64), the rows of a 2-D uint8 array of equal-length CDR:
+        write() of each in turn, their records packed at once."""
+        count, length = rows.shape
+        heads = np.zeros(count, dtype=_MESSAGE_HEADS)
+        heads['opcode'] = _MESSAGE
+        heads['length'] = _MESSAGE_FIELDS_BYTES + length
+        heads['channel'] = connection.id
+        heads['log_time'] = heads['publish_time'] = timestamps
+        data = np.hstack([heads.view(np.uint8).reshape(count, _MESSAGE_HEAD.size), rows]).tobytes()
+        size = _MESSAGE_HEAD.size + length
+        records = [data[start:start + size] for start in range(0, len(data), size)]
+        self._pending.extend(zip(timestamps.tolist(), itertools.repeat(connection.id), records))
+        self._counts[connection.id] += count
 
     def close(self, version: int, metadata: str) -> None:
         """Write what is buffered, the rosbag2 metadata record, DataEnd, the summary and the footer."""
@@ -168,18 +183,18 @@ class CheckedMcapStorage:
         self._file.flush()
 
     def _write_chunk(self, batch: list[tuple[int, int, bytes]], start: int) -> int:
-        """Write batch[start:k] as one chunk of at most about CHUNK_BYTES with its message indexes; return k."""
+        """Write the message records batch[start:k] as one chunk of at most about CHUNK_BYTES with its message indexes;
+        return k."""
         parts = self._pending_records
         self._pending_records = []
         position = sum(map(len, parts))
         index: dict[int, list[int]] = defaultdict(list)
         end = start
         while end < len(batch) and (end == start or position < CHUNK_BYTES):
-            log_ns, channel, data = batch[end]
+            log_ns, channel, record = batch[end]
             index[channel] += (log_ns, position)
-            parts.append(_MESSAGE_HEAD.pack(_MESSAGE, _MESSAGE_FIELDS_BYTES + len(data), channel, 0, log_ns, log_ns))
-            parts.append(data)
-            position += _MESSAGE_HEAD.size + len(data)
+            parts.append(record)
+            position += len(record)
             end += 1
         records = b''.join(parts)
         first_ns, last_ns = batch[start][0], batch[end - 1][0]

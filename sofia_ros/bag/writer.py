@@ -107,16 +107,17 @@ class _Rosbag2Writer(Writer):
         if timestamp > self.max_timestamp:
             self.max_timestamp = timestamp
 
-    def write_block(self, connection: Connection, timestamps: list[int], payloads: list[bytes]) -> None:
-        """write() of each (timestamp, payload) of a non-empty block in turn, the per-message bookkeeping done once."""
+    def write_block(self, connection: Connection, timestamps: np.ndarray, rows: np.ndarray) -> None:
+        """write() of each (timestamp, row) of a non-empty block (int64 ns, the rows of a 2-D uint8 array of CDR) in
+        turn, the per-message bookkeeping done once."""
         if self.compression_mode == CompressionMode.MESSAGE or not self.storage:
-            for timestamp, data in zip(timestamps, payloads):
-                self.write(connection, timestamp, data)
+            for timestamp, row in zip(timestamps.tolist(), rows):
+                self.write(connection, timestamp, row.tobytes())
             return
-        self.storage.write_block(connection, timestamps, payloads)
+        self.storage.write_block(connection, timestamps, rows)
         self.counts[connection.id] += len(timestamps)
-        self.min_timestamp = min(self.min_timestamp, min(timestamps))
-        self.max_timestamp = max(self.max_timestamp, max(timestamps))
+        self.min_timestamp = min(self.min_timestamp, int(timestamps.min()))
+        self.max_timestamp = max(self.max_timestamp, int(timestamps.max()))
 
 
 class BagWriter:
@@ -235,18 +236,15 @@ class BagWriter:
                 raise InvalidArgumentError(f'rows of {topic}: {err}') from err
         if not len(rows):
             return
-        data, length = rows.tobytes(), rows.shape[1]
-        payloads = [data[start:start + length] for start in range(0, len(data), length)]
         log_ns = stamps.astype(np.int64) + self.epoch_ns
-        stamp_list = log_ns.tolist()
         start = 0
-        while start < len(stamp_list):
+        while start < len(log_ns):
             # As write_raw row by row: the rows up to the first that reaches the next flush go in, then the flush.
             due = np.flatnonzero(log_ns[start:] >= self._flush_due_ns)
-            end = start + int(due[0]) + 1 if len(due) else len(stamp_list)
-            self._writer.write_block(connection, stamp_list[start:end], payloads[start:end])
+            end = start + int(due[0]) + 1 if len(due) else len(log_ns)
+            self._writer.write_block(connection, log_ns[start:end], rows[start:end])
             if len(due):
-                self._flush_before(stamp_list[end - 1])
+                self._flush_before(int(log_ns[end - 1]))
             start = end
 
     def write_message(self, topic: str, message: object, stamp_ns: int) -> None:

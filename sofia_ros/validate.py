@@ -39,7 +39,8 @@ def finite_array(name, value, shape=None):
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as err:
         raise InvalidArgumentError(f'{name} must be numeric, got {type(value).__name__}') from err
-    if shape is not None:
+    if shape is not None and array.shape != shape:
+        # Equal shapes pass at once; otherwise each dimension is compared, None taking any length.
         ok = array.ndim == len(shape) and all(
             want is None or want == have for want, have in zip(shape, array.shape)
         )

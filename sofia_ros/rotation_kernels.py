@@ -31,12 +31,26 @@ def quaternions_from_rotvecs(rotvecs):
     """Unit quaternions (N x 4) of active rotation vectors (N x 3, rad), as Rotation.from_rotvec."""
     rotvecs = np.asarray(rotvecs, dtype=float)
     angle = np.sqrt(np.einsum('...i,...i->...', rotvecs, rotvecs))[..., np.newaxis]
-    small = angle <= _SMALL_ANGLE_RAD
-    angle2 = angle * angle
     half_angle = angle / 2
+    return np.concatenate([rotvecs * _sine_ratio(angle, half_angle), np.cos(half_angle)], axis=-1)
+
+
+def _sine_ratio(angle, half_angle):
+    """sin(angle / 2) / angle of angles (..., 1), by its Taylor series at small angles as scipy."""
+    if angle.size == 1:
+        # One rotation (most calls): only the branch np.where would take, computed on the same array.
+        if angle <= _SMALL_ANGLE_RAD:
+            return _small_sine_ratio(angle)
+        with np.errstate(invalid='ignore'):
+            return np.sin(half_angle) / angle
     with np.errstate(invalid='ignore', divide='ignore'):
-        scale = np.where(small, 0.5 - angle2 / 48 + angle2 * angle2 / 3840, np.sin(half_angle) / angle)
-    return np.concatenate([rotvecs * scale, np.cos(half_angle)], axis=-1)
+        return np.where(angle <= _SMALL_ANGLE_RAD, _small_sine_ratio(angle), np.sin(half_angle) / angle)
+
+
+def _small_sine_ratio(angle):
+    """sin(angle / 2) / angle by its Taylor series to the fourth power."""
+    angle2 = angle * angle
+    return 0.5 - angle2 / 48 + angle2 * angle2 / 3840
 
 
 def compose_quaternions(p, q):

@@ -14,8 +14,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ['is_proper_orthonormal', 'quaternions_from_rotvecs', 'compose_quaternions', 'matrices_from_quaternions',
-           'quaternion_from_matrix', 'rotvec_from_quaternion', 'canonical_quaternion', 'slerp_quaternion']
+__all__ = ['determinant_3x3', 'is_proper_orthonormal', 'quaternions_from_rotvecs', 'compose_quaternions',
+           'matrices_from_quaternions', 'quaternion_from_matrix', 'rotvec_from_quaternion', 'canonical_quaternion',
+           'slerp_quaternion']
 
 #: scipy's test for a matrix to use as it is: M M^T within 1e-12 of I off the diagonal, 1e-12 + 1e-5 on it
 #: (numpy.isclose's default rtol); others are orthonormalized first (SVD, U V^T), as scipy does.
@@ -106,7 +107,8 @@ def _last_axis_stacked(components):
     return stacked
 
 
-def _determinant(matrix):
+def determinant_3x3(matrix):
+    """det of a 3x3 matrix by cofactors, on Python floats."""
     (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
     return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
@@ -122,13 +124,13 @@ def _is_orthonormal(matrix):
 def is_proper_orthonormal(matrix):
     """Whether a 3x3 matrix is orthonormal to 1e-12 with determinant +1."""
     departure = np.abs(matrix @ matrix.T - _IDENTITY)
-    return bool(departure.max() <= _ORTHONORMAL_TOLERANCE) and _determinant(matrix) > 0.0
+    return bool(departure.max() <= _ORTHONORMAL_TOLERANCE) and determinant_3x3(matrix) > 0.0
 
 
 def quaternion_from_matrix(matrix):
     """Unit quaternion of an active 3x3 rotation matrix (Shepperd's method, as Rotation.from_matrix)."""
     matrix = np.asarray(matrix, dtype=float)
-    if not _determinant(matrix) > 0.0:
+    if not determinant_3x3(matrix) > 0.0:
         return Rotation.from_matrix(matrix).as_quat()  # scipy's error for a left-handed or null frame
     if not _is_orthonormal(matrix):
         left, _, right = np.linalg.svd(matrix)

@@ -12,6 +12,7 @@ import warnings
 import numpy as np
 
 from sofia_ros.errors import InvalidArgumentError, NotOrthonormalError
+from sofia_ros.rotation_kernels import determinant_3x3
 
 __all__ = [
     'finite_array',
@@ -93,7 +94,9 @@ def orthonormal_dcm(name, value):
             f'{name} is not orthonormal: max |A A^T - I| = {departure:.3g} '
             f'(limit {DCM_REJECT_TOLERANCE:g}); pass a rotation matrix'
         )
-    if _determinant(matrix) < 0.0:
+    # By cofactors: near a rotation or reflection (|A A^T - I| <= 1e-3, |det| within 5e-3 of 1) its sign is
+    # np.linalg.det's, without LAPACK's call overhead.
+    if determinant_3x3(matrix) < 0.0:
         raise NotOrthonormalError(f'{name} is a reflection (det < 0), not a rotation')
     if departure > DCM_EXACT_TOLERANCE:
         warnings.warn(
@@ -104,9 +107,3 @@ def orthonormal_dcm(name, value):
         matrix = u @ vt
     return matrix
 
-
-def _determinant(matrix):
-    """det of a 3x3 matrix by cofactors: near a rotation or reflection (|A A^T - I| <= 1e-3, so |det| within 5e-3
-    of 1) its sign is np.linalg.det's, without LAPACK's call overhead."""
-    (a, b, c), (d, e, f), (g, h, i) = matrix.tolist()
-    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)

@@ -150,7 +150,7 @@ def anchor_gram(anchor_columns: scipy.sparse.csr_matrix, weights: np.ndarray) ->
 
     Each row adds its 6 x 6 outer product at its first knot k, so the Gram matrix is block tridiagonal: the rows
     are grouped by k (a stable counting sort) and each group's block is one small product. A general sparse
-    product took 20-40 ms for a star hop's 247k rows and 195 knots, this 8-9 ms; it serves every Gram matrix of a
+    product took 20-40 ms for a star hop's 247k rows and 195 knots, this 8-12 ms; it serves every Gram matrix of a
     fit. Any other sparsity goes through the general product.
 
     Args:

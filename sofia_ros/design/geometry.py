@@ -63,12 +63,11 @@ class BagColumns:
         # rows (all of HIPO's, say) whose residual a member explains.
         weights = ((self.row_times_s >= start_s) & (self.row_times_s < end_s)).astype(float)
         anchors = self.anchor_columns
-        weighted_anchors = anchors.multiply(weights[:, None]).tocsr()
         weighted_columns = self.parameter_columns * weights[:, None]
         nuisance_gram = anchor_gram(anchors, weights) + self.prior_gram
-        cross = np.asarray(weighted_anchors.T @ self.parameter_columns)
+        cross = np.asarray(anchors.T @ weighted_columns)
         gram = profiled_gram(nuisance_gram, cross, self.parameter_columns.T @ weighted_columns)
-        nuisance_gradient = weighted_anchors.T @ self.residual + self.prior_gradient
+        nuisance_gradient = anchors.T @ (weights * self.residual) + self.prior_gradient
         gradient = weighted_columns.T @ self.residual
         # The gradient profiled like the Gram matrix: what the anchors cannot absorb of J^T r.
         gradient = gradient - cross.T @ pseudo_inverse(nuisance_gram) @ nuisance_gradient

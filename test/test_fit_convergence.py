@@ -114,8 +114,8 @@ def test_an_overshooting_step_is_tried_again_from_the_share_the_last_iteration_t
     real_step = fit_module.linearized_huber_step
 
     def overshooting_step(*args):
-        step, sigma, null_directions = real_step(*args)
-        return 64.0 * step, sigma, null_directions
+        step, sigma, null_directions, drop = real_step(*args)
+        return 64.0 * step, sigma, null_directions, drop
 
     monkeypatch.setattr(fit_module, 'linearized_huber_step', overshooting_step)
     real_trial = fit_module._try_predicted

@@ -95,8 +95,8 @@ def test_the_linearized_step_reaches_the_least_huber_cost(seed):
     size = anchor_columns.shape[1] + parameter_columns.shape[1]
     names = [''] * size
     rows = residual.size + prior_residual.size
-    step, sigma, _ = linearized_huber_step(anchor_columns, parameter_columns, prior, residual, prior_residual, names,
-                                        rows)
+    step, sigma, _, drop = linearized_huber_step(anchor_columns, parameter_columns, prior, residual, prior_residual,
+                                              names, rows)
     anchors = anchor_columns.shape[1]
     jacobian = scipy.sparse.hstack([anchor_columns, scipy.sparse.csr_matrix(parameter_columns)]).tocsr()
 
@@ -115,6 +115,8 @@ def test_the_linearized_step_reaches_the_least_huber_cost(seed):
     # The same minimum: each value within 1e-3 of its sigma (the inner tolerance), the cost to rounding.
     assert np.max(np.abs(step - reference.x) / sigma) < 1e-3
     assert cost_and_gradient(step)[0] == pytest.approx(reference.fun, rel=1e-10)
+    # The drop it reports is the cost it removed, at the scale of the cost itself.
+    assert drop == pytest.approx(cost_and_gradient(np.zeros(size))[0] - cost_and_gradient(step)[0], rel=1e-9)
 
 
 @pytest.mark.parametrize('case', ['full rank', 'two equal columns', 'a column 1e-7 from another'])

@@ -74,6 +74,9 @@ class FakeSource:
     def start_of(self, fit):
         return None
 
+    def moved_start(self, fit, nuisance_change):
+        return None
+
     def fit(self, effects, free, start):
         values = np.array([effects[p.effect][p.name] for p in free], dtype=float)
         residual = MEASURED - _predicted(effects)
@@ -178,6 +181,32 @@ def test_the_verdict_names_the_effect_and_the_command(lacking_the_scale_factor):
     assert 'with it every observable is explained' in verdict['text']
     [term] = lacking_the_scale_factor['model_terms']
     assert term['term'] == 'gyro_bias' and term['pays']
+
+
+class StartsWatched(FakeSource):
+    """The fake source, the values each fit starts from kept."""
+
+    def __init__(self, model):
+        super().__init__(model)
+        self.starts = []
+
+    def fit(self, effects, free, start):
+        self.starts.append({p.label: effects[p.effect][p.name] for p in free})
+        return super().fit(effects, free, start)
+
+
+def test_a_linear_sources_refit_starts_at_its_own_answer():
+    # The fake is linear and its model fitted exactly: the joint linearized step (the candidate's values and the
+    # model's terms moved beside them, RankedCandidate.base_change) is the refit's answer, so it starts there.
+    source = StartsWatched(_model('gyro_bias'))
+    document = run_comparison(source, source.model.effects, candidate_names=CANDIDATES).document
+    refit = next(c for c in document['candidates'] if c['effect'] == 'gyro_scale_factor')
+    labels = [p.label for p in free_parameters(['gyro_bias', 'gyro_scale_factor'])]
+    started = next(start for start in source.starts if list(start) == labels)
+    joint = np.linalg.lstsq(np.column_stack([COLUMNS['gyro_bias'], COLUMNS['gyro_scale_factor']]), MEASURED,
+                            rcond=None)[0]
+    np.testing.assert_allclose([started[label] for label in labels], joint, rtol=1e-9, atol=1e-12)
+    assert [refit['params'][name] for name in ('el_ppm', 'xel_ppm', 'los_ppm')] == pytest.approx(joint[3:], rel=1e-9)
 
 
 def test_the_model_of_the_truth_is_explained_with_nothing_to_do():

@@ -115,3 +115,25 @@ def test_bad_shapes_and_values_raise_one_clear_error():
         linear_fit(np.zeros(3), np.zeros((3, 2)), ('a',))
     with pytest.raises(InvalidArgumentError, match='finite'):
         linear_fit(np.array([0.0, np.nan, 1.0]), np.ones((3, 1)), ('a',))
+
+
+@pytest.mark.parametrize('shifted', [False, True])
+def test_the_base_change_beside_a_candidate_is_the_joint_least_squares_step(design, shifted):
+    rng, t, base, terms = design
+    # A candidate nearly shared with the base's slope (a quadratic against a line): alone, its step would move the
+    # prediction far from where the base left it; with the base moved as the joint fit moves it, the two land on the
+    # joint least-squares solution (scipy), from residuals the base had already fitted.
+    quadratic = terms['quadratic']
+    truth = 0.4
+    data = truth * quadratic[:, 0] + rng.normal(0.0, 0.01, N_SAMPLES)
+    base_values = scipy.linalg.lstsq(base, data)[0]
+    residual = data - base @ base_values
+    start = 0.05 if shifted else 0.0
+    term = CandidateTerm('quadratic', ('a',), np.array([start]), quadratic,
+                         shift=start * quadratic[:, 0] if shifted else None)
+    best = rank_candidates(residual, base, [term])[0]
+    joint = scipy.linalg.lstsq(np.column_stack([base, quadratic]), data)[0]
+    np.testing.assert_allclose(best.params['a'], joint[2], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(base_values + best.base_change, joint[:2], rtol=0, atol=1e-9)
+    # The change is far beyond the base's own sigmas: starting the base where it was would start far off.
+    assert np.max(np.abs(best.base_change)) > 100 * 0.01 / np.sqrt(N_SAMPLES)

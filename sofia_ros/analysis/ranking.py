@@ -424,6 +424,9 @@ class RankedCandidate:
     #: The chi-square drop the term would bring at its reference size, against the bound it must reach.
     detectable_chi2: float | None = None
     detection_bound_chi2: float | None = None
+    #: How the joint linearized fit moves the base terms (the base Jacobian's columns) beside the candidate's step,
+    #: where the candidate was fitted: a refit starts there, not with the base where it was.
+    base_change: np.ndarray | None = field(default=None, compare=False)
 
     @property
     def significant(self) -> bool:
@@ -486,6 +489,11 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
         signatures[term.name] = explained
         values = np.asarray(term.start, dtype=float) + fit.step
         delta = bic_base - bic(fit.rss, n, k_base + len(term.param_names))
+        # The base's share of the joint step (Frisch-Waugh-Lovell): the candidate's change of the prediction less
+        # what the base terms take of it. Alone, a candidate nearly shared with the base terms (a field rotation
+        # beside the HIPO fiducials) moved the Waco star hop's residuals by a thousand times their cost.
+        candidate_change = columns @ fit.step + (0.0 if term.shift is None else np.asarray(term.shift, dtype=float))
+        base_change = -(base_inverse @ (base_jacobian.T @ candidate_change))
         detectable = None
         if term.reference is not None:
             # In units of the fit's own scatter: the whitened rows are in units of their noise only when the model holds.
@@ -497,7 +505,7 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
         ranked.append(RankedCandidate(term.name, dict(zip(term.param_names, map(float, values))),
                                       dict(zip(term.param_names, map(float, fit.sigma))), fit.rss, delta,
                                       observable=observable, detectable_chi2=detectable,
-                                      detection_bound_chi2=bound))
+                                      detection_bound_chi2=bound, base_change=base_change))
     ranked = _with_degeneracies(ranked, signatures)
     ranked = _with_shared_fractions(ranked, signatures, residual_perp)
     return sorted(ranked, key=lambda candidate: (not candidate.observable, -candidate.delta_bic))

@@ -31,7 +31,7 @@ from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, Ra
                                         degenerate_pairs, rank_candidates)
 from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
 from sofia_ros.compare.diagnostics import Diagnostics
-from sofia_ros.compare.fit import FreeParameter, free_parameters, vanishing_values
+from sofia_ros.compare.fit import FreeParameter, free_parameters, vanishing_values, with_values
 from sofia_ros.compare.search import (LinearizedModels, equivalent_models, model_terms, rival_swaps, search_pool,
                                      structural_changes)
 from sofia_ros.compare.records import CandidateEntry, LedgerRow
@@ -155,6 +155,18 @@ class ComparisonSource(Protocol):
 
         Returns:
             The start, a few kB, or None.
+        """
+
+    def moved_start(self, fit: SourceFit, nuisance_change: np.ndarray) -> Any:
+        """A start like ``fit`` (fit()'s ``start``) with its nuisance parameters (the Jacobian's first columns,
+        ranking_problem) moved by ``nuisance_change``: where a candidate's refit starts (_refits).
+
+        Args:
+            fit: a converged fit.
+            nuisance_change: the change of its nuisance parameters.
+
+        Returns:
+            The start.
         """
 
     def fit(self, effects: dict, free: tuple, start: SourceFit | None) -> SourceFit:
@@ -457,20 +469,27 @@ def _absorbing_terms(jacobian: Any, nuisance: int, free: Sequence[FreeParameter]
 
 def _refits(source: ComparisonSource, final: SourceFit, ranked: list[RankedCandidate],
             starts: Mapping[str, LinearizedCandidate], entries: dict, per_candidate_s: float,
-            progress: Progress, jobs: int = 1) -> dict:
-    """The best few (compare.competing.refit_order) refitted in full from their linearized values, ``jobs`` at a
-    time; their entries replaced. A refit that fails leaves the linearized entry standing."""
+            progress: Progress, nuisance: int, jobs: int = 1) -> dict:
+    """The best few (compare.competing.refit_order) refitted in full from their linearized values, the model's
+    terms and nuisance parameters (its first ``nuisance`` columns) moved as the linearized fit moves them beside
+    the candidate (RankedCandidate.base_change), ``jobs`` at a time; their entries replaced. A refit that fails
+    leaves the linearized entry standing."""
     order = refit_order(ranked)
 
     def refit(candidate: RankedCandidate) -> tuple[SourceFit, float] | None:
         started = time.perf_counter()
         start = starts[candidate.name]
         effects = {**start.effects, candidate.name: {**start.effects[candidate.name], **candidate.params}}
-        try:
-            trial = source.fit(effects, final.free + start.free, final)
-        except FitError:
-            return None
-        return trial, time.perf_counter() - started
+        free = final.free + start.free
+        change = candidate.base_change
+        trial = None
+        if change is not None and np.all(np.isfinite(change)):
+            moved = with_values(effects, final.free, final.values + change[nuisance:])
+            trial = _fit_or_none(source, moved, source.moved_start(final, change[:nuisance]), free)
+        # Where the moved start sends a star off its detector, the model's own values may not.
+        if trial is None:
+            trial = _fit_or_none(source, effects, final, free)
+        return None if trial is None else (trial, time.perf_counter() - started)
 
     progress.count('refitting the best candidates', 0, len(order))
     outcomes = forked_map(refit, order, jobs=jobs, shared=_shared(source, jobs),
@@ -607,7 +626,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     every_model = LinearizedModels.at_fit(residual, jacobian, final.free, final.values, nuisance, terms)
     starts = {candidate.term.name: dataclasses.replace(candidate, term=None) for candidate in linearized}
     del linearized, more, terms, jacobian
-    refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress, jobs)
+    refits = _refits(source, final, ranked, starts, entries, per_candidate_s, progress, nuisance, jobs)
     refit_starts = {name: start for name, fit in refits.items() if (start := source.start_of(fit)) is not None}
     scores = {candidate.name: entries[candidate.name]['delta_bic'] for candidate in ranked}
     for name, reason in unseen.items():

@@ -224,6 +224,19 @@ class BagSource:
         """
         return fit.start()
 
+    def moved_start(self, fit: ModelFit, nuisance_change: np.ndarray) -> FitStart:
+        """Where ``fit`` ended, its anchors moved by ``nuisance_change`` (ComparisonSource.moved_start).
+
+        Args:
+            fit: a converged fit.
+            nuisance_change: (3K,) the anchors' change [rad].
+
+        Returns:
+            The FitStart.
+        """
+        start = fit.start()
+        return FitStart(start.effects, start.free, start.anchors_rad + nuisance_change.reshape(start.anchors_rad.shape))
+
     def fit(self, effects: dict, free: tuple, start: ModelFit | None) -> ModelFit:
         """compare.fit.fit_model, its anchors (and the parameters it fitted) starting from ``start``'s; the fit
         released of its columns (ModelFit.released): the comparison holds its refits while it fits more, and asks

@@ -295,6 +295,18 @@ class SetSource:
         """
         return None
 
+    def moved_start(self, fit: Any, nuisance_change: np.ndarray) -> None:
+        """None: a set's fits take no start and have no nuisance parameters (ComparisonSource.moved_start).
+
+        Args:
+            fit: a converged fit.
+            nuisance_change: empty.
+
+        Returns:
+            None.
+        """
+        return None
+
     def fit(self, effects: dict, free: tuple, start: Any) -> Any:
         """Trust-region least squares on the whitened residuals.
 

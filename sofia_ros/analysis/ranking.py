@@ -463,17 +463,24 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
     # Frisch-Waugh-Lovell through the base's normal equations: P x = J (J^T J)^+ J^T x.
     base_inverse = NormalInverse.of(_gram(base_jacobian)).matrix
 
-    def project_out(matrix):
-        return matrix - base_jacobian @ (base_inverse @ (base_jacobian.T @ matrix))
+    def base_coefficients(matrix):
+        """(J^T J)^+ J^T x: what the base terms take of x; x less J times it is x projected out of the base."""
+        return base_inverse @ (base_jacobian.T @ matrix)
 
-    residual_perp = project_out(residual)
+    residual_coefficients = base_coefficients(residual)
+    residual_perp = residual - base_jacobian @ residual_coefficients
     rss_base = float(residual_perp @ residual_perp)
     bic_base = bic(rss_base, n, k_base)
     ranked, signatures = [], {}
     for term in candidates:
         columns = np.asarray(term.jacobian, dtype=float).reshape(n, -1)
-        target = residual if term.shift is None else residual - np.asarray(term.shift, dtype=float)
-        columns_perp, target_perp = project_out(columns), project_out(target)
+        column_coefficients = base_coefficients(columns)
+        columns_perp = columns - base_jacobian @ column_coefficients
+        target_coefficients, target_perp = residual_coefficients, residual_perp
+        if term.shift is not None:
+            target = residual - np.asarray(term.shift, dtype=float)
+            target_coefficients = base_coefficients(target)
+            target_perp = target - base_jacobian @ target_coefficients
         outside = np.linalg.norm(columns_perp, axis=0) / np.maximum(np.linalg.norm(columns, axis=0), 1e-300)
         bound = len(term.param_names) * np.log(n) + SIGNIFICANT_DELTA_BIC
         inside = outside < IN_BASE_SPAN_FRACTION
@@ -489,11 +496,11 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
         signatures[term.name] = explained
         values = np.asarray(term.start, dtype=float) + fit.step
         delta = bic_base - bic(fit.rss, n, k_base + len(term.param_names))
-        # The base's share of the joint step (Frisch-Waugh-Lovell): the candidate's change of the prediction less
-        # what the base terms take of it. Alone, a candidate nearly shared with the base terms (a field rotation
-        # beside the HIPO fiducials) moved the Waco star hop's residuals by a thousand times their cost.
-        candidate_change = columns @ fit.step + (0.0 if term.shift is None else np.asarray(term.shift, dtype=float))
-        base_change = -(base_inverse @ (base_jacobian.T @ candidate_change))
+        # The base's share of the joint step (Frisch-Waugh-Lovell): less what the base terms take of the candidate's
+        # change of the prediction, columns @ step + shift (the shift's share is the residual's less the target's).
+        # Alone, a candidate nearly shared with the base terms (a field rotation beside the HIPO fiducials) moved the
+        # Waco star hop's residuals by a thousand times their cost.
+        base_change = target_coefficients - residual_coefficients - column_coefficients @ fit.step
         detectable = None
         if term.reference is not None:
             # In units of the fit's own scatter: the whitened rows are in units of their noise only when the model holds.

@@ -748,7 +748,7 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
                                  names, rows, inverse=inverse).sigma
     total = np.zeros(anchor_count + parameter_columns.shape[1])
     residual, after_prior = whitened, prior_residual
-    start_cost = cost = _robust_cost(whitened) + 0.5 * float(prior_residual @ prior_residual)
+    start_cost = cost = _cost_with_prior(whitened, prior_residual)
     negligible_drop, last_drop = 0.5 * _INNER_TOLERANCE_SIGMA**2, np.inf
     for number in range(_INNER_STEPS):
         huber = _huber_weights(residual)
@@ -763,8 +763,8 @@ def linearized_huber_step(anchor_columns: scipy.sparse.csr_matrix, parameter_col
         step = length * direction
         total += step
         residual, after_prior = residual - length * change, after_prior - length * prior_change
-        cost, drop = _robust_cost(residual) + 0.5 * float(after_prior @ after_prior), cost
-        drop -= cost
+        after_cost = _cost_with_prior(residual, after_prior)
+        drop, cost = cost - after_cost, after_cost
         if _step_is_small(step[anchor_count:], step[:anchor_count], sigma[anchor_count:], _INNER_TOLERANCE_SIGMA,
                           1e-10) or max(drop, last_drop) < negligible_drop:
             break
@@ -787,15 +787,19 @@ def _is_converged(parameter_step, anchor_step, sigma, linearized_drop):
     model's terms nearly share a combination with (boresight offsets, a field rotation, the gyro misalignment) crept
     1e-7 rad an iteration, lowering the cost by 1e-7, to the 12-iteration cap (a refit on the Waco star hop: 6 of its
     10 s)."""
-    return (_step_is_small(parameter_step, anchor_step, sigma, _STEP_TOLERANCE_SIGMA, np.inf)
-            and (np.max(np.abs(anchor_step), initial=0.0) < 1e-8
-                 or linearized_drop < 0.5 * _STEP_TOLERANCE_SIGMA**2))
+    anchor_tolerance_rad = np.inf if linearized_drop < 0.5 * _STEP_TOLERANCE_SIGMA**2 else 1e-8
+    return _step_is_small(parameter_step, anchor_step, sigma, _STEP_TOLERANCE_SIGMA, anchor_tolerance_rad)
 
 
 def _robust_cost(whitened):
     """Huber cost of whitened residuals: quadratic inside k, linear beyond."""
     magnitude = np.abs(whitened)
     return float(np.sum(np.where(magnitude <= HUBER_K, 0.5 * magnitude**2, HUBER_K * magnitude - 0.5 * HUBER_K**2)))
+
+
+def _cost_with_prior(whitened, prior_residual):
+    """The fit's cost: the data rows' Huber cost and the prior rows' half square."""
+    return _robust_cost(whitened) + 0.5 * float(prior_residual @ prior_residual)
 
 
 def _try_predicted(problem, effects, free, values, anchors):
@@ -891,8 +895,7 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     values = _profiled_values(problem, effects, free, values, anchors, frozenset(fitted))
 
     def cost(whitened_rows, trial_anchors):
-        prior = problem.prior @ trial_anchors.ravel()
-        return _robust_cost(whitened_rows) + 0.5 * float(prior @ prior)
+        return _cost_with_prior(whitened_rows, problem.prior @ trial_anchors.ravel())
 
     predicted = _try_predicted(problem, effects, free, values, anchors)
     if predicted is None:

@@ -369,6 +369,9 @@ class BagSource:
             at_start = self.predictor.predict_px(switched, fit.anchors_rad)
             columns = problem.parameter_columns(switched, free, start, fit.anchors_rad, at_start, derivative)
             shift = problem.scaled(at_start - base)
+            # A term switched on where it vanishes moves no row (every catalogue term does): no shift to hold
+            # (21 candidates' zero shifts were 44 MB of a star hop's linearization).
+            shift = np.concatenate([shift, np.zeros(prior_rows)]) if np.any(shift) else None
             # The size the effect is expected at: its thesis magnitudes (shaping parameters do not scale it).
             reference = np.array([0.0 if spec.parameter(p.name).shape else float(spec.parameter(p.name).default)
                                   for p in free])
@@ -376,7 +379,7 @@ class BagSource:
                 reference = None  # no expected size (empirical terms, plug-ins defaulting to zero)
             term = CandidateTerm(name, tuple(p.name for p in free), start,
                                  np.vstack([columns, np.zeros((prior_rows, len(free)))]),
-                                 np.concatenate([shift, np.zeros(prior_rows)]), reference)
+                                 shift, reference)
             out.append(LinearizedCandidate(term, free, switched))
         return out, {}
 

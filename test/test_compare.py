@@ -286,7 +286,8 @@ def test_linearized_gyro_columns_match_the_propagated_attitude(null_bag, model):
     for effect, param, step in steps:
         changed.append({name: dict(params) for name, params in effects.items()})
         changed[-1][effect][param] += step
-    linearized = predictor.attitude_changes_irf(effects, changed, times)
+    linearized = list(predictor.attitude_changes_irf(effects, changed, times))
+    assert len(linearized) == len(changed)
     base = predictor.attitudes(effects, times)
     for other, change in zip(changed, linearized):
         moved = predictor.attitudes(other, times)

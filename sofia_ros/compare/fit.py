@@ -575,7 +575,7 @@ class WhitenedProblem:
             stepped_effects.append(with_values(effects, free, stepped))
             reaches.append(predictor.parameter_reach(effects, parameter, stepped_effects[-1]))
         moving_attitude = [moved for moved, (_, attitude, _) in zip(stepped_effects, reaches) if attitude]
-        changes = iter(predictor.attitude_changes_irf(effects, moving_attitude, predictor.row_times_s(effects)))
+        changes = predictor.attitude_changes_irf(effects, moving_attitude, predictor.row_times_s(effects))
         if moving_attitude:
             # A step's attitude change c composes with each row's anchor rotation a: R(a) R(c) = R(a + J_r(a)^-1 c)
             # to first order (J_r the right Jacobian of SO(3)), and ``derivative`` is against a change of a. Taken
@@ -905,6 +905,8 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     rows = whitened.size + problem.prior.shape[0]
     null_directions, start_scale = None, 1.0
     for iteration in range(1, _MAX_ITERATIONS + 1):
+        # The last iteration's columns go before this one's are taken (both held, a star hop's refit took 50 MB more).
+        derivative = columns = anchor_columns = None
         current = with_values(effects, free, values)
         jacobian_at = (current, free, values, anchors)
         derivative = problem.irf_derivative(current, anchors, predicted)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping
 from typing import Any, Protocol
 
 import numpy as np
@@ -368,10 +368,11 @@ class Predictor:
 
         return self._cached(self._times_key('change maps', effects, times_s), compute, kind='rows')
 
-    def attitude_changes_irf(self, effects: Mapping[str, EffectParams], changed: Sequence[Mapping[str, EffectParams]],
-                             times_s: np.ndarray) -> np.ndarray:
-        """The small IRF rotations c (P, N, 3), A_changed(t) = A(t) R(c)^T, that each of the P effect sets ``changed``
-        makes of the attitudes at times through its gyro errors.
+    def attitude_changes_irf(self, effects: Mapping[str, EffectParams], changed: Iterable[Mapping[str, EffectParams]],
+                             times_s: np.ndarray) -> Iterator[np.ndarray]:
+        """The small IRF rotations c (N, 3), A_changed(t) = A(t) R(c)^T, that each effect set of ``changed`` makes of
+        the attitudes at times through its gyro errors, one set at a time (a refit's nine gyro parameters at once
+        held 27 MB of a star hop's rows).
 
         The propagation (3.20, B.23) to first order in the change of the tick increments d phi_k:
         c(t) = sum over ticks of A_k^T J_r(phi_k) d phi_k (J_r the right Jacobian of SO(3)), the tick
@@ -383,20 +384,18 @@ class Predictor:
             changed: the P changed effect sets.
             times_s: (N,) the times (s).
 
-        Returns:
-            (P, N, 3) the small IRF rotations (rad).
+        Yields:
+            (N, 3) the small IRF rotations (rad) of each changed set, in turn.
         """
         _, increments = self._gyro_track(effects)
         # A body rotation b after tick k is the IRF rotation A_k+1^T b from then on (_change_maps).
         per_tick_map, per_row_map, tick_before = self._change_maps(effects, times_s)
-        changes = np.empty((len(changed), len(times_s), 3))
-        for number, other in enumerate(changed):
+        for other in changed:
             delta = self._tick_increments(self._gyro_effects(other)) - increments
             per_tick = np.einsum('kij,kj->ki', per_tick_map, delta)
             cumulative = np.concatenate([np.zeros((1, 3)), np.cumsum(per_tick, axis=0)])
-            changes[number] = (np.take(cumulative, tick_before, axis=0)
-                               + np.einsum('nij,nj->ni', per_row_map, np.take(delta, tick_before, axis=0)))
-        return changes
+            yield (np.take(cumulative, tick_before, axis=0)
+                   + np.einsum('nij,nj->ni', per_row_map, np.take(delta, tick_before, axis=0)))
 
     def projection_key(self, effects: Mapping[str, EffectParams]) -> tuple[Any, ...]:
         """What a prediction depends on besides the gyro attitude: row times, star places, camera models.

@@ -81,8 +81,24 @@ def test_projected_gram_in_bands_is_the_projection_of_the_stacked_pieces(monkeyp
     pieces = [rng.normal(size=(50, width)) for width in (1, 1, 3, 2)]
     nuisance = scipy.sparse.csr_matrix(rng.normal(size=(50, 4)) * (rng.random((50, 4)) < 0.5))
     # Bands of 7 rows: the last one short, so that the bands' sum is exercised.
-    monkeypatch.setattr(search, '_GRAM_BAND_ROWS', 7)
+    monkeypatch.setattr(search, 'GRAM_BAND_ROWS', 7)
     stacked = np.hstack(pieces)
     dense = nuisance.toarray()
     projected = stacked - dense @ np.linalg.lstsq(dense, stacked, rcond=None)[0]
     np.testing.assert_allclose(search._projected_gram(pieces, nuisance), projected.T @ projected, rtol=0, atol=1e-9)
+
+
+def test_sparse_gram_in_bands_is_the_dense_product(monkeypatch):
+    from sofia_ros.analysis import ranking
+
+    rng = np.random.default_rng(12)
+    # A bag's shape: data rows with a few non-zeros, then nearly dense prior rows, one of them inside the data rows
+    # too, so that bands mix both kinds; bands of 7 rows, the last one short.
+    dense = np.zeros((53, 16))
+    dense[np.arange(53)[:, None], rng.integers(0, 16, size=(53, 2))] = rng.normal(size=(53, 2))
+    dense[[20, 48, 49, 50, 51, 52]] = rng.normal(size=(6, 16))
+    monkeypatch.setattr(ranking, 'GRAM_BAND_ROWS', 7)
+    matrix = scipy.sparse.csr_matrix(dense)
+    assert np.sum(np.diff(matrix.indptr) > ranking._DENSE_FRACTION * 16) == 6
+    np.testing.assert_allclose(ranking._gram(matrix), dense.T @ dense, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ranking._gram(matrix.tocsc()), dense.T @ dense, rtol=0, atol=1e-12)

@@ -48,8 +48,8 @@ import numpy as np
 import numpy.typing as npt
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin, normal_pseudo_inverse,
-                                        shared_share)
+from sofia_ros.analysis.ranking import (GRAM_BAND_ROWS, SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin,
+                                        normal_pseudo_inverse, shared_share)
 from sofia_ros.compare.fit import FitStart, ModelFit, vanishing_values
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import get_effect, resolve_params
@@ -84,8 +84,6 @@ EXPECTATION_ERROR_SHARE = 0.1
 #: Rounds of search and full refit (each a whole comparison) at most; the range --search-rounds takes.
 MAX_SEARCH_ROUNDS = 12
 SEARCH_ROUNDS_RANGE = (1, 20)
-#: Rows per band of the stacked pieces in _projected_gram (a band of a hundred columns: about 6 MB).
-_GRAM_BAND_ROWS = 8192
 
 
 @dataclass(frozen=True)
@@ -147,8 +145,9 @@ class LinearizedModels:
         for term in candidate_terms:
             names.append(term.name)
             in_model.append(False)
-            shift = np.zeros(len(residual)) if term.shift is None else np.asarray(term.shift, dtype=float)
-            switches.append(-shift)
+            # No shift: a zero piece that holds no memory (a view of one zero).
+            switches.append(np.broadcast_to(0.0, len(residual)) if term.shift is None
+                            else -np.asarray(term.shift, dtype=float))
             columns.append(np.asarray(term.jacobian, dtype=float).reshape(len(residual), -1))
             parameters.append(tuple(term.param_names))
             starts.append(np.asarray(term.start, dtype=float))
@@ -258,12 +257,13 @@ def _projected_gram(pieces, nuisance):
     """[pieces]^T (I - N (N^T N)^+ N^T) [pieces], the stacked pieces (each n x w) formed a band of rows at a time.
 
     One product per band reads each piece once, where a product per pair of pieces read each about 40 times (a
-    star hop's 21 candidates: 1.3 of 1.6 s); a band of _GRAM_BAND_ROWS keeps the stack to a few MB.
+    star hop's 21 candidates: 1.3 of 1.6 s); a band of GRAM_BAND_ROWS (a hundred columns: about 6 MB) keeps the
+    stack small.
     """
     width = sum(piece.shape[1] for piece in pieces)
     gram = np.zeros((width, width))
-    for start in range(0, len(pieces[0]), _GRAM_BAND_ROWS):
-        band = np.hstack([piece[start:start + _GRAM_BAND_ROWS] for piece in pieces])
+    for start in range(0, len(pieces[0]), GRAM_BAND_ROWS):
+        band = np.hstack([piece[start:start + GRAM_BAND_ROWS] for piece in pieces])
         gram += band.T @ band
     if nuisance.shape[1] == 0:
         return gram

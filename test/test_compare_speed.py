@@ -66,6 +66,24 @@ def test_a_parameter_the_larger_half_lacks_has_an_exact_zero_there():
     assert np.all(np.diag(others[0])[column + 1:] > 0.0)
 
 
+def test_normal_equations_in_bands_are_the_dense_weighted_products(monkeypatch):
+    from sofia_ros.compare import fit as fit_module
+
+    fit, _ = _synthetic_fit(rows=50, parameters=4)
+    # Bands of 7 rows: the last one short (100 data rows), so that the bands' sum is exercised.
+    monkeypatch.setattr(fit_module, 'GRAM_BAND_ROWS', 7)
+    gram, gradient, _ = fit_module.normal_equations(fit.anchor_columns, fit.parameter_columns, fit.anchor_prior,
+                                                    fit.whitened, fit.weights, fit.prior_residual)
+    data = np.hstack([fit.anchor_columns.toarray(), fit.parameter_columns])
+    prior_matrix = fit.anchor_prior.matrix
+    prior_matrix = prior_matrix.toarray() if scipy.sparse.issparse(prior_matrix) else np.asarray(prior_matrix)
+    prior = np.hstack([prior_matrix, np.zeros((prior_matrix.shape[0], 4))])
+    expected = data.T @ (fit.weights[:, None] * data) + prior.T @ prior
+    np.testing.assert_allclose(gram, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    np.testing.assert_allclose(gradient, data.T @ (fit.weights * fit.whitened) + prior.T @ fit.prior_residual,
+                               rtol=0, atol=1e-12 * np.abs(gradient).max())
+
+
 def test_weighted_normal_equations_are_the_fits_own_at_its_weights():
     fit, _ = _synthetic_fit()
     gram, gradient, _ = fit.normal_equations(fit.weights)

@@ -129,3 +129,17 @@ def test_an_overshooting_step_is_tried_again_from_the_share_the_last_iteration_t
     shift_sigma = {p.label: abs(value - old[p.label][0]) / old[p.label][1] for p, value in zip(overshot.free,
                                                                                              overshot.values)}
     assert max(shift_sigma.values()) < 0.01, shift_sigma
+
+
+def test_a_share_at_the_mirror_image_of_the_minimum_is_refused():
+    # The cost along a step whose linearization overshoots twofold: a parabola with its minimum at share 1/2. The
+    # linearized problem promises D = 8 at the whole step; the whole step lands as far past the minimum as the start
+    # is short of it, at the start's cost (to rounding), and is refused; half the step is taken.
+    def cost_at(share):
+        return 1000.0 - 4.0 * (1.0 - (2.0 * share - 1.0)**2)
+
+    assert not fit_module._lowers_cost(cost_at(1.0) - 1e-11, cost_at(0.0), 1.0, 8.0)
+    assert fit_module._lowers_cost(cost_at(0.5), cost_at(0.0), 0.5, 8.0)
+    # Within the cost's rounding nothing is promised: a trial no higher than that is taken, a higher one is not.
+    assert fit_module._lowers_cost(1000.0 + 1e-10, 1000.0, 1.0, 1e-10)
+    assert not fit_module._lowers_cost(1000.0 + 1e-8, 1000.0, 1.0, 1e-10)

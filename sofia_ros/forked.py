@@ -37,6 +37,8 @@ _R = TypeVar('_R')
 
 #: glibc's malloc_trim, where the C library has one (not on musl or macOS): see _return_free_heap.
 _MALLOC_TRIM = getattr(ctypes.CDLL(None), 'malloc_trim', None)
+if _MALLOC_TRIM is not None:
+    _MALLOC_TRIM.argtypes = [ctypes.c_size_t]
 
 
 def _return_free_heap() -> None:

@@ -143,3 +143,5 @@ def test_a_share_at_the_mirror_image_of_the_minimum_is_refused():
     # Within the cost's rounding nothing is promised: a trial no higher than that is taken, a higher one is not.
     assert fit_module._lowers_cost(1000.0 + 1e-10, 1000.0, 1.0, 1e-10)
     assert not fit_module._lowers_cost(1000.0 + 1e-8, 1000.0, 1.0, 1e-10)
+    # A promise that is not a number promises nothing: the cost must merely not rise.
+    assert fit_module._lowers_cost(1000.0, 1000.0, 1.0, float('nan'))

@@ -811,9 +811,10 @@ def _lowers_cost(trial_cost, current_cost, share, linearized_drop):
     least the linearized problem promises there, s D (its cost is convex, D the drop at the whole step); where D is
     within the cost's rounding (_COST_ROUNDING), by not raising it beyond that. A share that merely does not raise
     the cost can be the mirror image of the minimum along the step, as far past it as the start is short of it:
-    taken, the next step came back as long, and a fit whose steps overshot 64-fold went to and fro to the cap."""
+    taken, the next step came back as long, and a fit whose steps overshot 64-fold went to and fro to the cap. A
+    promise that is not a number promises nothing."""
     rounding = _COST_ROUNDING * abs(current_cost)
-    if linearized_drop <= rounding:
+    if not np.isfinite(linearized_drop) or linearized_drop <= rounding:
         return trial_cost <= current_cost + rounding
     return current_cost - trial_cost >= _SUFFICIENT_DECREASE * share * linearized_drop
 
@@ -895,10 +896,11 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
     Starts from the effects' given values, a time shift from the best of a grid (_profiled_values) unless it is
     one of ``fitted``, the parameters a previous fit already converged at these values. Each iteration takes the
     columns at its point and steps to the least Huber cost of that linearized problem (linearized_huber_step); a
-    step that raises the cost (or sends a star off its detector) is halved, down to 1/128 of it, and a fit that
-    cannot improve stops where it is. Each iteration first tries twice the share its predecessor took (a trust
-    region's memory, at most the whole step). It has converged when no parameter steps beyond 1 % of its sigma
-    and no anchor beyond 1e-8 rad.
+    step that does not lower the cost by a quarter of what the linearized problem promises (_lowers_cost), or sends
+    a star off its detector, is halved, down to 1/128 of it, and a fit that cannot improve stops where it is. Each
+    iteration first tries twice the share its predecessor took (a trust region's memory, at most the whole step).
+    It has converged when no parameter steps beyond 1 % of its sigma and either no anchor beyond 1e-8 rad or the
+    step's linearized drop is below that of a 1 %-of-sigma step (_is_converged).
 
     Args:
         predictor: the bag's Predictor.
@@ -944,7 +946,7 @@ def fit_model(predictor: Predictor, effects: Mapping[str, Mapping[str, Any]], fr
             anchor_columns, columns, anchor_prior, whitened, -(problem.prior @ anchors.ravel()), names, rows,
             null_directions)
         anchor_step, parameter_step = step[:anchors.size].reshape(anchors.shape), step[anchors.size:]
-        # The step's largest fraction (1, 1/2, ...) that does not raise the cost, or sends no star off a detector:
+        # The step's largest fraction (1, 1/2, ...) that lowers the cost enough and sends no star off a detector:
         # the prediction is not linear. Where the model's terms nearly share a combination (the imagers' offsets,
         # field rotations and the HIPO fiducials), its linearized step overshoots alike iteration after iteration:
         # a refit on the Waco star hop took 1/32-1/64 of it in each of 12 iterations, 72 predictions, 17 s. From

@@ -388,8 +388,9 @@ def residual_diagnostics(observations: Observations, fit: ModelFit, predictor: P
 def _strongest_first(finding):
     """Sort key: the most significant first; among findings past the float limit of a p-value (37 sigma, all
     alike) the larger shape first. Both to 9 digits, alike findings in the order they were tested (the sort is
-    stable; two values either side of a 9th digit's rounding still part, about once in 1e4): collinear variables (time and temperature on the Waco star hop) find the same shape, and the last
-    digits of a fit ordered them, 'time (= temperature)' in one run and 'temperature (= time)' in the next."""
+    stable; two values either side of a 9th digit's rounding still part, about once in 1e4): collinear variables
+    (time and temperature on the Waco star hop) find the same shape, and the last digits of a fit ordered them,
+    'time (= temperature)' in one run and 'temperature (= time)' in the next."""
     return -float(f'{finding["significance_sigma"]:.9g}'), -float(f'{finding["amplitude_arcsec"]:.9g}')
 
 

@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
-from scipy.stats import chi2, norm
+from scipy import special  # not scipy.stats: see analysis.structure's import
 
 from sofia_ros.analysis.ranking import NormalInverse
 from sofia_ros.analysis.structure import PeriodTest, TrendTest, category_test, field_test, period_test, sigma_of_probability, trend_test
@@ -377,8 +377,8 @@ def residual_diagnostics(observations: Observations, fit: ModelFit, predictor: P
     diagnostics = Diagnostics(observables, trends, periods, count)
     for name, entry in observables.items():
         # The excess over the floor: chi-square of the rows in units of the floor, family-wise over the observables.
-        probability = float(chi2.sf(entry.pop('chi2'), entry['rows'])) * len(observables)
-        entry['excess_sigma'] = float(max(norm.isf(min(probability, 1.0)), 0.0))
+        probability = float(special.chdtrc(entry['rows'], entry.pop('chi2'))) * len(observables)
+        entry['excess_sigma'] = max(0.0 - float(special.ndtri(min(probability, 1.0))), 0.0)
         entry['structure'] = [_finding_label(finding) for finding in distinct_findings(diagnostics.structured(name))]
         entry['explained'] = (not (entry['ratio'] > RATIO_LIMIT and entry['excess_sigma'] >= DETECTION_SIGMA)
                               and not entry['structure'])
@@ -504,7 +504,7 @@ def split_consistency(observations: Observations, fit: ModelFit, predictor: Pred
     count = len(comparisons)
     found = []
     for label, split, first, second, first_sigma, second_sigma, z in comparisons:
-        sigma = sigma_of_probability(min(1.0, 2.0 * float(norm.sf(z)) * count))
+        sigma = sigma_of_probability(min(1.0, 2.0 * float(special.ndtr(-z)) * count))
         if sigma >= DETECTION_SIGMA:
             halves = ('this camera', 'the others') if split.startswith('camera') else ('lower half', 'upper half')
             found.append({'param': label, 'split': split, 'halves': halves, 'values': [float(first), float(second)],

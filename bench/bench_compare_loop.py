@@ -43,6 +43,8 @@ import threading
 import time
 from pathlib import Path
 
+from sofia_ros.compare.cache import CACHE_DIRECTORY
+
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = ROOT / 'config' / 'truth' / 'waco-2004.yaml'
 MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
@@ -191,6 +193,13 @@ def run_loop(campaign: str, seed: int, rounds: int, work: Path, baseline: Path |
     bag, run_s = _flown(campaign, seed, work)
     model = work / f'model-{campaign}.yaml'
     shutil.copy(MODEL, model)
+    # The baseline reads a copy: code of another reader version would replace this code's observation cache
+    # (one per bag) each round, and both would decode the bag every time.
+    baseline_bag = None
+    if baseline is not None:
+        baseline_bag = work / f'{bag.name}-baseline'
+        shutil.rmtree(baseline_bag, ignore_errors=True)
+        shutil.copytree(bag, baseline_bag, ignore=shutil.ignore_patterns(CACHE_DIRECTORY))
     rows = []
     for number in range(1, rounds + 1):
         output = work / f'{campaign}-{number}.json'
@@ -203,7 +212,7 @@ def run_loop(campaign: str, seed: int, rounds: int, work: Path, baseline: Path |
                'next': next_step.get('command') or next_step.get('action')}
         if baseline is not None:
             old_output = work / f'{campaign}-{number}-baseline.json'
-            old, old_wall_s, old_peak_mb = _sofia(baseline, 'compare', str(bag), '--model', str(model), '--json',
+            old, old_wall_s, old_peak_mb = _sofia(baseline, 'compare', str(baseline_bag), '--model', str(model), '--json',
                                                   str(old_output))
             _checked(old, f'baseline compare round {number}')
             same, worst = _agreement(document, json.loads(old_output.read_text()))

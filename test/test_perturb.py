@@ -194,7 +194,8 @@ def test_the_copy_reads_like_the_source_in_bagreader_and_compare(bag, tmp_path):
     ffi = old.centroids.camera_index == old.centroids.cameras.index('ffi')
     changed = np.any(new.centroids.measured_px != old.centroids.measured_px, axis=1)
     assert changed.any() and not changed[~ffi].any()
-    assert np.array_equal(new.gyro.rates_gyrf_rad_per_s, old.gyro.rates_gyrf_rad_per_s)
+    assert np.array_equal(new.gyro.tick_mean_rates_gyrf_rad_per_s, old.gyro.tick_mean_rates_gyrf_rad_per_s)
+    assert np.array_equal(new.gyro.within_tick_rate_sigma_rad_per_s, old.gyro.within_tick_rate_sigma_rad_per_s)
 
 
 @pytest.fixture(scope='module')

@@ -217,9 +217,10 @@ def test_an_alignment_hold_and_los_rotations_are_rows_of_the_bag(alignment_flown
     # HIPO's frames through the hold's 20 s, at the planned LOS angle (the Earth's turn walks it a little).
     assert rows.sum() >= 15
     assert np.all(np.abs(observations.centroids.fd_los_deg[rows] - 1.5) < 0.2)
-    during = (observations.gyro.time_s > rotations['start_s']) & (observations.gyro.time_s < rotations['end_s'])
+    gyro = observations.gyro
+    during = (gyro.tick_mean_time_s > rotations['start_s']) & (gyro.tick_mean_time_s < rotations['end_s'])
     # The LOS rotations turn the gyros' LOS axis: 2.5 and 1.5 deg at the fine drive's rate.
-    los_rates_deg_per_s = np.degrees(observations.gyro.rates_gyrf_rad_per_s[during, 2])
+    los_rates_deg_per_s = np.degrees(gyro.tick_mean_rates_gyrf_rad_per_s[during, 2])
     assert np.max(np.abs(los_rates_deg_per_s)) > 0.05
     assert read_plan(bag) == read_plan_file(plan_path)
     with BagReader(bag) as reader:

@@ -171,6 +171,10 @@ def _is_float(value: object) -> bool:
     return isinstance(value, float)
 
 
+def _is_count(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
 def _is_camera_list(value: object) -> bool:
     return isinstance(value, list) and bool(value) and all(camera in CAMERAS for camera in value)
 
@@ -179,20 +183,23 @@ def _is_camera_list(value: object) -> bool:
 _VALUE_CHECKS: dict[str, Callable[[object], bool]] = {
     'centroids.cameras': _is_camera_list,
     'gyro.sample_period_s': _is_float,
+    'gyro.within_tick_difference_count': _is_count,
     'initial_time_s': _is_float,
     'calibration_result': lambda value: value is None or isinstance(value, str),
 }
 
 
 def _rows_agree(arrays: dict[str, np.ndarray]) -> bool:
-    """One row per centroid in every centroid array, per gyro sample and per tick in the gyro arrays."""
+    """One row per centroid in every centroid array and per tick in the gyro's tick arrays, the ticks' sample counts
+    adding up to the samples, three axes of rate noise."""
     def lengths(names):
         return {len(arrays[name]) for name in names}
 
     centroids = lengths(name for name in arrays if name.startswith('centroids.'))
-    samples = lengths(('gyro.time_s', 'gyro.rates_gyrf_rad_per_s'))
     ticks = lengths(name for name in arrays if name.startswith('gyro.tick_'))
-    return len(centroids) == len(samples) == len(ticks) == 1 and arrays['initial_tarf_from_irf'].shape == (3, 3)
+    return (len(centroids) == len(ticks) == 1 and arrays['initial_tarf_from_irf'].shape == (3, 3)
+            and int(arrays['gyro.tick_sample_count'].sum()) == len(arrays['gyro.time_s'])
+            and arrays['gyro.within_tick_rate_sigma_rad_per_s'].shape == (3,))
 
 
 def _array_names() -> set[str]:

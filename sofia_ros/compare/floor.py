@@ -14,10 +14,13 @@ import numpy as np
 from sofia_ros.compare.observations import MOTION_STATES, Centroids, GyroSamples
 from sofia_ros.errors import BagError
 
-__all__ = ['centroid_noise_arcsec', 'angle_random_walk_rad_per_sqrt_s', 'anchor_walk_sigma_rad', 'MIN_NOISE_ARCSEC']
+__all__ = ['centroid_noise_arcsec', 'angle_random_walk_rad_per_sqrt_s', 'anchor_walk_sigma_rad', 'MIN_NOISE_ARCSEC',
+           'MIN_WITHIN_TICK_DIFFERENCES', 'within_tick_rate_sigma_rad_per_s']
 
 #: Below this the centroid noise is quantization-free simulation; weights must stay finite.
 MIN_NOISE_ARCSEC = 1e-3
+#: The fewest within-tick rate differences the angle random walk is taken from.
+MIN_WITHIN_TICK_DIFFERENCES = 100
 _LOCKED = MOTION_STATES.index('locked')
 _MAD_TO_SIGMA = 1.482602218505602
 
@@ -58,12 +61,32 @@ def centroid_noise_arcsec(centroids: Centroids) -> np.ndarray:
     return np.array(noise)
 
 
-def angle_random_walk_rad_per_sqrt_s(gyro: GyroSamples) -> float:
-    """Angle random walk N of the worst gyro axis from sample-to-sample rate differences within ticks (4.2.3).
+def within_tick_rate_sigma_rad_per_s(time_s: np.ndarray, rates_gyrf_rad_per_s: np.ndarray,
+                                     tick_end_s: np.ndarray) -> tuple[np.ndarray, int]:
+    """Per-axis white rate noise from sample-to-sample rate differences within ticks (4.2.3), and their count.
 
     Within one tick the plant's rate is constant, so the differences are white noise only:
-    var(diff) = 2 sigma_rate^2 and N = sigma_rate sqrt(dt). (The standard deviation, not a median:
-    the rates are quantized in steps near sigma_rate, which a median would round.)
+    var(diff) = 2 sigma_rate^2. (The standard deviation, not a median: the rates are quantized in
+    steps near sigma_rate, which a median would round.)
+
+    Args:
+        time_s: (N,) the gyro samples' times (s), ascending.
+        rates_gyrf_rad_per_s: (N, 3) their rates.
+        tick_end_s: the gyro-box tick stamps (s), ascending; a sample in (t_k-1, t_k] belongs to tick k.
+
+    Returns:
+        (sigma_rate per axis (3,) in rad/s, NaN without differences; how many differences it is taken from).
+    """
+    same_tick = np.diff(np.searchsorted(tick_end_s, time_s, side='left')) == 0
+    differences = np.diff(rates_gyrf_rad_per_s, axis=0)[same_tick]
+    if len(differences) == 0:
+        return np.full(3, np.nan), 0
+    return np.std(differences, axis=0) / np.sqrt(2.0), len(differences)
+
+
+def angle_random_walk_rad_per_sqrt_s(gyro: GyroSamples) -> float:
+    """Angle random walk N = sigma_rate sqrt(dt) of the worst gyro axis (4.2.3), from the within-tick rate noise the
+    decoding measured (within_tick_rate_sigma_rad_per_s).
 
     Args:
         gyro: the bag's gyro samples.
@@ -72,14 +95,12 @@ def angle_random_walk_rad_per_sqrt_s(gyro: GyroSamples) -> float:
         N of the noisiest axis (rad/sqrt(s)).
 
     Raises:
-        BagError: fewer than 100 gyro samples fall within ticks.
+        BagError: fewer than MIN_WITHIN_TICK_DIFFERENCES gyro sample pairs fall within ticks.
     """
-    same_tick = np.diff(np.searchsorted(gyro.tick_end_s, gyro.time_s, side='left')) == 0
-    differences = np.diff(gyro.rates_gyrf_rad_per_s, axis=0)[same_tick]
-    if len(differences) < 100:
-        raise BagError('fewer than 100 gyro samples within ticks; cannot estimate the angle random walk')
-    sigma_rate = np.std(differences, axis=0) / np.sqrt(2.0)
-    return float(np.max(sigma_rate) * np.sqrt(gyro.sample_period_s))
+    if gyro.within_tick_difference_count < MIN_WITHIN_TICK_DIFFERENCES:
+        raise BagError(f'fewer than {MIN_WITHIN_TICK_DIFFERENCES} gyro samples within ticks; cannot estimate the '
+                       'angle random walk')
+    return float(np.max(gyro.within_tick_rate_sigma_rad_per_s) * np.sqrt(gyro.sample_period_s))
 
 
 def anchor_walk_sigma_rad(arw_rad_per_sqrt_s: float, rrw_rad_per_s_sqrt_s: float, spacing_s: float) -> float:

@@ -51,7 +51,7 @@ __all__ = ['MOTION_STATES', 'READER_VERSION', 'Centroids', 'GyroSamples', 'Obser
 
 #: The version of what decode_observations returns. Bump it whenever the decoding or the dataclasses below
 #: change: caches of decoded observations (compare.cache) written by another version are then decoded again.
-READER_VERSION = 1
+READER_VERSION = 2
 
 #: TASCU motion states (6.3), coded by index in Centroids.motion_code.
 MOTION_STATES = ('transient', 'settled', 'locked')
@@ -89,11 +89,17 @@ class Centroids:
 
 @dataclass(frozen=True, eq=False)
 class GyroSamples:
-    """400 Hz GYRF rates, the ticks they belong to, and per tick their mean, mean time, count, temperature and
-    specific force."""
+    """The 400 Hz GYRF samples' times and white rate noise, the ticks they belong to, and per tick their mean rate,
+    mean time, count, temperature and specific force.
+
+    The samples' rates are not kept: beyond the tick means, the angle random walk alone reads them (73 MB of a
+    star hop's 86 MB of observations, held by every compare and its workers).
+    """
 
     time_s: np.ndarray
-    rates_gyrf_rad_per_s: np.ndarray
+    #: The rates' white noise per axis, from sample-to-sample differences within ticks (floor.py).
+    within_tick_rate_sigma_rad_per_s: np.ndarray
+    within_tick_difference_count: int
     tick_end_s: np.ndarray
     tick_temperature_c: np.ndarray
     tick_start_index: np.ndarray
@@ -216,7 +222,11 @@ def _gyro_samples(imu, temperature):
     period_s = float(np.median(np.diff(time_s)))
     rates = imu.angular_velocity_rad_per_s[keep]
     counts = np.diff(np.append(starts, len(time_s)))
-    return GyroSamples(time_s, rates, tick_end_s, temperatures, starts, period_s,
+    # Imported here: floor.py reads this module's records.
+    from sofia_ros.compare.floor import within_tick_rate_sigma_rad_per_s
+
+    rate_sigma, difference_count = within_tick_rate_sigma_rad_per_s(time_s, rates, tick_end_s)
+    return GyroSamples(time_s, rate_sigma, difference_count, tick_end_s, temperatures, starts, period_s,
                        tick_means(rates, starts), tick_means(time_s[:, None], starts)[:, 0], counts,
                        tick_means(imu.linear_acceleration_m_per_s2[keep], starts))
 

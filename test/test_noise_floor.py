@@ -4,10 +4,10 @@ import allantools
 import numpy as np
 import pytest
 
-from sofia_ros.compare.floor import (MIN_WITHIN_TICK_DIFFERENCES, angle_random_walk_rad_per_sqrt_s,
-                                     within_tick_rate_sigma_rad_per_s)
+from sofia_ros.compare.floor import MIN_WITHIN_TICK_DIFFERENCES, angle_random_walk_rad_per_sqrt_s
 from sofia_ros.compare.observations import GyroSamples
 from sofia_ros.errors import BagError
+from sofia_ros.sensors.gyro_noise import within_tick_rate_sigma_rad_per_s
 
 SAMPLE_RATE_HZ = 400.0
 SAMPLES_PER_TICK = 20

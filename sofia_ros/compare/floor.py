@@ -15,7 +15,7 @@ from sofia_ros.compare.observations import MOTION_STATES, Centroids, GyroSamples
 from sofia_ros.errors import BagError
 
 __all__ = ['centroid_noise_arcsec', 'angle_random_walk_rad_per_sqrt_s', 'anchor_walk_sigma_rad', 'MIN_NOISE_ARCSEC',
-           'MIN_WITHIN_TICK_DIFFERENCES', 'within_tick_rate_sigma_rad_per_s']
+           'MIN_WITHIN_TICK_DIFFERENCES']
 
 #: Below this the centroid noise is quantization-free simulation; weights must stay finite.
 MIN_NOISE_ARCSEC = 1e-3
@@ -61,32 +61,9 @@ def centroid_noise_arcsec(centroids: Centroids) -> np.ndarray:
     return np.array(noise)
 
 
-def within_tick_rate_sigma_rad_per_s(time_s: np.ndarray, rates_gyrf_rad_per_s: np.ndarray,
-                                     tick_end_s: np.ndarray) -> tuple[np.ndarray, int]:
-    """Per-axis white rate noise from sample-to-sample rate differences within ticks (4.2.3), and their count.
-
-    Within one tick the plant's rate is constant, so the differences are white noise only:
-    var(diff) = 2 sigma_rate^2. (The standard deviation, not a median: the rates are quantized in
-    steps near sigma_rate, which a median would round.)
-
-    Args:
-        time_s: (N,) the gyro samples' times (s), ascending.
-        rates_gyrf_rad_per_s: (N, 3) their rates.
-        tick_end_s: the gyro-box tick stamps (s), ascending; a sample in (t_k-1, t_k] belongs to tick k.
-
-    Returns:
-        (sigma_rate per axis (3,) in rad/s, NaN without differences; how many differences it is taken from).
-    """
-    same_tick = np.diff(np.searchsorted(tick_end_s, time_s, side='left')) == 0
-    differences = np.diff(rates_gyrf_rad_per_s, axis=0)[same_tick]
-    if len(differences) == 0:
-        return np.full(3, np.nan), 0
-    return np.std(differences, axis=0) / np.sqrt(2.0), len(differences)
-
-
 def angle_random_walk_rad_per_sqrt_s(gyro: GyroSamples) -> float:
     """Angle random walk N = sigma_rate sqrt(dt) of the worst gyro axis (4.2.3), from the within-tick rate noise the
-    decoding measured (within_tick_rate_sigma_rad_per_s).
+    decoding measured (sensors.gyro_noise.within_tick_rate_sigma_rad_per_s).
 
     Args:
         gyro: the bag's gyro samples.

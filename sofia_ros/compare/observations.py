@@ -30,6 +30,7 @@ from sofia_ros.compare.steps import StepStore
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.frames import dcm_from_quaternion
 from sofia_ros.scenario import Scenario, scenario_from_document
+from sofia_ros.sensors.gyro_noise import within_tick_rate_sigma_rad_per_s
 from sofia_ros.sensors.imager_model import CAMERAS, nominal_detector
 from sofia_ros.topics import (
     CALIBRATION_RESULT,
@@ -97,7 +98,7 @@ class GyroSamples:
     """
 
     time_s: np.ndarray
-    #: The rates' white noise per axis, from sample-to-sample differences within ticks (floor.py).
+    #: The rates' white noise per axis, from sample-to-sample differences within ticks (sensors.gyro_noise).
     within_tick_rate_sigma_rad_per_s: np.ndarray
     within_tick_difference_count: int
     tick_end_s: np.ndarray
@@ -222,9 +223,6 @@ def _gyro_samples(imu, temperature):
     period_s = float(np.median(np.diff(time_s)))
     rates = imu.angular_velocity_rad_per_s[keep]
     counts = np.diff(np.append(starts, len(time_s)))
-    # Imported here: floor.py reads this module's records.
-    from sofia_ros.compare.floor import within_tick_rate_sigma_rad_per_s
-
     rate_sigma, difference_count = within_tick_rate_sigma_rad_per_s(time_s, rates, tick_end_s)
     return GyroSamples(time_s, rate_sigma, difference_count, tick_end_s, temperatures, starts, period_s,
                        tick_means(rates, starts), tick_means(time_s[:, None], starts)[:, 0], counts,

@@ -48,6 +48,7 @@ __all__ = [
     'rate_ramp_arcsec_per_s2_to_deg_per_h2',
     'deg_per_h_to_arcsec_per_s',
     'angle_increment_covariance_rad2',
+    'within_tick_rate_sigma_rad_per_s',
     'QUANTIZATION_ARCSEC',
     'SPECIFICATION',
     'SPECIFICATION_BIAS_STABILITY_DEG_PER_H',
@@ -61,6 +62,29 @@ __all__ = [
     'TABLE_5_1_PRINTED_RRW_DEG_PER_H_SQRT_H',
     'TABLE_5_1_IN_RUN_BIAS_STABILITY',
 ]
+
+
+def within_tick_rate_sigma_rad_per_s(time_s: np.ndarray, rates_gyrf_rad_per_s: np.ndarray,
+                                     tick_end_s: np.ndarray) -> tuple[np.ndarray, int]:
+    """Per-axis white rate noise from sample-to-sample rate differences within ticks (4.2.3), and their count.
+
+    Within one tick the plant's rate is constant, so the differences are white noise only:
+    var(diff) = 2 sigma_rate^2. (The standard deviation, not a median: the rates are quantized in
+    steps near sigma_rate, which a median would round.)
+
+    Args:
+        time_s: (N,) the gyro samples' times (s), ascending.
+        rates_gyrf_rad_per_s: (N, 3) their rates.
+        tick_end_s: the gyro-box tick stamps (s), ascending; a sample in (t_k-1, t_k] belongs to tick k.
+
+    Returns:
+        (sigma_rate per axis (3,) in rad/s, NaN without differences; how many differences it is taken from).
+    """
+    same_tick = np.diff(np.searchsorted(tick_end_s, time_s, side='left')) == 0
+    differences = np.diff(rates_gyrf_rad_per_s, axis=0)[same_tick]
+    if len(differences) == 0:
+        return np.full(3, np.nan), 0
+    return np.std(differences, axis=0) / np.sqrt(2.0), len(differences)
 
 
 def arw_deg_per_sqrt_h_to_arcsec_per_sqrt_s(arw_deg_per_sqrt_h):

@@ -312,6 +312,14 @@ DAMAGE = {
         **members, 'gyro.time_s': np.array(['0.0'])}), 'not arrays of numbers'),
     'rows that do not agree': (lambda path: _rewrite(path, change_members=lambda members: {
         **members, 'centroids.hip': members['centroids.hip'][:-1]}), 'do not agree in length'),
+    'samples the ticks do not count': (lambda path: _rewrite(path, change_members=lambda members: {
+        **members, 'gyro.time_s': members['gyro.time_s'][:-1]}), 'do not agree in length'),
+    'rate noise of two axes': (lambda path: _rewrite(path, change_members=lambda members: {
+        **members, 'gyro.within_tick_rate_sigma_rad_per_s': members['gyro.within_tick_rate_sigma_rad_per_s'][:2]}),
+        'do not agree in length'),
+    'a negative count': (lambda path: _rewrite(path, change_header=lambda header: {
+        **header, 'values': {**header['values'], 'gyro.within_tick_difference_count': -1}}),
+        'within_tick_difference_count is not what'),
     'a scalar array': (lambda path: _rewrite(path, change_members=lambda members: {
         **members, 'move_start_s': np.float64(1.0)}), 'not arrays of numbers'),
     'a value of the wrong type': (lambda path: _rewrite(path, change_header=lambda header: {

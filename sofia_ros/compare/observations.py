@@ -93,8 +93,8 @@ class GyroSamples:
     """The 400 Hz GYRF samples' times and white rate noise, the ticks they belong to, and per tick their mean rate,
     mean time, count, temperature and specific force.
 
-    The samples' rates are not kept: beyond the tick means, the angle random walk alone reads them (73 MB of a
-    star hop's 86 MB of observations, held by every compare and its workers).
+    The samples' rates are not kept: beyond the tick means, the angle random walk alone read them (55 MB of a
+    star hop's 86 MB of observations, held by every compare and shared with its workers).
     """
 
     time_s: np.ndarray

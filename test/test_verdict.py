@@ -68,3 +68,41 @@ def test_the_verdict_names_at_most_three_problems_the_worst_first_and_counts_the
     assert text.index('hipo.x') < text.index('ffi.x') < text.index('fpi.x')
     assert 'wfi.x' not in text and 'changes with' not in text
     assert '3 more problems' in text
+
+
+def _candidate(effect, delta_bic, *, refined=True, empirical=False, detectable=True):
+    return {'effect': effect, 'delta_bic': delta_bic, 'refined': refined, 'empirical': empirical,
+            'detectable': detectable, 'rms_after_arcsec': 0.30}
+
+
+def _explained_verdict(candidates, best_name=None, change=None):
+    observables = {f'{camera}.x': _observable() for camera in CAMERAS}
+    return judge(Diagnostics(observables, [], [], 40), [], candidates, [], best_name, None, rms_arcsec=0.3,
+                 significant_delta_bic=6.0, model_source='model.yaml', change=change)
+
+
+def test_an_explained_comparison_still_adds_a_physical_effect_the_refit_finds_very_strong():
+    # A swapped gyro calibration beside a field rotation and a clock offset at 3x their defaults: every observable
+    # within its floor, the swap's refit 56 lower in BIC (bench_search_truths --sizes 1,3, seed 31, truth 11).
+    verdict = _explained_verdict([_candidate('gyro_scale_factor', 56.0), _candidate('gyro_axis_swap', 56.0)],
+                                 best_name='gyro_axis_swap')
+    assert verdict['status'] == 'explained'
+    assert verdict['next']['action'] == 'add' and verdict['next']['effect'] == 'gyro_axis_swap'
+    assert 'gyro_axis_swap lowers the BIC by 56 in a full refit' in verdict['text']
+    assert verdict['headline'] == 'explained: add gyro_axis_swap: sofia model add gyro_axis_swap --model model.yaml'
+
+
+def test_an_explained_comparison_adds_nothing_below_very_strong_or_unrefitted_or_empirical():
+    # 7.6 was the largest candidate of the multi-effect atlas's 80 final comparisons (a truth without it).
+    for candidate in (_candidate('gyro_axis_swap', 7.6), _candidate('gyro_axis_swap', 40.0, refined=False),
+                      _candidate('empirical:fpi.x:time:poly3', 40.0, empirical=True),
+                      _candidate('heading_error', 40.0, detectable=False)):
+        verdict = _explained_verdict([candidate])
+        assert verdict['status'] == 'explained' and verdict['next']['action'] == 'none', candidate
+
+
+def test_an_explained_comparison_takes_the_stronger_of_an_addition_and_a_change():
+    change = {'action': 'remove', 'term': 'gyro_bias', 'effect': None, 'delta_bic': 20.0}
+    assert _explained_verdict([_candidate('tracker_drift', 12.0)], change=change)['next']['action'] == 'remove'
+    chosen = _explained_verdict([_candidate('tracker_drift', 30.0)], change=change)['next']
+    assert (chosen['action'], chosen['effect']) == ('add', 'tracker_drift')

@@ -75,8 +75,10 @@ def _candidate(effect, delta_bic, *, refined=True, empirical=False, detectable=T
             'detectable': detectable, 'rms_after_arcsec': 0.30}
 
 
-def _explained_verdict(candidates, best_name=None, change=None):
+def _explained_verdict(candidates, best_name=None, change=None, largest_ratio=1.3):
+    # Every observable explained; one above its floor (the swap's truth: gyro.los at 1.64 of its floor).
     observables = {f'{camera}.x': _observable() for camera in CAMERAS}
+    observables['hipo.x']['ratio'] = largest_ratio
     return judge(Diagnostics(observables, [], [], 40), [], candidates, [], best_name, None, rms_arcsec=0.3,
                  significant_delta_bic=6.0, model_source='model.yaml', change=change)
 
@@ -106,3 +108,10 @@ def test_an_explained_comparison_takes_the_stronger_of_an_addition_and_a_change(
     assert _explained_verdict([_candidate('tracker_drift', 12.0)], change=change)['next']['action'] == 'remove'
     chosen = _explained_verdict([_candidate('tracker_drift', 30.0)], change=change)['next']
     assert (chosen['action'], chosen['effect']) == ('add', 'tracker_drift')
+
+
+def test_an_explained_comparison_below_its_floor_everywhere_adds_nothing():
+    # The 2004 short moves at 0.24 of their floor: one more term fits the 9 distances to 1e-11" and the BIC has no
+    # bound; a residual below its floor everywhere holds no signal left to find.
+    verdict = _explained_verdict([_candidate('gyro_bias_drift', 80.0)], largest_ratio=0.24)
+    assert verdict['status'] == 'explained' and verdict['next']['action'] == 'none'

@@ -212,8 +212,8 @@ def run_loop(campaign: str, seed: int, rounds: int, work: Path, baseline: Path |
                'next': next_step.get('command') or next_step.get('action')}
         if baseline is not None:
             old_output = work / f'{campaign}-{number}-baseline.json'
-            old, old_wall_s, old_peak_mb = _sofia(baseline, 'compare', str(baseline_bag), '--model', str(model), '--json',
-                                                  str(old_output))
+            old, old_wall_s, old_peak_mb = _sofia(baseline, 'compare', str(baseline_bag), '--model', str(model),
+                                                  '--json', str(old_output))
             _checked(old, f'baseline compare round {number}')
             same, worst = _agreement(document, json.loads(old_output.read_text()))
             row.update(baseline_wall_s=round(old_wall_s, 2), baseline_peak_mb=round(old_peak_mb), same_verdict=same,

@@ -67,11 +67,12 @@ def test_a_parameter_the_larger_half_lacks_has_an_exact_zero_there():
 
 
 def test_normal_equations_in_bands_are_the_dense_weighted_products(monkeypatch):
+    from sofia_ros.analysis import ranking
     from sofia_ros.compare import fit as fit_module
 
     fit, _ = _synthetic_fit(rows=50, parameters=4)
     # Bands of 7 rows: the last one short (100 data rows), so that the bands' sum is exercised.
-    monkeypatch.setattr(fit_module, 'GRAM_BAND_ROWS', 7)
+    monkeypatch.setattr(ranking, 'GRAM_BAND_ROWS', 7)
     gram, gradient, _ = fit_module.normal_equations(fit.anchor_columns, fit.parameter_columns, fit.anchor_prior,
                                                     fit.whitened, fit.weights, fit.prior_residual)
     data = np.hstack([fit.anchor_columns.toarray(), fit.parameter_columns])
@@ -93,13 +94,14 @@ def test_weighted_normal_equations_are_the_fits_own_at_its_weights():
 
 
 def test_projected_gram_in_bands_is_the_projection_of_the_stacked_pieces(monkeypatch):
+    from sofia_ros.analysis import ranking
     from sofia_ros.compare import search
 
     rng = np.random.default_rng(11)
     pieces = [rng.normal(size=(50, width)) for width in (1, 1, 3, 2)]
     nuisance = scipy.sparse.csr_matrix(rng.normal(size=(50, 4)) * (rng.random((50, 4)) < 0.5))
     # Bands of 7 rows: the last one short, so that the bands' sum is exercised.
-    monkeypatch.setattr(search, 'GRAM_BAND_ROWS', 7)
+    monkeypatch.setattr(ranking, 'GRAM_BAND_ROWS', 7)
     stacked = np.hstack(pieces)
     dense = nuisance.toarray()
     projected = stacked - dense @ np.linalg.lstsq(dense, stacked, rcond=None)[0]

@@ -15,7 +15,7 @@ whose explained signatures coincide are named degenerate instead of ranked as a 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +31,7 @@ __all__ = [
     'normal_equations_fit',
     'normal_pseudo_inverse',
     'normal_solution',
+    'row_bands',
     'LinearFit',
     'CandidateTerm',
     'RankedCandidate',
@@ -138,6 +139,13 @@ def _checked(residual, jacobian):
     return residual, jacobian
 
 
+def row_bands(count: int) -> Iterator[slice]:
+    """The slices of GRAM_BAND_ROWS rows (the last one shorter) that cover ``count`` rows: where a product over every
+    row is summed a band at a time, so that no copy of all the rows is made."""
+    for start in range(0, count, GRAM_BAND_ROWS):
+        yield slice(start, start + GRAM_BAND_ROWS)
+
+
 def _gram(matrix):
     """matrix^T matrix as a dense array; of a sparse matrix, a band of rows at a time, the nearly dense ones through
     BLAS."""
@@ -149,8 +157,8 @@ def _gram(matrix):
     matrix = scipy.sparse.csr_matrix(matrix)
     heavy = np.diff(matrix.indptr) > _DENSE_FRACTION * matrix.shape[1]
     gram = np.zeros((matrix.shape[1], matrix.shape[1]))
-    for start in range(0, matrix.shape[0], GRAM_BAND_ROWS):
-        band, band_heavy = matrix[start:start + GRAM_BAND_ROWS], heavy[start:start + GRAM_BAND_ROWS]
+    for rows in row_bands(matrix.shape[0]):
+        band, band_heavy = matrix[rows], heavy[rows]
         if np.any(band_heavy):
             dense_rows = band[band_heavy].toarray()
             gram += dense_rows.T @ dense_rows

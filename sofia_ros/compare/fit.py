@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import GRAM_BAND_ROWS, NormalInverse, bic, normal_equations_fit, normal_solution
+from sofia_ros.analysis.ranking import NormalInverse, bic, normal_equations_fit, normal_solution, row_bands
 from sofia_ros.compare.predict import inverse_right_jacobians
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
@@ -153,8 +153,7 @@ def _data_gram(anchor_columns, parameter_columns, weights):
     count = parameter_columns.shape[1]
     cross = np.zeros((anchor_columns.shape[1], count))
     parameter_gram = np.zeros((count, count))
-    for start in range(0, len(weights), GRAM_BAND_ROWS):
-        rows = slice(start, start + GRAM_BAND_ROWS)
+    for rows in row_bands(len(weights)):
         weighted = parameter_columns[rows] * weights[rows, None]
         parameter_gram += parameter_columns[rows].T @ weighted
         cross += anchor_columns[rows].T @ weighted

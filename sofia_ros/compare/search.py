@@ -48,8 +48,8 @@ import numpy as np
 import numpy.typing as npt
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import (GRAM_BAND_ROWS, SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin,
-                                        normal_pseudo_inverse, shared_share)
+from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin,
+                                        normal_pseudo_inverse, row_bands, shared_share)
 from sofia_ros.compare.fit import FitStart, ModelFit, vanishing_values
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import get_effect, resolve_params
@@ -262,8 +262,8 @@ def _projected_gram(pieces, nuisance):
     """
     width = sum(piece.shape[1] for piece in pieces)
     gram = np.zeros((width, width))
-    for start in range(0, len(pieces[0]), GRAM_BAND_ROWS):
-        band = np.hstack([piece[start:start + GRAM_BAND_ROWS] for piece in pieces])
+    for rows in row_bands(len(pieces[0])):
+        band = np.hstack([piece[rows] for piece in pieces])
         gram += band.T @ band
     if nuisance.shape[1] == 0:
         return gram

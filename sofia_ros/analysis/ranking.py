@@ -141,7 +141,14 @@ def _checked(residual, jacobian):
 
 def row_bands(count: int) -> Iterator[slice]:
     """The slices of GRAM_BAND_ROWS rows (the last one shorter) that cover ``count`` rows: where a product over every
-    row is summed a band at a time, so that no copy of all the rows is made."""
+    row is summed a band at a time, so that no copy of all the rows is made.
+
+    Args:
+        count: how many rows.
+
+    Yields:
+        Slices of consecutive rows, in order.
+    """
     for start in range(0, count, GRAM_BAND_ROWS):
         yield slice(start, start + GRAM_BAND_ROWS)
 

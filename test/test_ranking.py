@@ -11,6 +11,7 @@ from sofia_ros.analysis.ranking import (
     bic,
     linear_fit,
     rank_candidates,
+    whitened_bic,
 )
 from sofia_ros.errors import InvalidArgumentError
 
@@ -106,6 +107,21 @@ def test_bic_matches_its_formula_and_rejects_empty_samples():
     assert bic(2.0, 100, 3) == pytest.approx(100 * np.log(0.02) + 3 * np.log(100))
     with pytest.raises(InvalidArgumentError, match='n > 0'):
         bic(1.0, 0, 1)
+
+
+def test_whitened_bic_is_bic_above_the_floor_and_the_chi_square_below_it():
+    # Above the floor (RSS/n >= 1) the variance is fitted: the Schwarz form. Below it the floor's own variance
+    # holds: the difference of two fits is their chi-square difference, and no fit gains more than n by going to 0.
+    n, k = 100, 3
+    assert whitened_bic(250.0, n, k) == bic(250.0, n, k)
+    assert whitened_bic(60.0, n, k) - whitened_bic(40.0, n, k) == pytest.approx(20.0)
+    assert whitened_bic(0.0, n, k) == pytest.approx(-n + k * np.log(n))
+    # The two branches meet at RSS = n with the same slope (1 per unit of RSS).
+    step = 1e-6
+    for rss in (n - step, n + step):
+        assert whitened_bic(rss, n, k) == pytest.approx(k * np.log(n) + (rss - n), abs=1e-9)
+    with pytest.raises(InvalidArgumentError, match='n > 0'):
+        whitened_bic(0.0, 0, 1)
 
 
 def test_bad_shapes_and_values_raise_one_clear_error():

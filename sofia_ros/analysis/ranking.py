@@ -36,6 +36,7 @@ __all__ = [
     'CandidateTerm',
     'RankedCandidate',
     'bic',
+    'whitened_bic',
     'linear_fit',
     'rank_candidates',
     'degenerate_pairs',
@@ -103,6 +104,33 @@ def bic(rss: float, n: int, k: int) -> float:
     if n <= 0:
         raise InvalidArgumentError(f'bic needs n > 0 samples, got {n}')
     return float(n * np.log(max(rss, np.finfo(float).tiny) / n) + k * np.log(n))
+
+
+def whitened_bic(rss: float, n: int, k: int) -> float:
+    """BIC of whitened residuals whose variance is at least 1, their noise floor: bic above the floor, RSS - n + k ln n below.
+
+    The profile likelihood with the variance bounded below by the floor the residuals were whitened by: above it the
+    fitted variance RSS/n (bic); below it the floor itself, and -2 ln L is the chi-square (less n, so that the two
+    branches meet with their slope at RSS = n). Unbounded, a fit below its floor gained n ln(RSS/n) without limit:
+    the 2004 short moves (nine distances at 0.2 of their stated 1.1") scored a gyro scale factor against swapped
+    calibrations by 6 on one processor and 11 on another, from where an undetermined LOS scale factor stopped.
+
+    Args:
+        rss: the whitened residual sum of squares.
+        n: the number of residuals.
+        k: the number of fitted parameters.
+
+    Returns:
+        The BIC.
+
+    Raises:
+        InvalidArgumentError: ``n`` is not positive.
+    """
+    if rss >= n:
+        return bic(rss, n, k)
+    if n <= 0:
+        raise InvalidArgumentError(f'bic needs n > 0 samples, got {n}')
+    return float(rss - n + k * np.log(n))
 
 
 @dataclass(frozen=True)
@@ -460,7 +488,8 @@ class RankedCandidate:
 
 
 def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scipy.sparse.spmatrix,
-                    candidates: Iterable[CandidateTerm]) -> list[RankedCandidate]:
+                    candidates: Iterable[CandidateTerm],
+                    criterion: Callable[[float, int, int], float] = bic) -> list[RankedCandidate]:
     """Fit each CandidateTerm jointly with the base terms; return RankedCandidate best first (docs/compare.md, docs/noise.md).
 
     ``residual`` is measured minus predicted by the fitted base model, ``base_jacobian`` its
@@ -476,6 +505,7 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
         residual: (n,) measured minus predicted by the fitted base model, weighted.
         base_jacobian: (n, k) the base model's columns, weighted, dense or sparse.
         candidates: the terms not in the model.
+        criterion: the BIC of (RSS, n, k): bic, or whitened_bic where the weights are the noise floor.
 
     Returns:
         One RankedCandidate per term: the observable ones first, then by delta-BIC, largest first.
@@ -495,7 +525,7 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
     residual_coefficients = base_coefficients(residual)
     residual_perp = residual - base_jacobian @ residual_coefficients
     rss_base = float(residual_perp @ residual_perp)
-    bic_base = bic(rss_base, n, k_base)
+    bic_base = criterion(rss_base, n, k_base)
     ranked, signatures = [], {}
     for term in candidates:
         columns = np.asarray(term.jacobian, dtype=float).reshape(n, -1)
@@ -520,7 +550,7 @@ def rank_candidates(residual: npt.ArrayLike, base_jacobian: npt.ArrayLike | scip
         explained = residual_perp - (target_perp - columns_perp @ fit.step)
         signatures[term.name] = explained
         values = np.asarray(term.start, dtype=float) + fit.step
-        delta = bic_base - bic(fit.rss, n, k_base + len(term.param_names))
+        delta = bic_base - criterion(fit.rss, n, k_base + len(term.param_names))
         # The base's share of the joint step (Frisch-Waugh-Lovell): less what the base terms take of the candidate's
         # change of the prediction, columns @ step + shift (the shift's share is the residual's less the target's).
         # Alone, a candidate nearly shared with the base terms (a field rotation beside the HIPO fiducials) moved the

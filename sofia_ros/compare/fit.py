@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import NormalInverse, bic, normal_equations_fit, normal_solution, row_bands
+from sofia_ros.analysis.ranking import NormalInverse, normal_equations_fit, normal_solution, row_bands, whitened_bic
 from sofia_ros.compare.predict import inverse_right_jacobians
 from sofia_ros.effects import get_effect
 from sofia_ros.errors import FitError, InvalidArgumentError
@@ -433,9 +433,9 @@ class ModelFit:
 
     @property
     def bic(self) -> float:
-        """BIC of the whitened residual and the anchor prior, every row at full weight (analysis.ranking)."""
+        """BIC of the whitened residual and the anchor prior, every row at full weight (analysis.ranking.whitened_bic)."""
         residual = self.augmented_residual
-        return bic(float(residual @ residual), len(residual), self.parameter_count)
+        return whitened_bic(float(residual @ residual), len(residual), self.parameter_count)
 
     def start(self) -> FitStart:
         """Where this fit ended, as a later fit of the same parameters may start from it (a few kB).

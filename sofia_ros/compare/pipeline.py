@@ -27,8 +27,8 @@ from typing import Any, Protocol
 import numpy as np
 import scipy.sparse
 
-from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, RankedCandidate, bic, competing_sets,
-                                        degenerate_pairs, rank_candidates)
+from sofia_ros.analysis.ranking import (SIGNIFICANT_DELTA_BIC, CandidateTerm, RankedCandidate, competing_sets,
+                                        degenerate_pairs, rank_candidates, whitened_bic)
 from sofia_ros.compare.competing import competing_document, contenders, preferred_best, refit_order
 from sofia_ros.compare.diagnostics import Diagnostics
 from sofia_ros.compare.fit import FreeParameter, free_parameters, vanishing_values, with_values
@@ -64,7 +64,7 @@ class SourceFit(Protocol):
 
     @property
     def bic(self) -> float:
-        """BIC of the whole whitened problem at the fit (analysis.ranking.bic)."""
+        """BIC of the whole whitened problem at the fit (analysis.ranking.whitened_bic)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,8 +82,8 @@ class WhitenedFit:
 
     @property
     def bic(self) -> float:
-        """BIC of the whitened residual with the fitted parameters (analysis.ranking.bic)."""
-        return bic(float(self.whitened @ self.whitened), len(self.whitened), len(self.free))
+        """BIC of the whitened residual with the fitted parameters (analysis.ranking.whitened_bic)."""
+        return whitened_bic(float(self.whitened @ self.whitened), len(self.whitened), len(self.free))
 
 
 @dataclass(frozen=True, eq=False)
@@ -603,7 +603,7 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
     residual, jacobian, nuisance = source.ranking_problem(final)
     # Ranked on every row at full weight: a model failure confined to one camera makes all its rows
     # "outliers", and the Huber weights that protect a bag's fit would hide that failure from the ranking.
-    ranked = rank_candidates(residual, jacobian, terms)
+    ranked = rank_candidates(residual, jacobian, terms, whitened_bic)
     per_candidate_s = (linear_s + time.perf_counter() - linear_started) / max(len(terms), 1)
     rss_base = float(residual @ residual)
     hidden = [candidate for candidate in ranked if not candidate.observable]

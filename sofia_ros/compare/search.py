@@ -49,7 +49,7 @@ import numpy.typing as npt
 import scipy.sparse
 
 from sofia_ros.analysis.ranking import (SHARED_FRACTION, SIGNIFICANT_DELTA_BIC, competing_margin,
-                                        normal_pseudo_inverse, row_bands, shared_share)
+                                        normal_pseudo_inverse, row_bands, shared_share, whitened_bic)
 from sofia_ros.compare.fit import FitStart, ModelFit, vanishing_values
 from sofia_ros.config import EffectConfig
 from sofia_ros.effects import get_effect, resolve_params
@@ -244,8 +244,7 @@ class LinearizedModels:
         """
         width = sum(w for name, w in zip(self.names, self.widths) if name in set(chosen))
         penalty = EMPIRICAL_PENALTY * sum(1 for name in chosen if is_empirical(name)) if prefer_physics else 0.0
-        return (self.rows * np.log(self.rss(chosen) / self.rows) + (self.nuisance_count + width) * np.log(self.rows)
-                + penalty)
+        return whitened_bic(self.rss(chosen), self.rows, self.nuisance_count + width) + penalty
 
 
 def _shaping(free):

@@ -21,6 +21,7 @@ from typing import Sequence, TypedDict
 import numpy as np
 import yaml
 
+from sofia_ros.analysis.ranking import whitened_bic
 from sofia_ros.compare.fit import FreeParameter, free_parameters
 from sofia_ros.config import EffectConfig
 from sofia_ros.design.check import member_fits
@@ -93,9 +94,9 @@ def member_name(member: Sequence[str]) -> str:
 
 
 def _observed_delta_bic(columns: BagColumns, information: Information, labels: Sequence[str]) -> float:
-    """compare's delta-BIC of a member on the bag, linearized: n ln(RSS / RSS after) - k ln n."""
+    """compare's delta-BIC of a member on the bag, linearized (analysis.ranking.whitened_bic)."""
     after = columns.rss - rss_drop(information, [*columns.shared_labels, *labels])
-    return float(columns.rows * np.log(columns.rss / max(after, 1e-300)) - len(labels) * np.log(columns.rows))
+    return whitened_bic(columns.rss, columns.rows, 0) - whitened_bic(max(after, 0.0), columns.rows, len(labels))
 
 
 def _residual_variance(observations: object, model: EffectConfig, members: Sequence[Sequence[str]], rows: int,
@@ -107,7 +108,8 @@ def _residual_variance(observations: object, model: EffectConfig, members: Seque
     against 4820 on the minimal alignment's HIPO set), and every separation divided by it came out that much too small.
     """
     fits = member_fits(observations, model, members, anchor_spacing_s=anchor_spacing_s)
-    return max(min(fit['rss'] for fit in fits.values()), 1.0) / rows
+    # Below the floor compare's BIC counts the chi-square (analysis.ranking.whitened_bic): the variance is the floor's.
+    return max(min(fit['rss'] for fit in fits.values()) / rows, 1.0)
 
 
 #: An estimate at least this many of its sigmas from zero is one the bag measures (stated_sizes).

@@ -330,6 +330,10 @@ def test_metadata_lists_mcap_storage_and_counts(round_trip):
     assert counts == {topic: len(messages) for topic, messages in written.items()}
     assert {info.name: info.count for info in writer_topics} == counts
     assert info['message_count'] == len(MSGTYPES) * 2 * MESSAGES_PER_TYPE
+    # Read without opening the bag: what the open reader counts in the MCAP file.
+    listed = BagReader(path).listed_topic_counts
+    with BagReader(path) as reader:
+        assert listed == counts == {topic.name: topic.count for topic in reader.topics}
 
 
 def test_bag_reader_gives_back_what_was_written_in_time_order(round_trip):

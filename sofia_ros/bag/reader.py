@@ -148,6 +148,11 @@ class BagReader:
         self.close()
 
     @property
+    def listed_topic_counts(self) -> dict[str, int]:
+        """Topic -> message count as metadata.yaml lists them, without opening the bag (its files unchecked)."""
+        return dict(self._metadata.topic_counts)
+
+    @property
     def topics(self) -> tuple[TopicInfo, ...]:
         """Every topic with its type and message count, sorted by name."""
         self._require_open()

@@ -144,11 +144,6 @@ class LinearFit:
     rss: float
     n: int
 
-    @property
-    def bic(self) -> float:
-        """BIC of this fit (n residuals, len(names) parameters)."""
-        return bic(self.rss, self.n, len(self.names))
-
 
 def _checked(residual, jacobian):
     residual = np.asarray(residual, dtype=float).ravel()

@@ -20,7 +20,6 @@ import datetime as dt
 import json
 import multiprocessing
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -33,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 from sofia_ros.atlas.grid import grid_from_file  # noqa: E402
 from sofia_ros.atlas.report import summarize, truth_lines  # noqa: E402
 from sofia_ros.atlas.task import TaskSetup, search_truth_bag  # noqa: E402
+from results_file import machine_description  # noqa: E402
 
 RESULTS = ROOT / 'bench' / 'results'
 GRID = RESULTS / 'multi_effect_atlas.grid.yaml'
@@ -149,7 +149,7 @@ def main():
     (RESULTS / f'{name}.txt').write_text(text)
     (RESULTS / f'{name}.json').write_text(json.dumps({
         'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': searched_by,
-        'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'workers': args.workers,
+        'machine': machine_description(), 'workers': args.workers,
         'load_before': load_before, 'load_after': load_after, 'wall_s': round(time.time() - started, 1),
         'stored_rows': _shown(args.rows), 'changed': [row['key'] for row, _ in changed],
         'rows': [{'new': row, 'old': stored[row['key']]} for row in rows]}, indent=1) + '\n')

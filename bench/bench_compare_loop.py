@@ -34,7 +34,6 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -44,6 +43,7 @@ import time
 from pathlib import Path
 
 from sofia_ros.compare.cache import CACHE_DIRECTORY
+from results_file import machine_description
 
 ROOT = Path(__file__).resolve().parents[1]
 TRUTH = ROOT / 'config' / 'truth' / 'waco-2004.yaml'
@@ -270,7 +270,7 @@ def main() -> None:
     results = ROOT / 'bench' / 'results'
     results.mkdir(exist_ok=True)
     document = {'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': commit,
-                'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'load_before': load_before,
+                'machine': machine_description(), 'load_before': load_before,
                 'load_after': os.getloadavg()[0], 'wall_s': round(time.time() - started, 1),
                 'baseline': str(args.baseline) if args.baseline else None, 'loops': loops}
     name = ('search_' if args.search else 'compare_loop_') + '_'.join(campaign.replace('-', '_') for campaign in args.campaigns.split(','))

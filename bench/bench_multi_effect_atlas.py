@@ -19,7 +19,6 @@ import argparse
 import datetime as dt
 import json
 import os
-import platform
 import signal
 import statistics
 import subprocess
@@ -36,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sofia_ros.atlas.report import miss_line, summarize, truth_lines  # noqa: E402
+from results_file import machine_description  # noqa: E402
 
 GRID = ROOT / 'bench' / 'multi_effect_atlas.yaml'
 RESULTS = ROOT / 'bench' / 'results'
@@ -144,7 +144,7 @@ def main():
     (RESULTS / 'multi_effect_atlas.txt').write_text(text)
     (RESULTS / 'multi_effect_atlas.json').write_text(json.dumps({
         'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': _commit(),
-        'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'workers': args.workers,
+        'machine': machine_description(), 'workers': args.workers,
         'load_before': load_before, 'load_after': load_after, 'wall_s': round(wall_s, 1),
         'interrupted': code == 130, 'grid': grid, 'planned_tasks': planned,
         'rates': [asdict(rate) for rate in summary.truth_rates],

@@ -25,7 +25,6 @@ import collections
 import datetime as dt
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -50,6 +49,7 @@ from sofia_ros.config import load_effect_config, parse_effect_config  # noqa: E4
 from sofia_ros.effects import resolve_params  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
 from sofia_ros.sim.calibration import AlignmentPlan  # noqa: E402
+from results_file import machine_description  # noqa: E402
 
 NOMINAL_MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
 
@@ -157,7 +157,7 @@ def main():
                                                           + '_'.join(f'{size:g}' for size in size_choices))
     (results / f'{name}.json').write_text(json.dumps({
         'date': dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds'), 'commit': commit,
-        'machine': f'{platform.machine()}, {os.cpu_count()} cores', 'load_before': load_before,
+        'machine': machine_description(), 'load_before': load_before,
         'wall_s': round(time.time() - started, 1), 'arguments': vars(args), 'rows': rows}, indent=1) + '\n')
 
 

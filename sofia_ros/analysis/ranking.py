@@ -126,11 +126,8 @@ def whitened_bic(rss: float, n: int, k: int) -> float:
     Raises:
         InvalidArgumentError: ``n`` is not positive.
     """
-    if rss >= n:
-        return bic(rss, n, k)
-    if n <= 0:
-        raise InvalidArgumentError(f'bic needs n > 0 samples, got {n}')
-    return float(rss - n + k * np.log(n))
+    # Below the floor bic at RSS = n (k ln n) less what the fit is below it: one check of n, in bic.
+    return bic(max(rss, n), n, k) - max(n - rss, 0.0)
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import pytest
 import yaml
 
-from sofia_ros.compare.run import compare_bag
+from sofia_ros.compare.observations import read_observations
+from sofia_ros.compare.run import compare_bag, compare_observations
 from sofia_ros.config import parse_effect_config
 from sofia_ros.effects import CATALOGUE, PLUGIN_ENVIRONMENT_VARIABLE, load_catalogue
 from sofia_ros.perturb import perturb_bag
@@ -155,7 +156,9 @@ def test_an_out_of_catalogue_shape_is_flagged_named_not_falsely_closed_and_expla
         name, perturbed, tmp_path, monkeypatch):
     case = CASES[name]
     _, bag = perturbed(name)
-    first = compare_bag(bag, _model()).document
+    # Read once, compared three times (compare_bag reads, then compares what it read).
+    observations = read_observations(bag)
+    first = compare_observations(observations, _model()).document
     verdict = first['verdict']
     assert verdict['status'] != 'explained', verdict['text']
     assert not verdict['observables'][case.observable]['explained'], verdict['observables'][case.observable]
@@ -164,12 +167,13 @@ def test_an_out_of_catalogue_shape_is_flagged_named_not_falsely_closed_and_expla
     catalogue = [c for c in first['candidates'] if not c['empirical'] and c['detectable']
                  and c['delta_bic'] >= first['significant_delta_bic']]
     if catalogue:
-        closed = compare_bag(bag, _model(catalogue[0]['effect']), candidate_names=()).document['verdict']
+        closed = compare_observations(observations, _model(catalogue[0]['effect']),
+                                      candidate_names=()).document['verdict']
         assert closed['status'] != 'explained', f'falsely closed by {catalogue[0]["effect"]}: {closed["text"]}'
 
     plugin = f'plugin_{name}'
     _plugin(tmp_path, monkeypatch, plugin, case)
-    document = compare_bag(bag, _model(plugin), candidate_names=()).document
+    document = compare_observations(observations, _model(plugin), candidate_names=()).document
     term = next(t for t in document['terms'] if t['effect'] == plugin)
     assert abs(term['value'] - case.truth) <= 3.0 * term['sigma'], term
     assert document['residual_rms_arcsec']['total'] <= 1.2 * document['noise_floor_arcsec']

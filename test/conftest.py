@@ -116,7 +116,7 @@ def campaign_bags(tmp_path_factory):
     return CampaignBags((base.parent if _xdist_worker() else base) / 'campaign_bags')
 
 
-# --- xdist (scripts/run-tests runs the suite with `-n 3 --dist loadscope --no-loadscope-reorder`) ------
+# --- xdist (scripts/run-tests runs the suite with `-n 2 --dist loadscope --no-loadscope-reorder`) ------
 #
 # A module is one unit of work (its module fixtures run once) unless it is listed in SPREAD: those
 # modules' expensive bags come from the session's CampaignBags, so their tests go to whichever worker

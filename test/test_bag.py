@@ -336,6 +336,32 @@ def test_metadata_lists_mcap_storage_and_counts(round_trip):
         assert listed == counts == {topic.name: topic.count for topic in reader.topics}
 
 
+
+def test_the_last_log_time_of_a_topic_is_its_last_message_read_in_full(round_trip):
+    path, written, _ = round_trip
+    with BagReader(path) as reader:
+        for topic in written:
+            stamps_ns = reader.messages_by_topic(topic, raw=(topic,))[topic][0]
+            assert reader.last_log_time_ns(topic) == stamps_ns[-1], topic
+
+
+def test_the_last_log_time_from_a_damaged_chunk_is_one_line_naming_it(round_trip, tmp_path):
+    # Only the chunk that holds the topic's last message is read: it must still pass its CRC.
+    path = Path(shutil.copytree(round_trip[0], tmp_path / 'bag'))
+    mcap_file = path / 'round_trip.mcap'
+    with mcap_file.open('rb') as stream:
+        chunks = make_reader(stream).get_summary().chunk_indexes
+    last = chunks[-1]
+    data = bytearray(mcap_file.read_bytes())
+    data[last.chunk_start_offset + last.chunk_length - 20] ^= 0x10
+    mcap_file.write_bytes(bytes(data))
+    damaged = rf'chunk {len(chunks)} of {len(chunks)} .* fails'
+    with BagReader(path) as reader, pytest.raises(BagError, match=damaged) as caught:
+        for topic in round_trip[1]:  # those whose last message is in the last chunk read it
+            reader.last_log_time_ns(topic)
+    assert '\n' not in str(caught.value)
+
+
 def test_bag_reader_gives_back_what_was_written_in_time_order(round_trip):
     path, written, _ = round_trip
     with BagReader(path) as bag:

@@ -26,7 +26,7 @@ if sys.version_info >= (3, 14):
 else:
     from backports import zstd
 
-__all__ = ['INDEX_DAMAGE_ERRORS', 'check_summary_crc', 'first_damaged_chunk', 'indexed_records']
+__all__ = ['INDEX_DAMAGE_ERRORS', 'check_summary_crc', 'first_damaged_chunk', 'indexed_records', 'last_log_time_ns']
 
 #: What a damaged file raises here: summary parsing, record layout, zstd, the CRC check.
 INDEX_DAMAGE_ERRORS = (McapError, struct.error, zstd.ZstdError, ValueError, IndexError)
@@ -119,6 +119,34 @@ def _check_counts(summary, found, blocks, channel_topic):
                              f'the statistics {count}')
 
 
+def last_log_time_ns(mcap_path, topic):
+    """The latest log time of ``topic`` in the file, from its message indexes, or None without them.
+
+    Only the chunk that holds it is decompressed and checked (CRC, and its index against its messages):
+    a campaign's run reads its length back from its /clock this way, not by reading every chunk.
+    """
+    with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+        summary = make_reader(file).get_summary()
+        if summary is None or not summary.chunk_indexes:
+            return None
+        channels = {channel.id for channel in summary.channels.values() if channel.topic == topic}
+        latest_ns, latest_chunk = None, None
+        for number, chunk in enumerate(summary.chunk_indexes, 1):
+            wanted = [channel for channel in chunk.message_index_offsets if channel in channels]
+            if not wanted or (latest_ns is not None and chunk.message_end_time <= latest_ns):
+                continue
+            chunk_latest_ns = max(int(_message_index_pairs(data, chunk.message_index_offsets[channel], channel)[0::2]
+                                      .max(initial=0)) for channel in wanted)
+            if latest_ns is None or chunk_latest_ns > latest_ns:
+                latest_ns, latest_chunk = chunk_latest_ns, (number, chunk, wanted)
+        if latest_chunk is None:
+            return None
+        number, chunk, wanted = latest_chunk
+        records = _chunk_records(data, chunk, f'{number} of {len(summary.chunk_indexes)}')
+        log_ns = _chunk_messages(data, chunk.message_index_offsets, wanted, records)[0]
+    return int(log_ns.max())
+
+
 def first_damaged_chunk(mcap_path):
     """'chunk N of M (...) fails ...' for the first chunk whose size, zstd frame or CRC is wrong; None if all pass."""
     with open(Path(mcap_path), 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
@@ -172,18 +200,20 @@ def _chunk_records(data, chunk, name):
     return records
 
 
+def _message_index_pairs(data, index_offset, channel):
+    """The (log time, offset) pairs, flat, of the MessageIndex record of ``channel`` at byte ``index_offset``."""
+    if data[index_offset] != _MESSAGE_INDEX_OPCODE:
+        raise ValueError(f'no message index record at byte {index_offset}')
+    indexed_channel, pairs_length = struct.unpack_from('<HI', data, index_offset + _RECORD_HEAD)
+    if indexed_channel != channel:
+        raise ValueError(f'message index at byte {index_offset} is for channel {indexed_channel}, not {channel}')
+    return np.frombuffer(data, dtype='<u8', count=pairs_length // 8, offset=index_offset + _RECORD_HEAD + 6)
+
+
 def _chunk_messages(data, index_offsets, channels, records):
     """(log times, payload starts, payload ends, channel) of the messages of ``channels`` in one chunk, from their
     MessageIndex records (channel by channel, each in its index's order)."""
-    pairs = []
-    for channel in channels:
-        index_offset = index_offsets[channel]
-        if data[index_offset] != _MESSAGE_INDEX_OPCODE:
-            raise ValueError(f'no message index record at byte {index_offset}')
-        indexed_channel, pairs_length = struct.unpack_from('<HI', data, index_offset + _RECORD_HEAD)
-        if indexed_channel != channel:
-            raise ValueError(f'message index at byte {index_offset} is for channel {indexed_channel}, not {channel}')
-        pairs.append(np.frombuffer(data, dtype='<u8', count=pairs_length // 8, offset=index_offset + _RECORD_HEAD + 6))
+    pairs = [_message_index_pairs(data, index_offsets[channel], channel) for channel in channels]
     counts = [len(channel_pairs) // 2 for channel_pairs in pairs]
     pairs = np.concatenate(pairs).astype(np.int64)
     log_ns, offsets = pairs[0::2], pairs[1::2]

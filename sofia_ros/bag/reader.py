@@ -18,7 +18,13 @@ from rosbags.rosbag2 import ReaderError
 
 from sofia_ros.bag.columns import decode_columns, payload_blocks
 from sofia_ros.bag.imu import ImuArrays, decode_imu_cdr, decode_imu_payloads, merge_imu_blocks
-from sofia_ros.bag.mcap_index import INDEX_DAMAGE_ERRORS, check_summary_crc, first_damaged_chunk, indexed_records
+from sofia_ros.bag.mcap_index import (
+    INDEX_DAMAGE_ERRORS,
+    check_summary_crc,
+    first_damaged_chunk,
+    indexed_records,
+    last_log_time_ns,
+)
 from sofia_ros.bag.msgtypes import (
     DOCUMENT_MSGTYPE,
     IMU_MSGTYPE,
@@ -260,6 +266,22 @@ class BagReader:
         if not texts:
             raise BagError(f'topic {topic} in bag {self.path} holds no document')
         return texts[-1]
+
+    def last_log_time_ns(self, topic: str) -> int | None:
+        """The log time of the last message on ``topic`` (None if it has none), without reading the other chunks."""
+        self._require_open()
+        if self.topic(topic).count == 0:
+            return None
+        files = self._metadata.files
+        if len(files) == 1 and not self._metadata.file_compressed:
+            try:
+                latest_ns = last_log_time_ns(files[0], topic)
+            except INDEX_DAMAGE_ERRORS as err:
+                raise _damaged(self.path, files, err) from err
+            if latest_ns is not None:
+                return latest_ns - self.origin_ns
+        stamps_ns = self.messages_by_topic(topic, raw=(topic,))[topic][0]
+        return int(stamps_ns[-1]) if len(stamps_ns) else None
 
     def imu_arrays(
         self, topic: str, *, start_ns: int | None = None, stop_ns: int | None = None

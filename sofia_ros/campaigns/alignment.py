@@ -120,14 +120,12 @@ def result_from_bag(bag_path):
 
     with BagReader(bag_path, campaign_time=True) as bag:
         names = {topic.name for topic in bag.topics}
-        # One pass through the message indexes: the clock's log times only, not a message object per tick.
-        wanted = (CLOCK.name, *([CALIBRATION_RESULT.name] if CALIBRATION_RESULT.name in names else []))
-        collected = bag.messages_by_topic(*wanted, raw=(CLOCK.name,))
-        results = collected.get(CALIBRATION_RESULT.name, ((), ()))[1]
+        # The clock's last log time from the message indexes and the one chunk that holds it, not every tick's.
+        sim_ns = bag.last_log_time_ns(CLOCK.name) or 0
+        results = (bag.messages_by_topic(CALIBRATION_RESULT.name)[CALIBRATION_RESULT.name][1]
+                   if CALIBRATION_RESULT.name in names else ())
         result = results[-1].data if len(results) else None
         stop_reason = bag.document(STOP_DOCUMENT.name) if STOP_DOCUMENT.name in names else None
-        clock_stamps_ns = collected[CLOCK.name][0]
-        sim_ns = int(clock_stamps_ns[-1]) if len(clock_stamps_ns) else 0
     if result is None:
         reason = f'stopped: {stop_reason}' if stop_reason else 'the calibration node published no result'
         result = yaml.safe_dump({'accepted': False, 'reason': reason})

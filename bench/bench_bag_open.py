@@ -19,6 +19,7 @@ Run: .venv/bin/python bench/bench_bag_open.py [BAG] [--repeats N]
 from __future__ import annotations
 
 import argparse
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -72,15 +73,17 @@ STEPS = ('open', 'result', 'decode', 'write')
 
 
 def _record_bag(folder: Path) -> Path:
-    sys.path.insert(0, str(ROOT / 'test'))
-    from conftest import record_reduced_alignment
+    """The reduced alignment (config/plans/alignment-reduced.yaml) of the nominal truth, seed 3, in ``folder``."""
+    from sofia_ros.campaigns.registry import campaign_named
+    from sofia_ros.config import load_effect_config
 
-    return record_reduced_alignment(folder / 'bag', seed=3)
+    alignment = campaign_named('alignment')
+    truth = load_effect_config(ROOT / 'config' / 'truth' / 'nominal.yaml')
+    return alignment.run(truth, seed=3, bag_path=folder / 'bag', plan=alignment.plan('reduced'), mode='direct').bag_path
 
 
 def _seconds(loader: str, step: str, bag: Path, scratch: Path) -> float:
-    for old in scratch.glob('copy*'):
-        subprocess.run(['rm', '-rf', str(old)], check=True)
+    shutil.rmtree(scratch / 'copy', ignore_errors=True)  # the write step's bag of the previous figure
     done = subprocess.run([sys.executable, '-c', _MEASURE, loader, step, str(bag), str(scratch)],
                           capture_output=True, text=True, check=False, cwd=ROOT)
     if done.returncode:

@@ -272,12 +272,11 @@ class BagReader:
         self._require_open()
         if self.topic(topic).count == 0:
             return None
-        files = self._metadata.files
-        if len(files) == 1 and not self._metadata.file_compressed:
+        if (mcap_file := self._indexable_file()) is not None:
             try:
-                latest_ns = last_log_time_ns(files[0], topic)
+                latest_ns = last_log_time_ns(mcap_file, topic)
             except INDEX_DAMAGE_ERRORS as err:
-                raise _damaged(self.path, files, err) from err
+                raise _damaged(self.path, self._metadata.files, err) from err
             if latest_ns is not None:
                 return latest_ns - self.origin_ns
         stamps_ns = self.messages_by_topic(topic, raw=(topic,))[topic][0]
@@ -304,15 +303,20 @@ class BagReader:
         for topic in topics:
             self.topic(topic)
         files = self._metadata.files
-        if len(files) != 1 or self._metadata.file_compressed:
+        if (mcap_file := self._indexable_file()) is None:
             return None
         try:
-            return indexed_records(files[0], topics, packed)
+            return indexed_records(mcap_file, topics, packed)
         except InvalidArgumentError as err:  # payloads that are not Imu CDR, found while decoding them
             decoded = [topic for topic, decode in packed.items() if decode is not None]
             raise BagError(f'topic {", ".join(decoded)} in bag {self.path}: {err}') from err
         except INDEX_DAMAGE_ERRORS as err:
             raise _damaged(self.path, files, err) from err
+
+    def _indexable_file(self) -> Path | None:
+        """The bag's MCAP file when its message indexes can be read in place (one file, not file-compressed)."""
+        files = self._metadata.files
+        return files[0] if len(files) == 1 and not self._metadata.file_compressed else None
 
     def _require_open(self) -> None:
         """Raise unless the bag is open."""

@@ -87,7 +87,8 @@ def _seconds(loader: str, step: str, bag: Path, scratch: Path) -> float:
     done = subprocess.run([sys.executable, '-c', _MEASURE, loader, step, str(bag), str(scratch)],
                           capture_output=True, text=True, check=False, cwd=ROOT)
     if done.returncode:
-        raise SystemExit(f'bench_bag_open: the {loader} {step} measurement failed: {done.stderr.strip()}')
+        last_line = (done.stderr.strip().splitlines() or ['no message'])[-1]  # the error, not its traceback
+        raise SystemExit(f'bench_bag_open: the {loader} {step} measurement failed: {last_line}')
     return float(done.stdout.split()[-1])
 
 

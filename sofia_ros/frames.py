@@ -36,10 +36,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import InvalidArgumentError, NotOrthonormalError
-from sofia_ros.rotation_kernels import canonical_quaternion, matrices_from_quaternions, quaternion_from_matrix
+from sofia_ros.rotation_kernels import (
+    canonical_quaternion,
+    matrices_from_quaternions,
+    matrices_from_rotvecs,
+    quaternion_from_matrix,
+    scipy_rotation,
+)
 from sofia_ros.units import ARCSEC_PER_RAD, RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar, unit_vector
 
@@ -87,12 +92,12 @@ def _rotation_from_quaternion(q):
     norm = float(np.linalg.norm(quaternion))
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         raise InvalidArgumentError(f'quaternion must have unit norm (B.5), got |q| = {norm:.9g}')
-    return Rotation.from_quat(quaternion / norm)
+    return scipy_rotation().from_quat(quaternion / norm)
 
 
 def _rotation_from_dcm(a):
     """scipy Rotation whose active matrix is the transpose of attitude DCM ``a``."""
-    return Rotation.from_matrix(orthonormal_dcm('dcm', a).T)
+    return scipy_rotation().from_matrix(orthonormal_dcm('dcm', a).T)
 
 
 def dcm_from_quaternion(q):
@@ -127,7 +132,7 @@ def quaternion_difference(q1, q2):
 def dcm_from_euler123(angles_rad):
     """DCM A = R3(gamma) R2(beta) R1(alpha) from Euler 1-2-3 angles (alpha, beta, gamma) (eq. B.4)."""
     angles = finite_array('angles_rad', angles_rad, shape=(3,))
-    return Rotation.from_euler('XYZ', angles).as_matrix().T
+    return scipy_rotation().from_euler('XYZ', angles).as_matrix().T
 
 
 def euler123_from_dcm(a):
@@ -142,7 +147,7 @@ def euler123_from_dcms(a):
         raise InvalidArgumentError(f'dcms must have shape Nx3x3, got {stack.shape}')
     if np.max(np.abs(stack @ np.swapaxes(stack, -1, -2) - np.eye(3)), initial=0.0) > 1e-6:
         raise NotOrthonormalError('dcms must be orthonormal to 1e-6')
-    return Rotation.from_matrix(np.swapaxes(stack, -1, -2)).as_euler('XYZ')
+    return scipy_rotation().from_matrix(np.swapaxes(stack, -1, -2)).as_euler('XYZ')
 
 
 def euler123_from_quaternion(q):
@@ -153,7 +158,7 @@ def euler123_from_quaternion(q):
 def euler123_from_axis_angle(axis, angle_rad):
     """Euler 1-2-3 angles (alpha, beta, gamma) in rad from rotation axis and angle (eqs. B.14-B.16)."""
     rotation_vector = unit_vector('axis', axis) * finite_scalar('angle_rad', angle_rad)
-    return Rotation.from_rotvec(rotation_vector).as_euler('XYZ')
+    return scipy_rotation().from_rotvec(rotation_vector).as_euler('XYZ')
 
 
 def axis_angle_from_quaternion(q):
@@ -172,7 +177,7 @@ def rotation_angles_from_quaternion(q):
 
 def dcm_from_rotation_angles(theta_rad):
     """Attitude DCM of simultaneous rotation angles about u, v, w; A ~= I - [theta x] (eqs. B.19-B.22)."""
-    return Rotation.from_rotvec(finite_array('theta_rad', theta_rad, shape=(3,))).as_matrix().T
+    return matrices_from_rotvecs(finite_array('theta_rad', theta_rad, shape=(3,))).T
 
 
 def rotation_angles_from_dcm(a):

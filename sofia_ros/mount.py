@@ -19,10 +19,9 @@ load case of eqs. 3.24/3.28, and a braked telescope senses eqs. 4.1-4.3.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import CommandRefusedError
-from sofia_ros.rotation_kernels import is_proper_orthonormal, matrices_from_quaternions, quaternions_from_rotvecs
+from sofia_ros.rotation_kernels import is_proper_orthonormal, matrices_from_rotvecs, scipy_rotation
 from sofia_ros.units import EARTH_RATE_RAD_PER_S, RAD_PER_DEG
 from sofia_ros.validate import finite_array, finite_scalar
 
@@ -105,7 +104,7 @@ def fine_drive_angles_from_dcm(tarf_from_icrf):
         # tan(gamma) = -A21/A11; the same angles as scipy's as_euler('XYZ') to 1e-15 (test_mount.py).
         return np.array([np.arctan2(-matrix[2, 1], matrix[2, 2]), np.arcsin(matrix[2, 0]),
                          np.arctan2(-matrix[1, 0], matrix[0, 0])])
-    return Rotation.from_matrix(matrix.T).as_euler('XYZ')
+    return scipy_rotation().from_matrix(matrix.T).as_euler('XYZ')
 
 
 def earth_axis_hrf(latitude_deg):
@@ -119,7 +118,7 @@ def hrf_from_irf_dcm(latitude_deg, elapsed_s, earth_rate_rad_per_s=EARTH_RATE_RA
     elapsed = finite_array('elapsed_s', elapsed_s)
     rotvec = np.multiply.outer(elapsed * earth_rate_rad_per_s, earth_axis_hrf(latitude_deg))
     # The HRF axes are the IRF axes actively turned by the Earth; coordinates transform with the transpose.
-    return np.swapaxes(matrices_from_quaternions(quaternions_from_rotvecs(rotvec)), -1, -2)
+    return np.swapaxes(matrices_from_rotvecs(rotvec), -1, -2)
 
 
 def tarf_from_hrf_dcm(heading_deg, elevation_deg, fine_drive_rad=(0.0, 0.0, 0.0)):

@@ -5,18 +5,19 @@ matrix); the lock-step loop converts attitudes several times per tick. These ker
 same formulas scipy uses (rotation vector, Hamilton product, Shepperd's matrix-to-quaternion,
 canonical quaternion) on plain arrays; ``test/test_frames.py`` pins them to scipy within 1e-12.
 Quaternions are scalar-last (x, y, z, w), rotations active, as in ``scipy.spatial.transform``.
-Matrices that are not orthonormal to 1e-12 (or are left-handed) go to scipy, which
-re-orthonormalizes them or raises, so the result never depends on which path ran.
+Matrices that are not orthonormal to 1e-12 are orthonormalized as scipy does them; a left-handed
+or null frame goes to scipy for its error, so the result never depends on which path ran. scipy.spatial
+is imported only where it is used (scipy_rotation): its import, about 0.4 CPU-s, was a third of every
+node process's start-up, and no tick of the graph needs it.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 __all__ = ['determinant_3x3', 'is_proper_orthonormal', 'quaternions_from_rotvecs', 'compose_quaternions',
-           'matrices_from_quaternions', 'quaternion_from_matrix', 'rotvec_from_quaternion', 'canonical_quaternion',
-           'slerp_quaternion']
+           'matrices_from_quaternions', 'matrices_from_rotvecs', 'quaternion_from_matrix', 'rotvec_from_quaternion',
+           'rotvec_from_matrix', 'canonical_quaternion', 'slerp_quaternion', 'scipy_rotation']
 
 #: scipy's test for a matrix to use as it is: M M^T within 1e-12 of I off the diagonal, 1e-12 + 1e-5 on it
 #: (numpy.isclose's default rtol); others are orthonormalized first (SVD, U V^T), as scipy does.
@@ -98,6 +99,11 @@ def _matrix_elements(x, y, z, w):
             2 * (xz - yw), 2 * (yz + xw), -x2 - y2 + z2 + w2)
 
 
+def matrices_from_rotvecs(rotvecs):
+    """Active rotation matrices (... x 3 x 3) of rotation vectors (... x 3, rad), as Rotation.from_rotvec().as_matrix()."""
+    return matrices_from_quaternions(quaternions_from_rotvecs(rotvecs))
+
+
 def _last_axis_stacked(components):
     """np.stack(components, axis=-1) of equal-shape arrays or scalars, without its checks and concatenation (the
     same values, each copied into its column; these kernels run several times per lock-step tick)."""
@@ -131,7 +137,7 @@ def quaternion_from_matrix(matrix):
     """Unit quaternion of an active 3x3 rotation matrix (Shepperd's method, as Rotation.from_matrix)."""
     matrix = np.asarray(matrix, dtype=float)
     if not determinant_3x3(matrix) > 0.0:
-        return Rotation.from_matrix(matrix).as_quat()  # scipy's error for a left-handed or null frame
+        return scipy_rotation().from_matrix(matrix).as_quat()  # scipy's error for a left-handed or null frame
     if not _is_orthonormal(matrix):
         left, _, right = np.linalg.svd(matrix)
         matrix = left @ right
@@ -173,6 +179,11 @@ def rotvec_from_quaternion(quaternion):
     return angle / np.sin(angle / 2.0) * vector
 
 
+def rotvec_from_matrix(matrix):
+    """Rotation vector (rad) of an active 3x3 rotation matrix, as Rotation.from_matrix().as_rotvec()."""
+    return rotvec_from_quaternion(quaternion_from_matrix(matrix))
+
+
 def slerp_quaternion(start, end, fraction):
     """Quaternion a ``fraction`` of the way from rotation ``start`` to ``end`` (scipy's Slerp of two keys)."""
     start = np.asarray(start, dtype=float)
@@ -182,3 +193,10 @@ def slerp_quaternion(start, end, fraction):
     inverse_start = start * np.array([-1.0, -1.0, -1.0, 1.0])
     rotvec = rotvec_from_quaternion(compose_quaternions(inverse_start, end))
     return compose_quaternions(start, quaternions_from_rotvecs(rotvec * fraction))
+
+
+def scipy_rotation():
+    """scipy's ``Rotation`` class, imported on the first call (see the module's note on its import cost)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation

@@ -109,6 +109,17 @@ def _xdist_worker():
     return os.environ.get('PYTEST_XDIST_WORKER')
 
 
+@pytest.fixture
+def private_tmp(tmp_path, monkeypatch):
+    """A temporary directory of this test alone (tempfile's, and its subprocesses' TMPDIR): what a run leaves there
+    (the launcher's sofia_graph_* node logs) is its own, not a live graph's of the other xdist worker."""
+    folder = tmp_path / 'tmp'
+    folder.mkdir()
+    monkeypatch.setenv('TMPDIR', str(folder))
+    monkeypatch.setattr(tempfile, 'tempdir', str(folder))
+    return folder
+
+
 @pytest.fixture(scope='session')
 def campaign_bags(tmp_path_factory):
     """The session's shared campaign bags (under xdist, the workers' base folders share a parent)."""

@@ -1,5 +1,9 @@
 """Attitude conventions (App. B, Table D.2, eq. 6.1) and pixel geometry (eqs. 3.2-3.9)."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -349,6 +353,10 @@ def test_rotation_kernels_match_scipy_to_1e_12():
         np.testing.assert_allclose(k.quaternions_from_rotvecs(rotvecs), quaternions, rtol=0, atol=1e-12)
         np.testing.assert_allclose(k.matrices_from_quaternions(quaternions),
                                    Rotation.from_quat(quaternions).as_matrix(), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(k.matrices_from_rotvecs(rotvecs), Rotation.from_rotvec(rotvecs).as_matrix(),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(frames.dcm_from_rotation_angles(rotvecs[0]),
+                                   Rotation.from_rotvec(rotvecs[0]).as_matrix().T, rtol=0, atol=1e-12)
         composed = (Rotation.from_quat(quaternions[1:]) * Rotation.from_quat(quaternions[:-1])).as_quat()
         np.testing.assert_allclose(k.compose_quaternions(quaternions[1:], quaternions[:-1]), composed,
                                    rtol=0, atol=1e-12)
@@ -357,6 +365,8 @@ def test_rotation_kernels_match_scipy_to_1e_12():
             np.testing.assert_allclose(k.quaternion_from_matrix(matrix), Rotation.from_matrix(matrix).as_quat(),
                                        rtol=0, atol=1e-12)
             np.testing.assert_allclose(k.rotvec_from_quaternion(-first), Rotation.from_quat(-first).as_rotvec(),
+                                       rtol=0, atol=1e-12)
+            np.testing.assert_allclose(k.rotvec_from_matrix(matrix), Rotation.from_matrix(matrix).as_rotvec(),
                                        rtol=0, atol=1e-12)
             np.testing.assert_allclose(k.slerp_quaternion(first, second, 0.3),
                                        Slerp([0.0, 1.0], Rotation.from_quat([first, second]))(0.3).as_quat(),
@@ -390,3 +400,26 @@ def test_rotation_kernels_match_scipy_to_1e_12():
     np.testing.assert_allclose(moved, total.as_matrix().T @ start, rtol=0, atol=1e-12)
     np.testing.assert_allclose(rotation_error_rad(start, moved),
                                Rotation.from_matrix((moved @ start.T).T).as_rotvec(), rtol=0, atol=1e-12)
+
+
+def test_a_node_process_imports_no_scipy():
+    # scipy.spatial's import (about 0.4 CPU-s) was a third of a node's start-up, and a graph starts ten of them. A
+    # process that builds the graph's cores, as each node does, and ticks them for 20 s of flight imports no scipy;
+    # the calibration node imports scipy.optimize (and with it scipy.spatial) when it first fits, and only then.
+    code = """if True:
+        import sys
+        import sofia_ros.nodes.executables, sofia_ros.nodes.shell, sofia_ros.nodes.clock_node, sofia_ros.nodes.recorder_node
+        from sofia_ros.campaigns.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
+        from sofia_ros.sim.graph import build_cores
+        from sofia_ros.sim.runner import LockstepRunner
+        values = {name: default for name, (default, _) in GRAPH_PARAMETERS.items()}
+        config = graph_config_from_parameters({**values, 'truth_file': 'config/truth/nominal.yaml'})
+        runner = LockstepRunner(build_cores(config), tick_ns=config.tick_ns)
+        for _ in range(100):
+            runner.step()
+        print(sorted(name for name in sys.modules if name.split('.')[0] == 'scipy'))
+    """
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120,
+                            cwd=Path(__file__).resolve().parents[1])
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == '[]'

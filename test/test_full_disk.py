@@ -158,8 +158,8 @@ def _run_args(campaign, mode, bag):
     return ['run', name, '--truth', TRUTH, '--bag', str(bag), *options, *MODES[mode]]
 
 
-def _graph_folders():
-    return set(Path(tempfile.gettempdir()).glob('sofia_graph_*'))
+def _graph_folders(private_tmp):
+    return list(private_tmp.glob('sofia_graph_*'))
 
 
 # --- sofia run: the bag fills the disk ----------------------------------------------------------------------
@@ -237,22 +237,20 @@ def test_a_disk_full_from_the_start_is_one_line_exit_3_and_no_bag(disk, capfd, c
 
 @pytest.mark.parametrize('campaign,mode', [(campaign, mode) for campaign in GRAPH_CAMPAIGNS for mode in MODES]
                          + [('gyro-stability', 'default')])
-def test_a_read_only_disk_is_one_line_exit_2_before_any_node_starts(disk, capfd, campaign, mode):
+def test_a_read_only_disk_is_one_line_exit_2_before_any_node_starts(disk, private_tmp, capfd, campaign, mode):
     disk.read_only()
-    before = _graph_folders()
     bag = disk.path / 'runs' / 'bag'
     code, stderr = run_in_process(capfd, _run_args(campaign, mode, bag))
     assert_one_line_error(code, stderr, 2, f'cannot write {bag}: read-only file system')
     assert disk.outputs() == []
-    assert _graph_folders() <= before
+    assert _graph_folders(private_tmp) == []
 
 
 @needs_mount
 @STARTUP_RERUNS
-def test_processes_mode_on_a_full_disk_reports_the_recorders_disk_full_and_leaves_no_log_folder(disk):
+def test_processes_mode_on_a_full_disk_reports_the_recorders_disk_full_and_leaves_no_log_folder(disk, private_tmp):
     """The recorder process meets ENOSPC: its own error line reaches the launcher (was: 'the recorder node exited
     with code 1' after 80 lines of traceback, the node logs kept in /tmp/sofia_graph_*)."""
-    before = _graph_folders()
     bag = disk.path / 'bag'
     result = subprocess.run([sys.executable, '-m', 'sofia_ros.cli', *_run_args('alignment', 'processes', bag)],
                             capture_output=True, text=True, timeout=240)
@@ -260,7 +258,7 @@ def test_processes_mode_on_a_full_disk_reports_the_recorders_disk_full_and_leave
                           'messages kept', f'`sofia recover {bag}`')
     assert 'exited with code' not in result.stderr and 'sofia_graph_' not in result.stderr
     assert_summary_whole_or_absent(bag)
-    assert _graph_folders() <= before
+    assert _graph_folders(private_tmp) == []
 
 
 def test_the_launcher_takes_the_recorders_own_error_line_and_removes_the_node_logs(tmp_path, monkeypatch):

@@ -33,10 +33,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sofia_ros.errors import InvalidArgumentError
 from sofia_ros.frames import HIPO_2004, pixel_to_vector, vector_to_pixel
+from sofia_ros.rotation_kernels import matrices_from_rotvecs, rotvec_from_matrix
 from sofia_ros.validate import finite_array, finite_scalar, orthonormal_dcm, positive_scalar, unit_vector
 
 __all__ = [
@@ -292,7 +292,7 @@ class _ManeuverModel:
         # Angles are carried as theta / S (px-equivalent) so that every unknown is O(px).
         theta = np.zeros(3)
         theta[self.index] = x[: len(self.index)] * self.scale
-        return Rotation.from_rotvec(theta).as_matrix().T @ self.reference
+        return matrices_from_rotvecs(theta).T @ self.reference
 
     def end_px(self, x):
         axes = self.gyro_axes @ self.dcm(x).T
@@ -382,7 +382,7 @@ def fit_alignment(maneuvers, detector=HIPO_2004, *, solve_for=('el', 'xel', 'los
     dcm = model.reference
     return AlignmentFit(
         dcm=_read_only(dcm),
-        angles_rad=_read_only(Rotation.from_matrix(dcm.T).as_rotvec()),
+        angles_rad=_read_only(rotvec_from_matrix(dcm.T)),
         sigma_rad=_read_only(np.sqrt(np.diag(covariance))),
         covariance_rad2=_read_only(covariance),
         residuals_px=_read_only(residuals.reshape(n, 4)),

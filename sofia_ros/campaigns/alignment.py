@@ -10,12 +10,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from scipy.spatial.transform import Rotation
 
 from sofia_ros.campaigns.plan_files import check_plan_with_truth
 from sofia_ros.campaigns.recording import MODES, finish_run, new_bag_path, record_campaign
 from sofia_ros.frames import AXES
 from sofia_ros.mount import check_coarse_drive_elevation
+from sofia_ros.rotation_kernels import rotvec_from_matrix
 from sofia_ros.scenario import Scenario, scenario_from_mapping
 from sofia_ros.sensors.gyro_errors import tarf_from_gyrf_dcm
 from sofia_ros.sensors.imager_model import camera_errors, camera_from_tarf_dcm
@@ -87,7 +87,7 @@ def true_alignment_at(truth_effects, elevation_deg):
 def residual_misalignment_arcsec(accepted_tarf_from_gyrf, truth_effects, elevation_deg):
     """Accepted minus true alignment (at the campaign elevation) as rotations about EL, XEL, LOS, arcsec."""
     error = np.asarray(accepted_tarf_from_gyrf) @ true_alignment_at(truth_effects, elevation_deg).T
-    return Rotation.from_matrix(error.T).as_rotvec() * ARCSEC_PER_RAD
+    return rotvec_from_matrix(error.T) * ARCSEC_PER_RAD
 
 
 def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_s=None,

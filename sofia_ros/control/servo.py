@@ -12,8 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from sofia_ros.rotation_kernels import matrices_from_rotvecs
 from sofia_ros.units import RAD_PER_ARCSEC, RAD_PER_DEG
 from sofia_ros.validate import finite_array
 
@@ -65,8 +65,8 @@ class MoveProfile:
         if self.remaining_rad < _ANGLE_ROUNDING_RAD:
             step_rad += self.remaining_rad
             self.remaining_rad = 0.0
-        turn = Rotation.from_rotvec(self.axis * step_rad)
-        return turn.as_matrix().T @ commanded_from_inertial, self.axis * step_rad / interval_s
+        turn = matrices_from_rotvecs(self.axis * step_rad)
+        return turn.T @ commanded_from_inertial, self.axis * step_rad / interval_s
 
 
 def servo_rate_rad_per_s(error_rad, feedforward_rad_per_s, settings):

@@ -49,7 +49,6 @@ import datetime as dt
 import functools
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from sofia_ros.effects import get_effect, plugin_terms, resolve_params
 from sofia_ros.effects.context import CameraContext
@@ -72,6 +71,7 @@ from sofia_ros.frames import (
 )
 from sofia_ros.graph_nodes import IMAGERS
 from sofia_ros.mount import altaz_from_unit_vector_hrf, hrf_from_irf_dcm, unit_vector_hrf
+from sofia_ros.rotation_kernels import matrices_from_rotvecs
 from sofia_ros.sky.catalogue import StarEntry, hipparcos_columns
 from sofia_ros.sky.places import Site, Weather, observed_directions_hrf
 from sofia_ros.sky.refraction import MAX_ZENITH_DISTANCE_DEG, stone_refraction_from_topocentric_arcsec
@@ -305,7 +305,7 @@ def _fixed_mounting_dcm(boresight_el_xel_arcsec, rotation_of_field_deg):
 def flexure_dcm(errors, elevation_deg, context=None):
     """A(flexure) of camera_from_tarf_dcm: the gravity rotation (Tables 3.2, 3.3; 6.2) and plug-ins', (..., 3, 3)."""
     flexure_rad = flexure_rotation_arcsec(errors, elevation_deg, context) * RAD_PER_ARCSEC
-    dcms = np.swapaxes(Rotation.from_rotvec(flexure_rad.reshape(-1, 3)).as_matrix(), -1, -2)
+    dcms = np.swapaxes(matrices_from_rotvecs(flexure_rad.reshape(-1, 3)), -1, -2)
     return dcms.reshape(*flexure_rad.shape[:-1], 3, 3)
 
 

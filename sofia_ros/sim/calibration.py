@@ -20,7 +20,6 @@ from typing import ClassVar
 import numpy as np
 import yaml
 from diagnostic_msgs.msg import DiagnosticStatus
-from scipy.spatial.transform import Rotation
 
 from sofia_ros import messages as m
 from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_rad
@@ -29,6 +28,7 @@ from sofia_ros.calibration.maneuver_records import maneuver_record
 from sofia_ros.calibration.solvers import Maneuver, fit_alignment
 from sofia_ros.errors import CalibrationAbort, InvalidArgumentError
 from sofia_ros.graph_nodes import IMAGERS
+from sofia_ros.rotation_kernels import rotvec_from_matrix
 from sofia_ros.sensors.imager_model import nominal_detector
 from sofia_ros.sim.sequence import (
     TOPICS,
@@ -488,4 +488,4 @@ class CalibrationCore(SequenceCore):
 
 def _small_angles(dcm, reference):
     """Rotation angles (EL, XEL, LOS) that turn ``reference`` into ``dcm`` (B.19-B.22)."""
-    return Rotation.from_matrix((dcm @ reference.T).T).as_rotvec()
+    return rotvec_from_matrix((dcm @ reference.T).T)

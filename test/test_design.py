@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from sofia_ros.cli import main
 from sofia_ros.design.elements import Element, Hypothesis, choose_elements, predict
 from sofia_ros.design.separation import (Information, expected_delta_bic, fitted_values, noncentrality,
                                          profiled_gram, sigma_of)
-from sofia_ros.errors import InvalidArgumentError
+from sofia_ros.errors import ConfigError, InvalidArgumentError
 
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL_MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
@@ -247,6 +248,7 @@ def test_a_check_against_a_json_that_is_no_design_is_refused(capsys, tmp_path):
     (['--check', 'new_bag'], 'needs --prediction'),
     (['--prediction', 'design.json'], '--prediction goes with --check'),
     (['--budget-s', '0'], '--budget-s'),
+    (['--jobs', '0'], '--jobs'),
 ])
 def test_bad_options_are_refused(capsys, tmp_path, plan_only_bag, argv, match):
     _refused(capsys, tmp_path, [str(plan_only_bag), *argv], match)
@@ -281,7 +283,7 @@ def _stubbed_design(monkeypatch, plan_only_bag, status, reproduced=()):
                 'skipped': [], 'reproduced': list(reproduced),
                 'whole_library': {'flight_s': 900.0, 'separation': {'a': -21.0, 'b': 36.0},
                                   'signature_left': {'a': 0.01, 'b': 14.0}}}
-    monkeypatch.setattr(design_cli, '_library_bag', lambda *args: plan_only_bag)
+    monkeypatch.setattr(design_cli, '_library_bags', lambda flights, *args: [plan_only_bag for _ in flights])
     monkeypatch.setattr(observations, 'read_observations', lambda path: Stub())
     monkeypatch.setattr(design_run, 'design_plan', lambda *args, **kwargs: dict(document))
     monkeypatch.setattr(design_geometry, 'fit_model_on_bag', lambda *args, **kwargs: None)
@@ -558,20 +560,20 @@ def test_the_library_flies_each_temperature_step_at_the_bags_end_time_and_temper
 
     flown = []
 
-    def fly(flight, old_plan, truth, progress):
+    def fly(flight):
         bag = tmp_path / f'flight{len(flown)}'
         bag.mkdir()
         (bag / 'calibration.yaml').write_text('elements:\n- {index: 1, kind: hold, start_s: 566.8, end_s: 600.0}\n')
         flown.append(flight)
         return bag
 
-    monkeypatch.setattr(design_cli, '_library_bag', fly)
+    monkeypatch.setattr(design_cli, '_library_bags', lambda flights, *args: [fly(flight) for flight in flights])
     plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-full.yaml')
     elements = design_cli._library_elements(plan, _CONTROL)
     bag = type('Observations', (), {
         'gyro': type('Gyro', (), {'tick_temperature_c': np.array([22.8, 22.288])}),
         'centroids': type('Centroids', (), {'stamp_s': np.array([0.25, bag_end_s])})})
-    flights = design_cli._library_flights(elements, plan, None, _CONTROL, bag, None)
+    flights = design_cli._library_flights(elements, plan, None, _CONTROL, bag, None, 1)
     assert [flight for _, flight in flights] == flown
     plain, *stepped = flown
     assert plain == tuple(element for element in elements if not is_thermal(element))
@@ -676,10 +678,62 @@ def test_a_library_without_temperature_steps_is_one_flight(tmp_path, monkeypatch
     import sofia_ros.design.cli as design_cli
     from sofia_ros.campaigns.plan_files import read_plan_file
 
-    monkeypatch.setattr(design_cli, '_library_bag', lambda flight, *args: tmp_path)
+    monkeypatch.setattr(design_cli, '_library_bags', lambda flights, *args: [tmp_path for _ in flights])
     plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
     elements = design_cli._library_elements(plan, None)
-    assert design_cli._library_flights(elements, plan, None, None, None, None) == [(tmp_path, elements)]
+    assert design_cli._library_flights(elements, plan, None, None, None, None, 1) == [(tmp_path, elements)]
+
+
+def _recorded_flights(monkeypatch, tmp_path, fails=None):
+    """design.cli with the user's cache in ``tmp_path`` and a flight that writes its bag's summary.json and the
+    process that flew it (or raises for the flight whose last element is ``fails``)."""
+    import sofia_ros.design.cli as design_cli
+
+    monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'cache'))
+
+    def fly(flight, bag, old_plan, truth):
+        if flight[-1] == fails:
+            raise ConfigError(f'cannot fly {fails.name}')
+        bag.mkdir(parents=True)
+        (bag / 'summary.json').write_text(json.dumps({'flown_by': os.getpid(), 'last': flight[-1].name}))
+
+    monkeypatch.setattr(design_cli, '_fly_library_bag', fly)
+    return design_cli
+
+
+def test_the_temperature_steps_flights_are_flown_side_by_side_once(tmp_path, monkeypatch):
+    """Each step's flight is a campaign of its own: flown in forked processes two at a time, each bag where its
+    flight's key puts it, in the order asked; asked again, they come from the cache."""
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.elements import thermal_library
+    from sofia_ros.progress import Progress
+
+    design_cli = _recorded_flights(monkeypatch, tmp_path)
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    truth = type('Truth', (), {'text': 'effects: {}'})
+    flights = [(step,) for step in thermal_library(10.0, 35.0, 120.0)]
+    bags = design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
+    assert bags == [design_cli._library_path(flight, plan, truth) for flight in flights] and len(set(bags)) == 3
+    flown = [json.loads((bag / 'summary.json').read_text()) for bag in bags]
+    assert [entry['last'] for entry in flown] == [flight[-1].name for flight in flights]
+    assert len({entry['flown_by'] for entry in flown}) == 3 and os.getpid() not in {e['flown_by'] for e in flown}
+    monkeypatch.setattr(design_cli, '_fly_library_bag', lambda *args: pytest.fail('flown again'))
+    assert design_cli._library_bags(flights, plan, truth, Progress.silent(), 2) == bags
+
+
+def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path, monkeypatch):
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.elements import thermal_library
+    from sofia_ros.progress import Progress
+
+    steps = thermal_library(10.0, 35.0, 120.0)
+    design_cli = _recorded_flights(monkeypatch, tmp_path, fails=steps[1])
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    truth = type('Truth', (), {'text': 'effects: {}'})
+    flights = [(step,) for step in steps]
+    with pytest.raises(ConfigError, match=f'cannot fly {steps[1].name}'):
+        design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
+    assert not design_cli._library_path(flights[1], plan, truth).exists()
 
 
 @pytest.mark.parametrize('period_min, nested', [(5.2, True), (5.3, False)])

@@ -17,6 +17,7 @@ import argparse
 import hashlib
 import json
 import shutil
+import signal
 import sys
 import tempfile
 from pathlib import Path
@@ -24,6 +25,7 @@ from typing import Any, TextIO
 
 from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import BagError, ConfigError
+from sofia_ros.forked import forked_map, usable_cores
 from sofia_ros.output_files import json_ready, output_target, write_text_atomically
 from sofia_ros.progress import Progress
 
@@ -77,6 +79,10 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--anchor-s', type=number(1.0, 3600.0, 's'), default=30.0,
                         help='seconds between attitude anchors, as compare (default 30)')
     parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
+    parser.add_argument('--jobs', type=integer(1, 64, 'worker processes'), default=usable_cores(),
+                        help='library flights not in the cache yet (the temperature steps\' each a flight of its own) '
+                             'are flown in up to this many forked processes at once (default: the usable cores, '
+                             f'{usable_cores()} here); the flights are the same with 1')
 
 
 def _members(text: str) -> list:
@@ -288,49 +294,74 @@ def _campaign_end_s(bag: Path) -> float:
 
 
 def _library_flights(elements: tuple, old_plan: Any, truth: Any, thermal_control: dict | None, observations: Any,
-                     progress: Progress) -> list:
+                     progress: Progress, jobs: int) -> list:
     """[(bag, the elements it flew)] of the library flights, each flown if not in the user's cache yet: the elements
     that command no temperature in one, and each temperature step in one of its own after a lead to the bag's end
-    time and last temperature (design.elements.step_flights)."""
+    time and last temperature (design.elements.step_flights). The steps' flights, which need only the first one's end
+    of campaign, are flown ``jobs`` at a time."""
     from sofia_ros.design.elements import is_thermal, step_flights
 
     plain = tuple(element for element in elements if not is_thermal(element))
-    first = _library_bag(plain, old_plan, truth, progress)
+    (first,) = _library_bags([plain], old_plan, truth, progress, jobs)
     flights = [(first, plain)]
     if thermal_control is None or len(plain) == len(elements):
         return flights
     lead = _step_lead(thermal_control, _elements_start_c(observations), _elements_start_s(observations),
                       _campaign_end_s(first))
-    return flights + [(_library_bag(flight, old_plan, truth, progress), flight)
-                      for flight in step_flights(elements, lead)]
+    steps = step_flights(elements, lead)
+    return flights + list(zip(_library_bags(steps, old_plan, truth, progress, jobs), steps))
 
 
-def _library_bag(flight: tuple, old_plan: Any, truth: Any, progress: Progress) -> Path:
-    """The library flight's bag in the user's cache, flown (direct mode, ``truth``, seed 0) if not there yet; its
-    elements (``flight``) shaped by ``old_plan``'s fields as the designed plan will fly them."""
-    from sofia_ros.campaigns.plan_files import plan_from_document
-    from sofia_ros.campaigns.registry import campaign_named
+def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Progress, jobs: int) -> list[Path]:
+    """The library flights' bags in the user's cache, those not there yet flown (direct mode, ``truth``, seed 0) up to
+    ``jobs`` at a time in forked processes (each flight is a campaign of its own, a core's work for 15-20 s); their
+    elements (``flights``) shaped by ``old_plan``'s fields as the designed plan will fly them."""
+    bags = [_library_path(flight, old_plan, truth) for flight in flights]
+    missing = [(flight, bag) for flight, bag in zip(flights, bags) if not (bag / 'summary.json').is_file()]
+    if not missing:
+        return bags
+    at_once = min(jobs, len(missing))
+    what = 'a library flight once' if len(missing) == 1 else f'{len(missing)} library flights once, {at_once} at a time'
+    progress.phase(f'flying {what} (kept in {bags[0].parent})')
+
+    def fly(item: tuple) -> None:
+        if at_once > 1:
+            # In a forked worker Ctrl-C ends the process at once (forked_map); raised instead, the flight's folder
+            # is removed on the way out.
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+        _fly_library_bag(*item, old_plan, truth)
+
+    forked_map(fly, missing, jobs=at_once,
+               done=lambda count: progress.count('library flights flown', count, len(missing)))
+    return bags
+
+
+def _library_path(flight: tuple, old_plan: Any, truth: Any) -> Path:
+    """Where the library flight of ``flight``'s elements on ``truth`` is kept in the user's cache."""
     from sofia_ros.compare.cache import user_cache_home
 
-    campaign = old_plan.campaign
     document = _library_document(flight, old_plan)
     key = hashlib.sha256(json.dumps({**document, 'truth': truth.text}, sort_keys=True).encode()).hexdigest()[:16]
-    bag = user_cache_home() / 'design' / f'{campaign}-library-{key}'
-    if (bag / 'summary.json').is_file():
-        return bag
-    plan = plan_from_document(document, 'the design library', campaign)
+    return user_cache_home() / 'design' / f'{old_plan.campaign}-library-{key}'
+
+
+def _fly_library_bag(flight: tuple, bag: Path, old_plan: Any, truth: Any) -> None:
+    """Fly ``flight``'s elements after the campaign's shortest sequence (direct mode, ``truth``, seed 0) into ``bag``."""
+    from sofia_ros.campaigns.plan_files import plan_from_document
+    from sofia_ros.campaigns.registry import campaign_named
+
+    campaign = old_plan.campaign
+    plan = plan_from_document(_library_document(flight, old_plan), 'the design library', campaign)
     bag.parent.mkdir(parents=True, exist_ok=True)
     # Flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs that
     # fly it at once the first to finish is kept.
     folder = Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix='.flying', dir=bag.parent))
-    progress.phase(f'flying a library flight once ({len(flight)} elements; kept in {bag.parent})')
     try:
         campaign_named(campaign).run(truth, seed=0, bag_path=folder / 'bag', plan=plan, mode='direct')
         if not bag.exists():
             (folder / 'bag').rename(bag)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    return bag
 
 
 def _flight_s(observations: Any) -> float:
@@ -440,7 +471,8 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
     library, skipped = [], []
-    for path, flight in _library_flights(elements, old_plan, truth, thermal_control, observations, progress):
+    for path, flight in _library_flights(elements, old_plan, truth, thermal_control, observations, progress,
+                                         args.jobs):
         flown = read(path, 'a library flight')
         windows, missed = flown_elements(flown.calibration_result, flight)
         # The waits and changes of temperature before a step are the flight's, not the library's.

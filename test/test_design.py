@@ -703,7 +703,8 @@ def _recorded_flights(monkeypatch, tmp_path, fails=None):
 
 def test_the_temperature_steps_flights_are_flown_side_by_side_once(tmp_path, monkeypatch):
     """Each step's flight is a campaign of its own: flown in forked processes two at a time, each bag where its
-    flight's key puts it, in the order asked; asked again, they come from the cache."""
+    flight's key puts it, in the order asked, and read (into the observation cache) by the worker that flew it;
+    asked again, they come from the cache."""
     from sofia_ros.campaigns.plan_files import read_plan_file
     from sofia_ros.design.elements import thermal_library
     from sofia_ros.progress import Progress
@@ -712,11 +713,16 @@ def test_the_temperature_steps_flights_are_flown_side_by_side_once(tmp_path, mon
     plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
     truth = type('Truth', (), {'text': 'effects: {}'})
     flights = [(step,) for step in thermal_library(10.0, 35.0, 120.0)]
-    bags = design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
+
+    def warm(bag):
+        (bag / 'read_by').write_text(str(os.getpid()))
+
+    bags = design_cli._library_bags(flights, plan, truth, Progress.silent(), 2, warm)
     assert bags == [design_cli._library_path(flight, plan, truth) for flight in flights] and len(set(bags)) == 3
     flown = [json.loads((bag / 'summary.json').read_text()) for bag in bags]
     assert [entry['last'] for entry in flown] == [flight[-1].name for flight in flights]
     assert len({entry['flown_by'] for entry in flown}) == 3 and os.getpid() not in {e['flown_by'] for e in flown}
+    assert [int((bag / 'read_by').read_text()) for bag in bags] == [entry['flown_by'] for entry in flown]
     monkeypatch.setattr(design_cli, '_fly_library_bag', lambda *args: pytest.fail('flown again'))
     assert design_cli._library_bags(flights, plan, truth, Progress.silent(), 2) == bags
 

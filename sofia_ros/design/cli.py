@@ -20,6 +20,7 @@ import shutil
 import signal
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -294,28 +295,30 @@ def _campaign_end_s(bag: Path) -> float:
 
 
 def _library_flights(elements: tuple, old_plan: Any, truth: Any, thermal_control: dict | None, observations: Any,
-                     progress: Progress, jobs: int) -> list:
+                     progress: Progress, jobs: int, warm: Callable[[Path], Any] | None = None) -> list:
     """[(bag, the elements it flew)] of the library flights, each flown if not in the user's cache yet: the elements
     that command no temperature in one, and each temperature step in one of its own after a lead to the bag's end
     time and last temperature (design.elements.step_flights). The steps' flights, which need only the first one's end
-    of campaign, are flown ``jobs`` at a time."""
+    of campaign, are flown ``jobs`` at a time, each read by ``warm`` in its worker (_library_bags)."""
     from sofia_ros.design.elements import is_thermal, step_flights
 
     plain = tuple(element for element in elements if not is_thermal(element))
-    (first,) = _library_bags([plain], old_plan, truth, progress, jobs)
+    (first,) = _library_bags([plain], old_plan, truth, progress, jobs, warm)
     flights = [(first, plain)]
     if thermal_control is None or len(plain) == len(elements):
         return flights
     lead = _step_lead(thermal_control, _elements_start_c(observations), _elements_start_s(observations),
                       _campaign_end_s(first))
     steps = step_flights(elements, lead)
-    return flights + list(zip(_library_bags(steps, old_plan, truth, progress, jobs), steps))
+    return flights + list(zip(_library_bags(steps, old_plan, truth, progress, jobs, warm), steps))
 
 
-def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Progress, jobs: int) -> list[Path]:
+def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Progress, jobs: int,
+                  warm: Callable[[Path], Any] | None = None) -> list[Path]:
     """The library flights' bags in the user's cache, those not there yet flown (direct mode, ``truth``, seed 0) up to
     ``jobs`` at a time in forked processes (each flight is a campaign of its own, a core's work for 15-20 s); their
-    elements (``flights``) shaped by ``old_plan``'s fields as the designed plan will fly them."""
+    elements (``flights``) shaped by ``old_plan``'s fields as the designed plan will fly them. A worker then reads its
+    bag with ``warm`` (the observation cache's read): decoded there, side by side, the parent's read is the cache's."""
     bags = [_library_path(flight, old_plan, truth) for flight in flights]
     missing = [(flight, bag) for flight, bag in zip(flights, bags) if not (bag / 'summary.json').is_file()]
     if not missing:
@@ -330,6 +333,8 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
             # is removed on the way out.
             signal.signal(signal.SIGINT, signal.default_int_handler)
         _fly_library_bag(*item, old_plan, truth)
+        if at_once > 1 and warm is not None:
+            warm(item[1])
 
     forked_map(fly, missing, jobs=at_once,
                done=lambda count: progress.count('library flights flown', count, len(missing)))
@@ -458,9 +463,9 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     thermal_control = _thermal_control(bag)
     elements = _library_elements(old_plan, thermal_control)
 
-    def read(path: Path, what: str) -> Any:
-        with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=progress)):
-            progress.phase(f'reading {what}')
+    def read(path: Path, what: str, told: Progress = progress) -> Any:
+        with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=told)):
+            told.phase(f'reading {what}')
             return read_observations(path)
 
     # The bag first: its end and last temperature are where the library's temperature steps start.
@@ -471,8 +476,13 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     flight_s = _flight_s(observations)
     budget_s = args.budget_s if args.budget_s is not None else _DEFAULT_BUDGET_SHARE * flight_s
     library, skipped = [], []
+
+    def warm(path: Path) -> None:
+        """A library flight read in the worker that flew it: its observations left in the cache."""
+        read(path, 'a library flight', Progress.silent())
+
     for path, flight in _library_flights(elements, old_plan, truth, thermal_control, observations, progress,
-                                         args.jobs):
+                                         args.jobs, warm):
         flown = read(path, 'a library flight')
         windows, missed = flown_elements(flown.calibration_result, flight)
         # The waits and changes of temperature before a step are the flight's, not the library's.

@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 from sofia_ros.errors import DomainBusyError
-from sofia_ros.nodes.domain import DOMAIN_IDS, claim_ros_domain, release_ros_domain
+from sofia_ros.nodes.domain import DOMAIN_IDS, claim_ros_domain, domain_lock_directory, release_ros_domain
 
 
 def _reserve_test_domain(rng=random.SystemRandom()):
@@ -24,7 +24,7 @@ def _reserve_test_domain(rng=random.SystemRandom()):
     candidates = list(DOMAIN_IDS)
     rng.shuffle(candidates)
     for domain_id in candidates:
-        path = Path(tempfile.gettempdir()) / f'sofia_ros-test-domain-{domain_id}.lock'
+        path = domain_lock_directory() / f'sofia_ros-test-domain-{domain_id}.lock'
         try:
             descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         except PermissionError:

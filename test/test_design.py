@@ -692,9 +692,10 @@ def _recorded_flights(monkeypatch, tmp_path, fails=None):
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'cache'))
 
     def fly(flight, bag, old_plan, truth):
-        if flight[-1] == fails:
-            raise ConfigError(f'cannot fly {fails.name}')
         bag.mkdir(parents=True)
+        if flight[-1] == fails:
+            (bag / 'bag_0.mcap').write_bytes(b'half a flight')
+            raise ConfigError(f'cannot fly {fails.name}')
         (bag / 'summary.json').write_text(json.dumps({'flown_by': os.getpid(), 'last': flight[-1].name}))
 
     monkeypatch.setattr(design_cli, '_fly_library_bag', fly)
@@ -739,7 +740,9 @@ def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path
     flights = [(step,) for step in steps]
     with pytest.raises(ConfigError, match=f'cannot fly {steps[1].name}'):
         design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
-    assert not design_cli._library_path(flights[1], plan, truth).exists()
+    failed = design_cli._library_path(flights[1], plan, truth)
+    assert not failed.exists() and not list(failed.parent.glob('*.flying'))
+    assert [design_cli._library_path(flight, plan, truth).exists() for flight in flights] == [True, False, True]
 
 
 @pytest.mark.parametrize('period_min, nested', [(5.2, True), (5.3, False)])

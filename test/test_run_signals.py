@@ -8,6 +8,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -70,6 +71,17 @@ def test_two_concurrent_runs_in_one_exported_domain_the_second_is_refused(tmp_pa
 
 def test_claiming_a_held_domain_raises_domain_busy(held_domain, monkeypatch):
     monkeypatch.setenv('ROS_DOMAIN_ID', str(held_domain))
+    with pytest.raises(DomainBusyError, match=f'ROS_DOMAIN_ID={held_domain} is in use by another sofia run'):
+        claim_ros_domain()
+
+
+def test_a_run_with_a_temporary_directory_of_its_own_sees_the_domains_held_under_another(held_domain, tmp_path,
+                                                                                         monkeypatch):
+    # The holder claimed its domain with the session's TMPDIR; a run whose TMPDIR is elsewhere (a batch job's) is
+    # on the same machine's DDS, and must be refused the same domain.
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(held_domain))
+    monkeypatch.setenv('TMPDIR', str(tmp_path))
+    monkeypatch.setattr(tempfile, 'tempdir', str(tmp_path))
     with pytest.raises(DomainBusyError, match=f'ROS_DOMAIN_ID={held_domain} is in use by another sofia run'):
         claim_ros_domain()
 

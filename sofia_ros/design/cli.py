@@ -16,8 +16,8 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import shutil
-import signal
 import sys
 import tempfile
 from collections.abc import Callable
@@ -299,7 +299,8 @@ def _library_flights(elements: tuple, old_plan: Any, truth: Any, thermal_control
     """[(bag, the elements it flew)] of the library flights, each flown if not in the user's cache yet: the elements
     that command no temperature in one, and each temperature step in one of its own after a lead to the bag's end
     time and last temperature (design.elements.step_flights). The steps' flights, which need only the first one's end
-    of campaign, are flown ``jobs`` at a time, each read by ``warm`` in its worker (_library_bags)."""
+    of campaign, are flown ``jobs`` at a time (_library_bags: flown side by side, each is read by ``warm`` in its
+    worker)."""
     from sofia_ros.design.elements import is_thermal, step_flights
 
     plain = tuple(element for element in elements if not is_thermal(element))
@@ -326,18 +327,27 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
     at_once = min(jobs, len(missing))
     what = 'a library flight once' if len(missing) == 1 else f'{len(missing)} library flights once, {at_once} at a time'
     progress.phase(f'flying {what} (kept in {bags[0].parent})')
+    bags[0].parent.mkdir(parents=True, exist_ok=True)
+    # Each flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs
+    # that fly it at once the first to finish is kept. The folders are made and removed here, not in the workers,
+    # which Ctrl-C ends at once (forked_map).
+    folders = [Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix='.flying', dir=bag.parent)) for _, bag in missing]
+    parent = os.getpid()
 
-    def fly(item: tuple) -> None:
-        if at_once > 1:
-            # In a forked worker Ctrl-C ends the process at once (forked_map); raised instead, the flight's folder
-            # is removed on the way out.
-            signal.signal(signal.SIGINT, signal.default_int_handler)
-        _fly_library_bag(*item, old_plan, truth)
-        if at_once > 1 and warm is not None:
-            warm(item[1])
+    def fly(index: int) -> None:
+        flight, bag = missing[index]
+        _fly_library_bag(flight, folders[index] / 'bag', old_plan, truth)
+        if not bag.exists():
+            (folders[index] / 'bag').rename(bag)
+        if os.getpid() != parent and warm is not None:
+            warm(bag)
 
-    forked_map(fly, missing, jobs=at_once,
-               done=lambda count: progress.count('library flights flown', count, len(missing)))
+    try:
+        forked_map(fly, range(len(missing)), jobs=at_once,
+                   done=lambda count: progress.count('library flights flown', count, len(missing)))
+    finally:
+        for folder in folders:
+            shutil.rmtree(folder, ignore_errors=True)
     return bags
 
 
@@ -357,16 +367,7 @@ def _fly_library_bag(flight: tuple, bag: Path, old_plan: Any, truth: Any) -> Non
 
     campaign = old_plan.campaign
     plan = plan_from_document(_library_document(flight, old_plan), 'the design library', campaign)
-    bag.parent.mkdir(parents=True, exist_ok=True)
-    # Flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs that
-    # fly it at once the first to finish is kept.
-    folder = Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix='.flying', dir=bag.parent))
-    try:
-        campaign_named(campaign).run(truth, seed=0, bag_path=folder / 'bag', plan=plan, mode='direct')
-        if not bag.exists():
-            (folder / 'bag').rename(bag)
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
+    campaign_named(campaign).run(truth, seed=0, bag_path=bag, plan=plan, mode='direct')
 
 
 def _flight_s(observations: Any) -> float:
@@ -463,9 +464,9 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     thermal_control = _thermal_control(bag)
     elements = _library_elements(old_plan, thermal_control)
 
-    def read(path: Path, what: str, told: Progress = progress) -> Any:
-        with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=told)):
-            told.phase(f'reading {what}')
+    def read(path: Path, what: str, reporting: Progress = progress) -> Any:
+        with observation_cache(ObservationCache(warn=lambda line: print(line, file=sys.stderr), progress=reporting)):
+            reporting.phase(f'reading {what}')
             return read_observations(path)
 
     # The bag first: its end and last temperature are where the library's temperature steps start.

@@ -2,8 +2,10 @@
 
 Two graphs in one ROS_DOMAIN_ID see each other's lock-step handshakes and deadlock or corrupt
 each other's bags. A run claims its domain with ``fcntl.flock`` on
-``<tmp>/sofia_ros-domain-<id>.lock``: an exported ROS_DOMAIN_ID that another run holds is refused
-at once; without one, a free domain is picked.
+``/tmp/sofia_ros-domain-<id>.lock``: an exported ROS_DOMAIN_ID that another run holds is refused
+at once; without one, a free domain is picked. The locks are in /tmp whatever a process's TMPDIR:
+a DDS domain is the machine's, and a run with a temporary directory of its own (a batch job's)
+must still see the other runs' claims.
 """
 
 from __future__ import annotations
@@ -17,15 +19,23 @@ from pathlib import Path
 
 from sofia_ros.errors import ConfigError, DomainBusyError
 
-__all__ = ['DOMAIN_IDS', 'claim_ros_domain', 'claimed_ros_domain', 'domain_lock_path', 'release_ros_domain']
+__all__ = ['DOMAIN_IDS', 'claim_ros_domain', 'claimed_ros_domain', 'domain_lock_directory', 'domain_lock_path',
+           'release_ros_domain']
 
 #: Domains usable on Linux with the default port mapping (0 is every tool's default, left alone).
 DOMAIN_IDS = range(1, 102)
 
 
+def domain_lock_directory():
+    """Where every process on this machine keeps its domain locks: /tmp, or the temporary directory where /tmp
+    cannot be written."""
+    shared = Path('/tmp')
+    return shared if os.access(shared, os.W_OK | os.X_OK) else Path(tempfile.gettempdir())
+
+
 def domain_lock_path(domain_id):
     """The lock file of one domain on this machine."""
-    return Path(tempfile.gettempdir()) / f'sofia_ros-domain-{domain_id}.lock'
+    return domain_lock_directory() / f'sofia_ros-domain-{domain_id}.lock'
 
 
 def _try_lock(domain_id):

@@ -7,9 +7,8 @@ import numpy as np
 from sofia_ros.rotation_kernels import (
     compose_quaternions,
     matrices_from_quaternions,
-    quaternion_from_matrix,
     quaternions_from_rotvecs,
-    rotvec_from_quaternion,
+    rotvec_from_matrix,
 )
 from sofia_ros.validate import finite_array, positive_scalar
 
@@ -39,7 +38,7 @@ def propagate_dcm(frame_from_inertial, rates_rad_per_s, sample_time_s):
 def rotation_error_rad(estimated_from_inertial, commanded_from_inertial):
     """Small rotation angles (about TARF EL, XEL, LOS) that take the estimate onto the command (B.19-B.22)."""
     delta = commanded_from_inertial @ estimated_from_inertial.T
-    return rotvec_from_quaternion(quaternion_from_matrix(delta.T))
+    return rotvec_from_matrix(delta.T)
 
 
 def mean_rate_rad_per_s(before_from_inertial, after_from_inertial, interval_s):

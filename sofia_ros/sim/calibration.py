@@ -26,9 +26,9 @@ from sofia_ros.calibration.accuracy import sigma_beta_from_length_rad, sigma_r_r
 from sofia_ros.calibration.boresights import boresight_shift_arcsec, flexure_fit
 from sofia_ros.calibration.maneuver_records import maneuver_record
 from sofia_ros.calibration.solvers import Maneuver, fit_alignment
+from sofia_ros.control.attitude import rotation_error_rad
 from sofia_ros.errors import CalibrationAbort, InvalidArgumentError
 from sofia_ros.graph_nodes import IMAGERS
-from sofia_ros.rotation_kernels import rotvec_from_matrix
 from sofia_ros.sensors.imager_model import nominal_detector
 from sofia_ros.sim.sequence import (
     TOPICS,
@@ -289,7 +289,8 @@ class CalibrationCore(SequenceCore):
         check = (yield from self._los_block(2 * self.plan.verification_repetitions)) + \
                 (yield from self._elxel_block(2 * self.plan.verification_repetitions))
         verification = self._fit('verification', check, fit_drift=False)
-        correction = _small_angles(verification.dcm, full.dcm)
+        # The rotation angles (EL, XEL, LOS, B.19-B.22) that turn the accepted matrix into the verification's.
+        correction = rotation_error_rad(full.dcm, verification.dcm)
         accepted = bool(np.all(np.abs(correction) <= 3.0 * verification.sigma_rad))
         self.record['iterations'].append({
             'iteration': iteration,
@@ -484,8 +485,3 @@ class CalibrationCore(SequenceCore):
             'plan': asdict(self.plan),
             **self.record,
         }
-
-
-def _small_angles(dcm, reference):
-    """Rotation angles (EL, XEL, LOS) that turn ``reference`` into ``dcm`` (B.19-B.22)."""
-    return rotvec_from_matrix((dcm @ reference.T).T)

@@ -146,7 +146,7 @@ def _by_id(shared: Iterable[object]) -> dict[int, object]:
 
 
 def forked_map(function: Callable[[_T], _R], items: Sequence[_T], *, jobs: int, shared: Iterable[object] = (),
-               done: Callable[[int], None] = lambda count: None) -> list[_R]:
+               done: Callable[[int], None] = lambda count: None, after: Mapping[int, int] | None = None) -> list[_R]:
     """``[function(item) for item in items]``, at most ``jobs`` at a time in forked workers; in this process when
     ``jobs`` is 1 or there is one item. The first exception ``function`` raises, in item order, is raised here
     once every item has run.
@@ -157,13 +157,19 @@ def forked_map(function: Callable[[_T], _R], items: Sequence[_T], *, jobs: int, 
         jobs: the most workers at a time.
         shared: objects a result may refer to that the workers were forked with: returned by reference.
         done: called with the number of results in so far, after each one (progress).
+        after: {index: earlier index}: an item that starts only once the earlier one has returned (a worker then
+            reads what it wrote); one whose earlier item raised is not run, and that error is raised.
 
     Returns:
         The results in the order of ``items``.
 
     Raises:
         ForkedWorkerError: a worker died before it returned.
+        ValueError: ``after`` names an item that is not earlier.
     """
+    after = dict(after or {})
+    if any(not 0 <= earlier < index < len(items) for index, earlier in after.items()):
+        raise ValueError(f'forked_map: after must map items to earlier ones, got {after}')
     if jobs <= 1 or len(items) <= 1:
         results = []
         for item in items:
@@ -174,14 +180,20 @@ def forked_map(function: Callable[[_T], _R], items: Sequence[_T], *, jobs: int, 
     shared_by_id = _by_id(shared)
     running: dict[int, tuple[int, _Worker]] = {}  # pidfd -> (index, worker)
     outcomes: dict[int, tuple[bool, Any]] = {}
-    started = 0
+    waiting = list(range(len(items)))
     try:
         while len(outcomes) < len(items):
-            while started < len(items) and len(running) < jobs:
-                item = items[started]
-                worker = _Worker(lambda: function(item), directory / f'{started}.pickle', shared_by_id)
-                running[worker.pidfd] = (started, worker)
-                started += 1
+            while len(running) < jobs and (index := _next_ready(waiting, after, outcomes)) is not None:
+                waiting.remove(index)
+                if index in after and not outcomes[after[index]][0]:
+                    outcomes[index] = outcomes[after[index]]
+                    done(len(outcomes))
+                    continue
+                item = items[index]
+                worker = _Worker(lambda: function(item), directory / f'{index}.pickle', shared_by_id)
+                running[worker.pidfd] = (index, worker)
+            if not running:
+                continue
             ready, _, _ = select.select(list(running), [], [])
             for pidfd in ready:
                 index, worker = running.pop(pidfd)
@@ -204,6 +216,11 @@ def forked_map(function: Callable[[_T], _R], items: Sequence[_T], *, jobs: int, 
         if not succeeded:
             raise value
     return [outcomes[index][1] for index in range(len(items))]
+
+
+def _next_ready(waiting: Sequence[int], after: Mapping[int, int], outcomes: Mapping[int, Any]) -> int | None:
+    """The first waiting item whose earlier item (forked_map's ``after``) has returned, if any."""
+    return next((index for index in waiting if index not in after or after[index] in outcomes), None)
 
 
 class ForkedCall(Generic[_R]):

@@ -41,6 +41,41 @@ def test_the_first_error_in_item_order_is_raised_here():
         forked_map(fail_on_odd, [0, 1, 2, 3], jobs=2)
 
 
+def test_an_item_after_another_starts_once_that_one_has_returned(tmp_path):
+    """Item 2 reads what item 0 wrote; item 1 runs beside item 0 meanwhile (design's library flights: the steps'
+    flights after the probe of the campaign's end, beside the first flight)."""
+    def work(n):
+        started = time.monotonic()
+        if n == 0:
+            time.sleep(0.5)
+            (tmp_path / 'zero').write_text('written by item 0')
+        return started, time.monotonic(), (tmp_path / 'zero').read_text() if n == 2 else None
+
+    (zero_start, zero_end, _), (one_start, _, _), (two_start, _, read) = forked_map(work, [0, 1, 2], jobs=2,
+                                                                                     after={2: 0})
+    assert read == 'written by item 0' and two_start >= zero_end
+    assert one_start < zero_end  # not held back: it waits for nothing
+    assert forked_map(work, [0, 1, 2], jobs=1, after={2: 0})[2][2] == 'written by item 0'
+
+
+def test_an_item_after_one_that_failed_is_not_run_and_that_error_is_raised(tmp_path):
+    def work(n):
+        (tmp_path / str(n)).touch()
+        if n == 0:
+            raise ValueError('item 0 failed')
+        return n
+
+    with pytest.raises(ValueError, match='item 0 failed'):
+        forked_map(work, [0, 1, 2], jobs=2, after={2: 0})
+    assert sorted(path.name for path in tmp_path.iterdir()) == ['0', '1']
+
+
+@pytest.mark.parametrize('after', [{1: 1}, {0: 1}, {1: 3}, {3: 0}])
+def test_an_item_after_no_earlier_item_is_refused(after):
+    with pytest.raises(ValueError, match='after must map items to earlier ones'):
+        forked_map(lambda n: n, [0, 1, 2], jobs=2, after=after)
+
+
 def test_a_worker_that_is_killed_is_one_clear_error():
     def die(n):
         os.kill(os.getpid(), signal.SIGKILL)

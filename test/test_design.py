@@ -7,6 +7,7 @@ import datetime
 import json
 import os
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -505,17 +506,6 @@ def test_a_temperature_step_flies_the_same_slew_wherever_the_telescope_was():
         assert sorted(ends) == sorted(THERMAL_SLEW_ELEVATIONS_DEG)
 
 
-def test_each_temperature_step_is_flown_in_a_flight_of_its_own_after_the_lead():
-    from sofia_ros.design.elements import is_thermal, step_flights, thermal_library
-
-    lead = (Element('wait', {'hold': {'duration_s': 100.0}}),
-            Element('back', {'temperature': {'target_c': 22.5, 'duration_s': 720.0}}))
-    plain = Element('hold', {'hold': {'duration_s': 60.0}})
-    steps = thermal_library(10.0, 35.0, 120.0)
-    assert step_flights((plain, *steps), lead) == tuple((*lead, step) for step in steps)
-    assert all(is_thermal(step) for step in steps) and not is_thermal(plain)
-
-
 @pytest.mark.parametrize('wait_s, count', [(0.0, 0), (16.0, 0), (100.0, 1), (315.0, 1), (316.0, 2), (1300.0, 5)])
 def test_a_wait_is_filled_with_holds_short_of_the_fine_drives_end_stop(wait_s, count):
     from sofia_ros.design.elements import ELEMENT_OVERHEAD_S, WAIT_HOLD_S, waiting_holds
@@ -556,7 +546,7 @@ def test_the_library_flies_each_temperature_step_at_the_bags_end_time_and_temper
     2.3-2.6 times short. Each step now has a flight of its own whose plan starts it where the bag ends."""
     import sofia_ros.design.cli as design_cli
     from sofia_ros.campaigns.plan_files import read_plan_file
-    from sofia_ros.design.elements import is_thermal, thermal_library
+    from sofia_ros.design.elements import CAMPAIGN_END_PROBE, is_thermal, thermal_library
 
     flown = []
 
@@ -564,7 +554,7 @@ def test_the_library_flies_each_temperature_step_at_the_bags_end_time_and_temper
         bag = tmp_path / f'flight{len(flown)}'
         bag.mkdir()
         (bag / 'calibration.yaml').write_text('elements:\n- {index: 1, kind: hold, start_s: 566.8, end_s: 600.0}\n')
-        flown.append(flight)
+        flown.append(flight.flown(566.8))
         return bag
 
     monkeypatch.setattr(design_cli, '_library_bags', lambda flights, *args: [fly(flight) for flight in flights])
@@ -574,8 +564,9 @@ def test_the_library_flies_each_temperature_step_at_the_bags_end_time_and_temper
         'gyro': type('Gyro', (), {'tick_temperature_c': np.array([22.8, 22.288])}),
         'centroids': type('Centroids', (), {'stamp_s': np.array([0.25, bag_end_s])})})
     flights = design_cli._library_flights(elements, plan, None, _CONTROL, bag, None, 1)
-    assert [flight for _, flight in flights] == flown
-    plain, *stepped = flown
+    # First the probe of the short campaign's end, which the design does not read.
+    assert flown[0] == (CAMPAIGN_END_PROBE,) and [flight for _, flight in flights] == flown[1:]
+    plain, *stepped = flown[1:]
     assert plain == tuple(element for element in elements if not is_thermal(element))
     assert [flight[-1] for flight in stepped] == list(thermal_library(10.0, 35.0, 120.0))
     for flight in stepped:
@@ -685,18 +676,23 @@ def test_a_library_without_temperature_steps_is_one_flight(tmp_path, monkeypatch
 
 
 def _recorded_flights(monkeypatch, tmp_path, fails=None):
-    """design.cli with the user's cache in ``tmp_path`` and a flight that writes its bag's summary.json and the
-    process that flew it (or raises for the flight whose last element is ``fails``)."""
+    """design.cli with the user's cache in ``tmp_path`` and a flight of 0.2 s whose short campaign ends at 566.8 s, that
+    writes its bag's calibration.yaml, and its summary.json with the process that flew it, when and what (or raises for
+    the flight whose last element is ``fails``)."""
     import sofia_ros.design.cli as design_cli
 
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'cache'))
 
     def fly(flight, bag, old_plan, truth):
+        started_s = time.monotonic()
         bag.mkdir(parents=True)
         if flight[-1] == fails:
             (bag / 'bag_0.mcap').write_bytes(b'half a flight')
             raise ConfigError(f'cannot fly {fails.name}')
-        (bag / 'summary.json').write_text(json.dumps({'flown_by': os.getpid(), 'last': flight[-1].name}))
+        time.sleep(0.2)
+        (bag / 'calibration.yaml').write_text('elements:\n- {index: 1, kind: hold, start_s: 566.8, end_s: 600.0}\n')
+        (bag / 'summary.json').write_text(json.dumps({'flown_by': os.getpid(), 'elements': [e.name for e in flight],
+                                                      'started_s': started_s, 'ended_s': time.monotonic()}))
 
     monkeypatch.setattr(design_cli, '_fly_library_bag', fly)
     return design_cli
@@ -713,7 +709,7 @@ def test_the_temperature_steps_flights_are_flown_side_by_side_once(tmp_path, mon
     design_cli = _recorded_flights(monkeypatch, tmp_path)
     plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
     truth = type('Truth', (), {'text': 'effects: {}'})
-    flights = [(step,) for step in thermal_library(10.0, 35.0, 120.0)]
+    flights = [design_cli._LibraryFlight((step,)) for step in thermal_library(10.0, 35.0, 120.0)]
 
     def warm(bag):
         (bag / 'read_by').write_text(str(os.getpid()))
@@ -721,11 +717,38 @@ def test_the_temperature_steps_flights_are_flown_side_by_side_once(tmp_path, mon
     bags = design_cli._library_bags(flights, plan, truth, Progress.silent(), 2, warm)
     assert bags == [design_cli._library_path(flight, plan, truth) for flight in flights] and len(set(bags)) == 3
     flown = [json.loads((bag / 'summary.json').read_text()) for bag in bags]
-    assert [entry['last'] for entry in flown] == [flight[-1].name for flight in flights]
+    assert [entry['elements'] for entry in flown] == [[flight.elements[-1].name] for flight in flights]
     assert len({entry['flown_by'] for entry in flown}) == 3 and os.getpid() not in {e['flown_by'] for e in flown}
     assert [int((bag / 'read_by').read_text()) for bag in bags] == [entry['flown_by'] for entry in flown]
     monkeypatch.setattr(design_cli, '_fly_library_bag', lambda *args: pytest.fail('flown again'))
     assert design_cli._library_bags(flights, plan, truth, Progress.silent(), 2) == bags
+
+
+def test_the_steps_flights_start_once_the_probe_has_found_the_campaigns_end_beside_the_first_flight(
+        tmp_path, monkeypatch):
+    """The lead to the bag's end needs the short campaign's end: the probe's flight finds it beside the first flight,
+    and each step's flight starts once the probe's bag is there, its lead made from that end; the probe is not read."""
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.elements import CAMPAIGN_END_PROBE, Element, thermal_library
+    from sofia_ros.progress import Progress
+
+    design_cli = _recorded_flights(monkeypatch, tmp_path)
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    truth = type('Truth', (), {'text': 'effects: {}'})
+
+    def lead(campaign_end_s):
+        return (Element(f'wait from {campaign_end_s:g} s', {'hold': {'duration_s': 100.0}}),)
+
+    steps = [design_cli._LibraryFlight((step,), lead, {'to_s': 1840.0}) for step in thermal_library(10.0, 35.0, 120.0)]
+    flights = [design_cli._LibraryFlight((CAMPAIGN_END_PROBE,), read=False),
+               design_cli._LibraryFlight((Element('hold', {'hold': {'duration_s': 60.0}}),)), *steps]
+    bags = design_cli._library_bags(flights, plan, truth, Progress.silent(), 2, lambda bag: (bag / 'read').touch())
+    probe, first, *stepped = [json.loads((bag / 'summary.json').read_text()) for bag in bags]
+    assert first['started_s'] < probe['ended_s']
+    assert all(step['started_s'] >= probe['ended_s'] for step in stepped)
+    assert [step['elements'] for step in stepped] == [['wait from 566.8 s', flight.elements[0].name]
+                                                     for flight in steps]
+    assert [(bag / 'read').exists() for bag in bags] == [False, True, True, True, True]
 
 
 def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path, monkeypatch):
@@ -737,7 +760,7 @@ def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path
     design_cli = _recorded_flights(monkeypatch, tmp_path, fails=steps[1])
     plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
     truth = type('Truth', (), {'text': 'effects: {}'})
-    flights = [(step,) for step in steps]
+    flights = [design_cli._LibraryFlight((step,)) for step in steps]
     with pytest.raises(ConfigError, match=f'cannot fly {steps[1].name}'):
         design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
     failed = design_cli._library_path(flights[1], plan, truth)

@@ -14,6 +14,7 @@ This front end is the layer that may fly campaigns (campaigns/); the prediction 
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import os
@@ -21,6 +22,7 @@ import shutil
 import sys
 import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -294,34 +296,64 @@ def _campaign_end_s(bag: Path) -> float:
     return float(min(starts))
 
 
+@dataclass(frozen=True)
+class _LibraryFlight:
+    """A library flight: ``elements`` flown after the campaign's shortest sequence, a temperature step's after
+    ``lead(end_s)`` too (waits to the bag's end time, the change to its last temperature), ``end_s`` being when that
+    sequence ends; ``lead_key`` is what the lead is made of besides it, for the flight's key. ``read``: whether the
+    design reads the flight's observations (the probe of the campaign's end is read for that end only)."""
+
+    elements: tuple
+    lead: Callable[[float], tuple] | None = None
+    lead_key: dict | None = None
+    read: bool = True
+
+    def flown(self, campaign_end_s: float) -> tuple:
+        """The elements it flies after a short campaign that ends at ``campaign_end_s``."""
+        return self.elements if self.lead is None else (*self.lead(campaign_end_s), *self.elements)
+
+
 def _library_flights(elements: tuple, old_plan: Any, truth: Any, thermal_control: dict | None, observations: Any,
                      progress: Progress, jobs: int, warm: Callable[[Path], Any] | None = None) -> list:
     """[(bag, the elements it flew)] of the library flights, each flown if not in the user's cache yet: the elements
-    that command no temperature in one, and each temperature step in one of its own after a lead to the bag's end
-    time and last temperature (design.elements.step_flights). The steps' flights, which need only the first one's end
-    of campaign, are flown ``jobs`` at a time (_library_bags: flown side by side, each is read by ``warm`` in its
-    worker)."""
-    from sofia_ros.design.elements import is_thermal, step_flights
+    that command no temperature in one, on the night's course, where temperature and time move together as in the
+    designed plan; each temperature step in one of its own, after a lead to the bag's end time and last temperature.
 
-    plain = tuple(element for element in elements if not is_thermal(element))
-    (first,) = _library_bags([plain], old_plan, truth, progress, jobs, warm)
-    flights = [(first, plain)]
-    if thermal_control is None or len(plain) == len(elements):
-        return flights
-    lead = _step_lead(thermal_control, _elements_start_c(observations), _elements_start_s(observations),
-                      _campaign_end_s(first))
-    steps = step_flights(elements, lead)
-    return flights + list(zip(_library_bags(steps, old_plan, truth, progress, jobs, warm), steps))
+    A step is compared with a rival that follows the record's time (a creep, a drift), and what tells them apart is
+    how far the step takes the temperature off the night's course at that time: flown after the other elements and
+    the earlier steps (at 3383 s of the library's record where the designed plan flies it at 1843 s), the step's
+    departure from the night's course was about a third smaller, and the prediction 2.3-2.6 times short (issue 28's
+    thermal set). The lead needs the short campaign's end, which a probe flight (the short campaign and a hold of 1 s)
+    finds beside the first flight: the steps then need not wait for the first flight's elements (_library_bags)."""
+    from sofia_ros.design.elements import CAMPAIGN_END_PROBE, ELEMENT_OVERHEAD_S, WAIT_HOLD_S, is_thermal
+
+    plain = _LibraryFlight(tuple(element for element in elements if not is_thermal(element)))
+    if thermal_control is None or len(plain.elements) == len(elements):
+        (bag,) = _library_bags([plain], old_plan, truth, progress, jobs, warm)
+        return [(bag, plain.elements)]
+    start_c, start_s = _elements_start_c(observations), _elements_start_s(observations)
+    lead = functools.partial(_step_lead, thermal_control, start_c, start_s)
+    # What the lead is made of besides the short campaign's end, which the rest of the key determines.
+    lead_key = {'to_c': start_c, 'to_s': start_s, 'reset_time_constants': list(_RESET_TIME_CONSTANTS),
+                'recentre_hold_s': _RECENTRE_HOLD_S, 'element_overhead_s': ELEMENT_OVERHEAD_S,
+                'wait_hold_s': WAIT_HOLD_S}
+    flights = [_LibraryFlight((CAMPAIGN_END_PROBE,), read=False), plain,
+               *(_LibraryFlight((step,), lead, lead_key) for step in elements if is_thermal(step))]
+    probe, *bags = _library_bags(flights, old_plan, truth, progress, jobs, warm)
+    campaign_end_s = _campaign_end_s(probe)
+    return [(bag, flight.flown(campaign_end_s)) for bag, flight in zip(bags, flights[1:])]
 
 
 def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Progress, jobs: int,
                   warm: Callable[[Path], Any] | None = None) -> list[Path]:
-    """The library flights' bags in the user's cache, those not there yet flown (direct mode, ``truth``, seed 0) up to
-    ``jobs`` at a time in forked processes (each flight is a campaign of its own, a core's work for 15-20 s); their
-    elements (``flights``) shaped by ``old_plan``'s fields as the designed plan will fly them. A worker then reads its
-    bag with ``warm`` (the observation cache's read): decoded there, side by side, the parent's read is the cache's."""
+    """The _LibraryFlights' bags in the user's cache, those not there yet flown (direct mode, ``truth``, seed 0) up to
+    ``jobs`` at a time in forked processes (each flight is a campaign of its own, a core's work for 10-20 s), shaped
+    by ``old_plan``'s fields as the designed plan will fly its elements. A flight with a lead starts once the first
+    flight's bag is there: its short campaign ends where that one's did (the same sequence, truth and seed). A worker
+    then reads its bag with ``warm`` (the observation cache's read): decoded there, side by side, the parent's read is
+    the cache's."""
     bags = [_library_path(flight, old_plan, truth) for flight in flights]
-    missing = [(flight, bag) for flight, bag in zip(flights, bags) if not (bag / 'summary.json').is_file()]
+    missing = [index for index, bag in enumerate(bags) if not (bag / 'summary.json').is_file()]
     if not missing:
         return bags
     at_once = min(jobs, len(missing))
@@ -331,19 +363,22 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
     # Each flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs
     # that fly it at once the first to finish is kept. The folders are made and removed here, not in the workers,
     # which Ctrl-C ends at once (forked_map).
-    folders = [Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix='.flying', dir=bag.parent)) for _, bag in missing]
+    folders = [Path(tempfile.mkdtemp(prefix=f'{bags[index].name}.', suffix='.flying', dir=bags[index].parent))
+               for index in missing]
     parent = os.getpid()
 
-    def fly(index: int) -> None:
-        flight, bag = missing[index]
-        _fly_library_bag(flight, folders[index] / 'bag', old_plan, truth)
+    def fly(at: int) -> None:
+        flight, bag = flights[missing[at]], bags[missing[at]]
+        elements = flight.elements if flight.lead is None else flight.flown(_campaign_end_s(bags[0]))
+        _fly_library_bag(elements, folders[at] / 'bag', old_plan, truth)
         if not bag.exists():
-            (folders[index] / 'bag').rename(bag)
-        if os.getpid() != parent and warm is not None:
+            (folders[at] / 'bag').rename(bag)
+        if os.getpid() != parent and warm is not None and flight.read:
             warm(bag)
 
+    after = {at: 0 for at, index in enumerate(missing) if flights[index].lead is not None and missing[0] == 0}
     try:
-        forked_map(fly, range(len(missing)), jobs=at_once,
+        forked_map(fly, range(len(missing)), jobs=at_once, after=after,
                    done=lambda count: progress.count('library flights flown', count, len(missing)))
     finally:
         for folder in folders:
@@ -351,11 +386,13 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
     return bags
 
 
-def _library_path(flight: tuple, old_plan: Any, truth: Any) -> Path:
-    """Where the library flight of ``flight``'s elements on ``truth`` is kept in the user's cache."""
+def _library_path(flight: _LibraryFlight, old_plan: Any, truth: Any) -> Path:
+    """Where the library flight ``flight`` on ``truth`` is kept in the user's cache."""
     from sofia_ros.compare.cache import user_cache_home
 
-    document = _library_document(flight, old_plan)
+    document = _library_document(flight.elements, old_plan)
+    if flight.lead_key is not None:
+        document['lead'] = flight.lead_key
     key = hashlib.sha256(json.dumps({**document, 'truth': truth.text}, sort_keys=True).encode()).hexdigest()[:16]
     return user_cache_home() / 'design' / f'{old_plan.campaign}-library-{key}'
 

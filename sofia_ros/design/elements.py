@@ -21,10 +21,10 @@ import numpy as np
 from sofia_ros.design.separation import Information, expected_delta_bic, noncentrality, sigma_of
 from sofia_ros.errors import InvalidArgumentError
 
-__all__ = ['ALIGNMENT_LIBRARY', 'ELEMENT_OVERHEAD_S', 'STAR_HOP_HOLD_S', 'STAR_HOP_OTHER_STARS',
+__all__ = ['ALIGNMENT_LIBRARY', 'CAMPAIGN_END_PROBE', 'ELEMENT_OVERHEAD_S', 'STAR_HOP_HOLD_S', 'STAR_HOP_OTHER_STARS',
            'STAR_HOP_PLACEMENTS', 'THERMAL_SLEW_ELEVATIONS_DEG', 'THERMAL_SLEW_HOLD_S', 'WAIT_HOLD_S', 'Choice',
            'Element', 'Hypothesis', 'Prediction', 'choose_elements', 'is_thermal', 'predict', 'smallest_flight_s',
-           'star_hop_library', 'step_flights', 'thermal_library', 'waiting_holds']
+           'star_hop_library', 'thermal_library', 'waiting_holds']
 
 
 @dataclass(frozen=True)
@@ -170,26 +170,9 @@ def waiting_holds(wait_s: float) -> tuple:
                          {'hold': {'duration_s': held_s, 'los_deg': 0.0}}) for index in range(count))
 
 
-def step_flights(elements: Sequence[Element], lead: Sequence[Element]) -> tuple:
-    """Each temperature step of the library in a flight of its own, after ``lead``, which brings the telescope to the
-    time and temperature the designed plan starts its elements at.
-
-    A step is compared with a rival that follows the record's time (a creep, a drift), and what tells them apart is
-    how far the step takes the temperature off the night's course at that time: flown after the other elements and
-    the earlier steps (at 3383 s of the library's record where the designed plan flies it at 1843 s), the step's
-    departure from the night's course was about a third smaller, and the prediction 2.3-2.6 times short (issue 28's
-    thermal set). The elements that command no temperature are flown in one flight, on the night's course, where
-    temperature and time move together as in the designed plan.
-
-    Args:
-        elements: the library.
-        lead: what each step's flight flies before the step (waits to the bag's end, the change to its last
-            temperature).
-
-    Returns:
-        One flight (a tuple of Elements) per temperature step, in the library's order.
-    """
-    return tuple((*lead, element) for element in elements if is_thermal(element))
+#: A library flight that finds when the short campaign ends, which every library flight of one plan and truth shares:
+#: the shortest hold after it.
+CAMPAIGN_END_PROBE = Element('to the end of the short campaign', {'hold': {'duration_s': 1.0, 'los_deg': 0.0}})
 
 
 @dataclass(frozen=True)

@@ -768,6 +768,33 @@ def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path
     assert [design_cli._library_path(flight, plan, truth).exists() for flight in flights] == [True, False, True]
 
 
+def test_the_folders_of_a_killed_designs_flights_are_removed_by_the_next_one(tmp_path, monkeypatch):
+    """A design killed mid-flight (SIGKILL: no finally runs) leaves its `.flying` folders in the user's cache; the
+    next design that flies removes them, and not those of a design still running."""
+    import subprocess
+    import sys
+
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.elements import thermal_library
+    from sofia_ros.progress import Progress
+
+    design_cli = _recorded_flights(monkeypatch, tmp_path)
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    truth = type('Truth', (), {'text': 'effects: {}'})
+    flights = [design_cli._LibraryFlight((step,)) for step in thermal_library(10.0, 35.0, 120.0)]
+    library = design_cli._library_path(flights[0], plan, truth).parent
+    gone = subprocess.run([sys.executable, '-c', 'import os; print(os.getpid())'], capture_output=True, text=True,
+                          check=True)
+    killed = library / f'{library.name}-library-0123456789abcdef.{gone.stdout.strip()}.x1y2z3.flying'
+    running = library / f'{library.name}-library-0123456789abcdef.{os.getppid()}.a1b2c3.flying'
+    foreign = library / 'notes.flying'
+    for folder in (killed, running, foreign):
+        (folder / 'bag').mkdir(parents=True)
+    design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
+    assert not killed.exists() and running.exists() and foreign.exists()
+    assert sorted(path.name for path in library.glob('*.flying')) == sorted([running.name, foreign.name])
+
+
 @pytest.mark.parametrize('period_min, nested', [(5.2, True), (5.3, False)])
 def test_the_tracker_drift_is_the_gyro_bias_and_the_generic_period_of_its_length(period_min, nested):
     """Why no flight separates issue 28's tracker set (docs/design.md): the drift is a rate error of the EL gyro, a

@@ -360,11 +360,12 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
     what = 'a library flight once' if len(missing) == 1 else f'{len(missing)} library flights once, {at_once} at a time'
     progress.phase(f'flying {what} (kept in {bags[0].parent})')
     bags[0].parent.mkdir(parents=True, exist_ok=True)
+    _remove_abandoned_flights(bags[0].parent)
     # Each flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs
     # that fly it at once the first to finish is kept. The folders are made and removed here, not in the workers,
-    # which Ctrl-C ends at once (forked_map).
-    folders = [Path(tempfile.mkdtemp(prefix=f'{bags[index].name}.', suffix='.flying', dir=bags[index].parent))
-               for index in missing]
+    # which Ctrl-C ends at once (forked_map); a folder's name holds this process' id for the day it is killed.
+    folders = [Path(tempfile.mkdtemp(prefix=f'{bags[index].name}.{os.getpid()}.', suffix=_FLYING_SUFFIX,
+                                     dir=bags[index].parent)) for index in missing]
     parent = os.getpid()
 
     def fly(at: int) -> None:
@@ -384,6 +385,22 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
         for folder in folders:
             shutil.rmtree(folder, ignore_errors=True)
     return bags
+
+
+#: The suffix of a library flight's folder while it is flown (_library_bags).
+_FLYING_SUFFIX = '.flying'
+
+
+def _remove_abandoned_flights(library: Path) -> None:
+    """Remove the folders of library flights whose design no longer runs: killed (SIGKILL, the machine's memory or
+    power), it could not remove them itself. Its process id is in the folder's name (NAME.PID.RANDOM.flying)."""
+    for folder in library.glob(f'*{_FLYING_SUFFIX}'):
+        try:
+            os.kill(int(folder.name.split('.')[-3]), 0)
+        except ProcessLookupError:
+            shutil.rmtree(folder, ignore_errors=True)
+        except (ValueError, IndexError, PermissionError):
+            continue  # not a name of ours, or a process of another user's: left as it is
 
 
 def _library_path(flight: _LibraryFlight, old_plan: Any, truth: Any) -> Path:

@@ -58,6 +58,16 @@ def test_an_item_after_another_starts_once_that_one_has_returned(tmp_path):
     assert forked_map(work, [0, 1, 2], jobs=1, after={2: 0})[2][2] == 'written by item 0'
 
 
+def test_an_item_waiting_for_another_does_not_hold_back_a_later_one():
+    def work(n):
+        started = time.monotonic()
+        time.sleep(0.5 if n == 0 else 0.0)
+        return started, time.monotonic()
+
+    (_, zero_end), (one_start, _), (two_start, _), _ = forked_map(work, [0, 1, 2, 3], jobs=2, after={1: 0})
+    assert two_start < zero_end <= one_start
+
+
 def test_an_item_after_one_that_failed_is_not_run_and_that_error_is_raised(tmp_path):
     def work(n):
         (tmp_path / str(n)).touch()

@@ -17,7 +17,7 @@ from sofia_ros.cli import main
 from sofia_ros.design.elements import Element, Hypothesis, choose_elements, predict
 from sofia_ros.design.separation import (Information, expected_delta_bic, fitted_values, noncentrality,
                                          profiled_gram, sigma_of)
-from sofia_ros.errors import ConfigError, InvalidArgumentError
+from sofia_ros.errors import BagError, ConfigError, InvalidArgumentError
 
 ROOT = Path(__file__).resolve().parents[1]
 NOMINAL_MODEL = ROOT / 'config' / 'model' / 'nominal.yaml'
@@ -545,7 +545,7 @@ def test_the_library_flies_each_temperature_step_at_the_bags_end_time_and_temper
     warm step, where the designed plan flies it at 1843 s; against a rival that follows time, the prediction was
     2.3-2.6 times short. Each step now has a flight of its own whose plan starts it where the bag ends."""
     import sofia_ros.design.cli as design_cli
-    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.campaigns.plan_files import plan_from_document, read_plan_file, write_plan_file
     from sofia_ros.design.elements import CAMPAIGN_END_PROBE, is_thermal, thermal_library
 
     flown = []
@@ -555,6 +555,8 @@ def test_the_library_flies_each_temperature_step_at_the_bags_end_time_and_temper
         bag.mkdir()
         (bag / 'calibration.yaml').write_text('elements:\n- {index: 1, kind: hold, start_s: 566.8, end_s: 600.0}\n')
         flown.append(flight.flown(566.8))
+        write_plan_file(plan_from_document(design_cli._library_document(flown[-1], plan), 'flown', 'alignment'),
+                        bag / 'plan.yaml')
         return bag
 
     monkeypatch.setattr(design_cli, '_library_bags', lambda flights, *args: [fly(flight) for flight in flights])
@@ -675,10 +677,10 @@ def test_a_library_without_temperature_steps_is_one_flight(tmp_path, monkeypatch
     assert design_cli._library_flights(elements, plan, None, None, None, None, 1) == [(tmp_path, elements)]
 
 
-def _recorded_flights(monkeypatch, tmp_path, fails=None):
-    """design.cli with the user's cache in ``tmp_path`` and a flight of 0.2 s whose short campaign ends at 566.8 s, that
-    writes its bag's calibration.yaml, and its summary.json with the process that flew it, when and what (or raises for
-    the flight whose last element is ``fails``)."""
+def _recorded_flights(monkeypatch, tmp_path, fails=None, slow=None):
+    """design.cli with the user's cache in ``tmp_path`` and a flight of 0.2 s (1 s if its last element is ``slow``)
+    whose short campaign ends at 566.8 s, that writes its bag's calibration.yaml, and its summary.json with the process
+    that flew it, when and what (or raises for the flight whose last element is ``fails``)."""
     import sofia_ros.design.cli as design_cli
 
     monkeypatch.setenv('XDG_CACHE_HOME', str(tmp_path / 'cache'))
@@ -689,7 +691,7 @@ def _recorded_flights(monkeypatch, tmp_path, fails=None):
         if flight[-1] == fails:
             (bag / 'bag_0.mcap').write_bytes(b'half a flight')
             raise ConfigError(f'cannot fly {fails.name}')
-        time.sleep(0.2)
+        time.sleep(1.0 if flight[-1] == slow else 0.2)
         (bag / 'calibration.yaml').write_text('elements:\n- {index: 1, kind: hold, start_s: 566.8, end_s: 600.0}\n')
         (bag / 'summary.json').write_text(json.dumps({'flown_by': os.getpid(), 'elements': [e.name for e in flight],
                                                       'started_s': started_s, 'ended_s': time.monotonic()}))
@@ -724,31 +726,79 @@ def test_the_temperature_steps_flights_are_flown_side_by_side_once(tmp_path, mon
     assert design_cli._library_bags(flights, plan, truth, Progress.silent(), 2) == bags
 
 
-def test_the_steps_flights_start_once_the_probe_has_found_the_campaigns_end_beside_the_first_flight(
-        tmp_path, monkeypatch):
-    """The lead to the bag's end needs the short campaign's end: the probe's flight finds it beside the first flight,
-    and each step's flight starts once the probe's bag is there, its lead made from that end; the probe is not read."""
-    from sofia_ros.campaigns.plan_files import read_plan_file
+def _stepped_flights(design_cli, to_s=1840.0):
+    """The probe, a first flight of one hold, and the three temperature steps after a lead of one wait from the short
+    campaign's end to ``to_s``."""
     from sofia_ros.design.elements import CAMPAIGN_END_PROBE, Element, thermal_library
-    from sofia_ros.progress import Progress
-
-    design_cli = _recorded_flights(monkeypatch, tmp_path)
-    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
-    truth = type('Truth', (), {'text': 'effects: {}'})
 
     def lead(campaign_end_s):
-        return (Element(f'wait from {campaign_end_s:g} s', {'hold': {'duration_s': 100.0}}),)
+        return (Element(f'wait from {campaign_end_s:g} s', {'hold': {'duration_s': to_s - campaign_end_s}}),)
 
-    steps = [design_cli._LibraryFlight((step,), lead, {'to_s': 1840.0}) for step in thermal_library(10.0, 35.0, 120.0)]
-    flights = [design_cli._LibraryFlight((CAMPAIGN_END_PROBE,), read=False),
-               design_cli._LibraryFlight((Element('hold', {'hold': {'duration_s': 60.0}}),)), *steps]
+    return [design_cli._LibraryFlight((CAMPAIGN_END_PROBE,), read=False),
+            design_cli._LibraryFlight((Element('hold', {'hold': {'duration_s': 60.0}}),)),
+            *(design_cli._LibraryFlight((step,), lead, {'to_s': to_s}) for step in thermal_library(10.0, 35.0, 120.0))]
+
+
+def test_the_steps_flights_start_once_the_probe_has_found_the_campaigns_end_beside_the_first_flight(
+        tmp_path, monkeypatch):
+    """The lead to the bag's end needs the short campaign's end: the probe's flight finds it beside the first flight
+    (here the slower), and each step's flight starts once the probe's bag is there, not the first flight's, its lead
+    made from that end; the probe is not read. Asked for another end time, only the steps are flown again."""
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.elements import Element
+    from sofia_ros.progress import Progress
+
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    truth = type('Truth', (), {'text': 'effects: {}'})
+    design_cli = _recorded_flights(monkeypatch, tmp_path, slow=Element('hold', {'hold': {'duration_s': 60.0}}))
+    flights = _stepped_flights(design_cli)
     bags = design_cli._library_bags(flights, plan, truth, Progress.silent(), 2, lambda bag: (bag / 'read').touch())
     probe, first, *stepped = [json.loads((bag / 'summary.json').read_text()) for bag in bags]
-    assert first['started_s'] < probe['ended_s']
+    assert first['started_s'] < probe['ended_s'] <= stepped[0]['started_s'] < first['ended_s']
     assert all(step['started_s'] >= probe['ended_s'] for step in stepped)
     assert [step['elements'] for step in stepped] == [['wait from 566.8 s', flight.elements[0].name]
-                                                     for flight in steps]
+                                                     for flight in flights[2:]]
     assert [(bag / 'read').exists() for bag in bags] == [False, True, True, True, True]
+    later = _stepped_flights(design_cli, to_s=2400.0)
+    again = design_cli._library_bags(later, plan, truth, Progress.silent(), 2)
+    assert again[:2] == bags[:2] and not set(again[2:]) & set(bags)
+    assert [json.loads((bag / 'summary.json').read_text())['started_s'] for bag in again[:2]] == [
+        probe['started_s'], first['started_s']]
+
+
+def test_a_probe_that_fails_is_its_error_and_no_step_is_flown(tmp_path, monkeypatch):
+    from sofia_ros.campaigns.plan_files import read_plan_file
+    from sofia_ros.design.elements import CAMPAIGN_END_PROBE
+    from sofia_ros.progress import Progress
+
+    design_cli = _recorded_flights(monkeypatch, tmp_path, fails=CAMPAIGN_END_PROBE)
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    truth = type('Truth', (), {'text': 'effects: {}'})
+    flights = _stepped_flights(design_cli)
+    with pytest.raises(ConfigError, match=f'cannot fly {CAMPAIGN_END_PROBE.name}'):
+        design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
+    flown = [design_cli._library_path(flight, plan, truth).exists() for flight in flights]
+    assert flown == [False, True, False, False, False]
+
+
+def test_a_cached_step_flight_flown_with_another_lead_is_refused(tmp_path, monkeypatch):
+    """A step's flight is kept under its lead's inputs: one flown with other waits (another version's) is refused with
+    the fix, not read with the step in another window."""
+    import sofia_ros.design.cli as design_cli
+    from sofia_ros.campaigns.plan_files import plan_from_document, read_plan_file, write_plan_file
+    from sofia_ros.design.elements import Element
+
+    plan = read_plan_file(ROOT / 'config' / 'plans' / 'alignment-reduced.yaml')
+    step = Element('step', {'temperature': {'target_c': 30.0, 'duration_s': 120.0}})
+    bag = tmp_path / 'step'
+    bag.mkdir()
+    other_waits = (Element('wait', {'hold': {'duration_s': 100.0, 'los_deg': 0.0}}), step)
+    write_plan_file(plan_from_document(design_cli._library_document(other_waits, plan), 'flown', 'alignment'),
+                    bag / 'plan.yaml')
+    design_cli._check_flown_as_planned(bag, other_waits, plan)
+    with pytest.raises(BagError, match=f'library flight {bag} was not flown with the plan this version makes for '
+                                       'it: delete it'):
+        design_cli._check_flown_as_planned(bag, (Element('wait', {'hold': {'duration_s': 90.0}}), step), plan)
 
 
 def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path, monkeypatch):
@@ -769,8 +819,9 @@ def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path
 
 
 def test_the_folders_of_a_killed_designs_flights_are_removed_by_the_next_one(tmp_path, monkeypatch):
-    """A design killed mid-flight (SIGKILL: no finally runs) leaves its `.flying` folders in the user's cache; the
-    next design that flies removes them, and not those of a design still running."""
+    """A design killed outright (SIGKILL: no finally runs) leaves its `.flying` folders in the user's cache; the next
+    design that flies removes those whose lock nothing holds, not one a process still flies in (a design running, or
+    a worker that outlived its design), and an older version's (no lock file) only after a day."""
     import subprocess
     import sys
 
@@ -783,16 +834,29 @@ def test_the_folders_of_a_killed_designs_flights_are_removed_by_the_next_one(tmp
     truth = type('Truth', (), {'text': 'effects: {}'})
     flights = [design_cli._LibraryFlight((step,)) for step in thermal_library(10.0, 35.0, 120.0)]
     library = design_cli._library_path(flights[0], plan, truth).parent
-    gone = subprocess.run([sys.executable, '-c', 'import os; print(os.getpid())'], capture_output=True, text=True,
-                          check=True)
-    killed = library / f'{library.name}-library-0123456789abcdef.{gone.stdout.strip()}.x1y2z3.flying'
-    running = library / f'{library.name}-library-0123456789abcdef.{os.getppid()}.a1b2c3.flying'
-    foreign = library / 'notes.flying'
-    for folder in (killed, running, foreign):
+    library.mkdir(parents=True)
+    name = library / 'alignment-library-0123456789abcdef'
+    (killed, killed_lock), (flown, flown_lock) = (design_cli._flying_folder(name) for _ in range(2))
+    # Dropped as by a process killed; the second then taken by another, as by a worker that outlived its design.
+    os.close(killed_lock)
+    os.close(flown_lock)
+    old, older = library / 'alignment-library-0123456789abcdef.x1y2z3.flying', library / 'notes.flying'
+    for folder in (old, older):
         (folder / 'bag').mkdir(parents=True)
-    design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
-    assert not killed.exists() and running.exists() and foreign.exists()
-    assert sorted(path.name for path in library.glob('*.flying')) == sorted([running.name, foreign.name])
+    a_day_ago_s = time.time() - design_cli._UNLOCKED_FOLDER_AGE_S - 60.0
+    os.utime(older, (a_day_ago_s, a_day_ago_s))
+    holder = subprocess.Popen([sys.executable, '-c', 'import fcntl, os, sys, time\n'
+                               f'd = os.open({str(flown / design_cli._FLYING_LOCK)!r}, os.O_RDONLY)\n'
+                               'fcntl.flock(d, fcntl.LOCK_EX); print("held", flush=True); time.sleep(60)'],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline() == 'held\n'
+        design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not killed.exists() and flown.exists() and old.exists() and not older.exists()
+    assert sorted(library.glob('*.flying')) == sorted([flown, old])
 
 
 @pytest.mark.parametrize('period_min, nested', [(5.2, True), (5.3, False)])

@@ -14,6 +14,7 @@ This front end is the layer that may fly campaigns (campaigns/); the prediction 
 from __future__ import annotations
 
 import argparse
+import fcntl
 import functools
 import hashlib
 import json
@@ -21,6 +22,7 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -341,7 +343,22 @@ def _library_flights(elements: tuple, old_plan: Any, truth: Any, thermal_control
                *(_LibraryFlight((step,), lead, lead_key) for step in elements if is_thermal(step))]
     probe, *bags = _library_bags(flights, old_plan, truth, progress, jobs, warm)
     campaign_end_s = _campaign_end_s(probe)
-    return [(bag, flight.flown(campaign_end_s)) for bag, flight in zip(bags, flights[1:])]
+    flown = [(bag, flight.flown(campaign_end_s)) for bag, flight in zip(bags, flights[1:])]
+    for bag, elements in flown[1:]:
+        _check_flown_as_planned(bag, elements, old_plan)
+    return flown
+
+
+def _check_flown_as_planned(bag: Path, elements: tuple, old_plan: Any) -> None:
+    """BagError unless the library flight ``bag`` was flown with ``elements`` (its plan.yaml): a step's flight is kept
+    under a key of its lead's inputs, not of the lead, and one that another version's waits made would put the step
+    in another window of the flight."""
+    from sofia_ros.campaigns.plan_files import plan_from_document, read_plan
+
+    planned = plan_from_document(_library_document(elements, old_plan), 'the design library', old_plan.campaign)
+    if read_plan(bag) != planned:
+        raise BagError(f'the library flight {bag} was not flown with the plan this version makes for it: delete it '
+                       'so that it is flown again')
 
 
 def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Progress, jobs: int,
@@ -363,17 +380,20 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
     _remove_abandoned_flights(bags[0].parent)
     # Each flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs
     # that fly it at once the first to finish is kept. The folders are made and removed here, not in the workers,
-    # which Ctrl-C ends at once (forked_map); a folder's name holds this process' id for the day it is killed.
-    folders = [Path(tempfile.mkdtemp(prefix=f'{bags[index].name}.{os.getpid()}.', suffix=_FLYING_SUFFIX,
-                                     dir=bags[index].parent)) for index in missing]
+    # which Ctrl-C ends at once (forked_map).
+    folders, locks = zip(*(_flying_folder(bags[index]) for index in missing))
     parent = os.getpid()
 
     def fly(at: int) -> None:
         flight, bag = flights[missing[at]], bags[missing[at]]
         elements = flight.elements if flight.lead is None else flight.flown(_campaign_end_s(bags[0]))
         _fly_library_bag(elements, folders[at] / 'bag', old_plan, truth)
-        if not bag.exists():
+        try:
             (folders[at] / 'bag').rename(bag)
+        except OSError:
+            if not (bag / 'summary.json').is_file():
+                raise
+            # another design flew it meanwhile and put it there first: that one is kept
         if os.getpid() != parent and warm is not None and flight.read:
             warm(bag)
 
@@ -382,25 +402,55 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
         forked_map(fly, range(len(missing)), jobs=at_once, after=after,
                    done=lambda count: progress.count('library flights flown', count, len(missing)))
     finally:
-        for folder in folders:
+        for folder, lock in zip(folders, locks):
             shutil.rmtree(folder, ignore_errors=True)
+            os.close(lock)
     return bags
 
 
-#: The suffix of a library flight's folder while it is flown (_library_bags).
+#: The suffix of a library flight's folder while it is flown (_library_bags), and the file in it whose lock is held
+#: while a process still flies there.
 _FLYING_SUFFIX = '.flying'
+_FLYING_LOCK = 'flying.lock'
+#: A folder without that file (made by an older version) is taken as abandoned after this long (s).
+_UNLOCKED_FOLDER_AGE_S = 86400.0
+
+
+def _flying_folder(bag: Path) -> tuple[Path, int]:
+    """A folder to fly ``bag`` in, beside it, and the descriptor of its lock file, locked (flock) until closed: the
+    workers forked meanwhile inherit it, so the lock is held while this process or any of them runs. The file is
+    locked before it takes its name, so a lock file without its lock is one that nothing holds."""
+    folder = Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix=_FLYING_SUFFIX, dir=bag.parent))
+    locking = folder / f'{_FLYING_LOCK}.new'
+    descriptor = os.open(locking, os.O_CREAT | os.O_WRONLY, 0o644)
+    fcntl.flock(descriptor, fcntl.LOCK_EX)
+    locking.rename(folder / _FLYING_LOCK)
+    return folder, descriptor
 
 
 def _remove_abandoned_flights(library: Path) -> None:
-    """Remove the folders of library flights whose design no longer runs: killed (SIGKILL, the machine's memory or
-    power), it could not remove them itself. Its process id is in the folder's name (NAME.PID.RANDOM.flying)."""
+    """Remove the folders of library flights that nothing flies any more: a design killed outright (SIGKILL, the
+    machine's memory or power) could not remove them itself, and its workers, if they outlived it, have ended."""
     for folder in library.glob(f'*{_FLYING_SUFFIX}'):
         try:
-            os.kill(int(folder.name.split('.')[-3]), 0)
-        except ProcessLookupError:
+            descriptor = os.open(folder / _FLYING_LOCK, os.O_RDONLY)
+        except FileNotFoundError:
+            try:
+                if time.time() - folder.stat().st_mtime > _UNLOCKED_FOLDER_AGE_S:
+                    shutil.rmtree(folder, ignore_errors=True)
+            except OSError:
+                pass  # removed meanwhile
+            continue
+        except OSError:
+            continue  # not ours to look into (another user's): left as it is
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            continue  # still flown
+        else:
             shutil.rmtree(folder, ignore_errors=True)
-        except (ValueError, IndexError, PermissionError):
-            continue  # not a name of ours, or a process of another user's: left as it is
+        finally:
+            os.close(descriptor)
 
 
 def _library_path(flight: _LibraryFlight, old_plan: Any, truth: Any) -> Path:

@@ -190,6 +190,7 @@ def test_an_anchor_spacing_beyond_this_machines_memory_is_refused(short_bag, cap
 
 @pytest.mark.timeout(120)
 def test_replay_interrupted_by_sigint_is_one_line_and_130(short_bag):
+    import os
     import signal
     import subprocess
     import sys
@@ -197,8 +198,11 @@ def test_replay_interrupted_by_sigint_is_one_line_and_130(short_bag):
 
     bag, _ = short_bag
     replay = subprocess.Popen([sys.executable, '-m', 'sofia_ros.cli', 'replay', str(bag), '--rate', '0.01',
-                               '--wait-s', '0'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(8.0)
+                               '--wait-s', '0'], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, 'PYTHONUNBUFFERED': '1'})
+    # Interrupted once it replays (its line that no one subscribes), not while it still imports.
+    assert replay.stdout.readline().startswith('no subscriber after 0 s on ')
+    time.sleep(0.5)
     assert replay.poll() is None
     replay.send_signal(signal.SIGINT)
     _, err = replay.communicate(timeout=60)

@@ -270,6 +270,8 @@ def test_a_recorder_that_never_heard_the_stop_is_stopped_once_the_clock_has_exit
     # A recorder that never connected does not hear /sim/stop; before, `sofia run --processes` then waited on it
     # for the whole wall-time limit. Stand-ins: a clock that logged its reason and exited 3, a recorder that waits.
     monkeypatch.setattr(launch, 'RECORDER_GRACE_S', 1.0)
+    # The stand-in ignores SIGINT (as a pytest-xdist worker, which it inherits that from): it is killed after this.
+    monkeypatch.setattr(launch, 'STOP_GRACE_S', 1.0)
     (tmp_path / 'clock.log').write_text('[INFO] [clock]: stopping: recorder did not connect within 120 s\n')
     processes = {'clock': subprocess.Popen([sys.executable, '-c', 'raise SystemExit(3)']),
                  'recorder': subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])}
@@ -309,6 +311,7 @@ def test_a_graph_that_runs_out_of_time_leaves_where_each_node_hung_in_its_log(tm
 def test_a_recorder_that_closed_its_bag_but_does_not_exit_is_stopped(tmp_path, monkeypatch):
     # Stuck destroying its DDS entities after the bag is complete: the run ends, without an error.
     monkeypatch.setattr(launch, 'RECORDER_GRACE_S', 1.0)
+    monkeypatch.setattr(launch, 'STOP_GRACE_S', 1.0)  # the stand-in ignores SIGINT, as above
     (tmp_path / 'bag').mkdir()
     (tmp_path / 'bag' / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
     processes = {'clock': subprocess.Popen([sys.executable, '-c', 'pass']),

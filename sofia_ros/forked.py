@@ -39,6 +39,9 @@ _R = TypeVar('_R')
 _MALLOC_TRIM = getattr(ctypes.CDLL(None), 'malloc_trim', None)
 if _MALLOC_TRIM is not None:
     _MALLOC_TRIM.argtypes = [ctypes.c_size_t]
+#: Linux's prctl (not on macOS): see _end_with_parent.
+_PRCTL = getattr(ctypes.CDLL(None, use_errno=True), 'prctl', None)
+_PR_SET_PDEATHSIG = 1
 
 
 def _return_free_heap() -> None:
@@ -50,6 +53,15 @@ def _return_free_heap() -> None:
     """
     if _MALLOC_TRIM is not None:
         _MALLOC_TRIM(0)
+
+
+def _end_with_parent(parent: int) -> None:
+    """In a worker: be killed when the process that forked it ends. Its parent killed outright (SIGKILL, out of
+    memory) cannot stop its workers, which then computed on for nothing; a design's flew on and kept its lock."""
+    if _PRCTL is not None:
+        _PRCTL(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent:  # it ended before the request: nothing would signal
+        os._exit(1)
 
 
 def usable_cores() -> int:
@@ -86,14 +98,16 @@ class _Worker:
         self.path = path
         self.shared = shared
         _return_free_heap()
+        parent = os.getpid()
         self.pid = os.fork()
         if self.pid == 0:
-            self._run_child(function)
+            self._run_child(function, parent)
         self.pidfd = os.pidfd_open(self.pid)
 
-    def _run_child(self, function: Callable[[], Any]) -> None:
+    def _run_child(self, function: Callable[[], Any], parent: int) -> None:
         written = False
         try:
+            _end_with_parent(parent)
             # Ctrl-C reaches the whole process group: the parent stops, the workers just end.
             signal.signal(signal.SIGINT, signal.SIG_DFL)
             try:

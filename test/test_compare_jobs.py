@@ -86,6 +86,46 @@ def test_an_item_after_no_earlier_item_is_refused(after):
         forked_map(lambda n: n, [0, 1, 2], jobs=2, after=after)
 
 
+def _running(pid):
+    """Whether process ``pid`` runs (a zombie that no one has reaped yet has ended)."""
+    try:
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0] != 'Z'
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.timeout(120)
+def test_the_workers_of_a_process_killed_outright_end_with_it(tmp_path):
+    """SIGKILL (or the kernel out of memory) gives the parent no time to stop its workers: they end with it."""
+    import subprocess
+    import sys
+
+    script = (f'import os, time\n'
+              f'from sofia_ros.forked import forked_map\n'
+              f'def work(n):\n'
+              f'    path = os.path.join({str(tmp_path)!r}, f"worker{{n}}")\n'
+              f'    with open(path + ".new", "w") as file:\n'
+              f'        file.write(str(os.getpid()))\n'
+              f'    os.replace(path + ".new", path)\n'
+              f'    time.sleep(60)\n'
+              f'forked_map(work, [0, 1], jobs=2)\n')
+    parent = subprocess.Popen([sys.executable, '-c', script])
+    try:
+        deadline = time.monotonic() + 60.0
+        while len(list(tmp_path.glob('worker?'))) < 2:
+            assert parent.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        workers = [int(path.read_text()) for path in tmp_path.glob('worker?')]
+        assert all(_running(pid) for pid in workers)
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 10.0
+    while any(_running(pid) for pid in workers):
+        assert time.monotonic() < deadline, 'a worker outlived its parent'
+        time.sleep(0.05)
+
+
 def test_a_worker_that_is_killed_is_one_clear_error():
     def die(n):
         os.kill(os.getpid(), signal.SIGKILL)

@@ -821,7 +821,8 @@ def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path
 def test_the_folders_of_a_killed_designs_flights_are_removed_by_the_next_one(tmp_path, monkeypatch):
     """A design killed outright (SIGKILL: no finally runs) leaves its `.flying` folders in the user's cache; the next
     design that flies removes those whose lock nothing holds, not one a process still flies in (a design running, or
-    a worker that outlived its design), and an older version's (no lock file) only after a day."""
+    a process of another design, even one in another PID namespace), and an older version's (no lock file) only after a
+    day."""
     import subprocess
     import sys
 
@@ -837,7 +838,7 @@ def test_the_folders_of_a_killed_designs_flights_are_removed_by_the_next_one(tmp
     library.mkdir(parents=True)
     name = library / 'alignment-library-0123456789abcdef'
     (killed, killed_lock), (flown, flown_lock) = (design_cli._flying_folder(name) for _ in range(2))
-    # Dropped as by a process killed; the second then taken by another, as by a worker that outlived its design.
+    # Dropped as by a process killed; the second then taken by another process, as another design's.
     os.close(killed_lock)
     os.close(flown_lock)
     old, older = library / 'alignment-library-0123456789abcdef.x1y2z3.flying', library / 'notes.flying'

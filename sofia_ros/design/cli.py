@@ -430,7 +430,7 @@ def _flying_folder(bag: Path) -> tuple[Path, int]:
 
 def _remove_abandoned_flights(library: Path) -> None:
     """Remove the folders of library flights that nothing flies any more: a design killed outright (SIGKILL, the
-    machine's memory or power) could not remove them itself, and its workers, if they outlived it, have ended."""
+    machine's memory or power) could not remove them itself; its workers end with it (forked)."""
     for folder in library.glob(f'*{_FLYING_SUFFIX}'):
         try:
             descriptor = os.open(folder / _FLYING_LOCK, os.O_RDONLY)

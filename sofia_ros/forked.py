@@ -20,7 +20,6 @@ import ctypes
 import os
 import pickle
 import select
-import shutil
 import signal
 import tempfile
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -28,6 +27,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, Generic, TypeVar
 
 from sofia_ros.errors import ForkedWorkerError
+from sofia_ros.held_folders import held_folder, release_folder, remove_abandoned_folders
 
 __all__ = ['ForkedCall', 'forked_map', 'usable_cores']
 
@@ -62,6 +62,18 @@ def _end_with_parent(parent: int) -> None:
         _PRCTL(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     if os.getppid() != parent:  # it ended before the request: nothing would signal
         os._exit(1)
+
+
+#: The name of the temporary folders the workers' results go through.
+_RESULTS_PREFIX = 'sofia-jobs-'
+
+
+def _results_folder() -> tuple[Path, int]:
+    """A held folder for the workers' results in the temporary directory (held_folders), those of a command killed
+    outright removed first."""
+    parent = Path(tempfile.gettempdir())
+    remove_abandoned_folders(parent, f'{_RESULTS_PREFIX}*')
+    return held_folder(parent, _RESULTS_PREFIX)
 
 
 def usable_cores() -> int:
@@ -190,7 +202,7 @@ def forked_map(function: Callable[[_T], _R], items: Sequence[_T], *, jobs: int, 
             results.append(function(item))
             done(len(results))
         return results
-    directory = Path(tempfile.mkdtemp(prefix='sofia-jobs-'))
+    directory, lock = _results_folder()
     shared_by_id = _by_id(shared)
     running: dict[int, tuple[int, _Worker]] = {}  # pidfd -> (index, worker)
     outcomes: dict[int, tuple[bool, Any]] = {}
@@ -224,7 +236,7 @@ def forked_map(function: Callable[[_T], _R], items: Sequence[_T], *, jobs: int, 
             worker.kill()
         raise
     finally:
-        shutil.rmtree(directory, ignore_errors=True)
+        release_folder(directory, lock)
     for index in range(len(items)):
         succeeded, value = outcomes[index]
         if not succeeded:
@@ -245,7 +257,7 @@ class ForkedCall(Generic[_R]):
         self._directory = None
         self._worker = None
         if jobs > 1:
-            self._directory = Path(tempfile.mkdtemp(prefix='sofia-jobs-'))
+            self._directory, self._lock = _results_folder()
             self._worker = _Worker(function, self._directory / 'result.pickle', _by_id(shared))
 
     def result(self) -> _R:
@@ -256,11 +268,11 @@ class ForkedCall(Generic[_R]):
             return self._worker.wait()
         finally:
             self._worker = None
-            shutil.rmtree(self._directory, ignore_errors=True)
+            release_folder(self._directory, self._lock)
 
     def cancel(self) -> None:
         """Stop the worker: its result is not wanted (a failure or Ctrl-C while it ran)."""
         if self._worker is not None:
             self._worker.kill()
             self._worker = None
-            shutil.rmtree(self._directory, ignore_errors=True)
+            release_folder(self._directory, self._lock)

@@ -95,10 +95,15 @@ def _running(pid):
 
 
 @pytest.mark.timeout(120)
-def test_the_workers_of_a_process_killed_outright_end_with_it(tmp_path):
-    """SIGKILL (or the kernel out of memory) gives the parent no time to stop its workers: they end with it."""
+def test_the_workers_of_a_process_killed_outright_end_with_it(tmp_path, monkeypatch):
+    """SIGKILL (or the kernel out of memory) gives the parent no time to stop its workers: they end with it, and the
+    next command's workers remove the folder their results would have gone through."""
     import subprocess
     import sys
+
+    jobs = tmp_path / 'tmp'
+    jobs.mkdir()
+    monkeypatch.setattr(tempfile, 'tempdir', str(jobs))
 
     script = (f'import os, time\n'
               f'from sofia_ros.forked import forked_map\n'
@@ -109,7 +114,7 @@ def test_the_workers_of_a_process_killed_outright_end_with_it(tmp_path):
               f'    os.replace(path + ".new", path)\n'
               f'    time.sleep(60)\n'
               f'forked_map(work, [0, 1], jobs=2)\n')
-    parent = subprocess.Popen([sys.executable, '-c', script])
+    parent = subprocess.Popen([sys.executable, '-c', script], env={**os.environ, 'TMPDIR': str(jobs)})
     try:
         deadline = time.monotonic() + 60.0
         while len(list(tmp_path.glob('worker?'))) < 2:
@@ -124,6 +129,9 @@ def test_the_workers_of_a_process_killed_outright_end_with_it(tmp_path):
     while any(_running(pid) for pid in workers):
         assert time.monotonic() < deadline, 'a worker outlived its parent'
         time.sleep(0.05)
+    assert [path.name[:len('sofia-jobs-')] for path in jobs.iterdir()] == ['sofia-jobs-']
+    assert forked_map(lambda n: n, [0, 1], jobs=2) == [0, 1]
+    assert not list(jobs.iterdir())
 
 
 def test_a_worker_that_is_killed_is_one_clear_error():

@@ -820,14 +820,10 @@ def test_a_flight_that_fails_in_a_worker_is_its_error_and_leaves_no_bag(tmp_path
 
 def test_the_folders_of_a_killed_designs_flights_are_removed_by_the_next_one(tmp_path, monkeypatch):
     """A design killed outright (SIGKILL: no finally runs) leaves its `.flying` folders in the user's cache; the next
-    design that flies removes those whose lock nothing holds, not one a process still flies in (a design running, or
-    a process of another design, even one in another PID namespace), and an older version's (no lock file) only after a
-    day."""
-    import subprocess
-    import sys
-
+    design that flies removes those nothing holds (held_folders), not one another design flies in."""
     from sofia_ros.campaigns.plan_files import read_plan_file
     from sofia_ros.design.elements import thermal_library
+    from sofia_ros.held_folders import held_folder, release_folder
     from sofia_ros.progress import Progress
 
     design_cli = _recorded_flights(monkeypatch, tmp_path)
@@ -836,28 +832,12 @@ def test_the_folders_of_a_killed_designs_flights_are_removed_by_the_next_one(tmp
     flights = [design_cli._LibraryFlight((step,)) for step in thermal_library(10.0, 35.0, 120.0)]
     library = design_cli._library_path(flights[0], plan, truth).parent
     library.mkdir(parents=True)
-    name = library / 'alignment-library-0123456789abcdef'
-    (killed, killed_lock), (flown, flown_lock) = (design_cli._flying_folder(name) for _ in range(2))
-    # Dropped as by a process killed; the second then taken by another process, as another design's.
+    killed, killed_lock = held_folder(library, 'alignment-library-0123456789abcdef.', '.flying')
     os.close(killed_lock)
-    os.close(flown_lock)
-    old, older = library / 'alignment-library-0123456789abcdef.x1y2z3.flying', library / 'notes.flying'
-    for folder in (old, older):
-        (folder / 'bag').mkdir(parents=True)
-    a_day_ago_s = time.time() - design_cli._UNLOCKED_FOLDER_AGE_S - 60.0
-    os.utime(older, (a_day_ago_s, a_day_ago_s))
-    holder = subprocess.Popen([sys.executable, '-c', 'import fcntl, os, sys, time\n'
-                               f'd = os.open({str(flown / design_cli._FLYING_LOCK)!r}, os.O_RDONLY)\n'
-                               'fcntl.flock(d, fcntl.LOCK_EX); print("held", flush=True); time.sleep(60)'],
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline() == 'held\n'
-        design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
-    finally:
-        holder.kill()
-        holder.wait()
-    assert not killed.exists() and flown.exists() and old.exists() and not older.exists()
-    assert sorted(library.glob('*.flying')) == sorted([flown, old])
+    flown, flown_lock = held_folder(library, 'alignment-library-0123456789abcdef.', '.flying')
+    design_cli._library_bags(flights, plan, truth, Progress.silent(), 2)
+    assert list(library.glob('*.flying')) == [flown]
+    release_folder(flown, flown_lock)
 
 
 @pytest.mark.parametrize('period_min, nested', [(5.2, True), (5.3, False)])

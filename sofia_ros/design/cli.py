@@ -14,15 +14,11 @@ This front end is the layer that may fly campaigns (campaigns/); the prediction 
 from __future__ import annotations
 
 import argparse
-import fcntl
 import functools
 import hashlib
 import json
 import os
-import shutil
 import sys
-import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +27,7 @@ from typing import Any, TextIO
 from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.forked import forked_map, usable_cores
+from sofia_ros.held_folders import held_folder, release_folder, remove_abandoned_folders
 from sofia_ros.output_files import json_ready, output_target, write_text_atomically
 from sofia_ros.progress import Progress
 
@@ -377,11 +374,13 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
     what = 'a library flight once' if len(missing) == 1 else f'{len(missing)} library flights once, {at_once} at a time'
     progress.phase(f'flying {what} (kept in {bags[0].parent})')
     bags[0].parent.mkdir(parents=True, exist_ok=True)
-    _remove_abandoned_flights(bags[0].parent)
+    # Those of a design killed outright (held_folders).
+    remove_abandoned_folders(bags[0].parent, f'*{_FLYING_SUFFIX}')
     # Each flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs
     # that fly it at once the first to finish is kept. The folders are made and removed here, not in the workers,
     # which Ctrl-C ends at once (forked_map).
-    folders, locks = zip(*(_flying_folder(bags[index]) for index in missing))
+    folders, locks = zip(*(held_folder(bags[index].parent, f'{bags[index].name}.', _FLYING_SUFFIX)
+                           for index in missing))
     parent = os.getpid()
 
     def fly(at: int) -> None:
@@ -403,54 +402,12 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
                    done=lambda count: progress.count('library flights flown', count, len(missing)))
     finally:
         for folder, lock in zip(folders, locks):
-            shutil.rmtree(folder, ignore_errors=True)
-            os.close(lock)
+            release_folder(folder, lock)
     return bags
 
 
-#: The suffix of a library flight's folder while it is flown (_library_bags), and the file in it whose lock is held
-#: while a process still flies there.
+#: The suffix of a library flight's folder while it is flown (_library_bags).
 _FLYING_SUFFIX = '.flying'
-_FLYING_LOCK = 'flying.lock'
-#: A folder without that file (made by an older version) is taken as abandoned after this long (s).
-_UNLOCKED_FOLDER_AGE_S = 86400.0
-
-
-def _flying_folder(bag: Path) -> tuple[Path, int]:
-    """A folder to fly ``bag`` in, beside it, and the descriptor of its lock file, locked (flock) until closed: the
-    workers forked meanwhile inherit it, so the lock is held while this process or any of them runs. The file is
-    locked before it takes its name, so a lock file without its lock is one that nothing holds."""
-    folder = Path(tempfile.mkdtemp(prefix=f'{bag.name}.', suffix=_FLYING_SUFFIX, dir=bag.parent))
-    locking = folder / f'{_FLYING_LOCK}.new'
-    descriptor = os.open(locking, os.O_CREAT | os.O_WRONLY, 0o644)
-    fcntl.flock(descriptor, fcntl.LOCK_EX)
-    locking.rename(folder / _FLYING_LOCK)
-    return folder, descriptor
-
-
-def _remove_abandoned_flights(library: Path) -> None:
-    """Remove the folders of library flights that nothing flies any more: a design killed outright (SIGKILL, the
-    machine's memory or power) could not remove them itself; its workers end with it (forked)."""
-    for folder in library.glob(f'*{_FLYING_SUFFIX}'):
-        try:
-            descriptor = os.open(folder / _FLYING_LOCK, os.O_RDONLY)
-        except FileNotFoundError:
-            try:
-                if time.time() - folder.stat().st_mtime > _UNLOCKED_FOLDER_AGE_S:
-                    shutil.rmtree(folder, ignore_errors=True)
-            except OSError:
-                pass  # removed meanwhile
-            continue
-        except OSError:
-            continue  # not ours to look into (another user's): left as it is
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            continue  # still flown
-        else:
-            shutil.rmtree(folder, ignore_errors=True)
-        finally:
-            os.close(descriptor)
 
 
 def _library_path(flight: _LibraryFlight, old_plan: Any, truth: Any) -> Path:

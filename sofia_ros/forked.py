@@ -250,7 +250,11 @@ def _next_ready(waiting: Sequence[int], after: Mapping[int, int], outcomes: Mapp
 
 
 class ForkedCall(Generic[_R]):
-    """``function()`` started now in a forked worker, or run by :meth:`result` in this process when ``jobs`` is 1."""
+    """``function()`` started now in a forked worker, or run by :meth:`result` in this process when ``jobs`` is 1.
+
+    The worker ends with the thread that made the call (_end_with_parent: the kernel ties it to the forking thread):
+    take the result in the thread that made it.
+    """
 
     def __init__(self, function: Callable[[], _R], *, jobs: int, shared: Iterable[object] = ()) -> None:
         self._function = function
@@ -258,7 +262,11 @@ class ForkedCall(Generic[_R]):
         self._worker = None
         if jobs > 1:
             self._directory, self._lock = _results_folder()
-            self._worker = _Worker(function, self._directory / 'result.pickle', _by_id(shared))
+            try:
+                self._worker = _Worker(function, self._directory / 'result.pickle', _by_id(shared))
+            except BaseException:
+                release_folder(self._directory, self._lock)
+                raise
 
     def result(self) -> _R:
         """The function's value, or the exception it raised, raised here."""

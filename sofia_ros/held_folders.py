@@ -11,6 +11,7 @@ from __future__ import annotations
 import fcntl
 import os
 import shutil
+import stat
 import tempfile
 import time
 from pathlib import Path
@@ -29,9 +30,16 @@ def held_folder(parent: Path, prefix: str, suffix: str = '') -> tuple[Path, int]
     is one whose process has ended."""
     folder = Path(tempfile.mkdtemp(prefix=prefix, suffix=suffix, dir=parent))
     locking = folder / f'{LOCK_FILE}.new'
-    descriptor = os.open(locking, os.O_CREAT | os.O_WRONLY, 0o644)
-    fcntl.flock(descriptor, fcntl.LOCK_EX)
-    locking.rename(folder / LOCK_FILE)
+    descriptor = None
+    try:
+        descriptor = os.open(locking, os.O_CREAT | os.O_WRONLY, 0o644)
+        fcntl.flock(descriptor, fcntl.LOCK_EX)
+        locking.rename(folder / LOCK_FILE)
+    except BaseException:
+        if descriptor is not None:
+            os.close(descriptor)
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
     return folder, descriptor
 
 
@@ -43,20 +51,27 @@ def release_folder(folder: Path, descriptor: int) -> None:
 
 def remove_abandoned_folders(parent: Path, pattern: str) -> None:
     """Remove the folders of ``parent`` named by the glob ``pattern`` whose lock nothing holds (and those
-    without a lock file older than UNLOCKED_FOLDER_AGE_S); another user's, which cannot be opened, are left."""
+    without a lock file older than UNLOCKED_FOLDER_AGE_S). Only this user's folders are looked into, and
+    only a regular lock file is opened: in a temporary directory others share, what another user put
+    there (a pipe by that name would block the open) is left alone."""
     for folder in parent.glob(pattern):
         try:
-            descriptor = os.open(folder / LOCK_FILE, os.O_RDONLY)
-        except FileNotFoundError:
-            try:
-                if time.time() - folder.stat().st_mtime > UNLOCKED_FOLDER_AGE_S:
-                    shutil.rmtree(folder, ignore_errors=True)
-            except OSError:
-                pass  # removed meanwhile
-            continue
+            status = folder.lstat()
         except OSError:
+            continue  # removed meanwhile
+        if not stat.S_ISDIR(status.st_mode) or status.st_uid != os.geteuid():
             continue
         try:
+            descriptor = os.open(folder / LOCK_FILE, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        except FileNotFoundError:
+            if time.time() - status.st_mtime > UNLOCKED_FOLDER_AGE_S:
+                shutil.rmtree(folder, ignore_errors=True)
+            continue
+        except OSError:
+            continue  # not to be opened (a link, another's file)
+        try:
+            if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+                continue
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             continue  # in use

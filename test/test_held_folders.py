@@ -41,13 +41,29 @@ def test_a_folder_nothing_holds_is_removed_and_one_in_use_is_kept(tmp_path):
 
 def test_the_lock_is_held_by_the_workers_forked_while_it_is(tmp_path):
     folder, lock = held_folder(tmp_path, 'job-')
+    go_on, release = os.pipe()
     worker = os.fork()
     if worker == 0:
-        time.sleep(1.0)
-        os._exit(0)
+        try:
+            os.read(go_on, 1)  # until the parent has looked
+        finally:
+            os._exit(0)
     os.close(lock)  # this process done with it; its worker still runs
     remove_abandoned_folders(tmp_path, 'job-*')
     assert folder.exists()
+    os.write(release, b'x')
     os.waitpid(worker, 0)
     remove_abandoned_folders(tmp_path, 'job-*')
     assert not folder.exists()
+
+
+def test_what_another_user_could_put_in_a_shared_temporary_directory_is_left_alone(tmp_path):
+    """A pipe by the lock file's name would block an open; a link would lead elsewhere: neither is followed."""
+    piped = tmp_path / 'job-piped'
+    piped.mkdir()
+    os.mkfifo(piped / LOCK_FILE)
+    target = tmp_path / 'elsewhere'
+    target.mkdir()
+    (tmp_path / 'job-linked').symlink_to(target)
+    remove_abandoned_folders(tmp_path, 'job-*')
+    assert piped.exists() and target.exists() and (tmp_path / 'job-linked').is_symlink()

@@ -379,8 +379,7 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
     # Each flown in a folder of its own and renamed whole: a run that is interrupted leaves nothing, and of two runs
     # that fly it at once the first to finish is kept. The folders are made and removed here, not in the workers,
     # which Ctrl-C ends at once (forked_map).
-    folders, locks = zip(*(held_folder(bags[index].parent, f'{bags[index].name}.', _FLYING_SUFFIX)
-                           for index in missing))
+    folders, locks = [], []
     parent = os.getpid()
 
     def fly(at: int) -> None:
@@ -398,6 +397,10 @@ def _library_bags(flights: list | tuple, old_plan: Any, truth: Any, progress: Pr
 
     after = {at: 0 for at, index in enumerate(missing) if flights[index].lead is not None and missing[0] == 0}
     try:
+        for index in missing:
+            folder, lock = held_folder(bags[index].parent, f'{bags[index].name}.', _FLYING_SUFFIX)
+            folders.append(folder)
+            locks.append(lock)
         forked_map(fly, range(len(missing)), jobs=at_once, after=after,
                    done=lambda count: progress.count('library flights flown', count, len(missing)))
     finally:

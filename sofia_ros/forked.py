@@ -36,11 +36,12 @@ _R = TypeVar('_R')
 
 
 #: glibc's malloc_trim, where the C library has one (not on musl or macOS): see _return_free_heap.
-_MALLOC_TRIM = getattr(ctypes.CDLL(None), 'malloc_trim', None)
+_LIBC = ctypes.CDLL(None)
+_MALLOC_TRIM = getattr(_LIBC, 'malloc_trim', None)
 if _MALLOC_TRIM is not None:
     _MALLOC_TRIM.argtypes = [ctypes.c_size_t]
 #: Linux's prctl (not on macOS): see _end_with_parent.
-_PRCTL = getattr(ctypes.CDLL(None, use_errno=True), 'prctl', None)
+_PRCTL = getattr(_LIBC, 'prctl', None)
 _PR_SET_PDEATHSIG = 1
 
 

@@ -355,10 +355,9 @@ def _check_flown_as_planned(bag: Path, elements: tuple, old_plan: Any) -> None:
     """BagError unless the library flight ``bag`` was flown with ``elements`` (its plan.yaml): a step's flight is kept
     under a key of its lead's inputs, not of the lead, and one that another version's waits made would put the step
     in another window of the flight."""
-    from sofia_ros.campaigns.plan_files import plan_from_document, read_plan
+    from sofia_ros.campaigns.plan_files import read_plan
 
-    planned = plan_from_document(_library_document(elements, old_plan), 'the design library', old_plan.campaign)
-    if read_plan(bag) != planned:
+    if read_plan(bag) != _library_plan(elements, old_plan):
         raise BagError(f'the library flight {bag} was not flown with the plan this version makes for it: delete it '
                        'so that it is flown again')
 
@@ -429,14 +428,19 @@ def _library_path(flight: _LibraryFlight, old_plan: Any, truth: Any) -> Path:
     return user_cache_home() / 'design' / f'{old_plan.campaign}-library-{key}'
 
 
+def _library_plan(flight: tuple, old_plan: Any) -> Any:
+    """The plan a library flight of ``flight``'s elements is flown with (_library_document's, parsed)."""
+    from sofia_ros.campaigns.plan_files import plan_from_document
+
+    return plan_from_document(_library_document(flight, old_plan), 'the design library', old_plan.campaign)
+
+
 def _fly_library_bag(flight: tuple, bag: Path, old_plan: Any, truth: Any) -> None:
     """Fly ``flight``'s elements after the campaign's shortest sequence (direct mode, ``truth``, seed 0) into ``bag``."""
-    from sofia_ros.campaigns.plan_files import plan_from_document
     from sofia_ros.campaigns.registry import campaign_named
 
-    campaign = old_plan.campaign
-    plan = plan_from_document(_library_document(flight, old_plan), 'the design library', campaign)
-    campaign_named(campaign).run(truth, seed=0, bag_path=bag, plan=plan, mode='direct')
+    campaign_named(old_plan.campaign).run(truth, seed=0, bag_path=bag, plan=_library_plan(flight, old_plan),
+                                          mode='direct')
 
 
 def _flight_s(observations: Any) -> float:

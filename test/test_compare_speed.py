@@ -85,6 +85,35 @@ def test_normal_equations_in_bands_are_the_dense_weighted_products(monkeypatch):
                                rtol=0, atol=1e-12 * np.abs(gradient).max())
 
 
+def test_the_gram_matrix_of_some_rows_is_that_of_their_copy_bit_for_bit(monkeypatch):
+    from sofia_ros.analysis import ranking
+    from sofia_ros.compare import fit as fit_module
+
+    fit, rng = _synthetic_fit(rows=60, parameters=4)
+    monkeypatch.setattr(ranking, 'GRAM_BAND_ROWS', 7)  # the subset's bands, the last one short
+    rows = np.flatnonzero(rng.random(fit.whitened.size) < 0.4)
+    copied = fit_module._data_gram(fit.anchor_columns[rows], fit.parameter_columns[rows], fit.weights[rows])
+    np.testing.assert_array_equal(
+        fit_module._data_gram(fit.anchor_columns, fit.parameter_columns, fit.weights, rows), copied)
+
+
+def test_a_split_copies_no_half_of_the_parameter_columns():
+    import tracemalloc
+
+    # A star hop's split held a copy of the smaller half's columns (56 MB of a judgement's 208 MB peak).
+    fit, rng = _synthetic_fit(rows=50_000, parameters=60)
+    rows = rng.random(fit.whitened.size) < 0.5
+    fit.weighted_normal_equations  # the whole fit's, which a judgement has before it splits
+    tracemalloc.start()
+    try:
+        fit.split_normal_equations(rows)
+        _, peak_bytes = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    # The anchors' half is copied (a sixth as large here), and a band of rows at a time.
+    assert peak_bytes < fit.parameter_columns[rows].nbytes
+
+
 def test_weighted_normal_equations_are_the_fits_own_at_its_weights():
     fit, _ = _synthetic_fit()
     gram, gradient, _ = fit.normal_equations(fit.weights)

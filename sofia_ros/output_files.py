@@ -13,8 +13,8 @@ import numpy as np
 
 from sofia_ros.errors import ConfigError, OutputError
 
-__all__ = ['atomic_output', 'current_umask', 'describe_os_error', 'json_ready', 'output_error', 'output_target',
-           'write_text_atomically']
+__all__ = ['atomic_output', 'checked_output_directory', 'checked_output_file', 'current_umask', 'describe_os_error',
+           'json_ready', 'output_error', 'output_target', 'write_text_atomically']
 
 
 def current_umask():
@@ -46,6 +46,63 @@ def output_target(path):
     if target.parent and not target.parent.exists():
         raise ConfigError(f'directory {target.parent} does not exist; create it or choose another path')
     return target
+
+
+def checked_output_file(option, path, inputs):
+    """The target of the output file ``option`` (e.g. '--json') at ``path``, checked before a command works: a new or
+    regular file (output_target) in a directory it may write, replacing none of ``inputs`` ({what: path}, a file or
+    a folder such as a bag's, whose files are inputs too); ConfigError in one line otherwise."""
+    target = output_target(path)
+    _require_writable(path, target.parent)
+    _refuse_over_inputs(option, path, inputs)
+    return target
+
+
+def checked_output_directory(option, path, inputs):
+    """The output folder ``option`` (e.g. '--report') at ``path``, checked before a command works: a folder, or a new
+    one in an existing folder, that it may write and that is none of ``inputs`` nor inside one ({what: path});
+    ConfigError in one line otherwise."""
+    directory = Path(path)
+    if directory.exists() and not directory.is_dir():
+        raise ConfigError(f'{option} {path} is a file; give a directory')
+    existing = directory if directory.exists() else directory.parent
+    if not existing.is_dir():
+        raise ConfigError(f'the directory of {path} does not exist; create it first')
+    _require_writable(path, existing)
+    _refuse_over_inputs(option, path, inputs)
+    return directory
+
+
+def _require_writable(path, directory):
+    """ConfigError, in the words of a failed write (describe_os_error), unless ``directory`` takes new files: checked
+    before the command works, where a read-only disk found at the end wasted the whole run."""
+    if os.access(directory, os.W_OK | os.X_OK):
+        return
+    read_only = bool(os.statvfs(directory).f_flag & os.ST_RDONLY)
+    line, _ = describe_os_error(OSError(errno.EROFS if read_only else errno.EACCES, ''), filename=path)
+    raise ConfigError(f'cannot write {line}')
+
+
+def _refuse_over_inputs(option, path, inputs):
+    """ConfigError when ``path`` is one of ``inputs`` (the same file, through any link) or lies inside an input
+    folder: `--json BAG/BAG.mcap` replaced a recording with the comparison, at exit 0."""
+    target = Path(path).resolve()
+    for what, given in inputs.items():
+        if not given:
+            continue
+        source = Path(given).resolve()
+        if target == source or _same_file(target, source):
+            raise ConfigError(f'{option} {path} is {what} ({given}), which the command reads; write it elsewhere')
+        if source.is_dir() and source in target.parents:
+            raise ConfigError(f'{option} {path} is inside {what} {given}, whose files the command reads; '
+                              'write it elsewhere')
+
+
+def _same_file(first, second):
+    try:
+        return os.path.samefile(first, second)
+    except OSError:  # one of them does not exist (yet)
+        return False
 
 
 @contextmanager

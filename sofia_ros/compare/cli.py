@@ -19,7 +19,8 @@ import numpy as np
 from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import ConfigError
 from sofia_ros.forked import usable_cores
-from sofia_ros.output_files import current_umask, json_ready, output_target, write_text_atomically
+from sofia_ros.output_files import (checked_output_directory, checked_output_file, current_umask, json_ready,
+                                    output_target, write_text_atomically)
 from sofia_ros.progress import Progress
 
 __all__ = ['print_fitted_terms', 'spread_text', 'add_compare_arguments', 'run_compare', 'add_model_arguments',
@@ -30,6 +31,8 @@ __all__ = ['print_fitted_terms', 'spread_text', 'add_compare_arguments', 'run_co
 #: longer imager exposures) are not determined by the centroids between them.
 MIN_ANCHOR_S = 2.0
 MAX_ANCHOR_S = 86400.0
+#: Whole comparisons `--search` may make unless --search-rounds says otherwise.
+_SEARCH_ROUNDS = 12
 #: The fit's dense normal matrix and covariance: (3 per anchor + terms)^2 doubles, a few copies alive.
 _DENSE_COPIES = 4
 _TERM_COLUMNS = 100
@@ -53,8 +56,8 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--search', action='store_true',
                         help='search for the model the data ask for: add, remove and swap terms by BIC, refit, '
                              'repeat (docs/compare.md); prints the rounds, the final comparison and its equivalents')
-    parser.add_argument('--search-rounds', type=integer(1, 20, 'rounds'), default=12,
-                        help='whole comparisons the search may make (1-20, default 12)')
+    parser.add_argument('--search-rounds', type=integer(1, 20, 'rounds'),
+                        help=f'with --search: whole comparisons the search may make (1-20, default {_SEARCH_ROUNDS})')
     parser.add_argument('--write-model', help='with --search: write the model found here (a copy of --model, edited)')
     parser.add_argument('--anchor-s', type=number(MIN_ANCHOR_S, MAX_ANCHOR_S, 's'), default=30.0,
                         help=f'spacing of the attitude anchors in s (default 30, at least {MIN_ANCHOR_S:g}: ten '
@@ -286,8 +289,7 @@ def run_compare(args: argparse.Namespace, out: TextIO) -> int:
         raise ConfigError(f'--json {args.json} is a directory; give a file name, '
                           f'e.g. {Path(args.json) / "compare.json"}')
     _check_bag_arguments(args.bag, args.anchor_s, _warn)
-    if args.report and Path(args.report).exists() and not Path(args.report).is_dir():
-        raise ConfigError(f'--report {args.report} is a file; give a directory')
+    _check_outputs(args)
     if str(args.bag).lower().endswith(('.yaml', '.yml')):
         from sofia_ros.measurements.report import run_set_compare
 
@@ -314,6 +316,28 @@ def run_compare(args: argparse.Namespace, out: TextIO) -> int:
     if args.json:
         write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
     return 0
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """ConfigError in one line, before any work, for an output that cannot be written or would replace an input: the
+    model, the bag or a file in its folder (--write-model may be the model: the search edits it), another output, or
+    a report folder whose ledger.json is not a ledger."""
+    from sofia_ros.compare.report import read_ledger
+
+    for option, value in (('--json', args.json), ('--report', args.report), ('--write-model', args.write_model)):
+        if value == '':
+            raise ConfigError(f'{option} is given an empty path; give a file name or leave {option} out')
+    bag = {'the bag': args.bag}
+    # In the order they are written: the report first.
+    if args.report:
+        checked_output_directory('--report', args.report, bag)
+        read_ledger(args.report)
+    if args.json:
+        checked_output_file('--json', args.json, {**bag, 'the model': args.model, '--write-model': args.write_model})
+    if args.write_model:
+        checked_output_file('--write-model', args.write_model, bag)
+    if args.search_rounds is not None and not args.search:
+        raise ConfigError('--search-rounds limits the rounds of --search; add --search')
 
 
 def _warn(line):
@@ -364,7 +388,7 @@ def _searched(args, model, progress, data, compare):
     """
     from sofia_ros.compare.search import search_model
 
-    result, found, rounds, equivalent = search_model(data, model, compare, rounds=args.search_rounds,
+    result, found, rounds, equivalent = search_model(data, model, compare, rounds=args.search_rounds or _SEARCH_ROUNDS,
                                                      progress=progress.phase)
     given = set(model.fitted)
     added, removed = sorted(found.fitted - given), sorted(given - found.fitted)

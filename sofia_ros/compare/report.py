@@ -29,14 +29,17 @@ from sofia_ros.compare.diagnostics import FRAME_VARIABLES, distinct_findings, ro
 from sofia_ros.effects.empirical import DETECTOR_FIELD  # noqa: E402
 from sofia_ros.compare.star_hop import hold_rows  # noqa: E402
 from sofia_ros.errors import ConfigError  # noqa: E402
+from sofia_ros.input_files import read_text_capped  # noqa: E402
 from sofia_ros.output_files import output_error  # noqa: E402
 
 if TYPE_CHECKING:
     from sofia_ros.compare.run import CompareResult
 
-__all__ = ['html_table', 'write_report']
+__all__ = ['html_table', 'read_ledger', 'write_report']
 
 _LEDGER = 'ledger.json'
+#: The largest ledger.json read (a run is about 300 bytes).
+_MAX_LEDGER_BYTES = 16 * 1024 * 1024
 _GRID = 8
 
 
@@ -78,7 +81,8 @@ def _residual_plot(result, fits, path):
                 axis.set_xlabel(key)
             if column == 0:
                 axis.set_ylabel(f'{camera.upper()} residual ["]')
-    axes[0, 0].legend(fontsize=7, loc='upper left')
+    if axes[0, 0].get_legend_handles_labels()[0]:  # no labelled line where the first variable does not vary
+        axes[0, 0].legend(fontsize=7, loc='upper left')
     figure.suptitle('Residuals (measured - predicted, pixel axes) against the scanned variables; lines: bin means')
     figure.tight_layout()
     figure.savefig(path, dpi=90)
@@ -351,6 +355,46 @@ Noise floor {document["noise_floor_arcsec"]:.3f}" per axis; residual RMS {docume
 '''
 
 
+def read_ledger(directory: str | PathLike[str]) -> list[dict[str, Any]]:
+    """The runs of the ledger.json in a report directory ([] without one); ConfigError in one line naming the fix
+    unless it is a regular file of at most _MAX_LEDGER_BYTES holding a ledger sofia compare wrote. Read before the
+    comparison runs (`sofia compare --report`): a link to /dev/full there was read until memory ran out, and a
+    ledger of another shape failed only after the comparison, in a traceback.
+
+    Args:
+        directory: the report directory.
+
+    Returns:
+        The earlier runs, oldest first.
+
+    Raises:
+        ConfigError: ledger.json is a device, FIFO, folder or too large, not UTF-8 JSON, or not a list of runs.
+    """
+    path = Path(directory) / _LEDGER
+    if not path.exists() and not path.is_symlink():
+        return []
+    fix = 'remove it or give another --report directory'
+    try:
+        runs = json.loads(read_text_capped(path, _MAX_LEDGER_BYTES, 'ledger'))
+    except ConfigError as err:
+        raise ConfigError(f'{err}; {fix}') from err
+    except json.JSONDecodeError as err:
+        raise ConfigError(f'{path} is not a ledger written by sofia compare ({err.msg}); {fix}') from err
+    if not isinstance(runs, list) or not all(_is_ledger_run(run) for run in runs):
+        raise ConfigError(f'{path} is not a ledger written by sofia compare (not a list of runs); {fix}')
+    return runs
+
+
+def _is_ledger_run(run: Any) -> bool:
+    """Whether ``run`` has what _ledger_plot draws: a model, a last term, numbers for the RMS total and floor."""
+    numbers = (int, float)
+    return (isinstance(run, dict) and isinstance(run.get('last_term'), str)
+            and isinstance(run.get('residual_rms_arcsec'), dict)
+            and isinstance(run['residual_rms_arcsec'].get('total'), numbers)
+            and isinstance(run.get('noise_floor_arcsec'), numbers)
+            and not isinstance(run['noise_floor_arcsec'], bool))
+
+
 def write_report(result: CompareResult, document: dict[str, Any], directory: str | PathLike[str]) -> Path:
     """Write index.html and the PNGs into ``directory`` (created if needed), all files or none; OutputError in one
     line (exit 3 for a full disk) naming ``directory`` when the disk refuses them.
@@ -370,13 +414,7 @@ def write_report(result: CompareResult, document: dict[str, Any], directory: str
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise ConfigError(f'--report {directory} is a file; give a directory')
-    runs = []
-    ledger_path = directory / _LEDGER
-    if ledger_path.exists():
-        try:
-            runs = json.loads(ledger_path.read_text())
-        except json.JSONDecodeError as err:
-            raise ConfigError(f'{ledger_path} is not a ledger written by sofia compare; remove it') from err
+    runs = read_ledger(directory)
     top = next((c['effect'] for c in document['candidates']
                 if c['detectable'] and c['delta_bic'] >= document['significant_delta_bic']), 'none')
     runs.append({'model': document['model'], 'last_term': document['ledger'][-1]['term'],

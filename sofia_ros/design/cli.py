@@ -28,7 +28,7 @@ from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.forked import forked_map, usable_cores
 from sofia_ros.held_folders import held_folder, release_folder, remove_abandoned_folders
-from sofia_ros.output_files import json_ready, output_target, write_text_atomically
+from sofia_ros.output_files import checked_output_file, json_ready, write_text_atomically
 from sofia_ros.progress import Progress
 
 __all__ = ['add_design_arguments', 'run_design']
@@ -525,9 +525,11 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     from sofia_ros.design.run import check_members, design_plan, flown_elements
 
     bag, model_path, members = _source(args)
-    for target in (args.plan_out, args.json):
-        if target:
-            output_target(target)
+    inputs = {'the bag': bag, 'the model': model_path, 'the comparison': args.source, 'the plan': args.plan}
+    if args.plan_out:
+        checked_output_file('--plan-out', args.plan_out, {**inputs, '--json': args.json})
+    if args.json:
+        checked_output_file('--json', args.json, inputs)
     if not model_path:
         raise ConfigError('give the model with --model M.yaml (the JSON names none)')
     model = load_effect_config(model_path)
@@ -586,7 +588,8 @@ def _check(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     if not args.prediction:
         raise ConfigError('--check NEW_BAG needs --prediction DESIGN.json (the JSON `sofia design --json` wrote)')
     if args.json:
-        output_target(args.json)
+        checked_output_file('--json', args.json, {'the new bag': args.check, 'the design': args.prediction,
+                                                  'the model': args.model})
     prediction = _read_json(args.prediction, 'a design (sofia design --json)')
     if not isinstance(prediction.get('members'), list) or not isinstance(prediction.get('predicted'), dict):
         raise ConfigError(f'{args.prediction} is not the JSON of `sofia design` (no members or predicted key)')

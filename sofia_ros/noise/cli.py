@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from sofia_ros.errors import ConfigError
-from sofia_ros.output_files import json_ready, write_text_atomically
+from sofia_ros.output_files import checked_output_directory, checked_output_file, json_ready, write_text_atomically
 
 __all__ = ['add_noise_arguments', 'run_noise']
 
@@ -64,8 +64,12 @@ def run_noise(args: argparse.Namespace) -> int:
     if model is not None:
         check_noise_model(model.effects)
     json_target = _check_json_target(args.json) if args.json else None
+    inputs = {'the bag': args.bag, 'the model': args.model}
+    if json_target is not None:
+        checked_output_file('--json', args.json, inputs)
     if args.report:
         check_report_dir(args.report)
+        checked_output_directory('--report', args.report, inputs)
     analysis = analyze_record(load_noise_record(args.bag), model=model, decimate=decimate)
     if args.report:
         write_report(analysis, args.report)

@@ -19,6 +19,7 @@ from sofia_ros import interrupts
 from sofia_ros.cli_args import OneLineParser, integer, number
 from sofia_ros.errors import ConfigError, OutputError, RunFaultError, RunInterrupted, SofiaError
 from sofia_ros.output_files import describe_os_error
+from sofia_ros.plan_limits import PLAN_LIMITS
 
 __all__ = ['main', 'build_parser']
 
@@ -346,16 +347,16 @@ def build_parser():
                                          '(default), reduced, minimal (alignment only)')
     # No defaults here: an option left out takes the plan's value (--plan, --variant, else the plan dataclass'
     # defaults: sim.calibration.AlignmentPlan, sim.star_hop.StarHopPlan) or the campaign runner's (max_sim_s).
-    run.add_argument('--repetitions', type=integer(2, 100, 'maneuvers per axis'),
+    run.add_argument('--repetitions', type=integer(*PLAN_LIMITS['repetitions']),
                      help="maneuvers per axis (default: the plan's, six as in 6.1)")
-    run.add_argument('--verification-repetitions', type=integer(1, 100, 'maneuvers per axis'),
+    run.add_argument('--verification-repetitions', type=integer(*PLAN_LIMITS['verification_repetitions']),
                      help="verification maneuvers per axis (default: the plan's)")
-    run.add_argument('--drift-track-s', type=number(1.0, 3600.0, 's'),
+    run.add_argument('--drift-track-s', type=number(*PLAN_LIMITS['drift_track_s']),
                      help="drift estimation on the star, s (default: the plan's)")
     run.add_argument('--max-sim-s', type=number(0.0, 172800.0, 's', low_open=True),
                      help="alignment: stop after this much sim time (default: two hours and the plan elements' "
                           'allowance)')
-    run.add_argument('--hold-s', type=number(0.0, 7200.0, 's', low_open=True),
+    run.add_argument('--hold-s', type=number(*PLAN_LIMITS['hold_s'], low_open=True),
                      help="star-hop: seconds each star is held and recorded (default: the plan's)")
     run.add_argument('--no-follow-times', action='store_true',
                      help='star-hop: go to the next star at once instead of at its Table D.3 time')

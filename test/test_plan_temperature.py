@@ -132,7 +132,7 @@ BAD_PLANS = {
                     r'rate_c_per_h must be > 0 C/h'),
     'a hold of 0 s': ('star-hop', THERMAL, 'campaign: star-hop\nelements:\n'
                                            '  - temperature: {star: Polaris, target_c: 26, duration_s: 0}\n',
-                      r'duration_s must be > 0 s, got 0'),
+                      r'duration_s must be > 0 and <= 7200 s, got 0'),
     'an unknown star': ('star-hop', THERMAL, 'campaign: star-hop\nelements:\n'
                                              '  - temperature: {star: Vulcan, target_c: 26, duration_s: 5}\n',
                         r"unknown star name 'Vulcan'"),

@@ -27,7 +27,7 @@ from sofia_ros.input_files import read_text_capped
 from sofia_ros.output_files import write_text_atomically
 from sofia_ros.scenario import Scenario
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.sequence import PLAN_FILE_NAME, plan_document, plan_text
+from sofia_ros.sim.sequence import PLAN_FILE_NAME, number_text_hint, plan_document, plan_text
 from sofia_ros.sim.star_hop import StarHopPlan
 
 __all__ = ['PLAN_FILE_NAME', 'PLAN_TYPES', 'check_plan_with_truth', 'plan_document', 'plan_from_document', 'plan_text',
@@ -131,7 +131,8 @@ def _checked(name: str, value: Any, example: Any) -> Any:
         ok = isinstance(value, kind) and not isinstance(value, bool)
     if not ok:
         wanted = {bool: 'true or false', int: 'an integer', float: 'a finite number', str: 'a string'}[kind]
-        raise ConfigError(f'{name} must be {wanted}, got {value!r:.60}')
+        hint = number_text_hint(value) if isinstance(value, str) and kind is not str else ''
+        raise ConfigError(f'{name} must be {wanted}, got {value!r:.60}{hint}')
     return float(value) if kind is float else value
 
 

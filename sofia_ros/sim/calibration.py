@@ -33,6 +33,7 @@ from sofia_ros.sensors.imager_model import nominal_detector
 from sofia_ros.sim.sequence import (
     TOPICS,
     SequenceCore,
+    check_plan_limits,
     elements_from_yaml,
     elements_to_yaml,
     fine_drive_los,
@@ -49,6 +50,10 @@ __all__ = ['AlignmentPlan', 'CalibrationCore', 'ALIGNMENT_ELEMENTS', 'ManeuversA
            'TemperatureHold']
 
 _FD_MARGIN_DEG = 2.9
+#: Where an EL/XEL rotation may take the star from HIPO's centre, arcsec: its shorter half-field less the detector
+#: margin a plan's positions keep (sim.sequence.detector_offset).
+_HIPO_HALF_FIELD_ARCSEC = (0.9 * nominal_detector('hipo').scale_arcsec_per_px
+                           * min(nominal_detector('hipo').width_px, nominal_detector('hipo').height_px) / 2.0)
 #: Stars for the elevation series: bright enough for every camera, within the fine drive's XEL reach.
 _SERIES_MAX_HP_MAG = 6.5
 _SERIES_REACH_DEG = 1.5
@@ -164,8 +169,12 @@ class AlignmentPlan:
     elements_yaml: str = ''
 
     def __post_init__(self):
-        if self.repetitions < 2 or self.frames_per_position < 1 or self.verification_repetitions < 1:
-            raise InvalidArgumentError('plan needs >= 2 repetitions, >= 1 frame and >= 1 verification repetition')
+        check_plan_limits(self)
+        # The EL/XEL rotations carry the star across HIPO's field, from -L/2 to +L/2 (_elxel_block).
+        longest_arcmin = 2.0 * _HIPO_HALF_FIELD_ARCSEC / 60.0
+        if not 0.0 < self.elxel_length_arcmin <= longest_arcmin:
+            raise InvalidArgumentError(f'elxel_length_arcmin must be > 0 and <= {longest_arcmin:.2f} arcmin, the '
+                                       f'rotations crossing HIPO\'s field, got {self.elxel_length_arcmin:g}')
         if not 0.0 < self.los_angle_deg <= 2 * _FD_MARGIN_DEG - 0.5:
             raise InvalidArgumentError(f'los_angle_deg must be in (0, {2 * _FD_MARGIN_DEG - 0.5}] to fit the '
                                        f'+-3 deg fine drive, got {self.los_angle_deg}')

@@ -37,13 +37,14 @@ from sofia_ros.topics import (
     THERMAL_COMMAND,
     centroid_topic,
 )
+from sofia_ros.plan_limits import MAX_ELEMENT_S, PLAN_LIMITS
 from sofia_ros.units import RAD_PER_DEG
 from sofia_ros.validate import finite_array, finite_scalar
 
 __all__ = ['SequenceCore', 'TOPICS', 'OBSERVING_ELEVATIONS_DEG', 'PLAN_FILE_NAME', 'plan_document', 'plan_text',
            'elements_from_yaml', 'elements_to_yaml',
            'elements_budget_s', 'observing_elevation', 'fine_drive_los', 'hold_duration', 'detector_offset',
-           'thermal_target', 'thermal_rate']
+           'thermal_target', 'thermal_rate', 'check_plan_limits', 'number_text_hint']
 
 #: the topics the calibration node publishes besides the TASCU's commands, by the short names its methods use
 TOPICS = {'progress': CALIBRATION_PROGRESS, 'result': CALIBRATION_RESULT, 'maneuvers': CALIBRATION_MANEUVERS,
@@ -62,10 +63,22 @@ _PLACEMENT_MOVES = 3
 
 # --- plan elements: what a plan appends to its campaign's sequence (docs/plans.md) --------------------
 def _number(name: str, value: Any) -> float:
-    """``value`` as a finite float; a YAML true or false is not a number here (finite_scalar would take it)."""
+    """``value`` as a finite float; a YAML true or false, or text, is not a number here (finite_scalar would take
+    '40' and even Arabic-Indic digits)."""
+    if isinstance(value, str):
+        raise InvalidArgumentError(f'{name} must be a number, got the text {value!r:.40}{number_text_hint(value)}')
     if isinstance(value, bool):
         raise InvalidArgumentError(f'{name} must be a number, got {value}')
     return finite_scalar(name, value)
+
+
+def number_text_hint(text: str) -> str:
+    """Where YAML read a number as text: how to write it ('1e3' needs a dot and a sign, 1.0e+3), else ''."""
+    try:
+        float(text)
+    except ValueError:
+        return ''
+    return ' (YAML reads 1e3 as text: write 1000 or 1.0e+3)' if 'e' in text.lower() else ' (write it without quotes)'
 
 
 def observing_elevation(name: str, value: Any) -> float:
@@ -88,11 +101,22 @@ def fine_drive_los(name: str, value: Any) -> float:
 
 
 def hold_duration(name: str, value: Any) -> float:
-    """``value`` as a hold length in s, > 0; InvalidArgumentError otherwise."""
+    """``value`` as a hold length in s, in (0, MAX_ELEMENT_S]; InvalidArgumentError otherwise."""
     duration_s = _number(name, value)
-    if duration_s <= 0.0:
-        raise InvalidArgumentError(f'{name} must be > 0 s, got {duration_s:g}')
+    if not 0.0 < duration_s <= MAX_ELEMENT_S:
+        raise InvalidArgumentError(f'{name} must be > 0 and <= {MAX_ELEMENT_S:g} s, got {duration_s:g}')
     return duration_s
+
+
+def check_plan_limits(plan: Any) -> None:
+    """InvalidArgumentError naming the first field of ``plan`` outside its PLAN_LIMITS range."""
+    for name, (low, high, unit) in PLAN_LIMITS.items():
+        if not hasattr(plan, name):
+            continue
+        value = getattr(plan, name)
+        if not (low < value <= high if low == 0.0 else low <= value <= high):
+            span = f'> 0 and <= {high:g}' if low == 0.0 else f'{low:g}-{high:g}'
+            raise InvalidArgumentError(f'{name} must be {span} {unit}, got {value:g}')
 
 
 def thermal_target(name: str, value: Any) -> float:

@@ -27,9 +27,11 @@ from sofia_ros import messages as m
 from sofia_ros.calibration.published import EQ_6_1
 from sofia_ros.errors import CalibrationAbort, InvalidArgumentError
 from sofia_ros.graph_nodes import IMAGERS
+from sofia_ros.plan_limits import MAX_OBSERVATION_OFFSET_S
 from sofia_ros.sim.sequence import (
     TOPICS,
     SequenceCore,
+    check_plan_limits,
     detector_offset,
     elements_from_yaml,
     elements_to_yaml,
@@ -132,10 +134,12 @@ class StarHopPlan:
             raise InvalidArgumentError('a star hop needs at least two observations')
         for star, offset_s in self.observations:
             star_by_name(star)
-            if offset_s < 0:
-                raise InvalidArgumentError(f'observation of {star} starts at {offset_s} s; offsets must be >= 0')
+            if not 0.0 <= offset_s <= MAX_OBSERVATION_OFFSET_S:
+                raise InvalidArgumentError(f'observation of {star} starts at {offset_s:g} s; offsets must be >= 0 and '
+                                           f'<= {MAX_OBSERVATION_OFFSET_S:g} s (a night)')
         if self.hold_s <= 0:
             raise InvalidArgumentError(f'hold_s must be positive, got {self.hold_s}')
+        check_plan_limits(self)
         matrix = finite_array('tarf_from_gyrf', self.tarf_from_gyrf, shape=(9,)).reshape(3, 3)
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')  # eq. 6.1 is orthonormal to 1e-5 only; the TASCU takes it as printed

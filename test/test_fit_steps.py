@@ -8,6 +8,7 @@ session's reduced alignment bag, decoded once.
 """
 
 import collections
+import json
 import re
 import shutil
 import zipfile
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 
 from sofia_ros.compare.cache import CACHE_DIRECTORY, ObservationCache
+from sofia_ros.compare.cache_files import write_members
 from sofia_ros.compare.fit import free_parameters
 from sofia_ros.compare.observations import decode_observations, observation_cache, read_observations, step_store
 from sofia_ros.compare.pipeline import _ledger
@@ -140,16 +142,30 @@ def _damaged_compressed(path):
             archive.writestr(name, data)
 
 
-def _damaged_anchors(path):
+def _written_again(path, **members):
+    """The step file rewritten as a writer would (its members fingerprinted anew) with ``members`` in place of its
+    arrays: what the reader's own checks of a step then refuse."""
     with np.load(path) as archive:
-        header = archive['header']
-    np.savez(path, header=header, anchors_rad=np.zeros((4, 2)))
+        header = json.loads(archive['header'].tobytes())
+    header.pop('member_fingerprints')
+    write_members(path, header, members)
+
+
+def _damaged_anchors(path):
+    _written_again(path, anchors_rad=np.zeros((4, 2)))
 
 
 def _damaged_extra_member(path):
     with np.load(path) as archive:
-        members = {name: archive[name] for name in archive.files}
-    np.savez(path, **members, extra=np.zeros(3))
+        anchors = archive['anchors_rad']
+    _written_again(path, anchors_rad=anchors, extra=np.zeros(3))
+
+
+def _anchors_saved_again_cut(path):
+    # Saved over the header it had, its zip CRCs right: the anchors of another anchor spacing gave an IndexError.
+    with np.load(path) as archive:
+        header, anchors = archive['header'], archive['anchors_rad']
+    np.savez(path, header=header, anchors_rad=anchors[:-1])
 
 
 @pytest.mark.parametrize(('damage', 'message'), [
@@ -157,7 +173,8 @@ def _damaged_extra_member(path):
     (_damaged_compressed, r'holds compressed members'),
     (_damaged_anchors, r'anchors are not a \(K, 3\) array'),
     (_damaged_extra_member, r"members are not a step's"),
-], ids=['truncated', 'compressed', 'anchors-of-another-shape', 'another-member'])
+    (_anchors_saved_again_cut, r'its arrays are not those it was written with'),
+], ids=['truncated', 'compressed', 'anchors-of-another-shape', 'another-member', 'anchors-saved-again-cut'])
 def test_a_damaged_step_file_is_removed_and_fitted_again_with_one_line(tmp_path, monkeypatch, damage, message):
     step = _step()
     StepStore(tmp_path).put('c' * 64, step)

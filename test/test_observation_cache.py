@@ -24,6 +24,7 @@ from sofia_ros.bag import BagReader
 from sofia_ros.bag.reader import mcap_file_to_recover
 from sofia_ros.cli import main
 from sofia_ros.compare.cache import CACHE_DIRECTORY, FOOTER_BYTES, ObservationCache, bag_key
+from sofia_ros.compare.cache_files import write_members
 from sofia_ros.compare.observations import READER_VERSION, decode_observations, observation_cache, read_observations
 from sofia_ros.output_files import json_ready
 
@@ -270,12 +271,18 @@ def test_the_key_ignores_the_cache_folder_and_names_the_reader_version(bag, deco
 
 # --- a damaged or foreign cache file --------------------------------------------------------------------------------
 
-def _rewrite(path, change_members=lambda members: members, change_header=lambda header: header, save=np.savez):
-    """Rewrite the cache file at ``path`` with its members and header changed."""
+def _rewrite(path, change_members=lambda members: members, change_header=lambda header: header, save=None):
+    """Rewrite the cache file at ``path`` with its members and header changed: as a writer would (write_members:
+    the members' fingerprints made anew, so that the reader's other checks are what refuse it), or with ``save``
+    over the header as it was (numpy's savez: the fingerprints of the members before the change)."""
     with np.load(path) as archive:
         members = {name: archive[name] for name in archive.files}
     header = change_header(json.loads(members.pop('header').tobytes()))
     members = change_members(members)
+    if save is None:
+        header.pop('member_fingerprints')
+        write_members(path, header, members)
+        return
     members['header'] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
     with open(path, 'wb') as file:
         save(file, **members)
@@ -304,7 +311,21 @@ DAMAGE = {
                           'for another bag'),
     'no header': (lambda path: np.savez(path.open('wb'), hip=np.arange(3)), 'no header'),
     'a pickled member': (lambda path: _rewrite(path, change_members=lambda members: {
-        **members, 'centroids.hip': np.array([{'os': 'system'}], dtype=object)}), 'unreadable: ValueError'),
+        **members, 'centroids.hip': np.array([{'os': 'system'}], dtype=object)}, save=np.savez),
+        'unreadable: ValueError'),
+    # Members saved again over the header they had (their zip CRCs hold): a traceback or another fit, at exit 0.
+    'an array saved again as float32': (lambda path: _rewrite(path, change_members=lambda members: {
+        **members, 'centroids.measured_px': members['centroids.measured_px'].astype(np.float32)}, save=np.savez),
+        'not those it was written with'),
+    'a value changed': (lambda path: _rewrite(path, change_members=lambda members: {
+        **members, 'centroids.camera_index': members['centroids.camera_index'] + 99}, save=np.savez),
+        'not those it was written with'),
+    'an array cut': (lambda path: _rewrite(path, change_members=lambda members: {
+        **members, 'gyro.tick_mean_rates_gyrf_rad_per_s': members['gyro.tick_mean_rates_gyrf_rad_per_s'][:-1]},
+        save=np.savez), 'not those it was written with'),
+    'no fingerprints (an older writer)': (lambda path: _rewrite(path, change_header=lambda header: {
+        name: value for name, value in header.items() if name != 'member_fingerprints'}, save=np.savez),
+        'not those it was written with'),
     'compressed members': (lambda path: _rewrite(path, save=np.savez_compressed), 'compressed members'),
     'a field missing': (lambda path: _rewrite(path, change_members=lambda members: {
         name: value for name, value in members.items() if name != 'gyro.time_s'}), 'not those of this reader'),

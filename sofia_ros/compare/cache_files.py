@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,8 @@ __all__ = ['HEADER', 'UnusableCacheFile', 'read_members', 'remove_cache_file', '
 
 #: The member that holds a file's JSON header.
 HEADER = 'header'
+#: The header's entry of each array member's fingerprint (_fingerprint).
+_FINGERPRINTS = 'member_fingerprints'
 
 
 class UnusableCacheFile(Exception):
@@ -46,9 +49,15 @@ def write_members(path: Path, header: dict, arrays: dict[str, np.ndarray]) -> No
     Raises:
         OSError, ConfigError: the file cannot be written (output_files.atomic_output).
     """
+    header = {**header, _FINGERPRINTS: {name: _fingerprint(array) for name, array in arrays.items()}}
     encoded = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
     with atomic_output(path, 'wb') as stream:
         np.savez(stream, **{HEADER: encoded}, **arrays)
+
+
+def _fingerprint(array: np.ndarray) -> list:
+    """What an array member must still be when read: its dtype, shape and the CRC-32 of its bytes."""
+    return [array.dtype.str, list(array.shape), zlib.crc32(np.ascontiguousarray(array).view(np.uint8))]
 
 
 def read_members(path: Path, what: str) -> tuple[dict, dict[str, np.ndarray]]:
@@ -63,7 +72,7 @@ def read_members(path: Path, what: str) -> tuple[dict, dict[str, np.ndarray]]:
 
     Raises:
         UnusableCacheFile: not a regular file, unreadable, a member that fails its CRC, compressed or pickled
-            members, no header or one that is not a JSON object.
+            members, no header or one that is not a JSON object, members that are not the fingerprinted ones.
     """
     try:
         require_regular_file(path, what)
@@ -87,4 +96,9 @@ def read_members(path: Path, what: str) -> tuple[dict, dict[str, np.ndarray]]:
         raise UnusableCacheFile('its header is not JSON') from err
     if not isinstance(header, dict):
         raise UnusableCacheFile('its header is not a JSON object')
+    # The zip's CRCs hold for members saved again: a member rewritten (as float32, a value changed, an array cut)
+    # then gave a traceback or another fit at exit 0 (issue 27: never a wrong result from the cache).
+    fingerprints = header.pop(_FINGERPRINTS, None)
+    if fingerprints != {name: _fingerprint(array) for name, array in members.items()}:
+        raise UnusableCacheFile('its arrays are not those it was written with')
     return header, members

@@ -225,11 +225,22 @@ def test_a_bag_without_its_plan_takes_one_given(capsys, tmp_path, plan_only_bag)
     ('{"bag": "b", "competing": [', 'is not JSON'),
     ('{"bag": "b", "competing": [{"effects": [1, 2]}]}', 'does not list two effects'),
     ('{"bag": "b", "competing": ["x"]}', 'does not list two effects'),
+    ('{"bag": "b", "competing": {"a": 1}}', 'its competing sets are not a list'),  # was a KeyError traceback
+    ('{"bag": "b", "model": 5, "competing": []}', 'its model is not a file name'),  # was a TypeError traceback
 ])
 def test_a_bad_comparison_json_is_refused(capsys, tmp_path, document, match):
     source = tmp_path / 'compare.json'
     source.write_text(document)
     _refused(capsys, tmp_path, [str(source), '--plan-out', str(tmp_path / 'plan.yaml')], match)
+
+
+def test_a_plan_of_the_other_campaign_is_refused_for_the_bags(capsys, tmp_path, plan_only_bag):
+    # An alignment bag (its calibration result) given a star-hop plan flew the star-hop library for it, at exit 0.
+    (plan_only_bag / 'calibration.yaml').write_text('accepted: true\n')
+    _refused(capsys, tmp_path, [str(plan_only_bag), '--model', str(NOMINAL_MODEL), '--between',
+                                'gyro_axis_swap,gyro_scale_factor', '--plan',
+                                str(ROOT / 'config' / 'plans' / 'star-hop-reduced.yaml')],
+             'is a plan of the star-hop campaign, not of alignment')
 
 
 def test_a_second_competing_set_that_is_not_there_is_refused(capsys, tmp_path):

@@ -160,3 +160,15 @@ def test_a_file_with_a_nan_token_is_not_json(tmp_path):
     path.write_text('{"noise_floor_arcsec": NaN}\n')
     with pytest.raises(ContractViolation, match='NaN is not JSON'):
         load_json(path)
+
+
+def test_the_schemas_bag_variables_are_every_variable_the_structure_tests_name():
+    # The gyro axes' `rate` and `rate_size` were named in trends of real bags and missing from the schema.
+    import json
+
+    from sofia_ros.compare.diagnostics import FRAME_VARIABLES, GYRO_TEST_VARIABLES, NAMING_PREFERENCE, ROW_VARIABLES
+    from sofia_ros.effects.empirical import DETECTOR_FIELD
+
+    schema = json.loads((ROOT / 'docs' / 'schemas' / 'compare.schema.json').read_text())
+    named = {*FRAME_VARIABLES, *ROW_VARIABLES, *GYRO_TEST_VARIABLES, DETECTOR_FIELD}
+    assert set(schema['$defs']['bag_variable']['enum']) == named == set(NAMING_PREFERENCE)

@@ -139,8 +139,10 @@ BAD_PLANS = {
                                               'camera: fpi, detector_offset_arcsec: [400, 0]}\n',
                                   r'detector_offset_arcsec \[400.0, 0.0\] leaves the FPI field'),
     'a plan of the other campaign': ('alignment', 'campaign: star-hop\nhold_s: 5\n',
-                                     r'is a plan of the star-hop campaign, not of alignment; run it with '
-                                     r'`sofia run star-hop --plan'),
+                                     r'is a plan of the star-hop campaign, not of alignment; give a plan of the '
+                                     r'alignment campaign, or fly this one with `sofia run star-hop --plan'),
+    'an unknown campaign': ('alignment', 'campaign: Alignment\nrepetitions: 2\n',
+                            r"campaign is 'Alignment'; a plan is for one of alignment, star-hop"),
     'no campaign': ('alignment', 'repetitions: 2\n', r'a plan file is a mapping that starts with campaign:'),
     'a thermal step': ('alignment', 'campaign: alignment\nelements:\n  - temperature_ramp: {slope_c_per_h: -3}\n',
                        r"element temperature_ramp: the simulated temperature follows the truth's scenario"),

@@ -61,10 +61,11 @@ def plan_from_document(document: Any, source: str, campaign: str | None = None) 
         raise ConfigError(f'{source}: a plan file is a mapping that starts with campaign: alignment or '
                           'campaign: star-hop (docs/plans.md)')
     named = document['campaign']
-    if campaign is not None and named != campaign:
-        raise ConfigError(f'{source} is a plan of the {named} campaign, not of {campaign}; '
-                          f'run it with `sofia run {named} --plan {source}`')
+    # The name checked first: the hint below would otherwise send the user to a campaign that does not exist.
     plan_type = _plan_type(named, source)
+    if campaign is not None and named != campaign:
+        raise ConfigError(f'{source} is a plan of the {named} campaign, not of {campaign}; give a plan of the '
+                          f'{campaign} campaign, or fly this one with `sofia run {named} --plan {source}`')
     defaults = plan_type()
     keys = {spec.name: spec for spec in fields(plan_type) if spec.name != 'elements_yaml'}
     unknown = [str(key) for key in document if key not in (*keys, 'campaign', 'elements')]

@@ -140,9 +140,14 @@ def _source(args: argparse.Namespace) -> tuple:
     if not isinstance(document.get('bag'), str) or 'competing' not in document:
         raise ConfigError(f'{args.source} is not the JSON of `sofia compare` on a bag (no bag or competing key)')
     model = args.model or document.get('model')
+    if model is not None and not isinstance(model, str):
+        raise ConfigError(f'{args.source}: its model is not a file name; give the model with --model M.yaml')
     if args.between:
         return Path(document['bag']), model, _members(args.between)
     sets = document['competing'] or []
+    if not isinstance(sets, list):
+        raise ConfigError(f'{args.source}: its competing sets are not a list, as `sofia compare --json` writes them; '
+                          'give --between A,B')
     if not sets:
         raise ConfigError(f'{args.source} states no competing set: the comparison already tells its candidates '
                           'apart; name one with --between A,B to design anyway')
@@ -154,6 +159,17 @@ def _source(args: argparse.Namespace) -> tuple:
         raise ConfigError(f'{args.source}: competing set {args.set} does not list two effects; give --between A,B')
     # A set of three or more: its first two, the strongest (--between names any other pair).
     return Path(document['bag']), model, _members(','.join(effects[:2]))
+
+
+#: The result document each campaign writes into its bag (campaigns.alignment, campaigns.star_hop).
+_RESULT_DOCUMENTS = {'alignment': 'calibration.yaml', 'star-hop': 'star_hop.yaml'}
+
+
+def _bag_campaign(bag: Path) -> str | None:
+    """The campaign a bag records, by the result document it holds (None: neither), so that a --plan of the other
+    campaign is refused: given an alignment bag, a star-hop plan flew the star-hop library for it, at exit 0."""
+    found = [campaign for campaign, name in _RESULT_DOCUMENTS.items() if (Path(bag) / name).is_file()]
+    return found[0] if len(found) == 1 else None
 
 
 def _thermal_control(bag: Path) -> dict | None:
@@ -535,7 +551,7 @@ def _design(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     model = load_effect_config(model_path)
     check_members(model, members)
     # An imported bag has no plan.yaml: the plan it was flown with is then given.
-    old_plan = read_plan_file(args.plan) if args.plan else read_plan(bag)
+    old_plan = read_plan_file(args.plan, _bag_campaign(bag)) if args.plan else read_plan(bag)
     thermal_control = _thermal_control(bag)
     elements = _library_elements(old_plan, thermal_control)
 

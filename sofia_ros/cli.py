@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+import warnings
 
 import yaml
 
@@ -91,11 +92,32 @@ def _model_text(args):
     return load_effect_config(args.model).text if args.model else 'effects: {}\n'
 
 
+#: `sofia run`'s options that only some campaigns take (option dest -> those campaigns): given to another, they
+#: were silently ignored.
+_CAMPAIGN_OPTIONS = {
+    'repetitions': ('alignment',), 'verification_repetitions': ('alignment',), 'drift_track_s': ('alignment',),
+    'max_sim_s': ('alignment',), 'hold_s': ('star-hop',), 'observations': ('star-hop',),
+    'no_follow_times': ('star-hop',), 'case': ('gyro-stability',), 'hours': ('gyro-stability',),
+}
+
+
+def _check_run_options(campaign, args):
+    """ConfigError in one line for an option given an empty value or one that ``campaign`` does not take."""
+    for dest in ('truth', 'model', 'bag', 'plan', 'variant'):
+        if getattr(args, dest) == '':
+            raise ConfigError(f'--{dest} is given an empty value; give one or leave --{dest} out')
+    for dest, campaigns in _CAMPAIGN_OPTIONS.items():
+        if getattr(args, dest) not in (None, False) and campaign not in campaigns:
+            option = '--' + dest.replace('_', '-')
+            raise ConfigError(f'{option} is for the {" and ".join(campaigns)} campaign, not {campaign}; drop it')
+
+
 def _run_campaign(args):
     from sofia_ros.campaigns.registry import campaign_named
     from sofia_ros.config import load_effect_config
 
     spec = campaign_named(args.campaign)
+    _check_run_options(spec.name, args)
     if spec.name == 'gyro-stability':
         return _run_gyro_stability(args)
     if spec.name == 'star-hop':
@@ -425,10 +447,17 @@ def build_parser():
     return parser
 
 
+def _one_line_warning(message, category, filename, lineno, line=None):
+    """A warning as `sofia` writes its lines (warnings.formatwarning): Python's named the source file and line and
+    printed the source, two lines on every star hop for eq. 6.1's matrix, orthonormal to 1e-5 only."""
+    return f'sofia: warning: {message}\n'
+
+
 def main(argv=None):
     """Entry point of the ``sofia`` console script; returns the exit code (module docstring)."""
     interrupts.reset()
     previous = interrupts.install()
+    previous_format, warnings.formatwarning = warnings.formatwarning, _one_line_warning
     try:
         # Building the parser may load the effect catalogue (and the plug-ins it names).
         args = build_parser().parse_args(argv)
@@ -455,6 +484,7 @@ def main(argv=None):
         print(f'sofia: error: {line}', file=sys.stderr)
         return exit_code
     finally:
+        warnings.formatwarning = previous_format
         interrupts.restore(previous)
         interrupts.reset()
 

@@ -176,3 +176,15 @@ def test_two_run_modes_at_once_are_refused(tmp_path, sofia):
                        '--all-dds', '--direct')
     assert result.returncode == 2 and 'not allowed with argument' in result.stderr
     assert not (tmp_path / 'b').exists()
+
+
+def test_a_python_warning_is_one_sofia_line(tmp_path):
+    # Every star hop warns that eq. 6.1's matrix was re-orthonormalized: Python's format took two lines, the second
+    # the source code of the warning's call.
+    done = subprocess.run([sys.executable, '-m', 'sofia_ros.cli', 'run', 'star-hop', '--direct', '--truth',
+                           'config/truth/nominal.yaml', '--observations', '1-2', '--hold-s', '1', '--no-follow-times',
+                           '--bag', str(tmp_path / 'bag')], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    warned = [line for line in done.stderr.splitlines() if 'warning' in line.lower()]
+    assert warned == ['sofia: warning: alignment.tarf_from_gyrf re-orthonormalized (max |A A^T - I| = 9e-06)'], \
+        done.stderr

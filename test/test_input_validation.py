@@ -99,6 +99,32 @@ def test_run_numbers_are_checked_before_anything_is_written(option, value, messa
     assert not bag.exists()
 
 
+
+@pytest.mark.parametrize('campaign, extra, message', [
+    # Each was silently ignored (and --plan '' or --variant '' flew the thesis' whole plan).
+    ('alignment', ['--hold-s', '5'], '--hold-s is for the star-hop campaign, not alignment; drop it'),
+    ('alignment', ['--no-follow-times'], '--no-follow-times is for the star-hop campaign'),
+    ('star-hop', ['--repetitions', '3'], '--repetitions is for the alignment campaign, not star-hop'),
+    ('star-hop', ['--case', 'TC-1'], '--case is for the gyro-stability campaign'),
+    ('alignment', ['--plan', ''], '--plan is given an empty value'),
+    ('alignment', ['--variant', ''], '--variant is given an empty value'),
+    ('star-hop', ['--model', ''], '--model is given an empty value'),
+])
+def test_run_options_that_the_campaign_does_not_take_or_that_are_empty_are_refused(
+        campaign, extra, message, tmp_path, capsys):
+    bag = tmp_path / 'bag'
+    assert main(['run', campaign, '--direct', '--truth', TRUTH, '--bag', str(bag), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and message in err, err
+    assert not bag.exists()
+
+
+def test_a_bag_path_through_a_file_is_bad_input_not_a_disk_fault(tmp_path, capsys):
+    (tmp_path / 'afile').write_text('')
+    assert main([*RUN, '--bag', str(tmp_path / 'afile' / 'bag')]) == 2  # was exit 3, "check the disk"
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'afile is a file, not a directory; choose another --bag' in err, err
+
 @pytest.mark.parametrize('args, message', [
     (['replay', 'b', '--wait-s', 'nan'], r'argument --wait-s: must be a finite number in \[0, 3600\] s'),
     (['replay', 'b', '--rate', 'nan'], r'argument --rate: must be a finite number in \[0, 1e\+06\]'),

@@ -52,6 +52,9 @@ def _check_creatable(bag_path: Path) -> None:
     too; in --processes mode the bag is created by the recorder process, whose own error says less.
     """
     ancestor = next((folder for folder in bag_path.absolute().parents if folder.exists()), Path('/'))
+    if not ancestor.is_dir():
+        raise ConfigError(f'cannot make bag directory {bag_path}: {ancestor} is a file, not a directory; choose '
+                          'another --bag')
     try:
         os.rmdir(tempfile.mkdtemp(prefix=f'.{bag_path.name[:100]}.', dir=ancestor))
     except OSError as err:

@@ -256,6 +256,37 @@ def test_a_check_against_a_json_that_is_no_design_is_refused(capsys, tmp_path):
              'is not the JSON of `sofia design`')
 
 
+
+def _design_json(tmp_path, plan_only_bag, **keys):
+    prediction = tmp_path / 'design.json'
+    prediction.write_text(json.dumps({'bag': str(plan_only_bag), 'model': str(NOMINAL_MODEL),
+                                      'members': ['gyro_axis_swap', 'gyro_scale_factor'],
+                                      'predicted': {'gyro_axis_swap': 20.0, 'gyro_scale_factor': 20.0}, **keys}))
+    return prediction
+
+
+@pytest.mark.parametrize('extra, match', [
+    (['source.json'], 'drop a SOURCE'),
+    (['--between', 'gyro_axis_swap,gyro_scale_factor'], 'drop --between'),
+    (['--plan-out', 'plan.yaml'], 'drop --plan-out'),
+])
+def test_a_check_refuses_the_options_it_would_ignore(capsys, tmp_path, plan_only_bag, extra, match):
+    prediction = _design_json(tmp_path, plan_only_bag)
+    _refused(capsys, tmp_path, [*extra, '--check', str(plan_only_bag), '--prediction', str(prediction)], match)
+
+
+def test_a_check_of_a_bag_not_flown_with_the_designed_plan_is_refused(capsys, tmp_path, plan_only_bag):
+    # Any bag was refitted and printed against the prediction at exit 0.
+    designed = tmp_path / 'designed.yaml'
+    designed.write_text('campaign: alignment\nrepetitions: 3\n')
+    prediction = _design_json(tmp_path, plan_only_bag, plan=str(designed))
+    _refused(capsys, tmp_path, ['--check', str(plan_only_bag), '--prediction', str(prediction)],
+             f'was not flown with the designed plan {designed}')
+    other = tmp_path / 'other'
+    shutil.copytree(plan_only_bag, other)  # flown with the old plan, not the designed one
+    _refused(capsys, tmp_path, ['--check', str(other), '--prediction', str(prediction)],
+             f'was not flown with the designed plan {designed}')
+
 @pytest.mark.parametrize('argv, match', [
     (['--check', 'new_bag'], 'needs --prediction'),
     (['--prediction', 'design.json'], '--prediction goes with --check'),

@@ -603,12 +603,18 @@ def _check(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
 
     if not args.prediction:
         raise ConfigError('--check NEW_BAG needs --prediction DESIGN.json (the JSON `sofia design --json` wrote)')
+    ignored = [option for option, value in (('a SOURCE', args.source), ('--between', args.between),
+                                            ('--plan', args.plan), ('--plan-out', args.plan_out)) if value]
+    if ignored:
+        raise ConfigError(f'--check takes the design (--prediction) and the bag flown with its plan; drop '
+                          f'{", ".join(ignored)}')
     if args.json:
         checked_output_file('--json', args.json, {'the new bag': args.check, 'the design': args.prediction,
                                                   'the model': args.model})
     prediction = _read_json(args.prediction, 'a design (sofia design --json)')
     if not isinstance(prediction.get('members'), list) or not isinstance(prediction.get('predicted'), dict):
         raise ConfigError(f'{args.prediction} is not the JSON of `sofia design` (no members or predicted key)')
+    _check_flown_with_the_design(prediction, Path(args.check))
     model = load_effect_config(args.model or prediction['model'])
     members = _members(','.join(prediction['members']))
     achieved, start = {}, None
@@ -634,6 +640,20 @@ def _check(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
         write_text_atomically(args.json, json.dumps(json_ready({'prediction': str(args.prediction), **achieved}),
                                                     indent=2) + '\n')
     return 0
+
+
+def _check_flown_with_the_design(prediction: dict, new_bag: Path) -> None:
+    """ConfigError unless ``new_bag`` was flown with the plan the design wrote, where both are there: any bag, the
+    design's own too, was refitted and printed against the prediction at exit 0. A design that wrote no plan (the set
+    already separated, or inseparable) is checked on its own bag."""
+    from sofia_ros.campaigns.plan_files import read_plan, read_plan_file
+    from sofia_ros.sim.sequence import PLAN_FILE_NAME
+
+    designed = prediction.get('plan')
+    if isinstance(designed, str) and Path(designed).is_file() and (new_bag / PLAN_FILE_NAME).is_file():
+        if read_plan(new_bag) != read_plan_file(designed):
+            raise ConfigError(f'--check {new_bag} was not flown with the designed plan {designed}; fly it with '
+                              f'`sofia run CAMPAIGN --plan {designed} ...` and check that bag')
 
 
 def run_design(args: argparse.Namespace, out: TextIO) -> int:

@@ -58,7 +58,7 @@ class _LimitedLoader(yaml.SafeLoader):
             self._expanded[id(node)] = 1 + sum(self._expanded.get(id(child), 1) for child in children)
         if self._expanded[id(node)] > MAX_YAML_NODES:
             raise ConfigError(f'the YAML expands to more than {MAX_YAML_NODES} values (aliases counted as '
-                              'often as they are used); a truth or model file is far smaller')
+                              'often as they are used); a truth, model or plan file is far smaller')
         return node
 
     def construct_mapping(self, node, deep=False):

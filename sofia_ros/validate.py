@@ -20,6 +20,7 @@ __all__ = [
     'positive_scalar',
     'unit_vector',
     'orthonormal_dcm',
+    'number_text_hint',
     'DCM_REJECT_TOLERANCE',
     'DCM_EXACT_TOLERANCE',
 ]
@@ -107,3 +108,11 @@ def orthonormal_dcm(name, value):
         matrix = u @ vt
     return matrix
 
+
+def number_text_hint(text):
+    """Where YAML read a number as text: how to write it ('1e3' needs a dot and a sign, 1.0e+3), else ''."""
+    try:
+        float(text)
+    except ValueError:
+        return ''
+    return ' (YAML reads 1e3 as text: write 1000 or 1.0e+3)' if 'e' in text.lower() else ' (write it without quotes)'

@@ -24,6 +24,9 @@ TRUTH = str(ROOT / 'config' / 'truth' / 'nominal.yaml')
     ('effects: {gyro_bias: {el_deg_per_h: 1.0e+300}}', r'el_deg_per_h = 1e\+300 is outside \[-10, 10\] deg/h'),
     ('effects: {gyro_misalignment: {about_el_arcsec: 1.0e+300}}',
      r'about_el_arcsec = 1e\+300 is outside \[-36000, 36000\] arcsec'),
+    ('effects: {gyro_misalignment: {about_el_arcsec: 1.0e300}}',  # YAML 1.1 reads this exponent as text
+     r"got '1.0e300' \(YAML reads 1e3 as text: write 1000 or 1.0e\+3\)"),
+    ("effects: {seeing: {rms_arcsec: '0.3'}}", r"got '0.3' \(write it without quotes\)"),
     ('effects: {seeing: {rms_arcsec: .nan}}', r'rms_arcsec must be finite, in \[0, 10\] arcsec'),
     ('effects: {seeing: {rms_arcsec: true}}', r'rms_arcsec must be a number in \[0, 10\] arcsec, got True'),
     ('effects: {vibration_lines: {frequencies_hz: [1.0, 1.3, 4.0]}}',

@@ -27,8 +27,9 @@ from sofia_ros.input_files import read_text_capped
 from sofia_ros.output_files import write_text_atomically
 from sofia_ros.scenario import Scenario
 from sofia_ros.sim.calibration import AlignmentPlan
-from sofia_ros.sim.sequence import PLAN_FILE_NAME, number_text_hint, plan_document, plan_text
+from sofia_ros.sim.sequence import PLAN_FILE_NAME, plan_document, plan_text
 from sofia_ros.sim.star_hop import StarHopPlan
+from sofia_ros.validate import number_text_hint
 
 __all__ = ['PLAN_FILE_NAME', 'PLAN_TYPES', 'check_plan_with_truth', 'plan_document', 'plan_from_document', 'plan_text',
            'plans_directory', 'read_plan', 'read_plan_file', 'variant_plan_path', 'write_plan_file']

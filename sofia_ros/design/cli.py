@@ -114,7 +114,7 @@ def _members(text: str) -> list:
 def _read_json(path: str, what: str) -> dict:
     from sofia_ros.input_files import read_text_capped
 
-    text = read_text_capped(path, _MAX_JSON_BYTES, what)
+    text = read_text_capped(path, _MAX_JSON_BYTES, what.removeprefix('a '))
     try:
         document = json.loads(text)
     except json.JSONDecodeError as err:

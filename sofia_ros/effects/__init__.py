@@ -23,6 +23,7 @@ from sofia_ros.effects.base import HOOKS, EffectParams, Effects, EffectSpec, Par
 from sofia_ros.effects.context import CameraContext, GyroContext
 from sofia_ros.effects.empirical import empirical_spec, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
+from sofia_ros.validate import number_text_hint
 
 __all__ = ['CATALOGUE', 'EffectSpec', 'Parameter', 'PLUGIN_ENVIRONMENT_VARIABLE', 'get_effect', 'resolve_params',
            'catalogue_as_json', 'load_catalogue', 'plugin_terms', 'HookTerm', 'is_empirical', 'NOISE_EFFECTS',
@@ -215,8 +216,9 @@ def _checked_entry(effect_name, label, param, template, value, within_ranges):
     """One value (or list entry) against the type of ``template`` and the parameter's range or choices."""
     if isinstance(template, float):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
+            hint = number_text_hint(value) if isinstance(value, str) else ''
             raise ConfigError(f'effect {effect_name!r}: {label} must be a number in {_range_text(param)}, '
-                              f'got {_shown(value)}')
+                              f'got {_shown(value)}{hint}')
         try:
             number = float(value)
         except OverflowError as err:

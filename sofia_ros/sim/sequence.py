@@ -39,12 +39,12 @@ from sofia_ros.topics import (
 )
 from sofia_ros.plan_limits import MAX_ELEMENT_S, PLAN_LIMITS
 from sofia_ros.units import RAD_PER_DEG
-from sofia_ros.validate import finite_array, finite_scalar
+from sofia_ros.validate import finite_array, finite_scalar, number_text_hint
 
 __all__ = ['SequenceCore', 'TOPICS', 'OBSERVING_ELEVATIONS_DEG', 'PLAN_FILE_NAME', 'plan_document', 'plan_text',
            'elements_from_yaml', 'elements_to_yaml',
            'elements_budget_s', 'observing_elevation', 'fine_drive_los', 'hold_duration', 'detector_offset',
-           'thermal_target', 'thermal_rate', 'check_plan_limits', 'number_text_hint']
+           'thermal_target', 'thermal_rate', 'check_plan_limits']
 
 #: the topics the calibration node publishes besides the TASCU's commands, by the short names its methods use
 TOPICS = {'progress': CALIBRATION_PROGRESS, 'result': CALIBRATION_RESULT, 'maneuvers': CALIBRATION_MANEUVERS,
@@ -70,15 +70,6 @@ def _number(name: str, value: Any) -> float:
     if isinstance(value, bool):
         raise InvalidArgumentError(f'{name} must be a number, got {value}')
     return finite_scalar(name, value)
-
-
-def number_text_hint(text: str) -> str:
-    """Where YAML read a number as text: how to write it ('1e3' needs a dot and a sign, 1.0e+3), else ''."""
-    try:
-        float(text)
-    except ValueError:
-        return ''
-    return ' (YAML reads 1e3 as text: write 1000 or 1.0e+3)' if 'e' in text.lower() else ' (write it without quotes)'
 
 
 def observing_elevation(name: str, value: Any) -> float:

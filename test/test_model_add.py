@@ -37,12 +37,14 @@ def test_comments_order_and_style_survive_and_the_effect_is_fitted(tmp_path, cap
     assert load_effect_config(model).fitted == {'gyro_bias', 'gyro_misalignment'}
 
 
-def test_an_effect_already_listed_gets_fit_beside_its_values(tmp_path):
+def test_an_effect_already_listed_gets_fit_beside_its_values(tmp_path, capsys):
     model = tmp_path / 'm.yaml'
     model.write_text(MODEL)
     assert main(['model', 'add', 'focal_plane_flexure', '--model', str(model)]) == 0
     assert '  focal_plane_flexure: {scale: 1.0, fit: true}\n' in model.read_text()
     assert '# the FEM' in model.read_text()
+    # It said "starting at its thesis defaults" while the fit starts from the file's values.
+    assert 'focal_plane_flexure added as a fitted term (starting at its values in the file)' in capsys.readouterr().out
 
 
 def test_a_symlink_is_written_through_and_the_mode_kept(tmp_path):
@@ -172,6 +174,11 @@ def test_remove_and_replace_edit_the_file_and_keep_its_comments(tmp_path, capsys
     (['model', 'replace', 'seeing'], 'usage: sofia model replace OLD NEW'),
     (['model', 'add', 'seeing', 'tracker_drift'], 'takes one effect; did you mean `sofia model replace seeing'),
     (['model', 'replace', 'seeing', 'no_such_effect'], "unknown effect 'no_such_effect'"),
+    # OLD[,OLD2] NEW: three terms out were accepted, a term twice said the file had none, a term for itself rewrote it.
+    (['model', 'replace', 'gyro_bias,earth_rotation,focal_plane_flexure', 'seeing'],
+     'takes one or two different terms to take out and another to put in'),
+    (['model', 'replace', 'gyro_bias,gyro_bias', 'seeing'], 'takes one or two different terms'),
+    (['model', 'replace', 'gyro_bias', 'gyro_bias'], 'takes one or two different terms'),
 ])
 def test_bad_model_edits_are_one_line_and_leave_the_file(tmp_path, capsys, argv, message):
     model = tmp_path / 'm.yaml'

@@ -504,8 +504,11 @@ def run_model_add(args: argparse.Namespace, out: TextIO) -> int:
             raise ConfigError('usage: sofia model replace OLD NEW --model M.yaml (NEW takes the place of OLD)')
         old = tuple(get_effect(name).name for name in args.effect.split(','))
         new = get_effect(args.replacement).name
-        edit_model_file(path, add=(new,), remove=old)
-        print(f'{path}: {" and ".join(old)} replaced by {new} as a fitted term (starting at its thesis defaults); '
+        if not 1 <= len(old) <= 2 or len(set(old)) != len(old) or new in old:
+            raise ConfigError(f'sofia model replace takes one or two different terms to take out and another to put '
+                              f'in (OLD[,OLD2] NEW), got {args.effect} {args.replacement}')
+        kept = edit_model_file(path, add=(new,), remove=old)
+        print(f'{path}: {" and ".join(old)} replaced by {new} as a fitted term ({_starting(new, kept)}); '
               'rerun sofia compare', file=out)
         return 0
     if args.replacement:
@@ -516,12 +519,17 @@ def run_model_add(args: argparse.Namespace, out: TextIO) -> int:
         edit_model_file(path, remove=(name,))
         print(f'{path}: {name} removed; rerun sofia compare', file=out)
         return 0
-    edit_model_file(path, add=(name,))
-    print(f'{path}: {name} added as a fitted term (starting at its thesis defaults); rerun sofia compare', file=out)
+    kept = edit_model_file(path, add=(name,))
+    print(f'{path}: {name} added as a fitted term ({_starting(name, kept)}); rerun sofia compare', file=out)
     return 0
 
 
-def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remove: Iterable[str] = ()) -> None:
+def _starting(name: str, kept: set[str]) -> str:
+    """Where a term put in starts: the values the file gave it (a fixed effect made fitted), or the thesis' own."""
+    return 'starting at its values in the file' if name in kept else 'starting at its thesis defaults'
+
+
+def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remove: Iterable[str] = ()) -> set[str]:
     """Take the effects ``remove`` out of a model file and put ``add`` in as fitted terms, in one edit.
 
     The file is edited, not regenerated: comments, order and style stay (ruamel.yaml round
@@ -532,6 +540,9 @@ def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remov
         path: the model file.
         add: the effects put in as fitted terms.
         remove: the effects taken out.
+
+    Returns:
+        The effects of ``add`` that the file held with values of their own (fixed), which they keep.
 
     Raises:
         ConfigError: the file is missing or not valid YAML, an effect to remove is not in it, one to add is fitted
@@ -563,11 +574,14 @@ def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remov
                 raise ConfigError(f'{path} has no {name}; nothing to remove (its effects: '
                                   f'{", ".join(effects) or "none"})')
             del effects[name]
+        kept = set()
         for name in add:
             current = effects.get(name)
             if isinstance(current, dict) and current.get('fit'):
                 raise ConfigError(f'{path} already fits {name}; nothing to add')
             if isinstance(current, dict):
+                if any(key != 'fit' for key in current):
+                    kept.add(name)
                 current['fit'] = True
             else:
                 effects[name] = CommentedMap([('fit', True)])
@@ -576,3 +590,4 @@ def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remov
         new_text = buffer.getvalue()
         parse_effect_config(new_text, str(path))
         write_text_atomically(target, new_text)
+    return kept

@@ -96,6 +96,9 @@ def _write_imu_free_bag(path):
     (lambda tmp, bag: [str(bag), '--decimate', '100'], '720 samples at 4 Hz; the analysis needs at least 1024'),
     (lambda tmp, bag: [str(bag), '--report', str(tmp / 'full')], 'already exists and is not empty'),
     (lambda tmp, bag: [str(bag), '--json', str(tmp / 'nowhere' / 'out.json')], 'give a file in an existing directory'),
+    # Said "already exists and is not empty" of a device, and "give a file in an existing directory" of a folder.
+    (lambda tmp, bag: [str(bag), '--report', '/dev/null'], '--report /dev/null is not a directory (a file or a device)'),
+    (lambda tmp, bag: [str(bag), '--json', str(tmp / 'full')], 'is a directory; give a file name'),
 ])
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(bag, tmp_path, capsys, arguments, message):
     _write_imu_free_bag(tmp_path / 'no_imu')

@@ -35,7 +35,9 @@ def add_noise_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _check_json_target(path):
     target = Path(path)
-    if target.is_dir() or not target.parent.is_dir():
+    if target.is_dir():
+        raise ConfigError(f'--json {target} is a directory; give a file name, e.g. {target / "noise.json"}')
+    if not target.parent.is_dir():
         raise ConfigError(f'cannot write --json {target}: give a file in an existing directory')
     return target
 

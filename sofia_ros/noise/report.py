@@ -59,7 +59,9 @@ def check_report_dir(report_dir: str | PathLike[str]) -> Path:
         ConfigError: it exists with content (or is no directory), or its parent is missing.
     """
     target = Path(report_dir)
-    if target.exists() and (not target.is_dir() or any(target.iterdir())):
+    if target.exists() and not target.is_dir():
+        raise ConfigError(f'--report {target} is not a directory (a file or a device); give a new or empty directory')
+    if target.exists() and any(target.iterdir()):
         raise ConfigError(f'report directory {target} already exists and is not empty; choose another --report '
                           'or remove it')
     if not target.parent.is_dir():

@@ -95,7 +95,7 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
 def _members(text: str) -> list:
     """--between A,B as two members, each a list of catalogue effects; ConfigError in one line otherwise."""
     from sofia_ros.compare.fit import free_parameters
-    from sofia_ros.effects import get_effect
+    from sofia_ros.effects import NOISE_EFFECTS, get_effect
 
     members = [[name.strip() for name in part.split('+')] for part in text.split(',')]
     if len(members) != 2 or not all(all(member) for member in members):
@@ -103,6 +103,9 @@ def _members(text: str) -> list:
     for member in members:
         for name in member:
             get_effect(name)  # UnknownEffectError names the closest effects
+            if name in NOISE_EFFECTS:
+                raise ConfigError(f'--between: {name} is a random process, which sets the noise floor and moves no '
+                                  'prediction; name an effect that does')
         if not free_parameters(member):
             raise ConfigError(f'--between: {"+".join(member)} has no numeric parameter to fit; name a fittable effect')
     if set(members[0]) & set(members[1]):
@@ -492,7 +495,7 @@ def _print_design(document: dict, out: TextIO) -> None:
               file=out)
     status = document['status']
     if status == 'already_separated':
-        print(f'already separated: the bag tells them apart by delta-BIC >= {document["target_delta_bic"]:.0f} '
+        print(f'already separated: the bag tells them apart by delta-BIC >= {document["target_delta_bic"]:g} '
               'whichever is true; no plan is needed', file=out)
         return
     _print_reproduced(document, out)

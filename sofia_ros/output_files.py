@@ -14,7 +14,7 @@ import numpy as np
 from sofia_ros.errors import ConfigError, OutputError
 
 __all__ = ['atomic_output', 'checked_output_directory', 'checked_output_file', 'current_umask', 'describe_os_error',
-           'json_ready', 'output_error', 'output_target', 'write_text_atomically']
+           'json_ready', 'output_error', 'output_target', 'refuse_over_inputs', 'write_text_atomically']
 
 
 def current_umask():
@@ -54,7 +54,7 @@ def checked_output_file(option, path, inputs):
     a folder such as a bag's, whose files are inputs too); ConfigError in one line otherwise."""
     target = output_target(path)
     _require_writable(path, target.parent)
-    _refuse_over_inputs(option, path, inputs)
+    refuse_over_inputs(option, path, inputs)
     return target
 
 
@@ -69,7 +69,7 @@ def checked_output_directory(option, path, inputs):
     if not existing.is_dir():
         raise ConfigError(f'the directory of {path} does not exist; create it first')
     _require_writable(path, existing)
-    _refuse_over_inputs(option, path, inputs)
+    refuse_over_inputs(option, path, inputs)
     return directory
 
 
@@ -83,7 +83,7 @@ def _require_writable(path, directory):
     raise ConfigError(f'cannot write {line}')
 
 
-def _refuse_over_inputs(option, path, inputs):
+def refuse_over_inputs(option, path, inputs):
     """ConfigError when ``path`` is one of ``inputs`` (the same file, through any link) or lies inside an input
     folder: `--json BAG/BAG.mcap` replaced a recording with the comparison, at exit 0."""
     target = Path(path).resolve()

@@ -224,6 +224,9 @@ BAD = [
     ('gyro.los', '1.0', 'px', PerturbationError, 'use one of deg_per_h, arcsec_per_s'),
     ('fpi.x', 'log(-1 + 0*time_s)', None, PerturbationError, 'is not finite at'),
     ('fpi.x', '1/(time_s - time_s)', None, PerturbationError, 'is not finite at'),
+    # Finite in arcsec, inf in pixels: the copy held inf at exit 0.
+    ('fpi.x', '1.7e308', None, PerturbationError, 'beyond the numbers a bag can hold'),
+    ('gyro.el', '1e300', None, PerturbationError, 'beyond the numbers a bag can hold'),
 ]
 
 
@@ -254,3 +257,62 @@ def test_cli_prints_one_line_and_exits_2_on_bad_input_leaving_nothing(bag, tmp_p
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and err.startswith('sofia: error: the shape') and 'keep it finite' in err
     assert [path.name for path in tmp_path.iterdir()] == ['cli']
+
+
+def _damaged_copy(bag, tmp_path, name, at_fraction, length):
+    """A copy of ``bag`` with ``length`` bytes inverted at ``at_fraction`` of its MCAP file (its metadata left)."""
+    import shutil
+
+    damaged = tmp_path / name
+    shutil.copytree(bag, damaged)
+    mcap = _mcap(damaged)
+    data = bytearray(mcap.read_bytes())
+    start = int(len(data) * at_fraction)
+    data[start:start + length] = bytes(byte ^ 0xFF for byte in data[start:start + length])
+    mcap.write_bytes(bytes(data))
+    return damaged
+
+
+@pytest.mark.parametrize('observable', ['fpi.x', 'gyro.el'])
+def test_a_damaged_chunk_anywhere_is_refused_not_copied(bag, tmp_path, observable):
+    # A chunk of other topics was copied as it was, its CRC unread: a perturbed bag that failed later, at exit 0.
+    damaged = _damaged_copy(bag, tmp_path, 'damaged', 0.4, 50)
+    with pytest.raises(BagError, match=r'truncated or corrupt|fails its CRC|damaged'):
+        perturb_bag(damaged, tmp_path / 'out', observable, '1.0')
+    assert not (tmp_path / 'out').exists()
+    assert not [path for path in tmp_path.iterdir() if path.name.startswith('.out')]
+
+
+def test_a_failure_in_the_middle_of_the_copy_is_its_own_error(bag, tmp_path, monkeypatch, capsys):
+    import errno
+
+    from sofia_ros.perturb import rewrite
+
+    # A view of the mapped source outlived the failure: closing the map raised BufferError over it (exit 1).
+    def full(self, position):
+        raise OSError(errno.ENOSPC, 'No space left on device')
+
+    monkeypatch.setattr(rewrite._Copy, '_footer', full)
+    assert main(['perturb', str(bag), str(tmp_path / 'out'), '--observable', 'fpi.x', '--shape', '1.0']) == 3
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'disk full' in err and 'BufferError' not in err, err
+
+    def interrupted(self, position):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rewrite._Copy, '_footer', interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        perturb_bag(bag, tmp_path / 'out', 'fpi.x', '1.0')
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('command', ['perturb', 'recover', 'import'])
+def test_an_output_inside_the_input_folder_is_refused(bag, tmp_path, capsys, command):
+    # Each wrote a whole bag inside its input folder, at exit 0.
+    argv = {'perturb': ['perturb', str(bag), str(bag / 'inner'), '--observable', 'fpi.x', '--shape', '1.0'],
+            'recover': ['recover', str(bag), '--out', str(bag / 'inner')],
+            'import': ['import', str(tmp_path), '--bag', str(tmp_path / 'inner')]}[command]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'is inside' in err, err
+    assert not (bag / 'inner').exists() and not (tmp_path / 'inner').exists()

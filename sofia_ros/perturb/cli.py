@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from sofia_ros.errors import ConfigError
+from sofia_ros.output_files import refuse_over_inputs
 from sofia_ros.perturb.observables import OBSERVABLES
 from sofia_ros.perturb.run import perturb_bag
 from sofia_ros.perturb.shapes import FUNCTIONS
@@ -32,6 +34,10 @@ def add_perturb_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_perturb(args: argparse.Namespace, out: TextIO) -> int:
     """Perturb the bag and print one summary line."""
+    for name, value in (('BAG', args.bag), ('OUT', args.out)):
+        if value == '':
+            raise ConfigError(f'{name} is given an empty value; give a path')
+    refuse_over_inputs('OUT', args.out, {'the bag': args.bag})
     result = perturb_bag(args.bag, args.out, args.observable, args.shape, unit=args.unit)
     out.write(f'perturbed {result.observable} of {args.bag} into {args.out}: {result.rows_changed} rows changed; '
               f'added {result.shape!r}: RMS {result.rms:.6g}, min {result.min:.6g}, max {result.max:.6g} '

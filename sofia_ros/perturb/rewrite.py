@@ -61,7 +61,7 @@ _CHANNEL_ID = struct.Struct('<H')
 _CHUNK_CRC_AT = _RECORD_HEAD.size + 24
 _COMPRESS = {'zstd': zstd.compress, 'lz4': lz4.frame.compress, '': bytes}
 _DECOMPRESS = {'zstd': zstd.decompress, 'lz4': lz4.frame.decompress, '': bytes}
-_DAMAGE = (*INDEX_DAMAGE_ERRORS, KeyError)
+_DAMAGE = (*INDEX_DAMAGE_ERRORS, KeyError, OverflowError)
 
 
 def read_summary(mcap_path: Path) -> Summary:
@@ -70,11 +70,10 @@ def read_summary(mcap_path: Path) -> Summary:
         with open(mcap_path, 'rb') as file:
             summary = make_reader(file).get_summary()
     except INDEX_DAMAGE_ERRORS as err:
-        raise BagError(f'{mcap_path} is truncated or corrupt ({type(err).__name__}: {err}); '
-                       'salvage it with sofia_ros.bag.recover_bag') from err
+        raise _damaged(mcap_path, err) from err
     if summary is None or not summary.chunk_indexes:
         raise BagError(f'{mcap_path} has no MCAP summary with chunk indexes; rebuild it with '
-                       'sofia_ros.bag.recover_bag, which writes one')
+                       f'`sofia recover {mcap_path.parent}`, which writes one')
     return summary
 
 
@@ -88,12 +87,16 @@ def channel_id_of(summary: Summary, topic: str) -> int:
 
 def channel_payloads(mcap_path: Path, summary: Summary, channel_id: int) -> Iterator[list[memoryview]]:
     """Per chunk holding ``channel_id``, in file order: that channel's payloads in record order."""
-    with open(mcap_path, 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+    with open(mcap_path, 'rb') as file:
+        data = _mapped(file)
         for chunk in sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset):
             if channel_id in chunk.message_index_offsets:
                 start = chunk.chunk_start_offset
-                records = _decompressed(_read(Chunk, data, start), start)
-                spans = _channel_messages(data, chunk.message_index_offsets[channel_id], channel_id, records)
+                try:
+                    records = _decompressed(_read(Chunk, data, start), start)
+                    spans = _channel_messages(data, chunk.message_index_offsets[channel_id], channel_id, records)
+                except _DAMAGE as err:
+                    raise _damaged(mcap_path, err) from err
                 yield [records[head + _MESSAGE_HEAD.size:end] for head, end in spans]
 
 
@@ -101,13 +104,24 @@ def copy_mcap(source: Path, target: Path, summary: Summary, channel_id: int, rep
     """Write ``target`` as ``source`` with each chunk's payloads of ``channel_id`` replaced by equal-length ones."""
     holding = {chunk.chunk_start_offset: chunk.message_index_offsets[channel_id] for chunk in summary.chunk_indexes
                if channel_id in chunk.message_index_offsets}
-    with open(source, 'rb') as file, mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data, \
-            open(target, 'wb') as out:
+    with open(source, 'rb') as file, open(target, 'wb') as out:
         try:
-            _Copy(data, out, holding, channel_id, replace).run()
+            _Copy(_mapped(file), out, holding, channel_id, replace).run()
         except _DAMAGE as err:
-            raise BagError(f'{source} is truncated or corrupt ({type(err).__name__}: {err}); '
-                           'salvage it with sofia_ros.bag.recover_bag') from err
+            raise _damaged(source, err) from err
+
+
+def _damaged(mcap_path: Path, err: Exception) -> BagError:
+    """The one line for a source MCAP file that fails a check while it is read or copied."""
+    return BagError(f'{mcap_path} is truncated or corrupt ({type(err).__name__}: {err}); salvage it with '
+                    f'`sofia recover {mcap_path.parent}`')
+
+
+def _mapped(file: io.BufferedReader) -> mmap.mmap:
+    """The file mapped read-only; left to the garbage collector to unmap, not closed in a with: a failure in the
+    middle of a copy (a damaged record, a full disk, Ctrl-C) leaves views of it in the traceback's frames, and
+    closing it then raised BufferError over the real error (exit 1)."""
+    return mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ)
 
 
 class _Copy:
@@ -177,13 +191,14 @@ class _Copy:
         return memoryview(self.data)[position:end]
 
     def _with_crc(self, position: int, end: int) -> bytes | memoryview:
-        """The chunk at ``position`` as it is, its CRC filled in if the source left it 0."""
+        """The chunk at ``position`` as it is, its records checked against its size and CRC (a damaged chunk was
+        copied into a perturbed bag at exit 0), the CRC filled in if the source left it 0."""
+        records = _decompressed(_read(Chunk, self.data, position), position)
         raw = memoryview(self.data)[position:end]
         if struct.unpack_from('<I', raw, _CHUNK_CRC_AT)[0]:
             return raw
         record = bytearray(raw)
-        struct.pack_into('<I', record, _CHUNK_CRC_AT, zlib.crc32(_decompressed(_read(Chunk, self.data, position),
-                                                                             position)))
+        struct.pack_into('<I', record, _CHUNK_CRC_AT, zlib.crc32(records))
         return record
 
     def _chunk(self, position: int) -> bytes:

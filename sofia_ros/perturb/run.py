@@ -94,9 +94,15 @@ def perturb_bag(bag_path: str | PathLike[str], out_path: str | PathLike[str], ob
     if bad.any():
         raise PerturbationError(f'the shape {shape!r} is not finite at {np.count_nonzero(bad)} of {len(added)} rows; '
                                 'keep it finite everywhere (e.g. guard log and sqrt with maximum(..., 1e-9))')
-    new_values = recorded.values + added * recorded_per_unit
+    with np.errstate(over='ignore', invalid='ignore'):
+        new_values = recorded.values + added * recorded_per_unit
+        rms = float(np.sqrt(np.mean(np.square(added))))
+    if not (np.all(np.isfinite(new_values)) and np.isfinite(rms)):
+        # 1.7e308 arcsec is finite, its pixels are not: the copy held inf at exit 0.
+        raise PerturbationError(f'the shape {shape!r} takes {target.name} beyond the numbers a bag can hold '
+                                f'(largest |value| {np.max(np.abs(added)):.3g} {unit}); give a shape of physical size')
     result = Perturbation(target.name, shape, unit, int(np.count_nonzero(new_values != recorded.values)),
-                          float(np.sqrt(np.mean(np.square(added)))), float(added.min()), float(added.max()))
+                          rms, float(added.min()), float(added.max()))
     _write_bag(source, out, mcap_path, summary, channel_id, recorded.writer(new_values), result, target)
     return result
 

@@ -110,6 +110,15 @@ def test_the_clean_logs_import(tmp_path, capsys):
     (('centroids.csv', 2, 'hip', '2e19'), "hip = '2e19' is not a star of the Hipparcos 2 catalogue"),
     (('joints.csv', 2, 'time_ns', str(2**31 * 10**9)), "time_ns = '2147483648000000000' must be ns since 1970"),
     (('motion_status.csv', 1, 'state', 'moving'), "state = 'moving' is not a motion state (known: transient, "),
+    # Out of order or written twice: only gyro.csv was checked; the others were sorted silently, the twice-written
+    # temperature kept as two messages at one stamp, a star twice in one frame.
+    (('gyro_temperature.csv', 2, 'time_ns', str(_ns(5))), "time_ns = '%d' is not after the row before it" % _ns(5)),
+    (('joints.csv', 2, 'time_ns', str(_ns(4))), "time_ns = '%d' is not after the row before it" % _ns(4)),
+    (('attitude.csv', 2, 'time_ns', str(_ns(5))), "time_ns = '%d' is not after the row before it" % _ns(5)),
+    (('motion_status.csv', 2, 'time_ns', str(_ns(1))), "time_ns = '%d' is not after the row before it" % _ns(1)),
+    (('centroids.csv', 2, 'time_ns', str(_ns(5))),
+     "time_ns = '%d' is before the hipo row before it; time_ns must not decrease" % _ns(5)),
+    (('centroids.csv', 2, 'time_ns', str(_ns(6))), 'hip = \'11767\' is in this hipo frame twice'),
 ])
 def test_values_that_cannot_be_analysed_are_refused(tmp_path, capsys, replace, message):
     line = refusal(tmp_path, capsys, write_logs(tmp_path / 'logs', replace))

@@ -18,7 +18,8 @@ logging clock (the bag's stamps):
 Floats are written with 17 significant digits, so an export and import reproduce the bag's values.
 
 The import reads every log whole and checks it before it begins the bag (one line naming the file,
-line and fix otherwise): times from the logbook's start_utc to before 2038, the gyro's increasing;
+line and fix otherwise): times from the logbook's start_utc to before 2038, increasing in every log
+(in the centroids', not decreasing within a camera, a frame's stars sharing one, each star once a frame);
 rates, accelerations, joint angles and temperatures finite and within physical bounds; unit
 quaternions; centroids on their camera's detector, of stars in the Hipparcos 2 catalogue; known
 motion states; the logbook a scenario `sofia compare` can read. A bag it fails to finish is removed.
@@ -244,8 +245,11 @@ def _read_logs(directory: Path) -> _Logs:
             continue
         tables[name] = _read_table(path, columns, _ACCELERATION if name == 'gyro.csv' else ())
     stamps = {name: _times(table, start_ns) for name, table in tables.items()}
+    # Time order, as the gyro's integration needs it: the other logs were sorted silently, a row written twice kept.
+    for name in ('gyro.csv', 'gyro_temperature.csv', 'joints.csv', 'attitude.csv', 'motion_status.csv'):
+        if name in tables:
+            _require_increasing(tables[name], stamps[name])
     gyro = tables['gyro.csv']
-    _require_increasing(gyro, stamps['gyro.csv'])
     rates = np.column_stack([_numbers(gyro, f'{axis}_rad_per_s', _RATE_BOUNDS) for axis in AXES])
     forces = _accelerations(gyro)
     temperature = tables['gyro_temperature.csv']
@@ -403,15 +407,23 @@ def _motion_states(motion: _Table) -> list[str]:
 def _frames(centroids: _Table, stamps: list[int]) -> dict[str, list[tuple[int, list[_Centroid]]]]:
     """camera -> its frames in time order, each (stamp, stars); a row with hip empty is a frame without a star."""
     indices = [centroids.header.index(column) for column in ('camera', 'hip', 'x_px', 'y_px')]
-    frames = {}
+    frames, latest = {}, {}
     for row, (stamp, values) in enumerate(zip(stamps, centroids.rows)):
         camera, hip, x_px, y_px = (values[index] for index in indices)
         if camera not in CAMERAS:
             raise centroids.value_error(row, 'camera', f'is not a camera (known: {", ".join(CAMERAS)})')
+        if stamp < latest.get(camera, stamp):
+            raise centroids.value_error(row, 'time_ns', f'is before the {camera} row before it; time_ns must not '
+                                        'decrease within a camera (the stars of one frame share it)')
+        latest[camera] = stamp
         stars = frames.setdefault((camera, stamp), [])
         if hip != '':
-            stars.append(_Centroid(_hip(centroids, row, hip), _pixel(centroids, row, 'x_px', x_px, camera),
-                                   _pixel(centroids, row, 'y_px', y_px, camera)))
+            star = _Centroid(_hip(centroids, row, hip), _pixel(centroids, row, 'x_px', x_px, camera),
+                             _pixel(centroids, row, 'y_px', y_px, camera))
+            if any(other.hip == star.hip for other in stars):
+                raise centroids.value_error(row, 'hip', f'is in this {camera} frame twice; give each star of a frame '
+                                            'one row')
+            stars.append(star)
     by_camera = {}
     for (camera, stamp), stars in sorted(frames.items(), key=lambda item: item[0][1]):
         by_camera.setdefault(camera, []).append((stamp, stars))

@@ -153,6 +153,7 @@ _OS_ERROR_EXITS = {
     errno.EPERM: (2, 'operation not permitted', 'write to a directory you may write to'),
     errno.ENAMETOOLONG: (2, 'file name too long', 'choose a shorter name'),
     errno.ENOTDIR: (2, 'a part of the path is a file, not a directory', 'check the path'),
+    errno.ENOENT: (2, 'no such file or directory', 'check the path'),
 }
 
 

@@ -126,6 +126,20 @@ def test_effects_new_writes_a_module_that_compiles_or_refuses_the_folder(tmp_pat
     compile((tmp_path / 'plain_folder_effect.py').read_text(), 'plain_folder_effect.py', 'exec')
 
 
+def test_effects_new_refuses_a_dangling_link_and_a_folder_it_cannot_create_in(tmp_path, capsys):
+    # A dangling link was written through at exit 0 (a file made elsewhere); /proc was exit 3, the disk-full code.
+    (tmp_path / 'dang.py').symlink_to(tmp_path / 'nothere.py')
+    assert main(['effects', 'new', 'dang', '--kind', 'camera', '--dir', str(tmp_path)]) == 2
+    assert 'dang.py exists; choose another name' in _one_error_line(capsys)
+    assert not (tmp_path / 'nothere.py').exists()
+    assert main(['effects', 'new', 'procfx', '--kind', 'camera', '--dir', '/proc']) == 2
+    assert 'no such file or directory; check the path' in _one_error_line(capsys)
+    assert main(['effects', 'new', 'emptydir', '--kind', 'camera', '--dir', '']) == 2
+    assert '--dir is given an empty value' in _one_error_line(capsys)
+    assert main(['effects', 'new', 'nulldir', '--kind', 'camera', '--dir', '/dev/null']) == 2
+    assert 'directory /dev/null is not a directory' in _one_error_line(capsys)
+
+
 # --- 2. empirical names ---------------------------------------------------------------------------
 
 

@@ -176,12 +176,16 @@ def write_plugin_template(name: str, kind: str, directory: str | Path = '.') -> 
     Raises:
         ConfigError: the folder is missing, the file exists, or plugin_template refuses the name or kind.
     """
+    if str(directory) == '':
+        raise ConfigError('--dir is given an empty value; give a folder or leave --dir out')
     directory = Path(directory)
     if not directory.is_dir():
-        raise ConfigError(f'directory {directory} does not exist; create it or give another --dir')
+        what = 'is not a directory' if directory.exists() else 'does not exist'
+        raise ConfigError(f'directory {directory} {what}; create it or give another --dir')
     data = plugin_template(name, kind, str(directory)).encode('utf-8')
     path = directory / f'{name}.py'
-    if path.exists():
+    # A link, dangling too: written through, it made a file elsewhere.
+    if path.exists() or path.is_symlink():
         raise ConfigError(f'{path} exists; choose another name or remove it')
     with atomic_output(path, 'wb') as stream:
         stream.write(data)

@@ -92,7 +92,8 @@ def refuse_over_inputs(option, path, inputs):
             continue
         source = Path(given).resolve()
         if target == source or _same_file(target, source):
-            raise ConfigError(f'{option} {path} is {what} ({given}), which the command reads; write it elsewhere')
+            role = 'another output' if what.startswith('--') else 'which the command reads'
+            raise ConfigError(f'{option} {path} is {what} ({given}), {role}; write it elsewhere')
         if source.is_dir() and source in target.parents:
             raise ConfigError(f'{option} {path} is inside {what} {given}, whose files the command reads; '
                               'write it elsewhere')

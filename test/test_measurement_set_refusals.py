@@ -339,3 +339,30 @@ def short_model(tmp_path_factory):
 def test_a_generated_bad_value_is_one_line_and_exit_2(tmp_path, capsys, short_model, base, path, value):
     path_of_set = _set_in(tmp_path, _mutated(base, path, value))
     _refused_by_the_cli(capsys, path_of_set, tmp_path / 'out.json', short_model)
+
+
+@pytest.mark.parametrize('name', ['../../keep', 'a/b', '.hidden', 5, ''])
+def test_a_table_name_that_is_no_file_name_is_refused(tmp_path, capsys, name):
+    # The report names each table's plot after it: '../../keep' overwrote keep.png outside the report, at exit 0.
+    document = _document(STAR_HOP)
+    document['tables'][0]['name'] = name
+    assert 'is not a table name' in _refused_by_the_cli(capsys, _set_in(tmp_path, _text(document)), tmp_path / 'o.json')
+
+
+def test_a_distance_from_a_star_to_itself_is_refused(tmp_path, capsys):
+    document = _document(STAR_HOP)
+    row = document['tables'][0]['rows'][0]
+    row[3] = row[1]
+    line = _refused_by_the_cli(capsys, _set_in(tmp_path, _text(document)), tmp_path / 'o.json')
+    assert 'star_1 and star_2 are the same star' in line
+
+
+def test_half_of_a_column_group_is_refused_not_dropped(tmp_path, capsys):
+    # el_arcsec without xel_arcsec was dropped without a word.
+    document = _document(STAR_HOP)
+    table = document['tables'][0]
+    table['columns'].insert(6, 'el_arcsec')
+    for row in table['rows']:
+        row.insert(6, 5.0)
+    line = _refused_by_the_cli(capsys, _set_in(tmp_path, _text(document)), tmp_path / 'o.json')
+    assert 'xel_arcsec missing beside el_arcsec' in line

@@ -300,3 +300,15 @@ def test_the_2004_star_hop_residual_follows_distance_as_fig_6_11_shows(capsys):
     assert main(['compare', str(STAR_HOP), '--model', str(NOMINAL)]) == 0
     out = capsys.readouterr().out
     assert 'star_distance follows distance' in out
+
+
+def test_a_search_of_the_earth_rate_set_prints_its_rounds_without_an_angle_rms(tmp_path, capsys):
+    # A set of rates alone has no angle RMS (null): printing the search's rounds raised TypeError (exit 1), after
+    # --write-model had been written.
+    found = tmp_path / 'found.yaml'
+    assert main(['compare', str(DATA / 'edwards-earth-rate-2007.yaml'), '--model',
+                 str(REPO / 'config' / 'model' / 'nominal.yaml'), '--search', '--write-model', str(found),
+                 '--json', str(tmp_path / 'search.json')]) == 0
+    out = capsys.readouterr().out
+    assert 'round 1: ' in out and 'RMS no angle' in out
+    assert found.exists() and (tmp_path / 'search.json').exists()

@@ -157,3 +157,11 @@ def test_design_plan_out_onto_the_bags_plan_or_the_json_is_refused(bag, model, t
              'is --json')
     _refused(capsys, [*design, '--json', str(model)], 'is the model')
     assert (bag / 'plan.yaml').read_text() == 'campaign: alignment\n'
+
+
+def test_compare_json_and_report_on_one_path_are_refused(bag, model, tmp_path, capsys):
+    # A set's comparison wrote the JSON, then failed on the report at exit 3 ("File exists").
+    out = tmp_path / 'x.json'
+    _refused(capsys, ['compare', str(bag), '--model', str(model), '--json', str(out), '--report', str(out)],
+             f'--json {out} is --report ({out}), another output')
+    assert not out.exists()

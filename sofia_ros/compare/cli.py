@@ -333,7 +333,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
         checked_output_directory('--report', args.report, bag)
         read_ledger(args.report)
     if args.json:
-        checked_output_file('--json', args.json, {**bag, 'the model': args.model, '--write-model': args.write_model})
+        checked_output_file('--json', args.json, {**bag, 'the model': args.model, '--write-model': args.write_model,
+                                                  '--report': args.report})
     if args.write_model:
         checked_output_file('--write-model', args.write_model, bag)
     if args.search_rounds is not None and not args.search:
@@ -407,7 +408,9 @@ def _print_search(search, out):
     print('search: the model the data ask for (BIC; rounds of linearized search and full refit)', file=out)
     for entry in search['rounds']:
         moves = '; '.join(entry['moves']) or 'no change'
-        print(f'  round {entry["round"]}: {entry["status"]:<15} RMS {entry["rms_arcsec"]:.3f}"  -> {moves}', file=out)
+        # A set of rates alone (Edwards' Earth-rate records) has no angle residual: its RMS is null.
+        rms = 'no angle' if entry['rms_arcsec'] is None else f'{entry["rms_arcsec"]:.3f}"'
+        print(f'  round {entry["round"]}: {entry["status"]:<15} RMS {rms}  -> {moves}', file=out)
         if entry['ends']:
             print(f'  the search ends here: {entry["ends"]}', file=out)
     change = ', '.join([*(f'+{name}' for name in search['added']), *(f'-{name}' for name in search['removed'])])

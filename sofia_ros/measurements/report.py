@@ -210,8 +210,9 @@ def run_set_compare(args: argparse.Namespace, out: TextIO, model: EffectConfig) 
     result = compare_measurement_set(measurement_set, model)
     document = json_ready(result.document)
     print_set_comparison(document, out)
-    if args.json:
-        write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
+    # The report first, as for a bag: a report the disk cannot hold leaves no JSON behind either.
     if args.report:
         print(f'report: {write_set_report(result, document, args.report)}', file=out)
+    if args.json:
+        write_text_atomically(args.json, json.dumps(document, indent=2) + '\n')
     return 0

@@ -310,7 +310,11 @@ def _check_row_count(raw_tables, source):
 
 def _table(raw, index, context, source):
     raw = _mapping(raw, f'tables[{index}]', source)
-    name = str(raw.get('name', f'table {index + 1}'))
+    name = raw.get('name', f'table {index + 1}')
+    # The report names a table's plot after it: '../../keep' wrote outside the report folder, over a file there.
+    if not isinstance(name, str) or not name.strip() or name.startswith('.') or any(c in name for c in '/\\\0'):
+        raise ConfigError(f'{source}: tables[{index}]: name {_shown(name)} is not a table name; give text without '
+                          '/, \\ or a leading dot, e.g. drift_corrected')
     where = f'table {_shown(name)}'
     kind = raw.get('kind')
     if not isinstance(kind, str) or kind not in KINDS:
@@ -391,6 +395,9 @@ def _star(value, where, source):
 
 def _star_distance(values, context, where, source):
     stars = [_star(values[key], where, source) for key in ('star_1', 'star_2')]
+    if find_star(stars[0]).hip == find_star(stars[1]).hip:
+        raise ConfigError(f'{source}: {where}: star_1 and star_2 are the same star ({stars[0]}); a distance is between '
+                          'two stars')
     times = [_time(values[key], f'{where} {key}', source) for key in ('time_1', 'time_2')]
     night = context['night']
     for key, when in zip(('time_1', 'time_2'), times):
@@ -400,6 +407,12 @@ def _star_distance(values, context, where, source):
     if not times[0] < times[1]:
         raise ConfigError(f'{source}: {where}: time_2 must come after time_1')
     euler = pixels = None
+    for group in (('el_arcsec', 'xel_arcsec'), ('x1_px', 'y1_px', 'x2_px', 'y2_px')):
+        # Part of a group was dropped without a word (el_arcsec without xel_arcsec).
+        if any(key in values for key in group) and not all(key in values for key in group):
+            raise ConfigError(f'{source}: {where}: {", ".join(key for key in group if key not in values)} missing '
+                              f'beside {", ".join(key for key in group if key in values)}; give all of '
+                              f'{", ".join(group)} or none')
     if all(key in values for key in ('el_arcsec', 'xel_arcsec')):
         euler = tuple(_column(values, key, where, source) for key in ('el_arcsec', 'xel_arcsec', 'los_arcsec')
                       if key in values)

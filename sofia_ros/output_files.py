@@ -94,7 +94,7 @@ def refuse_over_inputs(option, path, inputs):
         if target == source or _same_file(target, source):
             role = 'another output' if what.startswith('--') else 'which the command reads'
             raise ConfigError(f'{option} {path} is {what} ({given}), {role}; write it elsewhere')
-        if source.is_dir() and source in target.parents:
+        if source in target.parents:  # a folder, or one the command is yet to make (an atlas' table)
             raise ConfigError(f'{option} {path} is inside {what} {given}, whose files the command reads; '
                               'write it elsewhere')
 

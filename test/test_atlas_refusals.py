@@ -493,3 +493,12 @@ def test_generated_bad_input_is_one_line_and_changes_nothing(tmp_path, capsys, k
         assert str(out / 'table' / 'part-') in line
     assert _snapshot(out) == before
     assert not list(tmp_path.glob('**/.part-*')) and not list(tmp_path.glob('**/sofia-atlas-*'))
+
+
+def test_the_default_model_and_truth_are_found_outside_the_checkout(tmp_path, monkeypatch):
+    # Run from another folder, the atlas found no config/model/nominal.yaml (the defaults are checkout paths).
+    from sofia_ros.atlas.grid import grid_from_lists
+
+    monkeypatch.chdir(tmp_path)
+    grid = grid_from_lists(effects=['timestamp_offset'], sizes=[1.0], campaigns=['alignment:minimal'], seeds=[1])
+    assert 'gyro_misalignment' in grid.model.fitted and grid.truth.effects

@@ -165,3 +165,16 @@ def test_compare_json_and_report_on_one_path_are_refused(bag, model, tmp_path, c
     _refused(capsys, ['compare', str(bag), '--model', str(model), '--json', str(out), '--report', str(out)],
              f'--json {out} is --report ({out}), another output')
     assert not out.exists()
+
+
+@pytest.mark.parametrize('where', ['in the table', 'the model'])
+def test_an_atlas_report_in_its_table_or_over_its_model_is_refused_before_any_task(model, tmp_path, capsys, where):
+    # Written after every task: into OUT/table it made the table unreadable (pyarrow reads every file there),
+    # over the model it replaced it, at exit 0.
+    out = tmp_path / 'atlas'
+    report = {'in the table': out / 'table' / 'report', 'the model': model}[where]
+    fragment = {'in the table': 'is inside the results table', 'the model': 'is a file; give a directory'}[where]
+    _refused(capsys, ['atlas', '--out', str(out), '--model', str(model), '--effects', 'timestamp_offset', '--sizes',
+                      '1', '--campaigns', 'alignment:minimal', '--seeds', '1', '--serial', '--report', str(report)],
+             fragment)
+    assert not out.exists()

@@ -13,6 +13,7 @@ from typing import TextIO
 
 from sofia_ros.cli_args import integer, number
 from sofia_ros.errors import ConfigError, RunInterrupted
+from sofia_ros.output_files import refuse_over_inputs
 
 __all__ = ['TABLE_DIRECTORY', 'add_atlas_arguments', 'run_atlas']
 
@@ -134,6 +135,14 @@ def run_atlas(args, out: TextIO, err: TextIO) -> int:
         raise ConfigError('--workers sizes the local cluster; with --scheduler the cluster has its own workers, '
                           'with --serial there are none: leave --workers out')
     grid = grid_of_arguments(args)
+    # The page is written after every task has run: a report folder that cannot be one wasted the whole atlas, one
+    # inside the table made the table unreadable (pyarrow reads every file there), one over an input replaced it.
+    report = Path(args.report) if args.report else Path(args.out) / 'report'
+    if args.report:
+        if report.exists() and not report.is_dir():
+            raise ConfigError(f'--report {report} is a file; give a directory')
+        refuse_over_inputs('--report', report, {'the results table': Path(args.out) / TABLE_DIRECTORY,
+                                                'the model': grid.model.source, 'the truth': grid.truth.source})
     store = ResultStore(Path(args.out) / TABLE_DIRECTORY, grid.describe())
     total = grid.task_count()
     run_id = f'{time.strftime("%Y%m%dT%H%M%S")}-{uuid.uuid4().hex[:6]}'
@@ -162,7 +171,7 @@ def run_atlas(args, out: TextIO, err: TextIO) -> int:
     store.compact()
     summary = summarize(store.read().to_pylist())
     out.write(text_table(summary))
-    page = write_html(summary, args.report or Path(args.out) / 'report', str(args.out))
+    page = write_html(summary, report, str(args.out))
     out.write(f'page: {page}\n')
     return 0
 

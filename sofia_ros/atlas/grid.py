@@ -17,6 +17,7 @@ import json
 import math
 import re
 from dataclasses import dataclass
+import sys
 from pathlib import Path
 from typing import Iterator
 
@@ -396,6 +397,17 @@ def _unique(values: list) -> tuple:
     return tuple(dict.fromkeys(values))
 
 
+def _shipped_default(path: str, default: str) -> str | Path:
+    """``path``, or where the checkout or the install keeps ``default`` when that is what ``path`` is and the current
+    folder has no such file: the atlas run outside the checkout found no config/model/nominal.yaml."""
+    if path != default or Path(path).exists():
+        return path
+    shipped = [folder / default for folder in (Path(__file__).resolve().parents[2],
+                                               *(ancestor / 'share' / 'sofia_ros' for ancestor in
+                                                 (*Path(__file__).resolve().parents, Path(sys.prefix))))]
+    return next((candidate for candidate in shipped if candidate.is_file()), path)
+
+
 def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MODEL, truth: str = DEFAULT_TRUTH,
                     candidates=None, max_tasks: int = MAX_TASKS, truths=(), draws: TruthDraws | None = None,
                     controls: int = 0, search_rounds: int = 0) -> AtlasGrid:
@@ -404,8 +416,8 @@ def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MO
     ``max_tasks`` tasks."""
     from sofia_ros.compare.search import SEARCH_ROUNDS_RANGE
 
-    model_config = load_effect_config(model)
-    truth_config = load_effect_config(truth)
+    model_config = load_effect_config(_shipped_default(model, DEFAULT_MODEL))
+    truth_config = load_effect_config(_shipped_default(truth, DEFAULT_TRUTH))
     controls = _count(controls, 'controls', 0, max_tasks)
     has_truths = bool(truths) or draws is not None or controls > 0
     effects = list(effects) if has_truths else _nonempty('effects', effects)

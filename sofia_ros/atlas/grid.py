@@ -322,6 +322,8 @@ def truth_draws(count, ks, seed, pool=None, max_tasks: int = MAX_TASKS) -> Truth
 
 
 def _size(value) -> float:
+    if isinstance(value, bool):  # YAML's true ran as size 1
+        raise ConfigError(f'atlas size {value!r} is not a number; sizes are multiples of the default, e.g. 0.5,1,2')
     try:
         size = float(value)
     except (TypeError, ValueError) as err:

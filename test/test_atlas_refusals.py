@@ -502,3 +502,50 @@ def test_the_default_model_and_truth_are_found_outside_the_checkout(tmp_path, mo
     monkeypatch.chdir(tmp_path)
     grid = grid_from_lists(effects=['timestamp_offset'], sizes=[1.0], campaigns=['alignment:minimal'], seeds=[1])
     assert 'gyro_misalignment' in grid.model.fitted and grid.truth.effects
+
+
+class _Scheduler:
+    address = 'tcp://127.0.0.1:8786'
+    ncores = 'ncores'
+    processing = 'processing'
+
+
+class _Client:
+    """A client whose scheduler answers ``answers`` (method -> reply), or stops answering (None)."""
+
+    scheduler = _Scheduler()
+
+    def __init__(self, answers):
+        self.answers, self.timeouts = answers, []
+
+    def sync(self, method, callback_timeout):
+        self.timeouts.append(callback_timeout)
+        if self.answers is None:
+            raise TimeoutError
+        return self.answers[method]
+
+
+def test_a_scheduler_that_stops_answering_is_one_line_not_a_wait_for_ever():
+    # Stopped with SIGSTOP mid-run, it kept its connection: the atlas waited for ever, its progress lines stopped.
+    from sofia_ros.atlas.engine import SCHEDULER_REPLY_S, SchedulerWatch
+    from sofia_ros.errors import SchedulerUnreachableError
+
+    client = _Client(None)
+    with pytest.raises(SchedulerUnreachableError, match=r'tcp://127.0.0.1:8786 stopped answering \(no reply within '
+                                                          r'60 s\); the rows stored so far are kept'):
+        SchedulerWatch(client).running({})
+    assert client.timeouts == [SCHEDULER_REPLY_S]
+
+
+def test_a_scheduler_without_workers_is_given_up_after_a_while(monkeypatch):
+    from sofia_ros.atlas import engine
+    from sofia_ros.errors import SchedulerUnreachableError
+
+    watch = engine.SchedulerWatch(_Client({'ncores': {}, 'processing': {}}))
+    assert watch.threads() == 0  # the first look starts the clock
+    monkeypatch.setattr(engine, 'NO_WORKERS_S', 0.0)
+    with pytest.raises(SchedulerUnreachableError, match=r'no Dask worker at the scheduler tcp://127.0.0.1:8786 .*'
+                                                          r'start one \(dask worker tcp://127.0.0.1:8786\)'):
+        watch.threads()
+    watch = engine.SchedulerWatch(_Client({'ncores': {'w': 2}, 'processing': {'w': ['a', 'b', 'c']}}))
+    assert watch.running({type('F', (), {'key': 'a'})(): None}) == 1

@@ -26,7 +26,7 @@ from sofia_ros.atlas.store import ResultStore
 from sofia_ros.atlas.task import TaskSetup, run_task
 from sofia_ros.errors import ConfigError, SchedulerUnreachableError
 
-__all__ = ['Progress', 'RunCounts', 'checked_scheduler_address', 'dask_client', 'probe_scheduler', 'run_distributed',
+__all__ = ['Progress', 'RunCounts', 'SchedulerWatch', 'checked_scheduler_address', 'dask_client', 'probe_scheduler', 'run_distributed',
            'run_serial']
 
 _ADDRESS = re.compile(r'^(tcp|tls)://([^\s/:]{1,253}):(\d{1,5})$')
@@ -41,6 +41,11 @@ _MIN_IN_FLIGHT = 4
 _PROGRESS_EVERY_S = 30.0
 #: Seconds between looks at the finished futures (a task takes tens of seconds).
 _POLL_S = 0.5
+#: The longest wait for the scheduler's answer about its workers: a stopped scheduler (SIGSTOP, a frozen host)
+#: kept its connection open and the atlas waited for ever, its progress lines stopped too.
+SCHEDULER_REPLY_S = 60.0
+#: How long the atlas waits with tasks to run and no worker at the scheduler before it gives up.
+NO_WORKERS_S = 300.0
 
 
 @dataclass(frozen=True)
@@ -245,10 +250,11 @@ def run_distributed(tasks: Iterable[AtlasTask], setup: TaskSetup, store: ResultS
     pending: dict = {}  # future -> task
     done = failed = lost = 0
     arrivals = as_completed([], loop=client.loop)
+    watch = SchedulerWatch(client)
 
     def submit_more() -> None:
         """Top the futures in flight up to a few per worker thread (asked each time: workers come and go)."""
-        wanted = max(_MIN_IN_FLIGHT, _IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
+        wanted = max(_MIN_IN_FLIGHT, _IN_FLIGHT_PER_THREAD * watch.threads())
         while len(pending) < wanted:
             task = next(waiting, None)
             if task is None:
@@ -265,7 +271,7 @@ def run_distributed(tasks: Iterable[AtlasTask], setup: TaskSetup, store: ResultS
                 time.sleep(_POLL_S)
                 interrupts.raise_if_requested()
                 if progress is not None and progress.due():
-                    progress.show(_running(client, pending))
+                    progress.show(watch.running(pending))
                 continue
             for future in finished:
                 task = pending.pop(future)
@@ -280,7 +286,7 @@ def run_distributed(tasks: Iterable[AtlasTask], setup: TaskSetup, store: ResultS
                 future.release()
                 submit_more()
                 if progress is not None:
-                    progress.finished(row, _running(client, pending))
+                    progress.finished(row, watch.running(pending))
     finally:
         store.flush()
         if pending:
@@ -288,9 +294,43 @@ def run_distributed(tasks: Iterable[AtlasTask], setup: TaskSetup, store: ResultS
     return RunCounts(done, failed, missing.skipped, lost)
 
 
-def _running(client, pending) -> int:
-    """How many of the pending tasks the workers are computing now (at most one per worker thread)."""
-    keys = {future.key for future in pending}
-    threads = client.nthreads()
-    return sum(min(sum(key in keys for key in processing), threads.get(worker, 1))
-               for worker, processing in client.processing().items())
+class SchedulerWatch:
+    """The atlas' questions to the scheduler about its workers, each answered within SCHEDULER_REPLY_S, and how long
+    it has had none; SchedulerUnreachableError in one line when it stops answering or stays without workers for
+    NO_WORKERS_S. The rows stored so far are kept either way: the same atlas run again resumes."""
+
+    def __init__(self, client) -> None:
+        self.client = client
+        self.address = getattr(client.scheduler, 'address', 'the scheduler')
+        self.without_workers_since: float | None = None
+
+    def _asked(self, method: str) -> dict:
+        try:
+            return self.client.sync(getattr(self.client.scheduler, method), callback_timeout=SCHEDULER_REPLY_S)
+        except (TimeoutError, OSError) as err:  # asyncio's and distributed's timeouts are TimeoutError
+            raise SchedulerUnreachableError(
+                f'the Dask scheduler at {self.address} stopped answering (no reply within {SCHEDULER_REPLY_S:g} s); '
+                'the rows stored so far are kept: run the same atlas again to resume') from err
+
+    def _threads_by_worker(self) -> dict:
+        threads = self._asked('ncores')
+        if sum(threads.values()):
+            self.without_workers_since = None
+        elif self.without_workers_since is None:
+            self.without_workers_since = time.monotonic()
+        elif time.monotonic() - self.without_workers_since > NO_WORKERS_S:
+            raise SchedulerUnreachableError(
+                f'no Dask worker at the scheduler {self.address} for {NO_WORKERS_S:g} s; start one (dask worker '
+                f'{self.address}) and run the same atlas again: it resumes')
+        return threads
+
+    def threads(self) -> int:
+        """The worker threads at the scheduler now."""
+        return sum(self._threads_by_worker().values())
+
+    def running(self, pending) -> int:
+        """How many of the pending tasks the workers are computing now (at most one per worker thread)."""
+        keys = {future.key for future in pending}
+        threads = self._threads_by_worker()
+        return sum(min(sum(key in keys for key in processing), threads.get(worker, 1))
+                   for worker, processing in self._asked('processing').items())

@@ -533,8 +533,9 @@ def test_a_scheduler_that_stops_answering_is_one_line_not_a_wait_for_ever():
     client = _Client(None)
     with pytest.raises(SchedulerUnreachableError, match=r'tcp://127.0.0.1:8786 stopped answering \(no reply within '
                                                           r'60 s\); the rows stored so far are kept'):
-        SchedulerWatch(client).running({})
-    assert client.timeouts == [SCHEDULER_REPLY_S]
+        watch = SchedulerWatch(client)
+        watch.running({})
+    assert client.timeouts == [SCHEDULER_REPLY_S] and not watch.answering  # then no cancel is asked of it
 
 
 def test_a_scheduler_without_workers_is_given_up_after_a_while(monkeypatch):

@@ -289,7 +289,7 @@ def run_distributed(tasks: Iterable[AtlasTask], setup: TaskSetup, store: ResultS
                     progress.finished(row, watch.running(pending))
     finally:
         store.flush()
-        if pending:
+        if pending and watch.answering:  # a cancel is a question too, with no bound of its own
             client.cancel(list(pending))
     return RunCounts(done, failed, missing.skipped, lost)
 
@@ -303,11 +303,14 @@ class SchedulerWatch:
         self.client = client
         self.address = getattr(client.scheduler, 'address', 'the scheduler')
         self.without_workers_since: float | None = None
+        #: whether the scheduler answered the last question
+        self.answering = True
 
     def _asked(self, method: str) -> dict:
         try:
             return self.client.sync(getattr(self.client.scheduler, method), callback_timeout=SCHEDULER_REPLY_S)
         except (TimeoutError, OSError) as err:  # asyncio's and distributed's timeouts are TimeoutError
+            self.answering = False
             raise SchedulerUnreachableError(
                 f'the Dask scheduler at {self.address} stopped answering (no reply within {SCHEDULER_REPLY_S:g} s); '
                 'the rows stored so far are kept: run the same atlas again to resume') from err

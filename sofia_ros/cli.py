@@ -19,7 +19,7 @@ import yaml
 from sofia_ros import interrupts
 from sofia_ros.cli_args import OneLineParser, integer, number
 from sofia_ros.errors import ConfigError, OutputError, RunFaultError, RunInterrupted, SofiaError
-from sofia_ros.output_files import describe_os_error, refuse_over_inputs
+from sofia_ros.output_files import describe_os_error, refuse_empty_paths, refuse_over_inputs
 from sofia_ros.plan_limits import PLAN_LIMITS
 
 __all__ = ['main', 'build_parser']
@@ -267,17 +267,10 @@ def _replay(args):
     return 0
 
 
-def _refuse_empty(*given):
-    """ConfigError for the first (name, value) given as an empty string: '' read as the current folder."""
-    for name, value in given:
-        if value == '':
-            raise ConfigError(f'{name} is given an empty value; give a path')
-
-
 def _recover(args):
     from sofia_ros.bag.recovery import recover_bag
 
-    _refuse_empty(('BAG', args.bag), ('--out', args.out))
+    refuse_empty_paths(('BAG', args.bag), ('--out', args.out))
     if args.out:
         refuse_over_inputs('--out', args.out, {'the bag': args.bag})
     report = recover_bag(args.bag, args.out)
@@ -330,7 +323,7 @@ def _design(args):
 def _import(args):
     from sofia_ros.bag.csv_logs import import_csv_logs
 
-    _refuse_empty(('LOGS', args.logs), ('--bag', args.bag))
+    refuse_empty_paths(('LOGS', args.logs), ('--bag', args.bag))
     refuse_over_inputs('--bag', args.bag, {'the logs folder': args.logs})
     bag = import_csv_logs(args.logs, args.bag)
     print(f'bag: {bag} (from the CSV logs of {args.logs})')

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import os
 import stat
+import sys
 from pathlib import Path
 
 from sofia_ros.errors import ConfigError
 
-__all__ = ['read_bytes_capped', 'read_text_capped', 'require_regular_file']
+__all__ = ['read_bytes_capped', 'read_text_capped', 'require_regular_file', 'shipped_paths']
 
 
 def require_regular_file(path, what='file'):
@@ -51,3 +52,11 @@ def read_text_capped(path, max_bytes, what='file'):
         return data.decode('utf-8')
     except UnicodeDecodeError as err:
         raise ConfigError(f'{path}: not UTF-8 text (byte {err.start}); is it a {what}?') from err
+
+
+def shipped_paths(relative):
+    """Where the checkout, then an install (colcon: share/sofia_ros above the package; pip: under sys.prefix), would
+    keep the shipped file or folder ``relative`` (e.g. 'config/plans'), in that order."""
+    package = Path(__file__).resolve()
+    return [package.parents[1] / relative,
+            *(ancestor / 'share' / 'sofia_ros' / relative for ancestor in (*package.parents, Path(sys.prefix)))]

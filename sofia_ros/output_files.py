@@ -14,7 +14,8 @@ import numpy as np
 from sofia_ros.errors import ConfigError, OutputError
 
 __all__ = ['atomic_output', 'checked_output_directory', 'checked_output_file', 'current_umask', 'describe_os_error',
-           'json_ready', 'output_error', 'output_target', 'refuse_over_inputs', 'write_text_atomically']
+           'json_ready', 'output_error', 'output_target', 'refuse_empty_paths', 'refuse_over_inputs',
+           'write_text_atomically']
 
 
 def current_umask():
@@ -81,6 +82,13 @@ def _require_writable(path, directory):
     read_only = bool(os.statvfs(directory).f_flag & os.ST_RDONLY)
     line, _ = describe_os_error(OSError(errno.EROFS if read_only else errno.EACCES, ''), filename=path)
     raise ConfigError(f'cannot write {line}')
+
+
+def refuse_empty_paths(*given):
+    """ConfigError for the first (name, value) given as an empty string, which a Path reads as the current folder."""
+    for name, value in given:
+        if value == '':
+            raise ConfigError(f'{name} is given an empty value; give a path')
 
 
 def refuse_over_inputs(option, path, inputs):

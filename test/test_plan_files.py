@@ -9,7 +9,6 @@ import yaml
 
 from sofia_ros.bag import BagReader
 from sofia_ros import cli
-from sofia_ros.campaigns import plan_files
 from sofia_ros.campaigns.graph_params import plan_from_parameters
 from sofia_ros.campaigns.plan_files import PLAN_TYPES, read_plan, read_plan_file, write_plan_file
 from sofia_ros.campaigns.registry import CAMPAIGNS, campaign_named
@@ -61,8 +60,10 @@ def test_the_named_variants_are_the_plan_files_under_config_plans():
 
 def test_without_config_plans_sofia_run_flies_the_thesis_plan_and_names_what_is_missing(monkeypatch):
     # An install whose share/ lacks config/plans (an older setup.py): the default plan needs no file.
-    monkeypatch.setattr(plan_files, '__file__', '/nowhere/sofia_ros/campaigns/plan_files.py')
-    monkeypatch.setattr(plan_files.sys, 'prefix', '/nowhere')
+    from sofia_ros import input_files
+
+    monkeypatch.setattr(input_files, '__file__', '/nowhere/sofia_ros/input_files.py')  # where shipped_paths looks
+    monkeypatch.setattr('sys.prefix', '/nowhere')
     spec = campaign_named('alignment')
     arguments = ['run', 'alignment', '--truth', TRUTH, '--bag', 'bag', '--repetitions', '4']
     assert cli._plan(spec, cli.build_parser().parse_args(arguments), repetitions=4) == AlignmentPlan(repetitions=4)

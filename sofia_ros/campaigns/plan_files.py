@@ -13,7 +13,6 @@ the truth's thermal control, which it must have. A run records its plan beside t
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import fields
 from os import PathLike
 from pathlib import Path
@@ -23,7 +22,7 @@ import yaml
 
 from sofia_ros.config import safe_load_limited
 from sofia_ros.errors import ConfigError, InvalidArgumentError, UnknownStarError
-from sofia_ros.input_files import read_text_capped
+from sofia_ros.input_files import read_text_capped, shipped_paths
 from sofia_ros.output_files import write_text_atomically
 from sofia_ros.scenario import Scenario
 from sofia_ros.sim.calibration import AlignmentPlan
@@ -169,9 +168,7 @@ def read_plan(bag_path: str | PathLike[str]) -> Any:
 def plans_directory() -> Path:
     """config/plans of the checkout, else share/sofia_ros/config/plans of the install (colcon: above the package;
     pip: under sys.prefix); ConfigError if none has it."""
-    installed = [ancestor / 'share' / 'sofia_ros' / 'config' / 'plans'
-                 for ancestor in (*Path(__file__).resolve().parents, Path(sys.prefix))]
-    for folder in (Path(__file__).resolve().parents[2] / 'config' / 'plans', *installed):
+    for folder in shipped_paths('config/plans'):
         if folder.is_dir():
             return folder
     raise ConfigError('the named plans (config/plans) are not installed here; give a plan file with --plan')

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from sofia_ros.errors import ConfigError
-from sofia_ros.output_files import refuse_over_inputs
+from sofia_ros.output_files import refuse_empty_paths, refuse_over_inputs
 from sofia_ros.perturb.observables import OBSERVABLES
 from sofia_ros.perturb.run import perturb_bag
 from sofia_ros.perturb.shapes import FUNCTIONS
@@ -34,9 +33,7 @@ def add_perturb_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_perturb(args: argparse.Namespace, out: TextIO) -> int:
     """Perturb the bag and print one summary line."""
-    for name, value in (('BAG', args.bag), ('OUT', args.out)):
-        if value == '':
-            raise ConfigError(f'{name} is given an empty value; give a path')
+    refuse_empty_paths(('BAG', args.bag), ('OUT', args.out))
     refuse_over_inputs('OUT', args.out, {'the bag': args.bag})
     result = perturb_bag(args.bag, args.out, args.observable, args.shape, unit=args.unit)
     out.write(f'perturbed {result.observable} of {args.bag} into {args.out}: {result.rows_changed} rows changed; '

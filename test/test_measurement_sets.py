@@ -274,6 +274,26 @@ def test_alignment_tables_rebuild_eq_6_1():
     assert document['verdict']['observables']['misalignment_angle.u']['explained']
 
 
+def test_one_turning_point_cannot_determine_three_angles(tmp_path, capsys):
+    """Two numbers (one turning point) for the mounting's three angles: every observable is fitted to zero, but the
+    verdict is undetermined, naming the angles, and never "explained: nothing to do"."""
+    def one_turning_point(document):
+        document['tables'] = [table for table in document['tables'] if table['name'] == 'turning_points']
+        document['tables'][0]['rows'] = document['tables'][0]['rows'][:1]
+
+    path = tmp_path / 'one.yaml'
+    path.write_text(_edited(one_turning_point, DATA / 'alignment-2004.yaml'))
+    out = tmp_path / 'one.json'
+    assert main(['compare', str(path), '--model', str(NOMINAL), '--json', str(out)]) == 0
+    verdict = validate_compare(load_json(out))['verdict']
+    assert verdict['status'] == 'undetermined'
+    assert verdict['headline'] == 'undetermined: the data cannot determine gyro_misalignment'
+    assert verdict['next']['action'] == 'none'
+    assert 'gyro_misalignment.about_los_arcsec' in verdict['text']
+    assert all(entry['explained'] for entry in verdict['observables'].values())
+    assert 'nothing to do' not in capsys.readouterr().out
+
+
 # --- the CLI: JSON contract and report --------------------------------------------------------------------------
 
 def test_cli_json_and_report(tmp_path, capsys):

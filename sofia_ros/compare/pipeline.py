@@ -663,7 +663,8 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
                     competing=competing, members=members, change=change, rms_arcsec=totals.get('rms_after_arcsec'),
                     rms_arcsec_per_s=totals.get('rms_after_arcsec_per_s'),
                     significant_delta_bic=SIGNIFICANT_DELTA_BIC, model_source=source.model_source,
-                    observable_keys=source.observable_keys, beyond_floor=source.beyond_floor)
+                    observable_keys=source.observable_keys, beyond_floor=source.beyond_floor,
+                    undetermined=[p.label for p, sigma in zip(final.free, final.sigma) if not np.isfinite(sigma)])
     document = {
         'model': source.model_source,
         'residual_rms_arcsec': rms,

@@ -201,6 +201,21 @@ def test_recover_reads_past_a_damaged_magic_and_header(bag, tmp_path, capsys, da
     assert np.array_equal(stamps, np.arange(SAMPLES) * PERIOD_NS)
 
 
+def test_recover_keeps_the_side_files_as_they_were(bag, tmp_path):
+    # A run writes its truth, model, plan and summary beside the bag: a recovered bag without them could no longer
+    # say what it recorded (they were dropped, healthy bag or not). The source's .mcap and metadata are rebuilt.
+    side = {'truth.yaml': 'effects: {gyro_bias: {}}\n', 'summary.json': '{"stopped": "SIGKILL"}\n',
+            'plan.yaml': 'plan: 1\n'}
+    for name, text in side.items():
+        (bag / name).write_text(text)
+    (bag / '.sofia-cache').mkdir()
+    recover_bag(bag, tmp_path / 'fixed')
+    for name, text in side.items():
+        assert (tmp_path / 'fixed' / name).read_text() == text
+    assert sorted(path.name for path in (tmp_path / 'fixed').iterdir()) == sorted(
+        ['fixed.mcap', 'metadata.yaml', *side])
+
+
 def test_recover_beside_a_stray_file_takes_the_listed_one(bag, other_run, tmp_path):
     shutil.copy(other_run / 'run.mcap', bag / 'aaa.mcap')
     chunks = _chunks(bag / 'run.mcap')

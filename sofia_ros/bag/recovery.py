@@ -59,7 +59,8 @@ class RecoveryReport:
 def recover_bag(
     source: str | PathLike[str], destination: str | PathLike[str] | None = None
 ) -> RecoveryReport:
-    """Copy every complete MCAP chunk of bag ``source`` into a new, closed bag ``destination``.
+    """Copy every complete MCAP chunk of bag ``source`` into a new, closed bag ``destination``, and the side files
+    beside it.
 
     ``source`` is left untouched; ``destination`` defaults to ``source`` + '_recovered'. It is
     complete or absent: a failure (a full disk, nothing to recover) removes what was begun.
@@ -81,6 +82,7 @@ def recover_bag(
             stop_reason, skipped = _copy_records(data, copier)
             if not copier.topics:
                 raise BagError(f'{mcap_path} holds no intact MCAP chunk ({stop_reason}); nothing to recover')
+        _copy_side_files(source, writer.path)
     except BaseException as err:
         shutil.rmtree(created, ignore_errors=True)
         # The writer's own line for a full disk names the messages its bag keeps: here there is no bag left.
@@ -97,6 +99,14 @@ def recover_bag(
         stop_reason=stop_reason,
         skipped_offsets=tuple(skipped),
     )
+
+
+def _copy_side_files(source: Path, bag: Path) -> None:
+    """Copy the files a run writes beside its bag (truth.yaml, model.yaml, plan.yaml, summary.json, ...) as they
+    are: every regular file of ``source`` but its MCAP files and metadata.yaml, which the rebuilt bag has anew."""
+    for path in sorted(source.iterdir()):
+        if path.is_file() and path.suffix != '.mcap' and path.name != 'metadata.yaml' and not (bag / path.name).exists():
+            shutil.copy2(path, bag / path.name)
 
 
 def _first_new_folder(path: Path) -> Path:

@@ -24,6 +24,7 @@ from sofia_ros.cli import main
 from sofia_ros.config import parse_effect_config
 from sofia_ros.errors import ConfigError, SchedulerUnreachableError, UnknownEffectError
 
+REPO = Path(__file__).resolve().parents[1]
 TINY = dict(effects=['timestamp_offset', 'imager_rotation_of_field'], sizes=[0.5, 2], campaigns=['alignment:minimal'],
             seeds=[1, 2])
 
@@ -70,6 +71,21 @@ def test_a_grid_file_gives_the_same_grid(tmp_path):
     assert grid_from_file(path).fingerprint() == grid_from_lists(**TINY).fingerprint()
 
 
+def test_a_grid_files_model_and_truth_are_read_from_its_folder(tmp_path, monkeypatch):
+    # Written beside the grid file and named by their names: found wherever the atlas runs (they were read from the
+    # current folder, where a file of that name is another model or none).
+    folder = tmp_path / 'study'
+    folder.mkdir()
+    (folder / 'my-model.yaml').write_text((REPO / 'config' / 'model' / 'nominal.yaml').read_text())
+    (folder / 'my-truth.yaml').write_text((REPO / 'config' / 'truth' / 'nominal.yaml').read_text())
+    path = folder / 'grid.yaml'
+    path.write_text('effects: [timestamp_offset, imager_rotation_of_field]\nsizes: [0.5, 2]\n'
+                    'campaigns: [alignment:minimal]\nseeds: 2\nmodel: my-model.yaml\ntruth: my-truth.yaml\n')
+    monkeypatch.chdir(tmp_path)
+    grid = grid_from_file(path)
+    assert grid.model.source == str(folder / 'my-model.yaml') and grid.truth.source == str(folder / 'my-truth.yaml')
+
+
 # --- bad input ----------------------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize('change, message', [
@@ -84,6 +100,7 @@ def test_a_grid_file_gives_the_same_grid(tmp_path):
     ({'campaigns': ['gyro-stability']}, 'not read by sofia compare'),
     ({'campaigns': ['polar']}, "unknown campaign 'polar'"),
     ({'sizes': [1e9]}, 'timestamp_offset'),  # the hidden truth outside the parameter's range
+    ({'candidates': []}, 'candidates names no effect; leave it out'),  # it ranked the whole catalogue
 ])
 def test_bad_grids_are_one_line(change, message):
     with pytest.raises(ConfigError, match=message):

@@ -442,6 +442,8 @@ def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MO
         raise ConfigError(f'seed {max(seed_values)} + {longest - 1} (truth {longest - 1} is flown with seed s + '
                           f'{longest - 1}) is beyond the largest seed {_MAX_SEED}; give smaller seeds')
     if candidates is not None:
+        if not candidates:
+            raise ConfigError('candidates names no effect; leave it out to rank the whole catalogue')
         for name in candidates:
             get_effect(name)
         candidates = _unique(list(candidates))
@@ -481,9 +483,18 @@ def _draws_of_document(value, max_tasks: int) -> TruthDraws | None:
     return truth_draws(value['count'], value.get('k', [2, 3]), value.get('seed', 1), value.get('pool'), max_tasks)
 
 
+def _beside(path: Path, document: dict, key: str, default: str) -> str:
+    """The ``model`` or ``truth`` file a grid file names, a relative path read from the grid file's folder (as the
+    file is written, wherever the atlas runs); ``default`` where it names none."""
+    if key not in document:
+        return default
+    named = Path(str(document[key]))
+    return str(named if named.is_absolute() else path.parent / named)
+
+
 def grid_from_file(path, max_tasks: int = MAX_TASKS) -> AtlasGrid:
     """The grid of a YAML file (keys: effects, sizes, campaigns, seeds, model, truth, candidates, and the truths:
-    truths, draws, controls, search_rounds)."""
+    truths, draws, controls, search_rounds); ``model`` and ``truth`` relative to the file's folder."""
     path = Path(path)
     text = read_text_capped(path, _MAX_GRID_FILE_BYTES, 'grid file')
     document = safe_load_limited(text, str(path))
@@ -501,8 +512,8 @@ def grid_from_file(path, max_tasks: int = MAX_TASKS) -> AtlasGrid:
                                sizes=_listed(document, 'sizes', max_tasks),
                                campaigns=_listed(document, 'campaigns', max_tasks),
                                seeds=_listed(document, 'seeds', max_tasks),
-                               model=str(document.get('model', DEFAULT_MODEL)),
-                               truth=str(document.get('truth', DEFAULT_TRUTH)), candidates=candidates,
+                               model=_beside(path, document, 'model', DEFAULT_MODEL),
+                               truth=_beside(path, document, 'truth', DEFAULT_TRUTH), candidates=candidates,
                                max_tasks=max_tasks, truths=truths,
                                draws=_draws_of_document(document.get('draws'), max_tasks),
                                controls=document.get('controls', 0),

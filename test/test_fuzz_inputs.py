@@ -197,3 +197,21 @@ def test_a_bag_without_a_needed_topic_is_one_line(bag, dropped, tmp_path, capsys
 def test_replay_of_unknown_topics_is_one_line(bag, capsys):
     assert main(['replay', str(bag), '--topics', '/nope', '/clock', '--wait-s', '0']) == 2
     assert '/nope not in bag' in _one_line(capsys)
+
+
+def test_replay_of_a_bag_damaged_mid_file_publishes_nothing(bag, tmp_path, capsys, monkeypatch):
+    # It published the chunks before the damage, then failed: a graph listening had taken half a recording.
+    copy, mcap = _copy(bag, tmp_path)
+    data = bytearray(mcap.read_bytes())
+    starts = _chunk_starts(bytes(data))
+    start = starts[len(starts) // 2]
+    data[start + 53:start + 61] = bytes(byte ^ 0xFF for byte in data[start + 53:start + 61])
+    mcap.write_bytes(bytes(data))
+
+    def no_graph(*args, **kwargs):
+        raise AssertionError('the replay started a ROS context for a damaged bag')
+
+    monkeypatch.setattr('sofia_ros.nodes.replay.rclpy.init', no_graph)
+    assert main(['replay', str(copy), '--rate', '0', '--wait-s', '0']) == 2
+    err = _one_line(capsys)
+    assert 'is truncated or corrupt' in err and f'sofia recover {copy}' in err

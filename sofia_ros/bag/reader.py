@@ -267,6 +267,22 @@ class BagReader:
             raise BagError(f'topic {topic} in bag {self.path} holds no document')
         return texts[-1]
 
+    def check_chunks(self) -> None:
+        """Check every chunk of the bag's MCAP files (size, zstd frame, CRC) before any is used: a reader that acts
+        on each message as it comes (`sofia replay`) would otherwise have acted on those before a damaged chunk.
+
+        Raises:
+            BagError: a chunk fails, named with `sofia recover`.
+        """
+        self._require_open()
+        for mcap_file in self._metadata.files:
+            try:
+                damage = first_damaged_chunk(mcap_file)
+            except (*INDEX_DAMAGE_ERRORS, OSError) as err:
+                raise _damaged(self.path, self._metadata.files, err) from err
+            if damage is not None:
+                raise _damaged(self.path, self._metadata.files, ValueError(damage))
+
     def last_log_time_ns(self, topic: str) -> int | None:
         """The log time of the last message on ``topic`` (None if it has none), without reading the other chunks."""
         self._require_open()

@@ -26,7 +26,7 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
     documents, /result/*, /clock) are re-latched, so a subscriber that joins later still gets their
     last message while the replay runs. Publishing starts once every replayed volatile topic has a
     subscriber, or after ``wait_s`` of wall time: a volatile topic drops what is published before
-    discovery has matched its subscribers.
+    discovery has matched its subscribers. A bag with a damaged chunk is refused before anything is published.
     """
     from rclpy.node import Node
 
@@ -36,6 +36,8 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
         if missing:
             raise BagError(f'{", ".join(missing)} not in bag {bag_path}; it records {", ".join(sorted(recorded))}')
         infos = [info for info in bag.topics if topics is None or info.name in topics]
+        # Every chunk checked first: a chunk damaged mid-file stopped the replay after those before it were published.
+        bag.check_chunks()
         # SIGINT/SIGTERM stay with sofia_ros.interrupts: one line and exit 130/143, not an RCLError.
         rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
         try:

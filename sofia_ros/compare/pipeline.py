@@ -664,7 +664,8 @@ def run_comparison(source: ComparisonSource, model_effects: Iterable[str], *,
                     rms_arcsec_per_s=totals.get('rms_after_arcsec_per_s'),
                     significant_delta_bic=SIGNIFICANT_DELTA_BIC, model_source=source.model_source,
                     observable_keys=source.observable_keys, beyond_floor=source.beyond_floor,
-                    undetermined=[p.label for p, sigma in zip(final.free, final.sigma) if not np.isfinite(sigma)])
+                    measurements=final.whitened.size, fitted=[p.label for p in final.free],
+                    unconstrained=[p.label for p, sigma in zip(final.free, final.sigma) if not np.isfinite(sigma)])
     document = {
         'model': source.model_source,
         'residual_rms_arcsec': rms,

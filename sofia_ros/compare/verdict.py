@@ -10,9 +10,9 @@
 - ``unexplained``: not explained, and no physical effect helps, or only an empirical term
   does: the text names the shape (observable, variable or period) and how to turn it into
   physics (`sofia effects new`), or to keep the empirical term meanwhile (`sofia model add`).
-- ``undetermined``: every observable is explained, but the data cannot determine some of the
-  model's fitted parameters (no finite sigma: other values fit as well), so the fit is not a
-  calibration. Where the observables are not explained, the other statuses' texts name them too.
+- ``undetermined``: every observable is explained, but by a fit with as many fitted parameters
+  as the data have measurements: they fit exactly whatever is wrong, so nothing is tested, and the
+  parameters without a finite sigma are not determined either (a calibration needs more data).
 """
 
 from __future__ import annotations
@@ -317,7 +317,8 @@ def judge(diagnostics: Diagnostics, consistency: Sequence[Mapping[str, Any]],
           members: Mapping[str, AfterMember] | None = None, change: Mapping[str, Any] | None = None,
           rms_arcsec_per_s: float | None = None, observable_keys: Iterable[str] = BAG_OBSERVABLE_KEYS,
           beyond_floor: Callable[[Mapping[str, Any]], bool] = beyond_bag_floor,
-          undetermined: Sequence[str] = ()) -> Verdict:
+          measurements: int | None = None, fitted: Sequence[str] = (),
+          unconstrained: Sequence[str] = ()) -> Verdict:
     """The verdict block: status, text, per-observable judgement, what is left after the best candidate, and the
     next step (``next``: add, remove or replace a term, write a plug-in, or none) and its ``headline``.
 
@@ -342,7 +343,9 @@ def judge(diagnostics: Diagnostics, consistency: Sequence[Mapping[str, Any]],
         rms_arcsec_per_s: the total RMS of a set's rate observables ["/s], or None.
         observable_keys: what the JSON keeps of each observable.
         beyond_floor: the source's rule for an observable's RMS alone.
-        undetermined: the model's fitted parameters the data cannot determine (no finite sigma), by label.
+        measurements: the number of measurements the fit is to (a bag's centroid axes, a set's rows), or None.
+        fitted: the model's fitted parameters, by label.
+        unconstrained: those the data cannot determine (no finite sigma), by label.
 
     Returns:
         The verdict block of the JSON (docs/compare.md): status, text, observables, inconsistent_terms,
@@ -352,27 +355,26 @@ def judge(diagnostics: Diagnostics, consistency: Sequence[Mapping[str, Any]],
                       rms=(rms_arcsec, rms_arcsec_per_s), significant_delta_bic=significant_delta_bic,
                       model_source=model_source, competing=competing, members=members, change=change,
                       observable_keys=observable_keys, beyond_floor=beyond_floor)
-    if undetermined:
-        clause = _undetermined_clause(undetermined)
-        if verdict['status'] == 'explained':
-            # Observables explained by a fit that other values match as well: nothing the verdict could add or
-            # change helps until data constrain those values.
-            effects = sorted({label.rpartition('.')[0] for label in undetermined})
-            verdict.update(status='undetermined', next=next_step('none', model_source),
-                           text=f'the model explains every observable to its noise, but {clause}')
-            verdict['headline'] = _clipped(f'undetermined: the data cannot determine {", ".join(effects)}')
-            return verdict
-        verdict['text'] += f'; besides, {clause}'
+    if verdict['status'] == 'explained' and measurements is not None and measurements <= len(fitted):
+        # Nothing left to test: a fit of as many parameters as measurements meets every one of them, right or wrong.
+        effects = sorted({label.rpartition('.')[0] for label in unconstrained or fitted})
+        verdict.update(status='undetermined', next=next_step('none', model_source),
+                       text=_undetermined_text(measurements, fitted, unconstrained))
+        verdict['headline'] = _clipped(f'undetermined: the data cannot determine {", ".join(effects)}')
+        return verdict
     verdict['headline'] = headline(verdict['status'], verdict['next'])
     return verdict
 
 
-def _undetermined_clause(undetermined):
-    """Which fitted parameters the data cannot determine, and what to do (judge)."""
-    named = ', '.join(undetermined[:_NAMED]) + (f' (+{len(undetermined) - _NAMED} more)' if len(undetermined) > _NAMED else '')
-    return (f'the data cannot determine {named}: other values fit as well, so the fitted values are not a '
-            f'calibration; add measurements that constrain them (more maneuvers, turning points or stars), or take '
-            f'the term out of the fit')
+def _undetermined_text(measurements, fitted, unconstrained):
+    """Why a fit of as many parameters as measurements explains nothing, and what to do (judge)."""
+    named = ', '.join(unconstrained[:_NAMED]) + (f' (+{len(unconstrained) - _NAMED} more)'
+                                                 if len(unconstrained) > _NAMED else '')
+    which = (f'; {named} {"is" if len(unconstrained) == 1 else "are"} not determined: other values fit as well'
+             if unconstrained else '')
+    return (f'{measurements} measurement{"s" if measurements != 1 else ""} for {len(fitted)} fitted parameters: the '
+            f'model meets every one whatever is wrong, so nothing is tested{which}; the fitted values are not a '
+            f'calibration: add measurements (more turning points, maneuvers or stars), or fit fewer terms')
 
 
 def _gain(rms, best):

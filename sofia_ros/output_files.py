@@ -103,7 +103,8 @@ def refuse_over_inputs(option, path, inputs):
             role = 'another output' if what.startswith('--') else 'which the command reads'
             raise ConfigError(f'{option} {path} is {what} ({given}), {role}; write it elsewhere')
         if source in target.parents:  # a folder, or one the command is yet to make (an atlas' table)
-            raise ConfigError(f'{option} {path} is inside {what} {given}, whose files the command reads; '
+            does = 'writes' if what.startswith('--') else 'reads'
+            raise ConfigError(f'{option} {path} is inside {what} {given}, whose files the command {does}; '
                               'write it elsewhere')
 
 

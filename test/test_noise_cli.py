@@ -99,6 +99,10 @@ def _write_imu_free_bag(path):
     # Said "already exists and is not empty" of a device, and "give a file in an existing directory" of a folder.
     (lambda tmp, bag: [str(bag), '--report', '/dev/null'], '--report /dev/null is not a directory (a file or a device)'),
     (lambda tmp, bag: [str(bag), '--json', str(tmp / 'full')], 'is a directory; give a file name'),
+    # The JSON replaced the report's page at exit 0; the same path for both ran the analysis, then refused.
+    (lambda tmp, bag: [str(bag), '--report', str(tmp / 'empty'), '--json', str(tmp / 'empty' / 'index.html')],
+     'is inside --report'),
+    (lambda tmp, bag: [str(bag), '--report', str(tmp / 'both'), '--json', str(tmp / 'both')], 'is --report'),
 ])
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(bag, tmp_path, capsys, arguments, message):
     _write_imu_free_bag(tmp_path / 'no_imu')
@@ -107,6 +111,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(bag, tmp_path, capsys, 
                                          'amplitudes_arcsec_per_s: [0.1], axes: [el]}\n')
     (tmp_path / 'full').mkdir()
     (tmp_path / 'full' / 'notes.txt').write_text('keep')
+    (tmp_path / 'empty').mkdir()
     before = sorted(path.name for path in tmp_path.rglob('*'))
     given = arguments(tmp_path, bag)
     # Every case also asks for both outputs, so that "writes nothing" is tested for each.
@@ -117,3 +122,11 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(bag, tmp_path, capsys, 
     assert status == 2
     assert error.count('\n') == 1 and message in error and 'Traceback' not in error
     assert sorted(path.name for path in tmp_path.rglob('*')) == before
+
+
+def test_a_report_through_a_link_to_an_empty_folder_is_written_into_that_folder(bag, tmp_path, capsys):
+    # It failed after the whole analysis, saying a part of the path was a file.
+    (tmp_path / 'real').mkdir()
+    (tmp_path / 'link').symlink_to(tmp_path / 'real')
+    assert main(['noise', str(bag), '--report', str(tmp_path / 'link')]) == 0
+    assert (tmp_path / 'link').is_symlink() and (tmp_path / 'real' / 'index.html').is_file()

@@ -36,7 +36,8 @@ def add_noise_arguments(parser: argparse.ArgumentParser) -> None:
 def _check_json_target(path):
     target = Path(path)
     if target.is_dir():
-        raise ConfigError(f'--json {target} is a directory; give a file name, e.g. {target / "noise.json"}')
+        raise ConfigError(f'--json {target} is a directory; give a file name'
+                          + ('' if (target / 'metadata.yaml').exists() else f', e.g. {target / "noise.json"}'))
     if not target.parent.is_dir():
         raise ConfigError(f'cannot write --json {target}: give a file in an existing directory')
     return target
@@ -68,7 +69,8 @@ def run_noise(args: argparse.Namespace) -> int:
     json_target = _check_json_target(args.json) if args.json else None
     inputs = {'the bag': args.bag, 'the model': args.model}
     if json_target is not None:
-        checked_output_file('--json', args.json, inputs)
+        # Not into the report's folder either: `--json REPORT/index.html` replaced the page at exit 0.
+        checked_output_file('--json', args.json, {**inputs, '--report': args.report})
     if args.report:
         check_report_dir(args.report)
         checked_output_directory('--report', args.report, inputs)

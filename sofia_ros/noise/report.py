@@ -53,12 +53,16 @@ def check_report_dir(report_dir: str | PathLike[str]) -> Path:
         report_dir: the --report directory.
 
     Returns:
-        It as a Path.
+        It as a Path; a link to an empty directory as that directory (the report takes its place).
 
     Raises:
         ConfigError: it exists with content (or is no directory), or its parent is missing.
     """
     target = Path(report_dir)
+    if target.is_symlink() and target.is_dir():
+        # Renaming the finished report over the link's target: removing the link itself as a folder failed after the
+        # whole analysis ("a part of the path is a file").
+        target = target.resolve()
     if target.exists() and not target.is_dir():
         raise ConfigError(f'--report {target} is not a directory (a file or a device); give a new or empty directory')
     if target.exists() and any(target.iterdir()):

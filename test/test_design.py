@@ -228,6 +228,9 @@ def test_a_bag_without_its_plan_takes_one_given(capsys, tmp_path, plan_only_bag)
     ('{"bag": "b", "competing": ["x"]}', 'does not list two effects'),
     ('{"bag": "b", "competing": {"a": 1}}', 'its competing sets are not a list'),  # was a KeyError traceback
     ('{"bag": "b", "model": 5, "competing": []}', 'its model is not a file name'),  # was a TypeError traceback
+    # Designed on the model given, without the terms the search had fitted under its sets, at exit 0.
+    ('{"bag": "b", "model": "m.yaml", "competing": [], "search": {"added": ["timestamp_offset"], "removed": [], '
+     '"written": null}}', 'is the answer of a --search whose model'),
 ])
 def test_a_bad_comparison_json_is_refused(capsys, tmp_path, document, match):
     source = tmp_path / 'compare.json'

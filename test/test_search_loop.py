@@ -28,6 +28,8 @@ def test_the_search_ends_on_the_hidden_effects_and_writes_the_model(campaign_bag
     compared = [set(entry['fitted']) for entry in search['rounds']]
     assert any('imager_boresight_offset' in fitted for fitted in compared)
     assert document['verdict']['next']['action'] == 'none'
+    # The answer is named by the file that holds it (it named the model given, which lacks both terms).
+    assert document['model'] == str(found)
     # The file written is the given model edited: its comments and description kept, the two terms fitted.
     written = load_effect_config(found)
     assert set(HIDDEN) <= written.fitted
@@ -44,3 +46,23 @@ def test_search_limits_and_misuse_are_one_line(tmp_path, capsys):
     assert main(['compare', str(tmp_path), '--model', model, '--write-model', str(tmp_path / 'm.yaml')]) == 2
     assert capsys.readouterr().err == ('sofia: error: --write-model writes the model --search finds; '
                                        'add --search\n')
+
+
+def test_a_search_that_writes_no_model_says_its_verdict_is_of_the_model_found():
+    # A search stopped on nominal + a field rotation, its next step a clock offset: taken on the model given, that
+    # step said "with it every observable is explained" of a model that still lacked the rotation.
+    from sofia_ros.compare.cli import _with_search
+
+    step = {'action': 'add', 'effect': 'timestamp_offset', 'term': None,
+            'command': 'sofia model add timestamp_offset --model m.yaml'}
+    document = {'model': 'm.yaml', 'verdict': {'status': 'missing_effect', 'text': 'not explained: ...', 'next': step,
+                                               'headline': 'missing_effect: ...'}}
+    found = {'added': ['imager_rotation_of_field'], 'removed': [], 'written': None}
+    verdict = _with_search(document, found, 'm.yaml')['verdict']
+    assert verdict['next']['command'] == ('sofia model add imager_rotation_of_field --model m.yaml && '
+                                          'sofia model add timestamp_offset --model m.yaml')
+    assert verdict['headline'].startswith('missing_effect: sofia model add imager_rotation_of_field --model m.yaml')
+    assert verdict['text'].startswith('of the model the search found (m.yaml +imager_rotation_of_field; '
+                                      '--write-model F.yaml writes it): not explained')
+    # Written, the answer's own commands name the file written: nothing to change.
+    assert _with_search(document, {**found, 'written': 'f.yaml'}, 'm.yaml')['verdict'] == document['verdict']

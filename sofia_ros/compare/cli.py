@@ -7,6 +7,7 @@ import io
 import json
 import os
 import argparse
+import dataclasses
 import sys
 from collections.abc import Iterable, Mapping
 from contextlib import contextmanager
@@ -300,7 +301,7 @@ def run_compare(args: argparse.Namespace, out: TextIO) -> int:
     with observation_cache(None if args.no_cache else ObservationCache(warn=_warn, progress=progress)):
         if args.search:
             result, found = _search(args, model, progress)
-            document = json_ready({**result.document, 'search': found})
+            document = json_ready(_with_search(result.document, found, args.model))
         else:
             result = compare_bag(args.bag, model, anchor_spacing_s=args.anchor_s, progress=progress, jobs=args.jobs)
             document = json_ready(result.document)
@@ -371,7 +372,7 @@ def _search_set(args, model, out):
         output_target(args.write_model)
     progress = Progress.silent() if args.quiet else Progress(sys.stderr, prefix='sofia compare')
     result, found = _searched(args, model, progress, load_measurement_set(args.bag), compare_measurement_set)
-    document = json_ready({**result.document, 'search': found})
+    document = json_ready(_with_search(result.document, found, args.model))
     print_set_comparison(document, out)
     _print_search(document['search'], out)
     if args.report:
@@ -389,7 +390,10 @@ def _searched(args, model, progress, data, compare):
     """
     from sofia_ros.compare.search import search_model
 
-    result, found, rounds, equivalent = search_model(data, model, compare, rounds=args.search_rounds or _SEARCH_ROUNDS,
+    # Every model the search compares is named by the file that will hold the one it finds, so that the answer's
+    # JSON, report and next command name that file (they named the model given, which lacks what the search added).
+    named = dataclasses.replace(model, source=str(args.write_model)) if args.write_model else model
+    result, found, rounds, equivalent = search_model(data, named, compare, rounds=args.search_rounds or _SEARCH_ROUNDS,
                                                      progress=progress.phase)
     given = set(model.fitted)
     added, removed = sorted(found.fitted - given), sorted(given - found.fitted)
@@ -402,6 +406,27 @@ def _searched(args, model, progress, data, compare):
     return result, {'rounds': rounds, 'fitted': sorted(found.fitted), 'added': added, 'removed': removed,
                     'status': result.document['verdict']['status'], 'equivalent': equivalent,
                     'written': written}
+
+
+def _with_search(document, found, given_model):
+    """The answer's document with the search block; where the search changed the model and wrote it nowhere, the
+    verdict's next command first brings the model given to the one found (its commands would take the next step on
+    a model without the search's changes), and its text says so."""
+    from sofia_ros.compare.verdict import clipped_headline
+
+    document = {**document, 'search': found}
+    changes = [f'sofia model add {name} --model {given_model}' for name in found['added']]
+    changes += [f'sofia model remove {name} --model {given_model}' for name in found['removed']]
+    if found['written'] is not None or not changes:
+        return document
+    verdict = dict(document['verdict'])
+    difference = ' '.join([*(f'+{name}' for name in found['added']), *(f'-{name}' for name in found['removed'])])
+    verdict['text'] = (f'of the model the search found ({given_model} {difference}; --write-model F.yaml writes it): '
+                       f'{verdict["text"]}')
+    if verdict['next']['command'] is not None:
+        step = {**verdict['next'], 'command': ' && '.join([*changes, verdict['next']['command']])}
+        verdict.update(next=step, headline=clipped_headline(f'{verdict["status"]}: {step["command"]}'))
+    return {**document, 'verdict': verdict}
 
 
 def _print_search(search, out):

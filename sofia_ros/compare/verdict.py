@@ -27,8 +27,8 @@ from sofia_ros.compare.records import NextStep, Verdict
 from sofia_ros.effects.empirical import (CAMERA_OBSERVABLES, DETECTOR_FIELD, GYRO_TERM_VARIABLES, VARIABLES, empirical_name,
                                          empirical_parts, is_empirical)
 
-__all__ = ['after_member', 'beyond_bag_floor', 'empirical_candidate_names', 'headline', 'judge', 'model_command',
-           'next_step', 'BAG_OBSERVABLE_KEYS', 'EXPLAINED_ADDITION_DELTA_BIC', 'HEADLINE_CHARACTERS',
+__all__ = ['after_member', 'beyond_bag_floor', 'clipped_headline', 'empirical_candidate_names', 'headline', 'judge',
+           'model_command', 'next_step', 'BAG_OBSERVABLE_KEYS', 'EXPLAINED_ADDITION_DELTA_BIC', 'HEADLINE_CHARACTERS',
            'MAX_EMPIRICAL_CANDIDATES']
 
 #: At most this many empirical terms are tried, the strongest findings first.
@@ -302,11 +302,18 @@ def headline(status: str, step: Mapping[str, str | None]) -> str:
     forms = [f'{status}: {what[step["action"]]}: {command}', f'{status}: {command}']
     if path:
         forms += [f'{status}: {head} --model {path.rsplit("/", 1)[-1]}', f'{status}: {head}']
-    return _clipped(next((form for form in forms if len(form) <= HEADLINE_CHARACTERS), forms[-1]))
+    return clipped_headline(next((form for form in forms if len(form) <= HEADLINE_CHARACTERS), forms[-1]))
 
 
-def _clipped(line):
-    """``line`` cut to HEADLINE_CHARACTERS, with '...' where it was cut."""
+def clipped_headline(line: str) -> str:
+    """A headline cut to HEADLINE_CHARACTERS, with '...' where it was cut.
+
+    Args:
+        line: the whole headline.
+
+    Returns:
+        At most HEADLINE_CHARACTERS characters.
+    """
     return line if len(line) <= HEADLINE_CHARACTERS else line[:HEADLINE_CHARACTERS - 3] + '...'
 
 
@@ -360,7 +367,7 @@ def judge(diagnostics: Diagnostics, consistency: Sequence[Mapping[str, Any]],
         effects = sorted({label.rpartition('.')[0] for label in unconstrained or fitted})
         verdict.update(status='undetermined', next=next_step('none', model_source),
                        text=_undetermined_text(measurements, fitted, unconstrained))
-        verdict['headline'] = _clipped(f'undetermined: the data cannot determine {", ".join(effects)}')
+        verdict['headline'] = clipped_headline(f'undetermined: the data cannot determine {", ".join(effects)}')
         return verdict
     verdict['headline'] = headline(verdict['status'], verdict['next'])
     return verdict

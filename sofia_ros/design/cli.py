@@ -142,6 +142,13 @@ def _source(args: argparse.Namespace) -> tuple:
     document = _read_json(args.source, 'a comparison (sofia compare --json)')
     if not isinstance(document.get('bag'), str) or 'competing' not in document:
         raise ConfigError(f'{args.source} is not the JSON of `sofia compare` on a bag (no bag or competing key)')
+    search = document.get('search')
+    if (not args.model and isinstance(search, dict) and search.get('written') is None
+            and (search.get('added') or search.get('removed'))):
+        # Its sets were found with the search's terms fitted: designed on the model given, they were another problem.
+        raise ConfigError(f'{args.source} is the answer of a --search whose model ({document.get("model")} with the '
+                          'search\'s changes) was not written; run the search with --write-model F.yaml, or give '
+                          'the model with --model M.yaml')
     model = args.model or document.get('model')
     if model is not None and not isinstance(model, str):
         raise ConfigError(f'{args.source}: its model is not a file name; give the model with --model M.yaml')

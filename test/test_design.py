@@ -97,6 +97,25 @@ def test_expected_delta_bic_matches_simulated_fits():
     assert np.mean(differences[2]) == pytest.approx(expected_delta_bic(lam, 1, 2, 600), abs=1.5)
 
 
+def test_expected_delta_bic_of_a_separation_beyond_the_noise_follows_compares_logarithm():
+    """Where the rival leaves more than the noise (lambda several times n s^2), compare's BIC, n ln(RSS/n), grows with
+    the logarithm of it: lambda / s^2 overstated a star hop's field rotation against the HIPO fiducials 258-fold."""
+    nuisance, columns = _problem(3, 600)
+    theta = 12.0
+    rng = np.random.default_rng(5)
+    true_design, rival_design = np.hstack([nuisance, columns[:, [0, 1]]]), np.hstack([nuisance, columns[:, [0, 2]]])
+    differences = []
+    for _ in range(100):
+        data = columns[:, 1] * theta + rng.normal(size=600)
+        rss = [float(left @ left) for left in (data - design @ np.linalg.lstsq(design, data, rcond=None)[0]
+                                               for design in (true_design, rival_design))]
+        differences.append(600 * np.log(rss[1] / rss[0]))
+    lam = noncentrality(_information(nuisance, columns), ['a.0'], np.array([theta]), ['b.0'], ['m.0'])
+    assert lam > 3 * 600
+    assert np.mean(differences) == pytest.approx(expected_delta_bic(lam, 1, 1, 600), rel=0.02)
+    assert lam > 1.5 * np.mean(differences)  # the linear form's overstatement
+
+
 def test_sigma_and_fitted_values_are_those_of_least_squares():
     nuisance, columns = _problem(5)
     rng = np.random.default_rng(6)

@@ -8,9 +8,11 @@ new elements is the sum of their profiled Grams.
 
 If A is true with size theta_A, fitting B instead leaves the non-centrality
 lambda = |(I - P_[M,B]) J_A theta_A|^2 = theta_A^T (S_AA - S_A,R S_RR^-1 S_R,A) theta_A, R = [M, B],
-and the expected BIC difference (compare's BIC, whitened residuals of variance s^2) is
-lambda / s^2 + (k_B - k_A)(ln n - 1): the non-centrality, the chi-square expectation of the
-extra parameters and their BIC penalty.
+and the expected BIC difference (compare's BIC n ln(RSS / n) + k ln n, whitened residuals of variance s^2, so
+the true member's RSS is n s^2 and the rival's that plus lambda) is n ln(1 + lambda / (n s^2)) + (k_B - k_A)(ln n - 1):
+the non-centrality through compare's logarithm, the chi-square expectation of the extra parameters and their BIC
+penalty. Where lambda is small beside n s^2 that is lambda / s^2 + ...; where it is not, lambda / s^2 overstated
+compare's delta-BIC 258-fold (a field rotation against the HIPO fiducials on four star-hop observations).
 """
 
 from __future__ import annotations
@@ -105,7 +107,8 @@ def noncentrality(information: Information, true_labels: Sequence[str], true_val
 
 def expected_delta_bic(noncentrality_value: float, true_count: int, rival_count: int, rows: int,
                        variance: float = 1.0) -> float:
-    """Expected BIC(rival) - BIC(true) when the true member holds: lambda / s^2 + (k_B - k_A)(ln n - 1).
+    """Expected BIC(rival) - BIC(true) when the true member holds: n ln(1 + lambda / (n s^2)) + (k_B - k_A)(ln n - 1)
+    (module docstring).
 
     Args:
         noncentrality_value: lambda (noncentrality).
@@ -119,7 +122,7 @@ def expected_delta_bic(noncentrality_value: float, true_count: int, rival_count:
     """
     if rows <= 1 or variance <= 0.0:
         raise InvalidArgumentError(f'expected_delta_bic needs rows > 1 and a positive variance, got {rows}, {variance}')
-    return noncentrality_value / variance + (rival_count - true_count) * (np.log(rows) - 1.0)
+    return rows * np.log1p(noncentrality_value / (rows * variance)) + (rival_count - true_count) * (np.log(rows) - 1.0)
 
 
 def sigma_of(information: Information, labels: Sequence[str], variance: float = 1.0) -> np.ndarray:

@@ -1,6 +1,8 @@
 """Plan files (docs/plans.md): written, checked before the run, flown by the node graph, recorded with the bag."""
 
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +47,31 @@ def test_a_plan_written_to_a_file_reads_back_equal(plan, tmp_path):
     assert read_plan_file(path, plan.campaign) == plan
     # As node parameters too (--processes): the elements pass as one string parameter.
     assert plan_from_parameters(plan.campaign, plan_parameters(plan)) == plan
+
+
+def test_an_empty_array_of_a_plan_passes_through_a_params_file(tmp_path):
+    # `--processes` could not fly the minimal alignment (flexure_elevations_deg: []): rcl reads an empty array of a
+    # params file as unset, and the nodes refused it ("must be an array of numbers, got None"), exit 3.
+    script = f"""
+import rclpy
+from sofia_ros.campaigns.graph_params import plan_from_parameters
+from sofia_ros.campaigns.registry import campaign_named
+from sofia_ros.campaigns.run_parameters import plan_parameters
+from sofia_ros.nodes.executables import _read_parameters
+from sofia_ros.nodes.launch import write_params_file
+from pathlib import Path
+plan = campaign_named('alignment').plan('minimal')
+path = Path({str(tmp_path / 'params.yaml')!r})
+write_params_file(path, plan_parameters(plan))
+rclpy.init(args=['--ros-args', '--params-file', str(path)])
+values = _read_parameters('plant')
+rclpy.shutdown()
+assert values['plan.flexure_elevations_deg'] is None
+assert plan_from_parameters('alignment', {{k: v for k, v in values.items() if k.startswith('plan.')}}) == plan
+print('same plan')
+"""
+    done = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout == 'same plan\n', done.stderr[-2000:]
 
 
 def test_the_named_variants_are_the_plan_files_under_config_plans():

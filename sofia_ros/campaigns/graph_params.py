@@ -76,6 +76,10 @@ def _checked(name, value, example):
             raise ConfigError(f'parameter {name} must be {_KINDS[type(example)][0]}, got {value!r}')
         return value
     kind = type(example[0])
+    if value is None:
+        # An empty array in a params file (`plan.flexure_elevations_deg: []`, the minimal alignment's) has no type for
+        # rcl, which gives it unset: a parameter absent is not here at all, so unset is the empty array.
+        return ()
     if not isinstance(value, (list, tuple)) or not all(_is_kind(item, kind) for item in value):
         raise ConfigError(f'parameter {name} must be an array of {_KINDS[kind][1]}, got {value!r}')
     return tuple(value)

@@ -277,3 +277,20 @@ def test_a_star_hop_ramp_is_flown_on_the_thermal_truth(tmp_path):
     end = np.argmin(np.abs(gyro.tick_end_s - element['hold_end_s']))
     rise_c = gyro.tick_temperature_c[end] - scenario.temperature_c_at(element['command_s'])
     assert rise_c == pytest.approx(50.0 / 3600.0 * (20.0 + 120.0 * np.expm1(-20.0 / 120.0)), rel=0.02)
+
+
+def test_a_hipo_clock_behind_sends_no_frame_stamped_before_the_start(tmp_path):
+    # timestamp_offset -0.4 s (its range is +-60 s) stamped HIPO's first frames before the campaign's start, where the
+    # bag's time begins: `sofia run` stopped at once ("stamp_ns must be >= 0"), exit 2, a broken bag left behind.
+    from sofia_ros.bag import BagWriter
+    from sofia_ros.sim.graph import build_cores
+    from sofia_ros.sim.runner import LockstepRunner
+
+    truth = parse_effect_config(NOMINAL.read_text() + '  timestamp_offset: {offset_s: -0.4}\n')
+    config = graph_config(truth, 8)
+    with BagWriter(tmp_path / 'bag') as bag:
+        runner = LockstepRunner(build_cores(config), tick_ns=config.tick_ns, bag=bag)
+        runner.run(until_ns=m.seconds_to_ns(3.0))
+    with BagReader(tmp_path / 'bag') as bag:
+        stamps_ns, _ = bag.messages_by_topic('/hipo/centroids', raw=('/hipo/centroids',))['/hipo/centroids']
+    assert len(stamps_ns) > 0 and stamps_ns[0] >= 0

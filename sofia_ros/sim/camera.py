@@ -81,6 +81,10 @@ class CameraCore(NodeCore):
                                              temperature_c=self.thermal.temperature_c_at(midpoint_ns / m.NS_PER_S),
                                              specific_force_tarf_m_per_s2=force, los_angle_deg=los_deg)
             stamp = centroids[0].stamp_s if centroids else midpoint_ns / m.NS_PER_S
+            if stamp < 0.0:
+                # A clock behind the TASCU's (timestamp_offset < 0) stamps the first frames before the campaign's
+                # start, where the bag's time begins: they are not sent (a run with -0.4 s stopped on them).
+                continue
             outputs.append((self.topic.name, m.centroid_array(m.seconds_to_ns(stamp), self.name, centroids)))
         return outputs
 

@@ -283,7 +283,7 @@ HEADLINE_CHARACTERS = 100
 
 def headline(status: str, step: Mapping[str, str | None]) -> str:
     """'status: what to do: command' in at most HEADLINE_CHARACTERS, ending with the command or 'nothing to do'
-    (the model file by its name alone where the whole path would not fit; ``next.command`` has it whole).
+    (the model file as .../NAME where the whole path would not fit, visibly cut; ``next.command`` has it whole).
 
     Args:
         status: the verdict's status.
@@ -298,10 +298,10 @@ def headline(status: str, step: Mapping[str, str | None]) -> str:
             'replace': f'replace {step["term"]} by {step["effect"]}', 'plugin': 'write a plug-in for the shape'}
     command = step['command']
     head, _, path = command.partition(' --model ')
-    # Shorter and shorter: the whole command, the model file by its name, the command without --model.
+    # Shorter and shorter: the whole command, the model file as .../NAME, the command without --model.
     forms = [f'{status}: {what[step["action"]]}: {command}', f'{status}: {command}']
     if path:
-        forms += [f'{status}: {head} --model {path.rsplit("/", 1)[-1]}', f'{status}: {head}']
+        forms += [f'{status}: {head} --model .../{path.rsplit("/", 1)[-1]}', f'{status}: {head}']
     return clipped_headline(next((form for form in forms if len(form) <= HEADLINE_CHARACTERS), forms[-1]))
 
 

@@ -219,7 +219,7 @@ def _run_star_hop(spec, args):
         print(f'sofia run: warning: {line}', file=sys.stderr)
     if not summary['finished']:
         print(f'star hop NOT finished: {summary["reason"]}')
-    print(f'analyze it: sofia compare {args.bag} --model config/model/nominal.yaml')
+    print(f'analyze it: sofia compare {args.bag} --model {args.model or _nominal_model()}')
     return 0
 
 
@@ -327,8 +327,23 @@ def _import(args):
     refuse_over_inputs('--bag', args.bag, {'the logs folder': args.logs})
     bag = import_csv_logs(args.logs, args.bag)
     print(f'bag: {bag} (from the CSV logs of {args.logs})')
-    print(f'analyze it: sofia compare {bag} --model config/model/nominal.yaml')
+    print(f'analyze it: sofia compare {bag} --model {_nominal_model()}')
     return 0
+
+
+def _nominal_model():
+    """The shipped nominal model as a command names it from here: config/model/nominal.yaml in the checkout's folder,
+    else its whole path (the relative path failed from any other folder)."""
+    import os
+    from pathlib import Path
+
+    from sofia_ros.input_files import shipped_paths
+
+    relative = 'config/model/nominal.yaml'
+    found = next((path for path in shipped_paths(relative) if path.is_file()), None)
+    if found is None or Path(relative).resolve() == found.resolve():
+        return relative
+    return os.path.relpath(found) if found.is_relative_to(Path.cwd()) else str(found)
 
 
 def _add_noise_arguments(parser):

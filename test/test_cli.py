@@ -188,3 +188,11 @@ def test_a_python_warning_is_one_sofia_line(tmp_path):
     warned = [line for line in done.stderr.splitlines() if 'warning' in line.lower()]
     assert warned == ['sofia: warning: alignment.tarf_from_gyrf re-orthonormalized (max |A A^T - I| = 9e-06)'], \
         done.stderr
+
+
+def test_the_model_a_run_suggests_is_found_from_any_folder(tmp_path, monkeypatch):
+    # `analyze it: sofia compare BAG --model config/model/nominal.yaml` failed from any folder but the checkout's.
+    from sofia_ros.cli import _nominal_model
+
+    monkeypatch.chdir(tmp_path)
+    assert Path(_nominal_model()).is_file()

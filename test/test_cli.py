@@ -7,6 +7,7 @@ imports); a few run the installed entry point as a subprocess, to show it behave
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 

@@ -292,6 +292,9 @@ def _design_json(tmp_path, plan_only_bag, **keys):
     (['source.json'], 'drop a SOURCE'),
     (['--between', 'gyro_axis_swap,gyro_scale_factor'], 'drop --between'),
     (['--plan-out', 'plan.yaml'], 'drop --plan-out'),
+    # Ignored at exit 0, and --anchor-s applied to a prediction made at another spacing without a word.
+    (['--budget-s', '100', '--target', '5', '--set', '3', '--jobs', '1'], 'drop --set, --budget-s, --target, --jobs'),
+    (['--anchor-s', '10'], '--anchor-s 10 is not the 30 s the design was made at'),
 ])
 def test_a_check_refuses_the_options_it_would_ignore(capsys, tmp_path, plan_only_bag, extra, match):
     prediction = _design_json(tmp_path, plan_only_bag)

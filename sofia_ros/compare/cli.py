@@ -25,13 +25,16 @@ from sofia_ros.output_files import (checked_output_directory, checked_output_fil
 from sofia_ros.progress import Progress
 
 __all__ = ['print_fitted_terms', 'spread_text', 'add_compare_arguments', 'run_compare', 'add_model_arguments',
-           'run_model_add', 'edit_model_file', 'anchor_memory_bytes', 'MIN_ANCHOR_S']
+           'run_model_add', 'edit_model_file', 'anchor_memory_bytes', 'DEFAULT_ANCHOR_S', 'MAX_ANCHOR_S',
+           'MIN_ANCHOR_S']
 
 
 #: Attitude anchors closer than ten frames of the slowest camera (0.2 s ticks, 1 s HIPO cadence and
 #: longer imager exposures) are not determined by the centroids between them.
 MIN_ANCHOR_S = 2.0
 MAX_ANCHOR_S = 86400.0
+#: The attitude anchors' spacing without --anchor-s (compare and design alike).
+DEFAULT_ANCHOR_S = 30.0
 #: Whole comparisons `--search` may make unless --search-rounds says otherwise.
 _SEARCH_ROUNDS = 12
 #: The fit's dense normal matrix and covariance: (3 per anchor + terms)^2 doubles, a few copies alive.
@@ -60,7 +63,7 @@ def add_compare_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--search-rounds', type=integer(1, 20, 'rounds'),
                         help=f'with --search: whole comparisons the search may make (1-20, default {_SEARCH_ROUNDS})')
     parser.add_argument('--write-model', help='with --search: write the model found here (a copy of --model, edited)')
-    parser.add_argument('--anchor-s', type=number(MIN_ANCHOR_S, MAX_ANCHOR_S, 's'), default=30.0,
+    parser.add_argument('--anchor-s', type=number(MIN_ANCHOR_S, MAX_ANCHOR_S, 's'), default=DEFAULT_ANCHOR_S,
                         help=f'spacing of the attitude anchors in s (default 30, at least {MIN_ANCHOR_S:g}: ten '
                              'frames of the slowest camera; they absorb the gyro random walk)')
     parser.add_argument('--no-cache', action='store_true',

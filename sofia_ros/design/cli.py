@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from sofia_ros.cli_args import integer, number
+from sofia_ros.compare.cli import DEFAULT_ANCHOR_S, MAX_ANCHOR_S, MIN_ANCHOR_S
 from sofia_ros.errors import BagError, ConfigError
 from sofia_ros.forked import forked_map, usable_cores
 from sofia_ros.held_folders import held_folder, release_folder, remove_abandoned_folders
@@ -69,11 +70,11 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--between', metavar='A,B',
                         help="the competing set's two members; a member of several effects joins them with '+' "
                              '(e.g. hipo_fiducial_error,imager_boresight_offset+imager_rotation_of_field)')
-    parser.add_argument('--set', type=integer(1, 1000, 'a competing set of the JSON'), default=1, metavar='N',
+    parser.add_argument('--set', type=integer(1, 1000, 'a competing set of the JSON'), metavar='N',
                         help="the JSON's competing set to design for (default 1, the first)")
     parser.add_argument('--budget-s', type=number(0.0, 1e6, 's', low_open=True), metavar='S',
                         help="longest addition of flight time (default 30 %% of the bag's flight)")
-    parser.add_argument('--target', type=number(0.0, 1e9, 'delta-BIC', low_open=True), default=_DEFAULT_TARGET,
+    parser.add_argument('--target', type=number(0.0, 1e9, 'delta-BIC', low_open=True),
                         metavar='DBIC', help='expected delta-BIC to reach both ways (default 20: twice the 10 that '
                                              'decides, as a margin)')
     parser.add_argument('--plan', metavar='PLAN.yaml', help="the plan the bag was flown with (default: its plan.yaml)")
@@ -82,11 +83,10 @@ def add_design_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--check', metavar='NEW_BAG', help='the designed plan flown: refit the members on it and '
                                                           'on the old bag, print predicted against achieved')
     parser.add_argument('--prediction', metavar='DESIGN.json', help='--check: the design JSON it checks')
-    parser.add_argument('--anchor-s', type=number(1.0, 3600.0, 's'), default=30.0,
-                        help='seconds between attitude anchors, as compare (default 30)')
+    parser.add_argument('--anchor-s', type=number(MIN_ANCHOR_S, MAX_ANCHOR_S, 's'),
+                        help='seconds between attitude anchors, as compare (default 30; --check: the design\'s)')
     parser.add_argument('--quiet', action='store_true', help='no progress on stderr')
     parser.add_argument('--jobs', type=integer(1, 64, 'worker processes'),
-                        default=_FLIGHTS_PER_CORE * usable_cores(),
                         help='library flights not in the cache yet (the temperature steps\' each a flight of its own) '
                              f'are flown in up to this many forked processes at once (default: {_FLIGHTS_PER_CORE} per '
                              f'usable core, {_FLIGHTS_PER_CORE * usable_cores()} here); the flights are the same with 1')
@@ -614,7 +614,10 @@ def _check(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     if not args.prediction:
         raise ConfigError('--check NEW_BAG needs --prediction DESIGN.json (the JSON `sofia design --json` wrote)')
     ignored = [option for option, value in (('a SOURCE', args.source), ('--between', args.between),
-                                            ('--plan', args.plan), ('--plan-out', args.plan_out)) if value]
+                                            ('--plan', args.plan), ('--plan-out', args.plan_out),
+                                            ('--set', args.set), ('--budget-s', args.budget_s),
+                                            ('--target', args.target), ('--jobs', args.jobs))
+               if value is not None]
     if ignored:
         raise ConfigError(f'--check takes the design (--prediction) and the bag flown with its plan; drop '
                           f'{", ".join(ignored)}')
@@ -624,6 +627,12 @@ def _check(args: argparse.Namespace, out: TextIO, progress: Progress) -> int:
     prediction = _read_json(args.prediction, 'a design (sofia design --json)')
     if not isinstance(prediction.get('members'), list) or not isinstance(prediction.get('predicted'), dict):
         raise ConfigError(f'{args.prediction} is not the JSON of `sofia design` (no members or predicted key)')
+    # The members refitted at the spacing the prediction was made at (30 s in a design written before it was kept).
+    designed_anchor_s = prediction.get('anchor_s', DEFAULT_ANCHOR_S)
+    if args.anchor_s is not None and args.anchor_s != designed_anchor_s:
+        raise ConfigError(f'--anchor-s {args.anchor_s:g} is not the {designed_anchor_s:g} s the design was made at; '
+                          'drop --anchor-s (the check refits at the design\'s)')
+    args.anchor_s = designed_anchor_s
     _check_flown_with_the_design(prediction, Path(args.check))
     model = load_effect_config(args.model or prediction['model'])
     members = _members(','.join(prediction['members']))
@@ -685,4 +694,9 @@ def run_design(args: argparse.Namespace, out: TextIO) -> int:
         return _check(args, out, progress)
     if args.prediction:
         raise ConfigError('--prediction goes with --check NEW_BAG')
+    # Defaults here, not in the parser: --check refuses these options given, which it would ignore.
+    args.set = 1 if args.set is None else args.set
+    args.target = _DEFAULT_TARGET if args.target is None else args.target
+    args.anchor_s = DEFAULT_ANCHOR_S if args.anchor_s is None else args.anchor_s
+    args.jobs = _FLIGHTS_PER_CORE * usable_cores() if args.jobs is None else args.jobs
     return _design(args, out, progress)

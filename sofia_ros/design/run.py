@@ -65,6 +65,7 @@ class DesignDocument(TypedDict):
 
     bag: str
     model: str | None
+    anchor_s: float
     members: list
     shared: list
     flight_s: float
@@ -296,7 +297,8 @@ def design_plan(observations: object, library: Sequence[tuple], skipped: Sequenc
     reproduced = [name for name, left in with_all.signature_left.items() if left < REPRODUCED_BELOW]
     separable = [name for name in before.separation if name not in reproduced]
     document = DesignDocument(
-        bag=str(observations.bag_path), model=model.source, members=[member_name(m) for m in members],
+        bag=str(observations.bag_path), model=model.source, anchor_s=float(anchor_spacing_s),
+        members=[member_name(m) for m in members],
         shared=shared, flight_s=round(flight_s, 1),
         elements_start_s=round(float(observations.centroids.stamp_s.max()), 1), budget_s=round(budget_s, 1),
         target_delta_bic=target,

@@ -263,7 +263,9 @@ def _print_flexure_series(flexure_record):
 def _replay(args):
     from sofia_ros.nodes.replay import replay_bag
 
-    replay_bag(args.bag, rate=args.rate, topics=args.topics or None, out=sys.stdout, wait_s=args.wait_s)
+    if args.topics is not None and not all(args.topics):
+        raise ConfigError('--topics is given an empty topic name; name the topics to replay (e.g. /clock /fpi/centroids)')
+    replay_bag(args.bag, rate=args.rate, topics=args.topics, out=sys.stdout, wait_s=args.wait_s)
     return 0
 
 
@@ -411,7 +413,7 @@ def build_parser():
     replay.add_argument('bag', help='bag directory')
     replay.add_argument('--rate', type=number(0.0, 1e6, 'x real time'), default=1.0,
                         help='speed-up against the recorded time (0: unpaced)')
-    replay.add_argument('--topics', nargs='*', help='only these topics')
+    replay.add_argument('--topics', nargs='+', help='only these topics')
     replay.add_argument('--wait-s', type=number(0.0, 3600.0, 's'), default=5.0,
                         help='wait this long (wall s) for a subscriber on every replayed topic before publishing')
     replay.set_defaults(handler=_replay)

@@ -215,3 +215,35 @@ def test_replay_of_a_bag_damaged_mid_file_publishes_nothing(bag, tmp_path, capsy
     assert main(['replay', str(copy), '--rate', '0', '--wait-s', '0']) == 2
     err = _one_line(capsys)
     assert 'is truncated or corrupt' in err and f'sofia recover {copy}' in err
+
+
+@pytest.mark.parametrize('topics, message', [
+    ([], 'expected at least one argument'),  # replayed every topic, exit 0
+    ([''], '--topics is given an empty topic name'),
+])
+def test_replay_of_no_topic_is_one_line(bag, capsys, topics, message):
+    assert main(['replay', str(bag), '--topics', *topics, '--wait-s', '0']) == 2
+    assert message in _one_line(capsys)
+
+
+def test_a_write_dds_refuses_during_a_replay_is_counted_and_the_replay_goes_on():
+    # A reliable subscriber that left mid-replay made rmw_fastrtps refuse a write: an RCLError traceback, exit 1.
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+
+    from sofia_ros.nodes.replay import _published
+
+    class Publisher:
+        topic_name = '/gyro_box/imu'
+
+        def __init__(self, error):
+            self.error = error
+
+        def publish(self, data):
+            raise rclpy_implementation.RCLError(self.error)
+
+    refused = {}
+    refusing = Publisher('Failed to publish: cannot publish data, at ./src/rmw_publish.cpp:120')
+    assert not _published(refusing, b'', refused) and not _published(refusing, b'', refused)
+    assert refused == {'/gyro_box/imu': 2}
+    with pytest.raises(rclpy_implementation.RCLError, match='publisher is invalid'):
+        _published(Publisher('publisher is invalid'), b'', refused)

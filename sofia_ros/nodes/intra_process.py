@@ -20,11 +20,11 @@ from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.logging import get_logger
 from rclpy.qos import DurabilityPolicy
 
-__all__ = ['IntraProcessBus', 'publish_outside']
+__all__ = ['REFUSED_WRITE', 'IntraProcessBus', 'publish_outside']
 
 
 #: How rmw_fastrtps words a write that DDS refused (a reliable reader outside that does not keep up).
-_REFUSED_WRITE = 'cannot publish data'
+REFUSED_WRITE = 'cannot publish data'
 
 
 def publish_outside(publisher, message):
@@ -33,7 +33,7 @@ def publish_outside(publisher, message):
     try:
         publisher.publish(message)
     except rclpy_implementation.RCLError as err:
-        if _REFUSED_WRITE not in str(err):
+        if REFUSED_WRITE not in str(err):
             raise
         _warn_of_a_slow_listener(publisher.topic_name, str(err))
 

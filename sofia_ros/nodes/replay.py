@@ -7,11 +7,13 @@ import time
 import rclpy
 import rclpy.duration
 from rclpy.signals import SignalHandlerOptions
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rosgraph_msgs.msg import Clock
 
 from sofia_ros import messages as m
 from sofia_ros.bag import BagReader
 from sofia_ros.errors import BagError
+from sofia_ros.nodes.intra_process import REFUSED_WRITE as _REFUSED_WRITE
 from sofia_ros.nodes.shell import message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS
 from sofia_ros.topics import CLOCK
@@ -51,7 +53,7 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
             waiting = _wait_for_subscribers(node, [p for name, p in publishers.items() if name not in latched], wait_s)
             if waiting and out is not None:
                 out.write(f'no subscriber after {wait_s:g} s on {", ".join(waiting)}; replaying anyway\n')
-            start_wall, first_ns, count = time.monotonic(), None, 0
+            start_wall, first_ns, count, refused = time.monotonic(), None, 0, {}
             for topic, stamp_ns, data in bag.raw_messages(*publishers):
                 first_ns = stamp_ns if first_ns is None else first_ns
                 if rate > 0:
@@ -59,18 +61,35 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
                     if delay > 0:
                         time.sleep(delay)
                 if topic != CLOCK.name and CLOCK.name not in publishers:
-                    clock.publish(m.clock_msg(stamp_ns))
-                publishers[topic].publish(bytes(data))
-                count += 1
+                    _published(clock, m.clock_msg(stamp_ns), refused)
+                if _published(publishers[topic], bytes(data), refused):
+                    count += 1
             for publisher in publishers.values():
                 # Reliable delivery: do not exit before subscribers have every message.
                 publisher.wait_for_all_acked(rclpy.duration.Duration(seconds=10.0))
             if out is not None:
                 out.write(f'replayed {count} messages on {len(publishers)} topics from {bag_path}\n')
+                for topic, dropped in refused.items():
+                    out.write(f'  {dropped} message(s) on {topic} refused by DDS (a subscriber that left mid-replay '
+                              'or could not keep up)\n')
             node.destroy_node()
         finally:
             rclpy.try_shutdown()
     return count
+
+
+def _published(publisher, data, refused):
+    """Publish ``data``; a write DDS refuses (rmw_fastrtps: 'cannot publish data', when a reliable subscriber leaves
+    mid-replay or cannot keep up) is counted in ``refused`` by topic and the replay goes on: it stopped with an
+    RCLError traceback, exit 1."""
+    try:
+        publisher.publish(data)
+    except _rclpy.RCLError as err:
+        if _REFUSED_WRITE not in str(err):
+            raise
+        refused[publisher.topic_name] = refused.get(publisher.topic_name, 0) + 1
+        return False
+    return True
 
 
 def _wait_for_subscribers(node, publishers, wait_s):

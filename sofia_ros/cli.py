@@ -29,7 +29,14 @@ def _print_effects(args):
     from sofia_ros.effects import CATALOGUE, catalogue_as_json
 
     if args.action == 'new':
+        if args.json:
+            raise ConfigError('--json prints the catalogue; `sofia effects new` writes a plug-in: drop --json')
         return _new_plugin(args)
+    ignored = [option for option, value in (('NAME', args.name), ('--kind', args.kind), ('--dir', args.dir))
+               if value is not None]
+    if ignored:
+        raise ConfigError(f'{", ".join(ignored)} {"goes" if len(ignored) == 1 else "go"} with `sofia effects new NAME '
+                          '--kind KIND`; the catalogue takes only --json')
     if args.json:
         json.dump(catalogue_as_json(), sys.stdout, indent=2)
         sys.stdout.write('\n')
@@ -47,7 +54,7 @@ def _new_plugin(args):
 
     if not args.name or not args.kind:
         raise ConfigError('usage: sofia effects new NAME --kind camera|camera-rotation|gyro [--dir DIR]')
-    path = write_plugin_template(args.name, args.kind, args.dir)
+    path = write_plugin_template(args.name, args.kind, '.' if args.dir is None else args.dir)
     print(f'{path}: a {args.kind} plug-in; edit its hook, then `export SOFIA_EFFECT_MODULES={args.name} '
           f'PYTHONPATH={path.parent}` and compare again')
     return 0
@@ -364,7 +371,7 @@ def build_parser():
     effects.add_argument('name', nargs='?', help='new: the effect (and module) name, a lower-case identifier')
     effects.add_argument('--kind', choices=('camera', 'camera-rotation', 'gyro'),
                          help='new: camera (shift on the detector), camera-rotation or gyro (a rate)')
-    effects.add_argument('--dir', default='.', help='new: folder to write NAME.py into (default: here)')
+    effects.add_argument('--dir', help='new: folder to write NAME.py into (default: here)')
     effects.add_argument('--json', action='store_true', help='print the catalogue as JSON')
     effects.set_defaults(handler=_print_effects)
 

@@ -197,3 +197,17 @@ def test_the_model_a_run_suggests_is_found_from_any_folder(tmp_path, monkeypatch
 
     monkeypatch.chdir(tmp_path)
     assert Path(_nominal_model()).is_file()
+
+
+@pytest.mark.parametrize('argv, message', [
+    # Each was ignored at exit 0.
+    (['effects', 'new', 'wobble', '--kind', 'gyro', '--json'], '--json prints the catalogue'),
+    (['effects', '--dir', 'plugins'], '--dir goes with `sofia effects new NAME --kind KIND`'),
+    (['effects', '--kind', 'gyro'], '--kind goes with'),
+])
+def test_effects_options_that_do_not_apply_are_one_line(argv, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and message in err
+    assert list(tmp_path.iterdir()) == []

@@ -125,7 +125,9 @@ def parse_effect_config(text, source='<text>'):
     raw_effects = document.get('effects') or {}
     if not isinstance(raw_effects, dict):
         raise ConfigError(f'{source}: effects must be a mapping of effect name to parameters')
-    effects, fitted = {}, set()
+    from sofia_ros.effects.empirical import term_identity
+
+    effects, fitted, spelled = {}, set(), {}
     for name, params in raw_effects.items():
         if not isinstance(name, str):
             raise ConfigError(f'{source}: effect names are text, got {str(name)[:40]!r}')
@@ -133,6 +135,10 @@ def parse_effect_config(text, source='<text>'):
             effects[name] = resolve_params(name, params, within_ranges=True)
         except ConfigError as err:
             raise ConfigError(f'{source}: {err}') from err
+        # Two spellings of one empirical term were fitted side by side, every amplitude unconstrained.
+        first = spelled.setdefault(term_identity(name), name)
+        if first != name:
+            raise ConfigError(f'{source}: {name} is {first} spelled otherwise; give each term once')
         if isinstance(params, dict) and params.get('fit'):
             fitted.add(name)
     scenario = document.get('scenario')

@@ -11,7 +11,7 @@ import pytest
 
 from sofia_ros.cli import main
 from sofia_ros.output_files import write_text_atomically
-from sofia_ros.config import load_effect_config
+from sofia_ros.config import load_effect_config, parse_effect_config
 from sofia_ros.errors import ConfigError
 
 MODEL = """\
@@ -187,3 +187,36 @@ def test_bad_model_edits_are_one_line_and_leave_the_file(tmp_path, capsys, argv,
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and message in err
     assert model.read_text() == MODEL
+
+
+def test_an_effect_sharing_a_yaml_anchor_is_fitted_alone(tmp_path):
+    # `tracker_drift: *b` aliased seeing's mapping: adding seeing fitted tracker_drift too, at exit 0.
+    model = tmp_path / 'm.yaml'
+    model.write_text('effects:\n  seeing: &b {}\n  tracker_drift: *b\n')
+    assert main(['model', 'add', 'seeing', '--model', str(model)]) == 0
+    assert load_effect_config(model).fitted == {'seeing'}
+
+
+def test_an_empirical_term_spelled_otherwise_is_the_same_term(tmp_path, capsys):
+    # period_95s, period_095s and period_95.0s were three terms of one sinusoid, fitted side by side.
+    model = tmp_path / 'm.yaml'
+    model.write_text('effects:\n  empirical:hipo.x:time:period_95s: {fit: true}\n')
+    for spelling in ('period_095s', 'period_95.0s'):
+        assert main(['model', 'add', f'empirical:hipo.x:time:{spelling}', '--model', str(model)]) == 2
+        assert 'already fits empirical:hipo.x:time:period_95s' in capsys.readouterr().err
+    assert main(['model', 'remove', 'empirical:hipo.x:time:period_095s', '--model', str(model)]) == 0
+    assert load_effect_config(model).effects == {}
+    with pytest.raises(ConfigError, match='is empirical:hipo.y:detector_y:poly3@20..60 spelled otherwise'):
+        parse_effect_config('effects:\n  empirical:hipo.y:detector_y:poly3@20..60: {}\n'
+                            '  empirical:hipo.y:detector_y:poly3@20.0..60: {}\n', 'm.yaml')
+
+
+def test_a_model_recorded_with_a_bag_is_not_edited(tmp_path, capsys):
+    # `sofia model add seeing --model BAG/truth.yaml` rewrote what the run recorded, at exit 0.
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    (bag / 'bag.mcap').write_bytes(b'')
+    (bag / 'truth.yaml').write_text(MODEL)
+    assert main(['model', 'add', 'seeing', '--model', str(bag / 'truth.yaml')]) == 2
+    assert 'is a file of the bag' in capsys.readouterr().err
+    assert (bag / 'truth.yaml').read_text() == MODEL

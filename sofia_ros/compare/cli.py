@@ -560,6 +560,14 @@ def _starting(name: str, kept: set[str]) -> str:
     return 'starting at its values in the file' if name in kept else 'starting at its thesis defaults'
 
 
+def _spelled_as_in(effects: Mapping[str, Any], name: str) -> str:
+    """``name`` as ``effects`` spells the same term (an empirical term's period_095s for period_95s), else itself."""
+    from sofia_ros.effects.empirical import term_identity
+
+    identity = term_identity(name)
+    return next((given for given in effects if term_identity(given) == identity), name)
+
+
 def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remove: Iterable[str] = ()) -> set[str]:
     """Take the effects ``remove`` out of a model file and put ``add`` in as fitted terms, in one edit.
 
@@ -588,6 +596,10 @@ def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remov
     target = output_target(path)
     if not target.exists():
         raise ConfigError(f'cannot read {path}: no such file; check the path')
+    if any(target.parent.glob('*.mcap')):
+        # A bag's truth.yaml or model.yaml is what the run recorded: edited, the bag no longer said what it flew.
+        raise ConfigError(f'{path} is a file of the bag {target.parent}, recorded with it; copy it out of the bag and '
+                          'edit the copy')
     with _edit_lock(target):
         text = load_effect_config(target).text
         editor = _round_trip_yaml()
@@ -601,18 +613,23 @@ def edit_model_file(path: str | PathLike[str], *, add: Iterable[str] = (), remov
             document['effects'] = CommentedMap()
         effects = document['effects']
         for name in remove:
+            name = _spelled_as_in(effects, name)
             if name not in effects:
                 raise ConfigError(f'{path} has no {name}; nothing to remove (its effects: '
                                   f'{", ".join(effects) or "none"})')
             del effects[name]
         kept = set()
         for name in add:
+            name = _spelled_as_in(effects, name)
             current = effects.get(name)
             if isinstance(current, dict) and current.get('fit'):
                 raise ConfigError(f'{path} already fits {name}; nothing to add')
             if isinstance(current, dict):
                 if any(key != 'fit' for key in current):
                     kept.add(name)
+                if any(other is current for key, other in effects.items() if key != name):
+                    # A YAML anchor shared with another effect (`tracker_drift: *b`): fitting one fitted both.
+                    current = effects[name] = CommentedMap(current.items())
                 current['fit'] = True
             else:
                 effects[name] = CommentedMap([('fit', True)])

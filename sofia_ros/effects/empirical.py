@@ -45,7 +45,7 @@ from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
 
 __all__ = ['PREFIX', 'CAMERA_OBSERVABLES', 'GYRO_OBSERVABLES', 'VARIABLES', 'GYRO_TERM_VARIABLES', 'DETECTOR_FIELD',
            'POLY_DEGREE', 'PERIOD_RANGE_S', 'RANGE_LIMIT', 'RANGE_RESOLUTION', 'field_columns', 'field_terms',
-           'empirical_spec', 'empirical_name', 'empirical_parts', 'is_empirical', 'variable_values']
+           'empirical_spec', 'empirical_name', 'empirical_parts', 'is_empirical', 'term_identity', 'variable_values']
 
 PREFIX = 'empirical:'
 _DETECTORS = {'hipo': HIPO_2004, 'fpi': FPI, 'ffi': FFI, 'wfi': WFI}
@@ -131,6 +131,19 @@ def empirical_parts(name: str) -> tuple[str, str, float | None]:
         UnknownEffectError: the name breaks the grammar or a bound (the message says which and what is allowed).
     """
     return _parsed(name)[:3]
+
+
+def term_identity(name: str) -> object:
+    """What makes a term one: its name, or an empirical term's parts (period_95s, period_095s and period_95.0s are one
+    sinusoid, poly3@20..60 and poly3@20.0..60 one polynomial).
+
+    Args:
+        name: an effect name.
+
+    Returns:
+        A value equal for two names of the same term.
+    """
+    return ('empirical', *_parsed(name)) if is_empirical(name) else name
 
 
 def _parsed(name):

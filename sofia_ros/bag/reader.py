@@ -468,8 +468,8 @@ def _check_bag_directory(path: Path) -> None:
     if not metadata_path.exists() and not metadata_path.is_symlink():
         if _recoverable(path):
             raise BagError(
-                f'bag {path} was not closed (no metadata.yaml; its writer stopped before '
-                f'finishing); recover what it holds with `sofia recover {path}`'
+                f'bag {path} was not closed (no metadata.yaml: its writer is still recording, or stopped before '
+                f'finishing); once no run writes it, recover what it holds with `sofia recover {path}`'
             )
         raise BagError(
             f'{path} is not a rosbag2 bag directory (no metadata.yaml and no MCAP data to recover); '

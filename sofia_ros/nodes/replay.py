@@ -50,7 +50,10 @@ def replay_bag(bag_path, *, rate=1.0, topics=None, out=None, wait_s=5.0):
                 qos = SYNC_QOS if info.name in latched else DATA_QOS
                 publishers[info.name] = node.create_publisher(message_class(info.msgtype), info.name, qos)
             clock = publishers.get(CLOCK.name) or node.create_publisher(Clock, CLOCK.name, SYNC_QOS)
-            waiting = _wait_for_subscribers(node, [p for name, p in publishers.items() if name not in latched], wait_s)
+            # A topic without a message (a stability run's /parameter_events) waits for no subscriber.
+            empty = {info.name for info in infos if info.count == 0}
+            waiting = _wait_for_subscribers(
+                node, [p for name, p in publishers.items() if name not in latched and name not in empty], wait_s)
             if waiting and out is not None:
                 out.write(f'no subscriber after {wait_s:g} s on {", ".join(waiting)}; replaying anyway\n')
             start_wall, first_ns, count, refused = time.monotonic(), None, 0, {}

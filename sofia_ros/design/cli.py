@@ -521,8 +521,10 @@ def _print_design(document: dict, out: TextIO) -> None:
               'a direction that stays below the target is one these elements cannot separate (the other member '
               "reproduces that member's signature in their geometry)", file=out)
     for name in document['members']:
-        shrink = [f'{label.split(".", 1)[1]} {before_sigma:.3g}->{document["sigma_after"][name][label]:.3g}'
-                  for label, before_sigma in document['sigma_before'][name].items() if label.split('.')[0] in name]
+        # effect.parameter, an empirical effect's name holding dots of its own (poly3@61.76..921.2.p0_arcsec)
+        shrink = [f'{label.rpartition(".")[2]} {before_sigma:.3g}->{document["sigma_after"][name][label]:.3g}'
+                  for label, before_sigma in document['sigma_before'][name].items()
+                  if label.rpartition('.')[0] in name.split('+')]
         print(f'  sigma with {name}: {", ".join(shrink)}', file=out)
 
 

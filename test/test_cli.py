@@ -211,3 +211,12 @@ def test_effects_options_that_do_not_apply_are_one_line(argv, message, tmp_path,
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and message in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_run_stopped_by_its_sim_time_limit_says_so(tmp_path, capsys):
+    # It said only "the calibration node published no result".
+    truth = Path(__file__).resolve().parents[1] / 'config' / 'truth' / 'nominal.yaml'
+    assert main(['run', 'alignment', '--variant', 'minimal', '--truth', str(truth), '--seed', '1',
+                 '--bag', str(tmp_path / 'bag'), '--direct', '--max-sim-s', '60']) == 0
+    assert ('alignment NOT accepted: the run reached its sim-time limit (--max-sim-s 60) before the calibration '
+            'finished' in capsys.readouterr().out)

@@ -106,12 +106,21 @@ def run_alignment(truth, *, seed, bag_path, plan=None, mode='executor', max_sim_
                             timeout_s=timeout_s, progress=progress)
     wall_seconds = time.perf_counter() - wall_start
     result_yaml, sim_seconds = result_from_bag(bag_path)
-    summary = _summary(yaml.safe_load(result_yaml), truth, config.scenario.start_elevation_deg, sim_seconds,
+    result = yaml.safe_load(result_yaml)
+    if result.get('reason') == NO_RESULT and sim_seconds >= max_sim_s - config.tick_ns / 1e9:
+        result['reason'] = (f'the run reached its sim-time limit (--max-sim-s {max_sim_s:g}) before the calibration '
+                            'finished; give a larger --max-sim-s')
+        result_yaml = yaml.safe_dump(result)
+    summary = _summary(result, truth, config.scenario.start_elevation_deg, sim_seconds,
                        wall_seconds)
     finish_run(bag_path, summary, fault,
                side_files={'truth.yaml': truth.text, 'model.yaml': model_text, PLAN_FILE_NAME: plan_text(config.plan),
                            'calibration.yaml': result_yaml})
     return AlignmentRun(summary, result_yaml, bag_path)
+
+
+#: Why an alignment was not accepted when the bag holds no calibration result and no stop reason.
+NO_RESULT = 'the calibration node published no result'
 
 
 def result_from_bag(bag_path):
@@ -127,7 +136,7 @@ def result_from_bag(bag_path):
         result = results[-1].data if len(results) else None
         stop_reason = bag.document(STOP_DOCUMENT.name) if STOP_DOCUMENT.name in names else None
     if result is None:
-        reason = f'stopped: {stop_reason}' if stop_reason else 'the calibration node published no result'
+        reason = f'stopped: {stop_reason}' if stop_reason else NO_RESULT
         result = yaml.safe_dump({'accepted': False, 'reason': reason})
     return result, sim_ns / 1e9
 

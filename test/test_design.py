@@ -250,6 +250,9 @@ def test_a_bag_without_its_plan_takes_one_given(capsys, tmp_path, plan_only_bag)
     # Designed on the model given, without the terms the search had fitted under its sets, at exit 0.
     ('{"bag": "b", "model": "m.yaml", "competing": [], "search": {"added": ["timestamp_offset"], "removed": [], '
      '"written": null}}', 'is the answer of a --search whose model'),
+    # Read from the current folder, not compare's: "cannot read m.yaml", the JSON not named.
+    ('{"bag": "elsewhere/bag", "model": "m.yaml", "competing": [{"effects": ["gyro_axis_swap", "gyro_scale_factor"]}]}',
+     'names its bag elsewhere/bag relative to the folder `sofia compare` ran in'),
 ])
 def test_a_bad_comparison_json_is_refused(capsys, tmp_path, document, match):
     source = tmp_path / 'compare.json'

@@ -153,7 +153,7 @@ def _source(args: argparse.Namespace) -> tuple:
     if model is not None and not isinstance(model, str):
         raise ConfigError(f'{args.source}: its model is not a file name; give the model with --model M.yaml')
     if args.between:
-        return Path(document['bag']), model, _members(args.between)
+        return _named_here(args, document, model), model, _members(args.between)
     sets = document['competing'] or []
     if not isinstance(sets, list):
         raise ConfigError(f'{args.source}: its competing sets are not a list, as `sofia compare --json` writes them; '
@@ -168,7 +168,19 @@ def _source(args: argparse.Namespace) -> tuple:
     if not isinstance(effects, list) or len(effects) < 2 or not all(isinstance(name, str) for name in effects):
         raise ConfigError(f'{args.source}: competing set {args.set} does not list two effects; give --between A,B')
     # A set of three or more: its first two, the strongest (--between names any other pair).
-    return Path(document['bag']), model, _members(','.join(effects[:2]))
+    return _named_here(args, document, model), model, _members(','.join(effects[:2]))
+
+
+def _named_here(args: argparse.Namespace, document: dict, model: str | None) -> Path:
+    """The JSON's bag, where it and the JSON's model (unless --model) are found from here: paths relative to the folder
+    compare ran in, which the JSON does not record; ConfigError naming the JSON otherwise (it said only 'cannot read
+    m.yaml')."""
+    for what, named, fix in (('bag', document['bag'], 'give the bag: sofia design BAG --model M.yaml --between A,B'),
+                             ('model', None if args.model else model, 'give --model M.yaml')):
+        if named and not Path(named).is_absolute() and not Path(named).exists():
+            raise ConfigError(f'{args.source} names its {what} {named} relative to the folder `sofia compare` ran in, '
+                              f'and there is none here; run sofia design from that folder, or {fix}')
+    return Path(document['bag'])
 
 
 #: The result document each campaign writes into its bag (campaigns.alignment, campaigns.star_hop).

@@ -294,3 +294,15 @@ def test_a_star_hop_hold_on_a_detector_position_is_rows_of_the_bag(star_hop_flow
     # Where the plan put it, to a few pixels (the inertial hold drifts with the gyro bias).
     assert np.all(np.linalg.norm(observations.centroids.measured_px[rows] - target_px, axis=1) < 5.0)
     assert read_plan(bag) == read_plan_file(plan_path)
+
+
+@pytest.mark.parametrize('name, value', [('seed', -1), ('seed', 'abc'), ('tick_ns', 0), ('tick_ns', -200_000_000),
+                                         ('max_sim_s', -5.0), ('stall_timeout_s', 0.0)])
+def test_a_node_executable_refuses_run_parameters_out_of_range(name, value):
+    # Started by hand (`ros2 run sofia_ros clock -p tick_ns:=0`): a traceback, or a node waiting for ever.
+    from sofia_ros.campaigns.graph_params import GRAPH_PARAMETERS, graph_config_from_parameters
+
+    values = {key: default for key, (default, _) in GRAPH_PARAMETERS.items()}
+    values.update(truth_file=str(ROOT / 'config' / 'truth' / 'nominal.yaml'), **{name: value})
+    with pytest.raises(ConfigError, match=f'parameter {name} must be'):
+        graph_config_from_parameters(values)

@@ -80,3 +80,49 @@ def test_quasi_static_fbc_turns_the_estimate_by_the_focal_plane_flexure_referenc
     assert abs(expected_arcsec[1]) > 20.0  # about 25" in XEL between 30 and 60 deg
     tascu.set_parameter('fbc.enabled', False)
     np.testing.assert_allclose(tascu._estimate(), np.eye(3), atol=1e-15)
+
+
+def _point(frame_id, x, y, z):
+    from geometry_msgs.msg import PointStamped
+
+    message = PointStamped()
+    message.header.stamp.nanosec = 150_000_000
+    message.header.frame_id = frame_id
+    message.point.x, message.point.y, message.point.z = x, y, z
+    return message
+
+
+@pytest.mark.parametrize('topic, message, reason', [
+    # Each killed the TASCU, and with it the run (a publisher outside the graph under --all-dds or --processes).
+    ('move_relative', m.vector3_stamped(150_000_000, 'tarf', [float('nan'), 0.0, 0.0]), 'not a finite number'),
+    ('move_relative', m.vector3_stamped(150_000_000, 'tarf', [0.0, float('inf'), 0.0]), 'not a finite number'),
+    ('mtbs_centroid', _point('hipo', float('nan'), 10.0, 0.0), 'not a finite number'),
+    ('mtbs_inertial', m.quaternion_stamped(150_000_000, 'irf', (0.0, 0.0, 0.0, 0.0)), 'unit norm'),
+    ('track', _point('hipo', 10.0, 10.0, float('nan')), 'not a finite number'),
+])
+def test_a_malformed_command_is_refused_not_fatal(topic, message, reason):
+    tascu = _tascu_at([0.0, 0.0, 0.0])
+    tascu.receive(TOPICS[topic].name, message)
+    [status] = _statuses(tascu.tick(200_000_000))
+    assert status.startswith('refused: ') and reason in status
+
+
+def test_a_boresight_that_is_not_two_finite_pixels_is_refused():
+    # Accepted, [NaN, NaN] killed the TASCU at the next centring on that camera.
+    with pytest.raises(ConfigError, match='two finite pixel coordinates'):
+        TascuCore().set_parameter('boresight.hipo_px', [float('nan'), float('nan')])
+
+
+def test_the_plant_refuses_a_coarse_drive_command_beyond_its_range():
+    # 80 deg was slewed to; the node shell drops what a core refuses, with one warning.
+    from sofia_ros.campaigns.alignment import default_scenario
+    from sofia_ros.errors import SofiaError
+    from sofia_ros.sim.plant import TOPICS as PLANT_TOPICS, PlantCore
+
+    plant = PlantCore(default_scenario(), {})
+    before = plant.cd_target_deg
+    for elevation_deg in (80.0, float('nan')):
+        with pytest.raises(SofiaError, match='outside 16.5-68.5 deg|NaN'):
+            plant.receive(PLANT_TOPICS['cd_command'].name,
+                          m.joint_state(0, {'cd_elevation': elevation_deg * RAD_PER_DEG}))
+    assert plant.cd_target_deg == before

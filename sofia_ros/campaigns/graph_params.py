@@ -91,6 +91,23 @@ def _is_kind(value, kind):
     return isinstance(value, bool) == (kind is bool) and isinstance(value, accepted)
 
 
+#: The node executables' run parameters: (the least, the most) of each (sofia run checks its options alike).
+_RUN_VALUE_RANGES = {'seed': (0, 2**32 - 1), 'tick_ns': (1, 10**10), 'max_sim_s': (0.0, 1e7),
+                     'stall_timeout_s': (0.0, 86400.0)}
+
+
+def _check_run_values(values):
+    """ConfigError for a seed, tick or time limit of the wrong type or outside _RUN_VALUE_RANGES: a node started by hand
+    with -p seed:=-1 or tick_ns:=0 died with a traceback, or waited for ever with a negative tick."""
+    for name, (low, high) in _RUN_VALUE_RANGES.items():
+        value = values.get(name, GRAPH_PARAMETERS[name][0])
+        kind = type(GRAPH_PARAMETERS[name][0])
+        if not _is_kind(value, kind) or not low <= value <= high or (kind is float and value == low):
+            bound = f'above {low:g} to {high:g}' if kind is float else f'from {low} to {high}'
+            raise ConfigError(f'parameter {name} must be {_KINDS[kind][0]} {bound}, got {value!r}; '
+                              f'pass e.g. -p {name}:={GRAPH_PARAMETERS[name][0]}')
+
+
 def graph_config_from_parameters(values):
     """The run's GraphConfig from node parameter values: the campaign's builder over truth, seed and plan."""
     campaign = values.get('campaign')
@@ -99,6 +116,7 @@ def graph_config_from_parameters(values):
                           f'(e.g. -p campaign:=star-hop)')
     if not values.get('truth_file'):
         raise ConfigError('parameter truth_file is empty; pass -p truth_file:=config/truth/nominal.yaml')
+    _check_run_values(values)
     truth = load_effect_config(values['truth_file'])
     plan = plan_from_parameters(campaign, {name: value for name, value in values.items() if name.startswith('plan.')})
     config = CAMPAIGNS[campaign].build_config(truth, int(values['seed']), plan)

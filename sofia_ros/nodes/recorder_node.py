@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import struct
+
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.task import Future
 
@@ -9,7 +11,7 @@ from sofia_ros import messages as m
 from sofia_ros.bag import BagWriter
 from sofia_ros.bag.msgtypes import TYPESTORE
 from sofia_ros.bag.timebase import leading_stamps_ns
-from sofia_ros.errors import OutputError
+from sofia_ros.errors import InvalidArgumentError, OutputError
 from sofia_ros.nodes.shell import LockstepNode, decode_received, message_class
 from sofia_ros.nodes.sync import DATA_QOS, SYNC_QOS, parse_stop
 from sofia_ros.sim.runner import record_message
@@ -60,20 +62,26 @@ class RecorderNode(LockstepNode):
         for topic, (wire, msgtype) in wires.items():
             qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
             on_cdr = self._block_callback(topic, wire) if wire != topic else self._record_callback(topic)
-            self.subscribe_graph_topic(message_class(msgtype), wire, self._guarded(on_cdr),
-                                       self._guarded(self._message_callback(topic, wire)), qos)
+            self.subscribe_graph_topic(message_class(msgtype), wire, self._guarded(on_cdr, topic),
+                                       self._guarded(self._message_callback(topic, wire), topic), qos)
         # rclpy publishes parameter events itself, over DDS in every mode.
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
-                                 self._guarded(self._parameter_event_callback({f'/{name}' for name in participants})),
+                                 self._guarded(self._parameter_event_callback({f'/{name}' for name in participants}),
+                                               PARAMETER_EVENTS.name),
                                  DATA_QOS, raw=True)
 
-    def _guarded(self, callback):
-        """``callback``, ending the recording on an OutputError of the bag (see __init__); a no-op after that."""
+    def _guarded(self, callback, topic):
+        """``callback``, ending the recording on an OutputError of the bag (see __init__); a no-op after that. A message
+        stamped on another clock than the graph's is dropped (LockstepNode._warn_dropped)."""
         def guarded(*args):
             if self.failure is not None:
                 return
             try:
                 callback(*args)
+            except (struct.error, OverflowError, InvalidArgumentError) as err:
+                # A wall-clock stamp (a node set to use_sim_time false, a publisher outside the graph) does not fit
+                # the bag's campaign time: it stopped the recorder, and the run, with a traceback.
+                self._warn_dropped(topic, err)
             except OutputError as err:
                 if self.failure is None:  # a guarded callback can run inside another (a count that ends a tick)
                     self.failure = err
@@ -140,14 +148,14 @@ class RecorderNode(LockstepNode):
         return all(state.latest_tick >= 0 for state in self.states.values())
 
     def run_tick(self, tick):
-        self._guarded(self._finish_tick)(tick)
+        self._guarded(self._finish_tick, None)(tick)
 
     def _finish_tick(self, tick):
         self.publish_done(tick)
         self._close_if_complete()
 
     def on_stop(self):
-        self._guarded(self._record_stop)()
+        self._guarded(self._record_stop, None)()
 
     def _record_stop(self):
         # Why the run ended goes into the bag too (a finished calibration, a stall, the time limit).

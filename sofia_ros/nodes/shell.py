@@ -15,7 +15,7 @@ from std_msgs.msg import String
 
 from sofia_ros import messages as m
 from sofia_ros.bag.msgtypes import decode_cdr
-from sofia_ros.errors import ConfigError
+from sofia_ros.errors import ConfigError, SofiaError
 from sofia_ros.nodes.intra_process import publish_outside
 from sofia_ros.nodes.sync import (DATA_QOS, OUTSIDE_QOS, STOP_TOPIC, SYNC_QOS, DoneReport, UpstreamState, done_text,
                                   done_topic, parse_done_text, parse_stop)
@@ -62,6 +62,7 @@ class LockstepNode(Node):
         self._requirements = None  # what the next tick still waits for, once every report is in
         self.expected_outputs = dict(expected_outputs or {})  # topic -> number of subscribers
         self.publishers_by_topic = {}
+        self._dropped_topics = set()  # topics a message was dropped from (_warn_dropped)
         self.done_topic = done_topic(name)
         self.done_publisher = self.create_publisher(String, self.done_topic, SYNC_QOS)
         self.create_subscription(String, STOP_TOPIC, self._on_stop, SYNC_QOS)
@@ -109,12 +110,30 @@ class LockstepNode(Node):
             # Only the report the next tick waits for can let it run; requirements already worked out stand.
             if lag is not None and report[0] == self.next_tick - lag:
                 self.try_ticks()
-        return (lambda cdr: on_report(_parse_done(cdr))), on_report
+        def on_cdr(cdr):
+            try:
+                report = _parse_done(cdr)
+            except (ValueError, UnicodeDecodeError) as err:  # not a report a node sent: it killed the node
+                self._warn_dropped(done_topic(node), err)
+                return
+            on_report(report)
+        return on_cdr, on_report
+
+    def _warn_dropped(self, topic, err):
+        """One warning a topic for a message dropped because it could not be taken (a publisher outside the graph)."""
+        if topic not in self._dropped_topics:
+            self._dropped_topics.add(topic)
+            self.get_logger().warning(f'dropped a message on {topic}: {type(err).__name__}: {err} (the next such '
+                                      'messages are dropped without a word)')
 
     def _on_stop(self, message):
+        try:
+            last_tick, _, reason = parse_stop(message.data)
+        except ValueError as err:  # not a stop the clock sent: it killed every node
+            self._warn_dropped(STOP_TOPIC, err)
+            return
         self.stop_reason = message.data
         self._requirements = None
-        last_tick, _, reason = parse_stop(message.data)
         self.get_logger().info(f'stop after tick {last_tick}: {reason}')
         self.on_stop()
 
@@ -269,6 +288,10 @@ class CoreNode(LockstepNode):
     def _on_set_parameters(self, parameters):
         for parameter in parameters:
             if parameter.name == 'use_sim_time':
+                if parameter.value is not True:
+                    # Off the graph's /clock, the node stamped wall time, which stopped the recorder.
+                    return SetParametersResult(successful=False, reason='the graph runs on /clock: use_sim_time stays '
+                                                                        'true')
                 continue
             try:
                 self.core.set_parameter(parameter.name, parameter.value)
@@ -282,7 +305,13 @@ class CoreNode(LockstepNode):
 
         def on_message(message):
             self.received[wire_topic] += 1
-            self.core.receive(topic, message)
+            try:
+                self.core.receive(topic, message)
+            except (SofiaError, ValueError, KeyError, TypeError, IndexError) as err:
+                # A message the core cannot take (a publisher outside the graph: NaN, a coarse drive beyond its
+                # range, a missing joint) is dropped with one warning a topic; it killed the node, and the run.
+                self._warn_dropped(topic, err)
+                return
             if self._requirements is not None and wire_topic in self._requirements:
                 self.try_ticks()
 

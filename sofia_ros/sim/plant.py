@@ -21,6 +21,7 @@ from sofia_ros.scenario import ThermalHistory
 from sofia_ros.sim.protocol import NodeCore
 from sofia_ros.topics import CD_JOINT, DEFAULT_TICK_NS, FD_JOINTS
 from sofia_ros.units import RAD_PER_DEG, STANDARD_GRAVITY_M_PER_S2
+from sofia_ros.validate import finite_array
 
 __all__ = ['PlantCore', 'TOPICS', 'thermal_command_of']
 
@@ -81,10 +82,12 @@ class PlantCore(NodeCore):
 
     def receive(self, topic, message):
         if topic == TOPICS['fd_command'].name:
-            self.rate_command_rad_per_s = m.vector_of(message)
+            self.rate_command_rad_per_s = finite_array('fine drive rate command', m.vector_of(message), (3,))
         elif topic == TOPICS['cd_command'].name:
-            target_rad = m.joint_positions_of(message)[CD_JOINT]
-            self.cd_target_deg = target_rad / RAD_PER_DEG
+            target_deg = m.joint_positions_of(message)[CD_JOINT] / RAD_PER_DEG
+            # The drive's own limits: a command beyond 16.5-68.5 deg (or NaN) is refused, not slewed to.
+            mount.check_coarse_drive_elevation(target_deg)
+            self.cd_target_deg = target_deg
         elif topic == TOPICS['thermal_command'].name:
             self.thermal.command(*thermal_command_of(message))
 

@@ -16,7 +16,7 @@ from sofia_ros import graph_nodes, mount, topics
 from sofia_ros import messages as m
 from sofia_ros.control import servo, tracker
 from sofia_ros.control.attitude import propagate_dcm, rotation_error_rad
-from sofia_ros.errors import CommandRefusedError, ConfigError, SofiaError
+from sofia_ros.errors import CommandRefusedError, ConfigError, InvalidArgumentError, SofiaError
 from sofia_ros.flexure import focal_plane_telescope_rotation_arcsec, gravity_load_tarf
 from sofia_ros.frames import dcm_from_quaternion, dcm_from_rotation_angles, quaternion_from_dcm
 from sofia_ros.sensors.imager_model import CAMERAS
@@ -38,6 +38,15 @@ TOPICS = {
 COMMAND_TOPICS = ('move_relative', 'mtbs_centroid', 'mtbs_inertial', 'track')
 DEFAULT_BORESIGHT_PX = {'hipo': (559.0, 489.0), 'fpi': (511.5, 511.5), 'ffi': (511.5, 511.5), 'wfi': (511.5, 511.5)}
 _FBC_TIME_CONSTANT_S = 1.0  # low-pass of the accelerations for the quasi-static FBC (< 3 Hz, Table 3.1)
+
+
+def _command_numbers(message):
+    """The numbers of a TASCU command (the vector, point or quaternion of a geometry_msgs *Stamped message)."""
+    for field in ('vector', 'point', 'quaternion'):
+        value = getattr(message, field, None)
+        if value is not None:
+            return [getattr(value, axis) for axis in ('x', 'y', 'z', 'w') if hasattr(value, axis)]
+    return []
 
 
 class TascuCore(NodeCore):
@@ -102,7 +111,11 @@ class TascuCore(NodeCore):
                 self.camera_from_tarf[self._camera(camera)] = orthonormal_dcm(name, np.reshape(value, (3, 3)))
             elif name.startswith('boresight.') and name.endswith('_px'):
                 camera = name[len('boresight.'):-len('_px')]
-                self.boresight_px[self._camera(camera)] = np.asarray(value, dtype=float).reshape(2)
+                boresight = np.asarray(value, dtype=float).reshape(2)
+                if not np.all(np.isfinite(boresight)):
+                    # Accepted, a NaN boresight killed the TASCU at the next centring.
+                    raise ConfigError('a boresight is two finite pixel coordinates')
+                self.boresight_px[self._camera(camera)] = boresight
             else:
                 raise ConfigError(f'tascu has no parameter {name!r}')
         except (ValueError, TypeError, SofiaError) as err:
@@ -202,6 +215,9 @@ class TascuCore(NodeCore):
 
     def _accept(self, command_ns, kind, message, estimate):
         try:
+            if not all(np.isfinite(value) for value in _command_numbers(message)):
+                # A NaN or infinite command killed the TASCU, and with it the run.
+                raise CommandRefusedError(f'{kind} holds a value that is not a finite number')
             if kind == 'move_relative':
                 rotation = m.vector_of(message)
                 self._check_fine_drive(rotation)
@@ -225,7 +241,8 @@ class TascuCore(NodeCore):
                     raise CommandRefusedError('track needs a positive duration in point.z (s)')
                 self.tracking = {'command_ns': command_ns, 'camera': camera, 'pixel': (message.point.x, message.point.y),
                                  'until_ns': command_ns + m.seconds_to_ns(message.point.z), 'times': [], 'pixels': []}
-        except (CommandRefusedError, ConfigError) as err:
+        except (CommandRefusedError, ConfigError, InvalidArgumentError) as err:
+            # InvalidArgumentError: a quaternion of zero norm, a rotation the frames refuse.
             self._report(command_ns, kind, 'refused', str(err), DiagnosticStatus.ERROR)
             return
         self._report(command_ns, kind, 'accepted')

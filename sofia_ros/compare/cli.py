@@ -479,10 +479,11 @@ def _check_bag_arguments(bag, anchor_s, warn):
     if '/clock' not in counts:
         return
     names, duration_s = set(counts), counts['/clock'] * DEFAULT_TICK_NS / 1e9
-    if anchor_s > duration_s / 2.0:
-        # The gyro axes are judged on the anchors' innovations, which need two intervals: their lines vanished.
-        raise ConfigError(f'--anchor-s {anchor_s:g} leaves the {duration_s:.0f} s record fewer than two anchor intervals, '
-                          f'and the gyro axes could not be judged; give at most {duration_s / 2.0:.0f} s')
+    if anchor_s > duration_s:
+        # The gyro axes are judged on the anchors' innovations, which need two intervals: a day's spacing on a short
+        # flight made their lines vanish from the verdict without a word.
+        raise ConfigError(f'--anchor-s {anchor_s:g} is longer than the {duration_s:.0f} s record, which leaves fewer '
+                          f'than two anchor intervals and the gyro axes unjudged; give at most {duration_s / 2.0:.0f} s')
     needed = anchor_memory_bytes(duration_s, anchor_s)
     available = os.sysconf('SC_PAGE_SIZE') * os.sysconf('SC_PHYS_PAGES') * _MEMORY_SHARE
     if needed > available:

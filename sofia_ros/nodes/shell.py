@@ -305,21 +305,23 @@ class CoreNode(LockstepNode):
 
         def on_message(message):
             self.received[wire_topic] += 1
-            try:
-                self.core.receive(topic, message)
-            except (SofiaError, ValueError, KeyError, TypeError, IndexError) as err:
-                # A message the core cannot take (a publisher outside the graph: NaN, a coarse drive beyond its
-                # range, a missing joint) is dropped with one warning a topic; it killed the node, and the run.
-                self._warn_dropped(topic, err)
-                return
+            self.core.receive(topic, message)
             if self._requirements is not None and wire_topic in self._requirements:
                 self.try_ticks()
 
         def on_cdr(cdr):
             # Over DDS every input arrives raw: a tick's samples in one block that reaches the core as one
             # ImuBlock, the rest decoded by the typestore (2-4x faster than rclpy's own conversion).
-            on_message(m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(cdr)) if block
+            message = (m.imu_block_from_cdr('gyrf', m.samples_of_block_cdr(cdr)) if block
                        else decode_received(cdr, msgtype))
+            try:
+                on_message(message)
+            except (SofiaError, ValueError, KeyError, TypeError, IndexError) as err:
+                # Over DDS a publisher outside the graph can send what no node of it would (NaN, a coarse drive
+                # beyond its range, a frame no camera has): dropped with one warning a topic; it killed the node,
+                # and the run. Handed over in the process, only the graph's own messages arrive: an error there
+                # is a fault and stops the run.
+                self._warn_dropped(topic, err)
         return on_cdr, on_message
 
     def busy(self):

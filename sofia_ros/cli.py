@@ -346,10 +346,10 @@ def _nominal_model():
     import os
     from pathlib import Path
 
-    from sofia_ros.input_files import shipped_paths
+    from sofia_ros.input_files import shipped_file
 
     relative = 'config/model/nominal.yaml'
-    found = next((path for path in shipped_paths(relative) if path.is_file()), None)
+    found = shipped_file(relative)
     if found is None or Path(relative).resolve() == found.resolve():
         return relative
     return os.path.relpath(found) if found.is_relative_to(Path.cwd()) else str(found)

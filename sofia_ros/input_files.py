@@ -9,7 +9,7 @@ from pathlib import Path
 
 from sofia_ros.errors import ConfigError
 
-__all__ = ['read_bytes_capped', 'read_text_capped', 'require_regular_file', 'shipped_paths']
+__all__ = ['read_bytes_capped', 'read_text_capped', 'require_regular_file', 'shipped_file', 'shipped_paths']
 
 
 def require_regular_file(path, what='file'):
@@ -60,3 +60,8 @@ def shipped_paths(relative):
     package = Path(__file__).resolve()
     return [package.parents[1] / relative,
             *(ancestor / 'share' / 'sofia_ros' / relative for ancestor in (*package.parents, Path(sys.prefix)))]
+
+
+def shipped_file(relative):
+    """The first of shipped_paths(``relative``) that is a file, or None."""
+    return next((path for path in shipped_paths(relative) if path.is_file()), None)

@@ -26,8 +26,8 @@ from sofia_ros.atlas.store import ResultStore
 from sofia_ros.atlas.task import TaskSetup, run_task
 from sofia_ros.errors import ConfigError, SchedulerUnreachableError
 
-__all__ = ['Progress', 'RunCounts', 'SchedulerWatch', 'checked_scheduler_address', 'dask_client', 'probe_scheduler', 'run_distributed',
-           'run_serial']
+__all__ = ['Progress', 'RunCounts', 'SchedulerWatch', 'checked_scheduler_address', 'dask_client', 'probe_scheduler',
+           'run_distributed', 'run_serial']
 
 _ADDRESS = re.compile(r'^(tcp|tls)://([^\s/:]{1,253}):(\d{1,5})$')
 #: A Dask scheduler greets a new connection with its handshake, a frame of a few hundred bytes

@@ -27,7 +27,7 @@ from sofia_ros.campaigns.registry import campaign_named
 from sofia_ros.config import EffectConfig, load_effect_config, parse_effect_config, safe_load_limited
 from sofia_ros.effects import CATALOGUE, NOISE_EFFECTS, get_effect, is_empirical
 from sofia_ros.errors import ConfigError, UnknownEffectError
-from sofia_ros.input_files import read_text_capped, shipped_paths
+from sofia_ros.input_files import read_text_capped, shipped_file
 
 __all__ = ['AtlasGrid', 'AtlasTask', 'CONTROL', 'DEFAULT_MODEL', 'DEFAULT_TRUTH', 'FORCED_MAX_TASKS', 'MAX_TASKS',
            'NOISE_EFFECTS', 'TruthDraws', 'VISIBLE_EFFECTS', 'draw_truths', 'grid_from_file', 'grid_from_lists',
@@ -403,7 +403,7 @@ def _shipped_default(path: str, default: str) -> str | Path:
     folder has no such file: the atlas run outside the checkout found no config/model/nominal.yaml."""
     if path != default or Path(path).exists():
         return path
-    return next((candidate for candidate in shipped_paths(default) if candidate.is_file()), path)
+    return shipped_file(default) or path
 
 
 def grid_from_lists(*, effects, sizes, campaigns, seeds, model: str = DEFAULT_MODEL, truth: str = DEFAULT_TRUTH,

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import struct
-
 from rcl_interfaces.msg import ParameterEvent
 from rclpy.task import Future
 
@@ -62,25 +60,30 @@ class RecorderNode(LockstepNode):
         for topic, (wire, msgtype) in wires.items():
             qos = SYNC_QOS if msgtype == 'rosgraph_msgs/msg/Clock' else DATA_QOS
             on_cdr = self._block_callback(topic, wire) if wire != topic else self._record_callback(topic)
+            # Over DDS a publisher outside the graph can send a stamp the bag cannot hold; handed over in the process,
+            # only the graph's own messages arrive (LockstepNode._warn_dropped, CoreNode._input_callbacks).
             self.subscribe_graph_topic(message_class(msgtype), wire, self._guarded(on_cdr, topic),
-                                       self._guarded(self._message_callback(topic, wire), topic), qos)
+                                       self._guarded(self._message_callback(topic, wire)), qos)
         # rclpy publishes parameter events itself, over DDS in every mode.
         self.create_subscription(ParameterEvent, PARAMETER_EVENTS.name,
                                  self._guarded(self._parameter_event_callback({f'/{name}' for name in participants}),
                                                PARAMETER_EVENTS.name),
                                  DATA_QOS, raw=True)
 
-    def _guarded(self, callback, topic):
-        """``callback``, ending the recording on an OutputError of the bag (see __init__); a no-op after that. A message
-        stamped on another clock than the graph's is dropped (LockstepNode._warn_dropped)."""
+    def _guarded(self, callback, topic=None):
+        """``callback``, ending the recording on an OutputError of the bag (see __init__); a no-op after that. With a
+        ``topic`` (a subscription over DDS), a message stamped on another clock than the graph's is dropped
+        (LockstepNode._warn_dropped)."""
         def guarded(*args):
             if self.failure is not None:
                 return
             try:
                 callback(*args)
-            except (struct.error, OverflowError, InvalidArgumentError) as err:
-                # A wall-clock stamp (a node set to use_sim_time false, a publisher outside the graph) does not fit
-                # the bag's campaign time: it stopped the recorder, and the run, with a traceback.
+            except InvalidArgumentError as err:
+                if topic is None:
+                    raise
+                # A wall-clock stamp (a publisher outside the graph, a replay) does not fit the bag's campaign time:
+                # it stopped the recorder, and the run, with a traceback.
                 self._warn_dropped(topic, err)
             except OutputError as err:
                 if self.failure is None:  # a guarded callback can run inside another (a count that ends a tick)
@@ -148,14 +151,14 @@ class RecorderNode(LockstepNode):
         return all(state.latest_tick >= 0 for state in self.states.values())
 
     def run_tick(self, tick):
-        self._guarded(self._finish_tick, None)(tick)
+        self._guarded(self._finish_tick)(tick)
 
     def _finish_tick(self, tick):
         self.publish_done(tick)
         self._close_if_complete()
 
     def on_stop(self):
-        self._guarded(self._record_stop, None)()
+        self._guarded(self._record_stop)()
 
     def _record_stop(self):
         # Why the run ended goes into the bag too (a finished calibration, a stall, the time limit).
